@@ -1,0 +1,336 @@
+"""LMI design of the IT2 PDC balance gains (paper Lemmas 1 and 2) with cvxpy.
+
+Variables Q = P⁻¹ ≻ 0, N_i (1×4), Y_ij (4×4). With Φ_ij = Q A_iᵀ + A_i Q − N_jᵀ B_iᵀ − B_i N_j
+the paper's Lemma 1 asks Φ_ii + Y_ii ≺ 0, Φ_ij + Y_ij ⪯ 0 (i ≠ j), [[Y11, Y12], [Y21, Y22]] ≻ 0,
+and the gains are G_i = −N_i Q⁻¹, so that u = Σ m_i G_i x. Lemma 2 bounds the input,
+|u| ≤ ρ for every start with ‖x0‖ ≤ ε: ε² I ⪯ Q and [[Q, N_iᵀ], [N_i, ρ² I]] ⪰ 0.
+
+What the paper lacks, added here:
+
+* a decay rate a ≥ 0 (1/s): Φ_ij gains the term 2aQ, so V = xᵀPx falls at least as
+  e^{−2at} on the TS model and ‖x(t)‖ ≤ √cond(P) ‖x0‖ e^{−at};
+* an objective: minimise t with [[Q, N_iᵀ], [N_i, t]] ⪰ 0, the squared worst-case input
+  over the certified ellipsoid. Because ε² I ⪯ Q, this also bounds the gains,
+  ‖G_i‖₂ ≤ √t / ε, so the design returns the *smallest* gains that meet the decay
+  rate, not arbitrary feasible ones; ``max_gain`` turns that bound into a constraint.
+
+After solving, :func:`verify_certificate` re-checks everything with numpy eigenvalues,
+independent of the solver's status: every LMI with a margin, plus the closed-loop
+Lyapunov inequality (Σ_ij m_i m_j (A_i + B_i G_j))ᵀ P + P (…) + 2aP ≺ 0 on a grid of
+weights m1 ∈ [0, 1], built from P and G alone.
+"""
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from twin.errors import InfeasibleDesign, TwinError
+from twin.params import NOMINAL, RobotParams
+from twin.plant.ts_model import ts_matrices
+
+DEFAULT_EPSILON = 0.5  # ‖x0‖ bound of the certified region (mixed units of x); covers θ0 = 0.48 rad
+DEFAULT_RHO = 6.0  # N·m: bound on |u| = |ul + ur|
+DEFAULT_DECAY_RATE = 1.5  # 1/s
+
+# The solver works to ~1e-8 relative accuracy, so every inequality is solved with a little
+# room (relative to its scale) and the independent check then needs no tolerance at all.
+_ROOM = 1e-5
+# Typical magnitudes of [θ, θ̇, ψ, ψ̇] during a recovery (rad, rad/s, rad, rad/s).
+_DEFAULT_SCALING = np.array([1.0, 10.0, 10.0, 50.0])
+_SOLVER_OPTIONS = {
+    "CLARABEL": {},
+    "SCS": {"eps": 1e-9, "max_iters": 200000},
+}
+
+
+@dataclass(frozen=True)
+class Certificate:
+    """Independent numerical check of an LMI solution; margins > 0 mean satisfied.
+
+    Margins are eigenvalue gaps normalised by the scale of the matrices involved.
+    """
+
+    lmi_margins: dict[str, float]
+    lyapunov_margin: float  # min over the weight grid of −max eig(sym(P A_cl) + 2aP) / ‖P A‖
+    epsilon_margin: float  # 1 − ε² λmax(P)
+    rho_margin: float  # 1 − max_i sqrt(G_i Q G_iᵀ) / ρ
+    passed: bool
+
+    def summary(self) -> str:
+        worst = min(self.lmi_margins.values())
+        return (
+            f"certificate {'PASSED' if self.passed else 'FAILED'}: worst LMI margin {worst:.3e}, "
+            f"Lyapunov margin {self.lyapunov_margin:.3e}, ε margin {self.epsilon_margin:.3e}, "
+            f"ρ margin {self.rho_margin:.3e}"
+        )
+
+
+@dataclass(frozen=True)
+class BalanceDesign:
+    """Result of :func:`design_balance_gains`.
+
+    ``gains`` has shape (2, 4): G1 and G2 for the state [θ, θ̇, ψ, ψ̇]
+    (units N·m/rad, N·m·s/rad, N·m/rad, N·m·s/rad); u = Σ m_i G_i x is the total wheel
+    torque in N·m. ``P`` (4×4) is the Lyapunov matrix, ``peak_input`` the certified
+    bound on |u| (N·m) for ‖x0‖ ≤ ε.
+    """
+
+    gains: np.ndarray
+    P: np.ndarray
+    Q: np.ndarray
+    epsilon: float
+    rho: float
+    decay_rate: float
+    max_gain: float | None
+    peak_input: float
+    solve_time_s: float
+    solver: str
+    certificate: Certificate
+    params: RobotParams = field(repr=False, default=NOMINAL)
+
+    def to_json_dict(self) -> dict:
+        return {
+            "gains": self.gains.tolist(),
+            "state": ["theta [rad]", "theta_dot [rad/s]", "psi [rad]", "psi_dot [rad/s]"],
+            "input": "u = ul + ur [N·m] = sum_i m_i(theta) G_i x",
+            "P": self.P.tolist(),
+            "solve_time_s": self.solve_time_s,
+            "solver": self.solver,
+            "epsilon": self.epsilon,
+            "rho": self.rho,
+            "decay_rate": self.decay_rate,
+            "max_gain": self.max_gain,
+            "peak_input_nm": self.peak_input,
+            "certificate": {
+                "passed": self.certificate.passed,
+                "lmi_margins": self.certificate.lmi_margins,
+                "lyapunov_margin": self.certificate.lyapunov_margin,
+                "epsilon_margin": self.certificate.epsilon_margin,
+                "rho_margin": self.certificate.rho_margin,
+            },
+        }
+
+
+def _check_positive(name: str, value: float, allow_zero: bool = False) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise TwinError(f"{name} must be a number, got {value!r}") from None
+    if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
+        bound = ">= 0" if allow_zero else "> 0"
+        raise TwinError(f"{name} must be a finite number {bound}, got {value!r}")
+    return v
+
+
+def _solve(A, B, epsilon, decay_rate, t_max, solver, T=None):
+    """Build and solve the SDP in scaled coordinates z = T⁻¹ x (T diagonal, positive).
+
+    Returns (status, Q̃, Ñ list, Ỹ blocks, t, solver name) in the z coordinates:
+    Q = T Q̃ T, N = Ñ T, Y_ij = T Ỹ_ij T. The congruence keeps every LMI's sign but makes
+    Q̃ far better conditioned (Q spans four decades in the x coordinates).
+    """
+    import cvxpy as cp
+
+    n = A[0].shape[0]
+    T = np.ones(n) if T is None else np.asarray(T, dtype=float)
+    A = [Ai * (1.0 / T)[:, None] * T[None, :] for Ai in A]
+    B = [Bi * (1.0 / T)[:, None] for Bi in B]
+    eps_floor = np.diag(epsilon**2 / T**2)
+    r = len(A)
+    Q = cp.Variable((n, n), symmetric=True)
+    N = [cp.Variable((1, n)) for _ in range(r)]
+    Ybig = cp.Variable((n * r, n * r), symmetric=True)
+    Yb = [[Ybig[i * n:(i + 1) * n, j * n:(j + 1) * n] for j in range(r)] for i in range(r)]
+    t = cp.Variable()
+    I = np.eye(n)
+    # Q >= eps^2 I fixes the scale of Q; Phi_ij scales with ||A|| Q, and so does the room.
+    q_scale = float(eps_floor.max())
+    delta = _ROOM * q_scale * max(np.linalg.norm(Ai, 2) for Ai in A)
+    cons = [Q >> (1 + _ROOM) * eps_floor, Ybig >> _ROOM * q_scale * np.eye(n * r)]
+    for i in range(r):
+        for j in range(r):
+            phi = Q @ A[i].T + A[i] @ Q - N[j].T @ B[i].T - B[i] @ N[j] + 2 * decay_rate * Q
+            lhs = phi + Yb[i][j]
+            lhs = 0.5 * (lhs + lhs.T)
+            cons.append(lhs << (-delta * I if i == j else -0.1 * delta * I))
+        cons.append(cp.bmat([[Q, N[i].T], [N[i], cp.reshape(t, (1, 1), order="C")]]) >> 0)
+    if t_max is not None:
+        cons.append(t <= (1 - _ROOM) * t_max)
+    prob = cp.Problem(cp.Minimize(t), cons)
+    names = [solver] if solver else ["CLARABEL", "SCS"]
+    status, used = None, None
+    for name in names:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                prob.solve(solver=name, **_SOLVER_OPTIONS.get(name, {}))
+            status, used = prob.status, name
+        except Exception as exc:  # solver missing or crashed: try the fallback
+            status, used = f"error: {exc}".splitlines()[0], name
+            continue
+        if status in ("optimal", "optimal_inaccurate", "infeasible", "infeasible_inaccurate"):
+            break
+    if status not in ("optimal", "optimal_inaccurate"):
+        return status, None, None, None, None, used
+    Yv = [[np.array(Yb[i][j].value) for j in range(r)] for i in range(r)]
+    return status, np.array(Q.value), [np.array(Ni.value) for Ni in N], Yv, float(t.value), used
+
+
+def verify_certificate(A, B, Q, N, Y, epsilon, rho, decay_rate, T=None, weight_grid: int = 201) -> Certificate:
+    """Check an LMI solution with numpy alone (see the module docstring).
+
+    ``Q, N, Y`` are in the coordinates z = T⁻¹ x of :func:`_solve` (T = 1 for the
+    original ones); ``A, B`` are in x and are transformed here.
+    """
+    n = Q.shape[0]
+    r = len(A)
+    T = np.ones(n) if T is None else np.asarray(T, dtype=float)
+    A = [Ai * (1.0 / T)[:, None] * T[None, :] for Ai in A]
+    B = [Bi * (1.0 / T)[:, None] for Bi in B]
+    Q = 0.5 * (Q + Q.T)
+    scale = max(np.linalg.norm(Q, 2), 1e-300)
+    margins: dict[str, float] = {}
+    margins["Q>0"] = float(np.linalg.eigvalsh(Q).min() / scale)
+    margins["Q>=eps^2 I"] = float(np.linalg.eigvalsh(Q - np.diag(epsilon**2 / T**2)).min() / scale)
+    Ybig = np.block(Y)
+    Ybig = 0.5 * (Ybig + Ybig.T)
+    margins["Y>0"] = float(np.linalg.eigvalsh(Ybig).min() / scale)
+    for i in range(r):
+        for j in range(r):
+            phi = Q @ A[i].T + A[i] @ Q - N[j].T @ B[i].T - B[i] @ N[j] + 2 * decay_rate * Q + Y[i][j]
+            phi = 0.5 * (phi + phi.T)
+            s = max(np.linalg.norm(A[i] @ Q, 2), scale)
+            margins[f"Phi{i + 1}{j + 1}+Y{i + 1}{j + 1}<=0"] = float(-np.linalg.eigvalsh(phi).max() / s)
+        Mi = np.block([[Q, N[i].T], [N[i], np.array([[rho**2]])]])
+        margins[f"input bound rule {i + 1}"] = float(np.linalg.eigvalsh(0.5 * (Mi + Mi.T)).min() / max(scale, rho**2))
+
+    P = np.linalg.inv(Q)
+    P = 0.5 * (P + P.T)
+    G = [-Ni @ P for Ni in N]
+    worst = np.inf
+    for m1 in np.linspace(0.0, 1.0, weight_grid):
+        m = (m1, 1.0 - m1)
+        Acl = sum(m[i] * m[j] * (A[i] + B[i] @ G[j]) for i in range(r) for j in range(r))
+        L = Acl.T @ P + P @ Acl + 2 * decay_rate * P
+        s = max(np.linalg.norm(P @ Acl, 2), 1e-300)
+        worst = min(worst, float(-np.linalg.eigvalsh(0.5 * (L + L.T)).max() / s))
+    # x0ᵀ P_x x0 <= 1 for every ‖x0‖ <= ε, with P_x = T⁻¹ P T⁻¹ the Lyapunov matrix in x
+    eps_margin = float(1.0 - epsilon**2 * np.linalg.eigvalsh(P / T[:, None] / T[None, :]).max())
+    peak = max(float(np.sqrt(max((Gi @ Q @ Gi.T).item(), 0.0))) for Gi in G)
+    rho_margin = 1.0 - peak / rho
+    passed = all(v > 0 for v in margins.values()) and worst > 0 and eps_margin >= 0 and rho_margin >= 0
+    return Certificate(margins, worst, eps_margin, rho_margin, bool(passed))
+
+
+def design_balance_gains(
+    params: RobotParams = NOMINAL,
+    epsilon: float = DEFAULT_EPSILON,
+    rho: float = DEFAULT_RHO,
+    decay_rate: float = DEFAULT_DECAY_RATE,
+    max_gain: float | None = None,
+    solver: str | None = None,
+) -> BalanceDesign:
+    """Solve Lemmas 1–2 with a decay rate for the IT2 PDC gains.
+
+    Parameters
+    ----------
+    params : RobotParams
+        Model parameters (the controllers' nominal set).
+    epsilon : float
+        Radius of the set of initial states ‖x0‖ ≤ ε that the input bound covers.
+    rho : float
+        Bound on the total torque |u| = |ul + ur| in N·m.
+    decay_rate : float
+        Guaranteed exponential decay rate a ≥ 0 of ‖x‖ on the TS model, in 1/s.
+    max_gain : float, optional
+        Upper bound on the spectral norm of each G_i.
+    solver : str, optional
+        A cvxpy solver name; default Clarabel, then SCS as fallback.
+
+    Raises
+    ------
+    InfeasibleDesign
+        With a one-line message naming the requirement (ρ, max_gain or decay rate)
+        that cannot be met and the value that can.
+    """
+    epsilon = _check_positive("epsilon", epsilon)
+    rho = _check_positive("rho", rho)
+    decay_rate = _check_positive("decay rate", decay_rate, allow_zero=True)
+    if max_gain is not None:
+        max_gain = _check_positive("max gain", max_gain)
+    A, B = ts_matrices(params)
+    t_max = rho**2 if max_gain is None else min(rho**2, (max_gain * epsilon) ** 2)
+    t0 = time.perf_counter()
+    T = _DEFAULT_SCALING
+    status, Q, N, Y, t, used = _solve(A, B, epsilon, decay_rate, t_max, solver, T)
+    if Q is None:
+        _explain_infeasible(A, B, epsilon, rho, decay_rate, max_gain, solver, status)
+    cert = verify_certificate(A, B, Q, N, Y, epsilon, rho, decay_rate, T)
+    if not cert.passed:
+        # Rescale by the solution's own spread and solve again: usually what fixes it.
+        T = T * np.sqrt(np.diag(Q) / np.diag(Q).min())
+        status, Q, N, Y, t, used = _solve(A, B, epsilon, decay_rate, t_max, solver, T)
+        if Q is None:
+            _explain_infeasible(A, B, epsilon, rho, decay_rate, max_gain, solver, status)
+        cert = verify_certificate(A, B, Q, N, Y, epsilon, rho, decay_rate, T)
+    elapsed = time.perf_counter() - t0
+    if not cert.passed:
+        raise InfeasibleDesign(
+            f"the solver ({used}, status {status}) returned gains that fail the independent check "
+            f"({cert.summary()}); relax rho, epsilon or the decay rate"
+        )
+    Qx = Q * T[:, None] * T[None, :]
+    Px = np.linalg.inv(Qx)
+    gains = np.vstack([-(Ni * T[None, :]) @ Px for Ni in N])
+    return BalanceDesign(
+        gains=gains,
+        P=0.5 * (Px + Px.T),
+        Q=Qx,
+        epsilon=epsilon,
+        rho=rho,
+        decay_rate=decay_rate,
+        max_gain=max_gain,
+        peak_input=float(np.sqrt(max(t, 0.0))),
+        solve_time_s=elapsed,
+        solver=used,
+        certificate=cert,
+        params=params,
+    )
+
+
+def _explain_infeasible(A, B, epsilon, rho, decay_rate, max_gain, solver, status) -> None:
+    """Find which requirement made the design infeasible and raise a one-line error."""
+    T = _DEFAULT_SCALING
+    status2, _, _, _, t_free, _ = _solve(A, B, epsilon, decay_rate, None, solver, T)
+    if t_free is None:
+        # Without the input bound only the decay rate constrains: find the largest that works.
+        lo, hi = 0.0, decay_rate
+        for _ in range(12):
+            mid = 0.5 * (lo + hi)
+            if _solve(A, B, epsilon, mid, None, solver, T)[1] is not None:
+                lo = mid
+            else:
+                hi = mid
+        raise InfeasibleDesign(
+            f"decay rate {decay_rate:g} 1/s is infeasible for this plant (solver status: {status2}); "
+            f"the largest feasible is about {lo:.3g} 1/s: lower --decay-rate"
+        )
+    need = math.sqrt(t_free)
+    if need > rho:
+        raise InfeasibleDesign(
+            f"rho = {rho:g} N·m is too small for epsilon = {epsilon:g} and decay rate {decay_rate:g} 1/s: "
+            f"the smallest feasible rho is {need:.4g} N·m; raise --rho, or lower --epsilon or --decay-rate"
+        )
+    if max_gain is None or need <= max_gain * epsilon:
+        raise InfeasibleDesign(
+            f"the solver could not solve the design reliably (status: {status}) at decay rate "
+            f"{decay_rate:g} 1/s with epsilon = {epsilon:g}: lower --decay-rate or --epsilon"
+        )
+    raise InfeasibleDesign(
+        f"max gain {max_gain:g} is too small for epsilon = {epsilon:g} and decay rate {decay_rate:g} 1/s: "
+        f"the smallest feasible is {need / epsilon:.4g}; raise it or lower --decay-rate"
+    )

@@ -1,0 +1,140 @@
+"""Two-input IT2 (and type-1) Mamdani fuzzy logic systems on normalised inputs.
+
+Rule (i, j): if x1 is A_i and x2 is B_j then y is C_{table[i, j]}. The firing interval
+of a rule is [min(μ̲_Ai, μ̲_Bj), min(μ̄_Ai, μ̄_Bj)] (minimum t-norm). The consequents
+enter type reduction through their centres (the paper's BMM formula); KM uses the
+same centres as point consequents, so the three reducers are compared like for like.
+
+A partition with zero footprint makes every firing interval a point, and then BMM,
+Nie–Tan and KM all reduce to the type-1 weighted average Σ f y / Σ f.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from twin.errors import TwinError
+from twin.fuzzy import type_reduction as tr
+from twin.fuzzy.sets import Partition
+
+TYPE_REDUCERS = ("bmm", "nt", "km")
+
+
+class MamdaniFLS:
+    """A two-input, one-output Mamdani FLS.
+
+    Parameters
+    ----------
+    input1, input2 : Partition
+        Sets of the two (normalised) inputs; rows and columns of the rule table.
+    output_centres : array_like, shape (K,)
+        Centres of the consequent sets, normalised.
+    rule_table : array_like of int, shape (len(input1), len(input2))
+        Index into ``output_centres`` for each rule.
+    type_reduction : {"bmm", "nt", "km"}
+        Begian–Melek–Mendel (with weights ``m``, ``n``), Nie–Tan, or exact Karnik–Mendel
+        centre of sets (midpoint of [y_l, y_r]).
+    m, n : float
+        BMM weights of the lower and upper terms; m + n = 1 keeps the output a convex
+        combination of the consequent centres.
+    """
+
+    def __init__(self, input1: Partition, input2: Partition, output_centres, rule_table,
+                 type_reduction: str = "bmm", m: float = 0.5, n: float = 0.5):
+        if type_reduction not in TYPE_REDUCERS:
+            raise TwinError(f"type reduction must be one of {', '.join(TYPE_REDUCERS)}, got {type_reduction!r}")
+        table = np.asarray(rule_table)
+        if table.shape != (len(input1), len(input2)):
+            raise TwinError(f"rule table must have shape ({len(input1)}, {len(input2)}), got {table.shape}")
+        centres = np.asarray(output_centres, dtype=float)
+        if not np.issubdtype(table.dtype, np.integer) or table.min() < 0 or table.max() >= len(centres):
+            raise TwinError(f"rule table entries must be integer indices of the {len(centres)} output sets")
+        for name, v in (("m", m), ("n", n)):
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise TwinError(f"BMM weight {name} must be a finite number >= 0, got {v!r}")
+        if m + n <= 0:
+            raise TwinError("BMM weights m and n must not both be zero")
+        self.input1, self.input2 = input1, input2
+        self.output_centres = centres
+        self.rule_table = table
+        self.type_reduction = type_reduction
+        self.m, self.n = float(m), float(n)
+        self.y = centres[table].ravel()  # consequent centre per rule, row-major (i, j)
+        self._y_py = [[float(v) for v in row] for row in centres[table]]
+
+    # -- vectorised ---------------------------------------------------------------
+    def firing(self, x1, x2) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper firing strengths, shape ``broadcast(x1, x2).shape + (K1*K2,)``."""
+        x1, x2 = np.broadcast_arrays(np.asarray(x1, dtype=float), np.asarray(x2, dtype=float))
+        lo1, up1 = self.input1.memberships(x1)
+        lo2, up2 = self.input2.memberships(x2)
+        shape = x1.shape + (-1,)
+        f_lo = np.minimum(lo1[..., :, None], lo2[..., None, :]).reshape(shape)
+        f_up = np.minimum(up1[..., :, None], up2[..., None, :]).reshape(shape)
+        return f_lo, f_up
+
+    def evaluate(self, x1, x2) -> np.ndarray:
+        """Crisp outputs for arrays of normalised inputs (broadcast together)."""
+        _require_finite(x1, x2)
+        f_lo, f_up = self.firing(x1, x2)
+        return self._reduce(f_lo, f_up)
+
+    def _reduce(self, f_lo, f_up):
+        if self.type_reduction == "bmm":
+            return tr.bmm(f_lo, f_up, self.y, self.m, self.n)
+        if self.type_reduction == "nt":
+            return tr.nie_tan(f_lo, f_up, self.y)
+        y_l, y_r = tr.karnik_mendel(f_lo, f_up, self.y)
+        return 0.5 * (y_l + y_r)
+
+    def interval(self, x1, x2) -> tuple[np.ndarray, np.ndarray]:
+        """The exact KM type-reduced interval [y_l, y_r] (whatever the configured reducer)."""
+        _require_finite(x1, x2)
+        return tr.karnik_mendel(*self.firing(x1, x2), self.y)
+
+    # -- scalar fast path -------------------------------------------------------
+    def evaluate_scalar(self, x1: float, x2: float) -> float:
+        """One crisp output for two floats, without numpy (a control loop's call)."""
+        if not (math.isfinite(x1) and math.isfinite(x2)):
+            raise TwinError(f"fuzzy system inputs must be finite numbers, got ({x1}, {x2})")
+        if self.type_reduction == "km":
+            return float(self.evaluate(x1, x2))
+        lo1, up1 = self.input1.memberships_scalar(x1)
+        lo2, up2 = self.input2.memberships_scalar(x2)
+        act2 = [(j, u, lo2[j]) for j, u in enumerate(up2) if u > 0.0]
+        s_lo = s_up = w_lo = w_up = 0.0
+        Y = self._y_py
+        for i, a_up in enumerate(up1):
+            if a_up <= 0.0:
+                continue
+            a_lo = lo1[i]
+            row = Y[i]
+            for j, b_up, b_lo in act2:
+                fu = a_up if a_up < b_up else b_up
+                fl = a_lo if a_lo < b_lo else b_lo
+                y = row[j]
+                s_up += fu
+                w_up += fu * y
+                s_lo += fl
+                w_lo += fl * y
+        if self.type_reduction == "nt":
+            return (w_lo + w_up) / (s_lo + s_up)
+        if s_lo > 0.0:
+            return self.m * w_lo / s_lo + self.n * w_up / s_up
+        return (self.m + self.n) * w_up / s_up
+
+    __call__ = evaluate
+
+    def surface(self, n1: int = 101, n2: int = 101):
+        """Control surface over the normalised square: (grid1 (n1,), grid2 (n2,), Z (n1, n2))."""
+        g1 = np.linspace(-1.0, 1.0, n1)
+        g2 = np.linspace(-1.0, 1.0, n2)
+        return g1, g2, self.evaluate(g1[:, None], g2[None, :])
+
+
+def _require_finite(*arrays) -> None:
+    for a in arrays:
+        arr = np.asarray(a, dtype=float)
+        if not np.all(np.isfinite(arr)):
+            raise TwinError("fuzzy system inputs must be finite numbers; got NaN or infinity")

@@ -1,0 +1,171 @@
+"""Type-1 and interval type-2 fuzzy sets: triangles and shoulders, and uniform partitions.
+
+A type-1 triangle is given by its feet and peak; a left shoulder has ``left = -inf``
+(membership 1 for every x ≤ peak), a right shoulder ``right = +inf``. An IT2 set is a
+pair (lower, upper) of such sets with lower ≤ upper everywhere: the region between
+them is the footprint of uncertainty (FOU).
+
+Memberships are computed as ``height * clip(min(1 + (x − peak)/(peak − left),
+1 + (peak − x)/(right − peak)), 0, 1)``, with the infinite feet of shoulders giving a
+slope of zero, so no inf/inf arises.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from twin.errors import TwinError
+
+LINGUISTIC_7 = ("NB", "NM", "NS", "ZO", "PS", "PM", "PB")
+
+
+@dataclass(frozen=True)
+class Triangle:
+    """A type-1 triangular (or shoulder) membership function.
+
+    ``left < peak < right``; ``left = -inf`` makes a left shoulder, ``right = +inf`` a
+    right shoulder; ``height`` in (0, 1].
+    """
+
+    left: float
+    peak: float
+    right: float
+    height: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.peak) and self.left < self.peak < self.right):
+            raise TwinError(f"a triangle needs left < peak < right with a finite peak, got {self.left}, {self.peak}, {self.right}")
+        if math.isnan(self.left) or math.isnan(self.right):
+            raise TwinError("triangle feet must not be NaN")
+        if not (0.0 < self.height <= 1.0):
+            raise TwinError(f"membership height must be in (0, 1], got {self.height}")
+
+    @property
+    def slopes(self) -> tuple[float, float]:
+        """(1/(peak − left), 1/(right − peak)); zero on a shoulder side."""
+        inv_l = 0.0 if math.isinf(self.left) else 1.0 / (self.peak - self.left)
+        inv_r = 0.0 if math.isinf(self.right) else 1.0 / (self.right - self.peak)
+        return inv_l, inv_r
+
+    def __call__(self, x):
+        inv_l, inv_r = self.slopes
+        x = np.asarray(x, dtype=float)
+        v = np.minimum(1.0 + (x - self.peak) * inv_l, 1.0 + (self.peak - x) * inv_r)
+        return self.height * np.clip(v, 0.0, 1.0)
+
+    def contains(self, other: "Triangle") -> bool:
+        """True if ``other`` ≤ ``self`` everywhere (other's support inside, peak-compatible)."""
+        grid = np.linspace(min(self.peak, other.peak) - 3, max(self.peak, other.peak) + 3, 2001)
+        finite = [v for v in (self.left, self.right, other.left, other.right) if math.isfinite(v)]
+        grid = np.union1d(grid, np.array(finite + [self.peak, other.peak]))
+        return bool(np.all(other(grid) <= self(grid) + 1e-12))
+
+
+@dataclass(frozen=True)
+class IT2Set:
+    """An interval type-2 set: lower ≤ upper membership functions."""
+
+    name: str
+    lower: Triangle
+    upper: Triangle
+
+    def __post_init__(self) -> None:
+        if not self.upper.contains(self.lower):
+            raise TwinError(f"IT2 set {self.name}: the lower membership function must lie under the upper one")
+
+    @property
+    def centre(self) -> float:
+        return self.upper.peak
+
+    def __call__(self, x):
+        """(lower, upper) memberships of ``x``."""
+        return self.lower(x), self.upper(x)
+
+
+class Partition:
+    """An ordered family of IT2 sets over one normalised variable, evaluated together.
+
+    The membership arrays are kept as parameter vectors so that evaluation is one
+    vectorised expression for arrays and a short loop over floats for scalars.
+    """
+
+    def __init__(self, sets: list[IT2Set]):
+        if len(sets) < 2:
+            raise TwinError("a partition needs at least two sets")
+        self.sets = tuple(sets)
+        self.names = tuple(s.name for s in sets)
+        rows = []
+        for s in sets:
+            lo_l, lo_r = s.lower.slopes
+            up_l, up_r = s.upper.slopes
+            rows.append((s.lower.peak, lo_l, lo_r, s.lower.height, s.upper.peak, up_l, up_r, s.upper.height))
+        p = np.array(rows, dtype=float)
+        self._lo = (p[:, 0], p[:, 1], p[:, 2], p[:, 3])
+        self._up = (p[:, 4], p[:, 5], p[:, 6], p[:, 7])
+        self._lo_py = [tuple(float(v) for v in r[:4]) for r in rows]
+        self._up_py = [tuple(float(v) for v in r[4:]) for r in rows]
+        self.is_type1 = all(s.lower == s.upper for s in sets)
+
+    def __len__(self) -> int:
+        return len(self.sets)
+
+    @staticmethod
+    def _eval(params, x):
+        peak, inv_l, inv_r, height = params
+        d = x[..., None] - peak
+        v = np.minimum(1.0 + d * inv_l, 1.0 - d * inv_r)
+        return height * np.clip(v, 0.0, 1.0)
+
+    def memberships(self, x) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper memberships, each of shape ``x.shape + (K,)``."""
+        x = np.asarray(x, dtype=float)
+        return self._eval(self._lo, x), self._eval(self._up, x)
+
+    def memberships_scalar(self, x: float) -> tuple[list[float], list[float]]:
+        """The same for one float, as two lists (fast path, no numpy)."""
+        return _scalar(self._lo_py, x), _scalar(self._up_py, x)
+
+
+def _scalar(rows, x: float) -> list[float]:
+    out = []
+    for peak, inv_l, inv_r, height in rows:
+        d = x - peak
+        v = 1.0 + d * inv_l
+        w = 1.0 - d * inv_r
+        if w < v:
+            v = w
+        out.append(0.0 if v <= 0.0 else (height if v >= 1.0 else height * v))
+    return out
+
+
+def uniform_partition(n_sets: int = 7, fou: float = 0.0, names=None) -> Partition:
+    """``n_sets`` IT2 sets with evenly spaced centres over the normalised range [−1, 1].
+
+    The outer sets are shoulders (membership 1 beyond ±1, so inputs outside the range
+    saturate instead of extrapolating). With spacing h = 2/(n_sets − 1), each upper
+    membership function has half-width h(1 + fou) and each lower one h(1 − fou), both
+    of height 1: ``fou = 0`` gives the type-1 partition of unity. ``fou`` must lie in
+    [0, 0.5): beyond that the lower functions no longer overlap and some inputs fire no
+    rule's lower bound.
+    """
+    if not isinstance(n_sets, int) or n_sets < 2 or n_sets % 2 == 0:
+        raise TwinError(f"a uniform partition needs an odd number of sets >= 3, got {n_sets!r}")
+    try:
+        fou = float(fou)
+    except (TypeError, ValueError):
+        raise TwinError(f"fou (footprint of uncertainty) must be a number in [0, 0.5), got {fou!r}") from None
+    if not (0.0 <= fou < 0.5):
+        raise TwinError(f"fou (footprint of uncertainty) must be in [0, 0.5), got {fou:g}")
+    if names is None:
+        names = LINGUISTIC_7 if n_sets == 7 else tuple(f"S{k}" for k in range(n_sets))
+    half = (n_sets - 1) // 2
+    h = 1.0 / half
+    sets = []
+    for k in range(-half, half + 1):
+        c = k / half
+        def tri(w: float) -> Triangle:
+            return Triangle(-math.inf if k == -half else c - w, c, math.inf if k == half else c + w)
+        sets.append(IT2Set(names[k + half], lower=tri(h * (1.0 - fou)), upper=tri(h * (1.0 + fou))))
+    return Partition(sets)
