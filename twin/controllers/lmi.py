@@ -33,18 +33,21 @@ from twin.params import NOMINAL, RobotParams
 from twin.plant.ts_model import ts_matrices
 
 DEFAULT_EPSILON = 0.5  # ‖x0‖ bound of the certified region (mixed units of x); covers θ0 = 0.48 rad
-DEFAULT_RHO = 6.0  # N·m: bound on |u| = |ul + ur|
-DEFAULT_DECAY_RATE = 1.5  # 1/s
+DEFAULT_RHO = 2.0  # N·m: bound on |u| = |ul + ur| (1 N·m per wheel)
+DEFAULT_DECAY_RATE = 3.0  # 1/s: θ from 0.48 rad to below 0.01 rad in about 1.1 s on the analytic model
 
 # The solver works to ~1e-8 relative accuracy, so every inequality is solved with a little
 # room (relative to its scale) and the independent check then needs no tolerance at all.
-_ROOM = 1e-5
+# SCS, a first-order method, is less precise and gets more room.
+_ROOM = {"CLARABEL": 1e-5, "SCS": 1e-2}
 # Typical magnitudes of [θ, θ̇, ψ, ψ̇] during a recovery (rad, rad/s, rad, rad/s).
 _DEFAULT_SCALING = np.array([1.0, 10.0, 10.0, 50.0])
 _SOLVER_OPTIONS = {
     "CLARABEL": {},
-    "SCS": {"eps": 1e-9, "max_iters": 200000},
+    "SCS": {"eps_abs": 1e-9, "eps_rel": 1e-9, "max_iters": 100000, "acceleration_lookback": 0},
 }
+# For the bisection that explains an infeasible decay rate: a yes/no answer, quickly.
+_QUICK_OPTIONS = {"CLARABEL": {"max_iter": 60}, "SCS": {"max_iters": 5000}}
 
 
 @dataclass(frozen=True)
@@ -126,7 +129,7 @@ def _check_positive(name: str, value: float, allow_zero: bool = False) -> float:
     return v
 
 
-def _solve(A, B, epsilon, decay_rate, t_max, solver, T=None):
+def _solve(A, B, epsilon, decay_rate, t_max, solver, T=None, feasibility_only=False):
     """Build and solve the SDP in scaled coordinates z = T⁻¹ x (T diagonal, positive).
 
     Returns (status, Q̃, Ñ list, Ỹ blocks, t, solver name) in the z coordinates:
@@ -141,40 +144,48 @@ def _solve(A, B, epsilon, decay_rate, t_max, solver, T=None):
     B = [Bi * (1.0 / T)[:, None] for Bi in B]
     eps_floor = np.diag(epsilon**2 / T**2)
     r = len(A)
-    Q = cp.Variable((n, n), symmetric=True)
-    N = [cp.Variable((1, n)) for _ in range(r)]
-    Ybig = cp.Variable((n * r, n * r), symmetric=True)
-    Yb = [[Ybig[i * n:(i + 1) * n, j * n:(j + 1) * n] for j in range(r)] for i in range(r)]
-    t = cp.Variable()
     I = np.eye(n)
-    # Q >= eps^2 I fixes the scale of Q; Phi_ij scales with ||A|| Q, and so does the room.
     q_scale = float(eps_floor.max())
-    delta = _ROOM * q_scale * max(np.linalg.norm(Ai, 2) for Ai in A)
-    cons = [Q >> (1 + _ROOM) * eps_floor, Ybig >> _ROOM * q_scale * np.eye(n * r)]
-    for i in range(r):
-        for j in range(r):
-            phi = Q @ A[i].T + A[i] @ Q - N[j].T @ B[i].T - B[i] @ N[j] + 2 * decay_rate * Q
-            lhs = phi + Yb[i][j]
-            lhs = 0.5 * (lhs + lhs.T)
-            cons.append(lhs << (-delta * I if i == j else -0.1 * delta * I))
-        cons.append(cp.bmat([[Q, N[i].T], [N[i], cp.reshape(t, (1, 1), order="C")]]) >> 0)
-    if t_max is not None:
-        cons.append(t <= (1 - _ROOM) * t_max)
-    prob = cp.Problem(cp.Minimize(t), cons)
+    a_scale = max(np.linalg.norm(Ai, 2) for Ai in A)
+
+    def build(room: float):
+        Q = cp.Variable((n, n), symmetric=True)
+        N = [cp.Variable((1, n)) for _ in range(r)]
+        Ybig = cp.Variable((n * r, n * r), symmetric=True)
+        Yb = [[Ybig[i * n:(i + 1) * n, j * n:(j + 1) * n] for j in range(r)] for i in range(r)]
+        t = cp.Variable()
+        # Q >= eps^2 I fixes the scale of Q; Phi_ij scales with ||A|| Q, and so does the room.
+        delta = room * q_scale * a_scale
+        cons = [Q >> (1 + room) * eps_floor, Ybig >> room * q_scale * np.eye(n * r)]
+        for i in range(r):
+            for j in range(r):
+                phi = Q @ A[i].T + A[i] @ Q - N[j].T @ B[i].T - B[i] @ N[j] + 2 * decay_rate * Q
+                lhs = phi + Yb[i][j]
+                lhs = 0.5 * (lhs + lhs.T)
+                cons.append(lhs << (-delta * I if i == j else -0.1 * delta * I))
+            cons.append(cp.bmat([[Q, N[i].T], [N[i], cp.reshape(t, (1, 1), order="C")]]) >> 0)
+        if t_max is not None:
+            cons.append(t <= (1 - room) * t_max)
+        return cp.Problem(cp.Minimize(0 if feasibility_only else t), cons), Q, N, Yb, t
+
     names = [solver] if solver else ["CLARABEL", "SCS"]
     status, used = None, None
     for name in names:
+        prob, Q, N, Yb, t = build(_ROOM.get(name, 1e-5))
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                prob.solve(solver=name, **_SOLVER_OPTIONS.get(name, {}))
+                opts = dict(_SOLVER_OPTIONS.get(name, {}))
+                if feasibility_only:
+                    opts.update(_QUICK_OPTIONS.get(name, {}))
+                prob.solve(solver=name, **opts)
             status, used = prob.status, name
         except Exception as exc:  # solver missing or crashed: try the fallback
             status, used = f"error: {exc}".splitlines()[0], name
             continue
         if status in ("optimal", "optimal_inaccurate", "infeasible", "infeasible_inaccurate"):
             break
-    if status not in ("optimal", "optimal_inaccurate"):
+    if status not in ("optimal", "optimal_inaccurate") or (feasibility_only and status != "optimal"):
         return status, None, None, None, None, used
     Yv = [[np.array(Yb[i][j].value) for j in range(r)] for i in range(r)]
     return status, np.array(Q.value), [np.array(Ni.value) for Ni in N], Yv, float(t.value), used
@@ -262,6 +273,8 @@ def design_balance_gains(
     decay_rate = _check_positive("decay rate", decay_rate, allow_zero=True)
     if max_gain is not None:
         max_gain = _check_positive("max gain", max_gain)
+    import cvxpy  # noqa: F401  (imported before the clock starts: solve time excludes import)
+
     A, B = ts_matrices(params)
     t_max = rho**2 if max_gain is None else min(rho**2, (max_gain * epsilon) ** 2)
     t0 = time.perf_counter()
@@ -309,9 +322,9 @@ def _explain_infeasible(A, B, epsilon, rho, decay_rate, max_gain, solver, status
     if t_free is None:
         # Without the input bound only the decay rate constrains: find the largest that works.
         lo, hi = 0.0, decay_rate
-        for _ in range(12):
+        for _ in range(8):
             mid = 0.5 * (lo + hi)
-            if _solve(A, B, epsilon, mid, None, solver, T)[1] is not None:
+            if _solve(A, B, epsilon, mid, None, solver, T, feasibility_only=True)[1] is not None:
                 lo = mid
             else:
                 hi = mid

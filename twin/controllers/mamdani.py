@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from twin.errors import TwinError
-from twin.fuzzy.mamdani import MamdaniFLS
+from twin.fuzzy.mamdani import MamdaniFLS, _require_finite
 from twin.fuzzy.sets import LINGUISTIC_7, uniform_partition
 
 # Table II: rows = first input (p_e or α_e), columns = second input (θ̇ or α̇_e), NB..PB.
@@ -53,7 +53,11 @@ DEFAULT_FOU = 0.25  # IT2 upper half-width h(1+fou), lower h(1−fou), h = set s
 
 @dataclass(frozen=True)
 class ScaledFLS:
-    """A Mamdani FLS between physical units: y = out_range · F(x1/r1, x2/r2)."""
+    """A Mamdani FLS between physical units: y = out_range · F(clip(x1/r1), clip(x2/r2)).
+
+    Inputs are normalised by their Table I range and clipped to the universe [−1, 1],
+    so beyond the range the output is exactly its value at the range's edge.
+    """
 
     fls: MamdaniFLS
     input_ranges: tuple[float, float]
@@ -62,17 +66,24 @@ class ScaledFLS:
 
     def __call__(self, x1: float, x2: float) -> float:
         """Scalar evaluation in physical units (the control loop's call)."""
+        if not (math.isfinite(x1) and math.isfinite(x2)):
+            raise TwinError(f"{self.name} controller: inputs must be finite numbers, got ({x1}, {x2})")
+        a = x1 / self.input_ranges[0]
+        b = x2 / self.input_ranges[1]
+        a = 1.0 if a > 1.0 else (-1.0 if a < -1.0 else a)
+        b = 1.0 if b > 1.0 else (-1.0 if b < -1.0 else b)
         try:
-            return self.output_range * self.fls.evaluate_scalar(x1 / self.input_ranges[0], x2 / self.input_ranges[1])
+            return self.output_range * self.fls.evaluate_scalar(a, b)
         except TwinError as exc:
             raise TwinError(f"{self.name} controller: {exc}") from None
 
     def evaluate(self, x1, x2) -> np.ndarray:
         """Vectorised evaluation in physical units (arrays broadcast together)."""
         try:
-            return self.output_range * self.fls.evaluate(
-                np.asarray(x1, dtype=float) / self.input_ranges[0], np.asarray(x2, dtype=float) / self.input_ranges[1]
-            )
+            _require_finite(x1, x2)
+            a = np.clip(np.asarray(x1, dtype=float) / self.input_ranges[0], -1.0, 1.0)
+            b = np.clip(np.asarray(x2, dtype=float) / self.input_ranges[1], -1.0, 1.0)
+            return self.output_range * self.fls.evaluate(a, b)
         except TwinError as exc:
             raise TwinError(f"{self.name} controller: {exc}") from None
 

@@ -95,29 +95,32 @@ class MamdaniFLS:
 
     # -- scalar fast path -------------------------------------------------------
     def evaluate_scalar(self, x1: float, x2: float) -> float:
-        """One crisp output for two floats, without numpy (a control loop's call)."""
+        """One crisp output for two floats, without numpy (a control loop's call).
+
+        Only the rules whose firing is non-zero are visited: the upper sums over the
+        (at most 3×3) upper-active sets, the lower sums over the lower-active ones.
+        """
         if not (math.isfinite(x1) and math.isfinite(x2)):
             raise TwinError(f"fuzzy system inputs must be finite numbers, got ({x1}, {x2})")
         if self.type_reduction == "km":
             return float(self.evaluate(x1, x2))
-        lo1, up1 = self.input1.memberships_scalar(x1)
-        lo2, up2 = self.input2.memberships_scalar(x2)
-        act2 = [(j, u, lo2[j]) for j, u in enumerate(up2) if u > 0.0]
-        s_lo = s_up = w_lo = w_up = 0.0
         Y = self._y_py
-        for i, a_up in enumerate(up1):
-            if a_up <= 0.0:
-                continue
-            a_lo = lo1[i]
+        i0, a_up, k0, a_lo = self.input1.active(x1)
+        j0, b_up, l0, b_lo = self.input2.active(x2)
+        s_up = w_up = 0.0
+        for i, a in enumerate(a_up, i0):
             row = Y[i]
-            for j, b_up, b_lo in act2:
-                fu = a_up if a_up < b_up else b_up
-                fl = a_lo if a_lo < b_lo else b_lo
-                y = row[j]
-                s_up += fu
-                w_up += fu * y
-                s_lo += fl
-                w_lo += fl * y
+            for j, b in enumerate(b_up, j0):
+                f = a if a < b else b
+                s_up += f
+                w_up += f * row[j]
+        s_lo = w_lo = 0.0
+        for i, a in enumerate(a_lo, k0):
+            row = Y[i]
+            for j, b in enumerate(b_lo, l0):
+                f = a if a < b else b
+                s_lo += f
+                w_lo += f * row[j]
         if self.type_reduction == "nt":
             return (w_lo + w_up) / (s_lo + s_up)
         if s_lo > 0.0:

@@ -12,6 +12,7 @@ slope of zero, so no inf/inf arises.
 from __future__ import annotations
 
 import math
+from bisect import bisect_left, bisect_right
 from dataclasses import dataclass
 
 import numpy as np
@@ -104,9 +105,12 @@ class Partition:
         p = np.array(rows, dtype=float)
         self._lo = (p[:, 0], p[:, 1], p[:, 2], p[:, 3])
         self._up = (p[:, 4], p[:, 5], p[:, 6], p[:, 7])
-        self._lo_py = [tuple(float(v) for v in r[:4]) for r in rows]
-        self._up_py = [tuple(float(v) for v in r[4:]) for r in rows]
         self.is_type1 = all(s.lower == s.upper for s in sets)
+        # Scalar path: flat lists (left feet, right feet, peaks, slopes, heights). The sets
+        # are ordered, so those with non-zero membership at x form a contiguous run
+        # (between the open supports) found by bisection.
+        self.scalar_lower = _feet([s.lower for s in sets]) + tuple([float(v) for v in col] for col in self._lo)
+        self.scalar_upper = _feet([s.upper for s in sets]) + tuple([float(v) for v in col] for col in self._up)
 
     def __len__(self) -> int:
         return len(self.sets)
@@ -124,20 +128,43 @@ class Partition:
         return self._eval(self._lo, x), self._eval(self._up, x)
 
     def memberships_scalar(self, x: float) -> tuple[list[float], list[float]]:
-        """The same for one float, as two lists (fast path, no numpy)."""
-        return _scalar(self._lo_py, x), _scalar(self._up_py, x)
+        """All K lower and upper memberships of one float, as two lists (no numpy)."""
+        n = len(self.sets)
+        lo = _active_run(x, -math.inf, n, *self.scalar_lower[2:])
+        up = _active_run(x, -math.inf, n, *self.scalar_upper[2:])
+        return lo, up
+
+    def active(self, x: float) -> tuple[int, list[float], int, list[float]]:
+        """(i0, upper memberships, j0, lower memberships): the contiguous runs of sets
+        whose upper / lower MF is > 0 at x, starting at indices i0 / j0."""
+        left, right, pk, il, ir, h = self.scalar_upper
+        i0 = bisect_right(right, x)
+        up = _active_run(x, i0, bisect_left(left, x), pk, il, ir, h)
+        left, right, pk, il, ir, h = self.scalar_lower
+        j0 = bisect_right(right, x)
+        return i0, up, j0, _active_run(x, j0, bisect_left(left, x), pk, il, ir, h)
 
 
-def _scalar(rows, x: float) -> list[float]:
+def _active_run(x: float, i0, i1: int, pk, il, ir, h) -> list[float]:
+    """Memberships of sets i0..i1−1 at x (i0 = −inf means 0). The min of the rising and
+    falling lines is <= 1 by construction, so only the clip at 0 is needed."""
     out = []
-    for peak, inv_l, inv_r, height in rows:
-        d = x - peak
-        v = 1.0 + d * inv_l
-        w = 1.0 - d * inv_r
+    for k in range(0 if i0 == -math.inf else i0, i1):
+        d = x - pk[k]
+        v = 1.0 + d * il[k]
+        w = 1.0 - d * ir[k]
         if w < v:
             v = w
-        out.append(0.0 if v <= 0.0 else (height if v >= 1.0 else height * v))
+        out.append(h[k] * v if v > 0.0 else 0.0)
     return out
+
+
+def _feet(tris: list[Triangle]) -> tuple[list[float], list[float]]:
+    left = [t.left for t in tris]
+    right = [t.right for t in tris]
+    if left != sorted(left) or right != sorted(right):
+        raise TwinError("the sets of a partition must be ordered from left to right (feet increasing)")
+    return left, right
 
 
 def uniform_partition(n_sets: int = 7, fou: float = 0.0, names=None) -> Partition:

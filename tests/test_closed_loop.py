@@ -1,0 +1,62 @@
+"""The paper's experiments on the analytic model (the reference for the PyBullet twin)."""
+import numpy as np
+import pytest
+
+from twin.analytic_loop import PAPER_EXPERIMENTS, Experiment, build_cascade, run_paper_experiment, simulate
+from twin.errors import TwinError
+from twin.params import NOMINAL
+
+
+@pytest.mark.parametrize("kind", ["it2", "t1"])
+def test_exp1_balance_from_048(design, kind):
+    run = run_paper_experiment(1, kind, design, duration=5.0)
+    theta = run.signal("theta")
+    assert run.settling_time(0.01) <= 3.0
+    assert np.all(np.abs(theta[run.t >= 3.0]) < 0.01)
+    assert np.max(np.abs(run.u)) <= design.rho
+    assert np.max(np.abs(run.u)) > 0.1  # it did act
+
+
+@pytest.mark.parametrize("kind", ["it2", "t1"])
+def test_exp2_position_reaches_07m(design, kind):
+    run = run_paper_experiment(2, kind, design)
+    assert run.t[-1] == pytest.approx(15.0)
+    err = np.abs(run.distance - 0.7)
+    assert err[-1] < 0.01
+    assert run.distance.max() < 0.7 + 0.05  # no large overshoot
+    assert np.all(np.abs(run.signal("theta")) < 0.6)
+
+
+@pytest.mark.parametrize("kind", ["it2", "t1"])
+def test_exp3_position_and_direction(design, kind):
+    run = run_paper_experiment(3, kind, design)
+    assert abs(run.distance[-1] - 1.0) < 0.01
+    assert abs(run.signal("alpha")[-1] - 1.5) < 0.01
+
+
+@pytest.mark.parametrize("p_d, alpha_d", [(-0.5, -1.0), (0.3, 0.4)])
+def test_sign_conventions_reach_any_target(design, p_d, alpha_d):
+    exp = Experiment("custom", "", theta0=-0.2, p_d=p_d, alpha_d=alpha_d, duration=15.0)
+    run = simulate(build_cascade("it2", design, exp), exp)
+    assert abs(run.distance[-1] - p_d) < 0.01
+    assert abs(run.signal("alpha")[-1] - alpha_d) < 0.01
+
+
+def test_balances_a_mismatched_true_plant(design):
+    plant = NOMINAL.perturbed(scale={"m_b": 1.15, "l": 1.1, "n_yb": 1.3, "d_w": 2.0})
+    run = run_paper_experiment(2, "it2", design, plant=plant)
+    assert abs(run.distance[-1] - 0.7) < 0.02
+    assert np.all(np.abs(run.signal("theta")[run.t > 8]) < 0.01)
+
+
+def test_control_period_must_be_whole_number_of_physics_steps(design):
+    exp = PAPER_EXPERIMENTS[1]
+    with pytest.raises(TwinError, match="whole number of physics steps"):
+        simulate(build_cascade("it2", design, exp), exp, physics_dt=0.001, control_dt=0.0025)
+
+
+def test_constant_disturbance_shifts_but_does_not_topple(design):
+    exp = PAPER_EXPERIMENTS[1]
+    run = simulate(build_cascade("it2", design, exp), exp, disturbance=lambda t: (0.0, 0.05, 0.0), duration=6)
+    assert np.all(np.abs(run.signal("theta")[run.t > 3]) < 0.2)
+    assert np.all(np.isfinite(run.x))

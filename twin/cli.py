@@ -1,0 +1,199 @@
+"""The ``twin`` command line.
+
+Every user error ends with a one-line ``error: …`` on stderr and exit status 2.
+"""
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+
+import click
+
+from twin.errors import TwinError
+
+EXPERIMENT_CHOICES = ("1", "2", "3", "paper-exp1", "paper-exp2", "paper-exp3")
+
+
+class _Group(click.Group):
+    """Turns TwinError and file errors into one line and exit status 2."""
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except TwinError as exc:
+            click.echo(f"error: {exc}", err=True)
+            sys.exit(2)
+        except OSError as exc:
+            click.echo(f"error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": "), err=True)
+            sys.exit(2)
+
+
+@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="mtwip-twin")
+def main():
+    """Digital twin of a mobile two-wheeled inverted pendulum under IT2 fuzzy control.
+
+    \b
+    Examples:
+      twin design --decay-rate 3 --out gains.json
+      twin analytic 3 --controller both --out runs/exp3
+      twin surface position --out runs/surfaces
+    """
+
+
+def _design_options(f):
+    from twin.controllers import lmi
+
+    f = click.option("--max-gain", type=float, default=None,
+                     help="Upper bound on each gain's spectral norm ‖G_i‖.")(f)
+    f = click.option("--decay-rate", type=float, default=lmi.DEFAULT_DECAY_RATE, show_default=True,
+                     help="Guaranteed decay rate of ‖x‖ on the TS model, 1/s.")(f)
+    f = click.option("--rho", type=float, default=lmi.DEFAULT_RHO, show_default=True,
+                     help="Bound on the total wheel torque |ul + ur|, N·m (Lemma 2).")(f)
+    f = click.option("--epsilon", type=float, default=lmi.DEFAULT_EPSILON, show_default=True,
+                     help="Radius of the certified set of initial states ‖x0‖ ≤ ε (Lemma 2).")(f)
+    return f
+
+
+@main.command()
+@_design_options
+@click.option("--solver", type=click.Choice(["CLARABEL", "SCS"], case_sensitive=False), default=None,
+              help="cvxpy solver (default Clarabel, SCS as fallback).")
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Write the design as JSON (gains, P, solve time, ε, ρ, decay rate, certificate).")
+def design(epsilon, rho, decay_rate, max_gain, solver, out):
+    """Design the IT2 PDC balance gains by LMIs (paper Lemmas 1–2 plus a decay rate).
+
+    Prints G1, G2 for the state [θ, θ̇, ψ, ψ̇] (u = Σ m_i G_i x, the total wheel torque
+    in N·m), the independent certificate check and the solve time.
+
+    \b
+    Examples:
+      twin design
+      twin design --epsilon 0.5 --rho 2 --decay-rate 4 --out gains.json
+    """
+    from twin.controllers.lmi import design_balance_gains
+
+    d = design_balance_gains(epsilon=epsilon, rho=rho, decay_rate=decay_rate, max_gain=max_gain,
+                             solver=solver.upper() if solver else None)
+    _print_design(d)
+    if out is not None:
+        from twin.report import write_json
+
+        write_json(d.to_json_dict(), out)
+        click.echo(f"wrote {out}")
+
+
+def _print_design(d) -> None:
+    names = ("θ [N·m/rad]", "θ̇ [N·m·s/rad]", "ψ [N·m/rad]", "ψ̇ [N·m·s/rad]")
+    click.echo(f"IT2 PDC gains (ε = {d.epsilon:g}, ρ = {d.rho:g} N·m, decay rate = {d.decay_rate:g} 1/s, "
+               f"solver {d.solver}, {d.solve_time_s * 1000:.0f} ms)")
+    click.echo("        " + "".join(f"{n:>16}" for n in names))
+    for i, g in enumerate(d.gains):
+        click.echo(f"  G{i + 1}  " + "".join(f"{v:16.6g}" for v in g))
+    click.echo(f"certified peak |u| = {d.peak_input:.4g} N·m for ‖x0‖ ≤ {d.epsilon:g}")
+    click.echo(d.certificate.summary())
+
+
+def _load_design(path: Path | None, epsilon, rho, decay_rate, max_gain):
+    from twin.controllers.lmi import design_balance_gains
+
+    if path is None:
+        return design_balance_gains(epsilon=epsilon, rho=rho, decay_rate=decay_rate, max_gain=max_gain)
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+        gains = np.asarray(data["gains"], dtype=float)
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise TwinError(f"{path}: not a design file from 'twin design --out' ({exc})") from None
+    if gains.shape != (2, 4) or not np.all(np.isfinite(gains)):
+        raise TwinError(f"{path}: 'gains' must be 2 lists of 4 finite numbers, got shape {gains.shape}")
+    return SimpleNamespace(gains=gains, to_json_dict=lambda: data)
+
+
+@main.command()
+@click.argument("experiment", type=click.Choice(EXPERIMENT_CHOICES))
+@click.option("--controller", type=click.Choice(["it2", "t1", "both"]), default="both", show_default=True)
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=Path("runs/analytic"),
+              show_default=True, help="Output directory.")
+@click.option("--duration", type=float, default=None, help="Simulated time in s (default: the experiment's 15 s).")
+@click.option("--gains", "gains_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Use a design written by 'twin design --out' instead of designing anew.")
+@_design_options
+def analytic(experiment, controller, out, duration, gains_file, epsilon, rho, decay_rate, max_gain):
+    """Run a paper experiment on the analytic model (equation 1): figure, metrics, trajectories.
+
+    EXPERIMENT is 1 (balance from θ0 = 0.48 rad), 2 (+ position, p_d = 0.7 m) or
+    3 (+ direction, p_d = 1 m, α_d = 1.5 rad). Writes figure.png, metrics.json,
+    trajectory_<controller>.csv and design.json into --out.
+
+    \b
+    Examples:
+      twin analytic 3 --controller both --out runs/exp3
+      twin analytic 1 --controller t1 --duration 5
+    """
+    from twin import analytic_loop as al
+    from twin import report
+
+    number = int(experiment[-1])
+    if duration is not None and not (math.isfinite(duration) and 0 < duration <= 3600):
+        raise TwinError(f"--duration must be in (0, 3600] s, got {duration:g}")
+    d = _load_design(gains_file, epsilon, rho, decay_rate, max_gain)
+    exp = al.PAPER_EXPERIMENTS[number]
+    kinds = ["it2", "t1"] if controller == "both" else [controller]
+    runs, metrics = [], {}
+    for kind in kinds:
+        run = al.simulate(al.build_cascade(kind, d, exp), exp, duration=duration, controller_name=kind)
+        runs.append(run)
+        metrics[kind] = run.summary()
+        report.write_trajectory_csv(run, out / f"trajectory_{kind}.csv")
+    report.write_json({"experiment": exp.name, "description": exp.description, "plant": "analytic model, nominal",
+                       "controllers": metrics}, out / "metrics.json")
+    report.write_json(d.to_json_dict(), out / "design.json")
+    report.plot_runs(runs, out / "figure.png", f"{exp.name}: {exp.description} (analytic model)")
+    click.echo(f"{exp.name}: {exp.description}")
+    keys = [k for k in metrics[kinds[0]] if k != "controller"]
+    click.echo(f"  {'metric':28}" + "".join(f"{k.upper():>12}" for k in kinds))
+    for k in keys:
+        click.echo(f"  {k:28}" + "".join(f"{metrics[c][k]:12.4g}" for c in kinds))
+    click.echo(f"wrote {out}/figure.png, metrics.json, design.json, " + ", ".join(f"trajectory_{k}.csv" for k in kinds))
+
+
+@main.command()
+@click.argument("which", type=click.Choice(["position", "direction"]))
+@click.option("--controller", type=click.Choice(["it2", "t1"]), default="it2", show_default=True)
+@click.option("--points", type=click.IntRange(3, 1001), default=81, show_default=True, help="Grid points per input.")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=Path("runs/surfaces"),
+              show_default=True, help="Output directory.")
+def surface(which, controller, points, out):
+    """Export a Mamdani controller's surface over Table I's input ranges (CSV and PNG).
+
+    \b
+    Examples:
+      twin surface position --controller it2 --out runs/surfaces
+      twin surface direction --controller t1 --points 101
+    """
+    import numpy as np
+
+    from twin import report
+    from twin.controllers import mamdani
+
+    fls = mamdani.position_controller(controller) if which == "position" else mamdani.direction_controller(controller)
+    g1, g2, z = fls.surface(points)
+    labels = {"position": ("p_e [m]", "θ̇ [rad/s]", "θ_off [rad]"),
+              "direction": ("α_e [rad]", "α̇_e [rad/s]", "u_α [N·m]")}[which]
+    out.mkdir(parents=True, exist_ok=True)
+    stem = out / f"{which}_{controller}"
+    rows = [(a, b, z[i, j]) for i, a in enumerate(g1) for j, b in enumerate(g2)]
+    np.savetxt(f"{stem}.csv", np.array(rows), delimiter=",", header=",".join(labels), comments="")
+    report.plot_surface(g1, g2, z, Path(f"{stem}.png"), labels, f"{controller.upper()} {which} controller (Table II)")
+    click.echo(f"wrote {stem}.csv and {stem}.png")
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

@@ -1,0 +1,101 @@
+"""Figures, trajectories and metrics files for runs (matplotlib imported lazily)."""
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from twin.analytic_loop import AnalyticRun
+from twin.plant.analytic import STATE_NAMES, STATE_UNITS
+
+_COLOURS = {"it2": "tab:blue", "t1": "tab:orange"}
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_runs(runs: list[AnalyticRun], path: Path, title: str = "") -> Path:
+    """The paper's Figs. 6–8 panels (θ, command, dψ/dt, distance, α) with runs overlaid."""
+    plt = _pyplot()
+    panels = [
+        ("θ [rad]", lambda r: r.signal("theta")),
+        ("total torque u = ul + ur [N·m]", lambda r: r.ul + r.ur),
+        ("dψ/dt [rad/s]", lambda r: r.signal("psi_dot")),
+        ("distance p = rψ [m]", lambda r: r.distance),
+        ("heading α [rad]", lambda r: r.signal("alpha")),
+    ]
+    fig, axes = plt.subplots(len(panels), 1, figsize=(8, 10), sharex=True)
+    for ax, (label, get) in zip(axes, panels):
+        for r in runs:
+            ax.plot(r.t, get(r), color=_COLOURS.get(r.controller), lw=1.2, label=r.controller.upper() or None)
+        ax.set_ylabel(label, fontsize=8)
+        ax.grid(alpha=0.3)
+    exp = runs[0].experiment
+    if exp is not None:
+        if exp.p_d is not None:
+            axes[3].axhline(exp.p_d, color="k", ls="--", lw=0.8, label="target")
+        if exp.alpha_d is not None:
+            axes[4].axhline(exp.alpha_d, color="k", ls="--", lw=0.8, label="target")
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[-1].set_xlabel("time [s]")
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def write_trajectory_csv(run: AnalyticRun, path: Path) -> Path:
+    """Time, state and commands with units in the header."""
+    header = ["t [s]"] + [f"{n} [{u}]" for n, u in zip(STATE_NAMES, STATE_UNITS)] + [
+        "ul [N·m]", "ur [N·m]", "u_balance [N·m]", "theta_off [rad]", "u_alpha [N·m]"]
+    data = np.column_stack([run.t, run.x, run.ul, run.ur, run.u, run.theta_off, run.u_alpha])
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(header)
+        for row in data:
+            w.writerow([repr(float(v)) for v in row])
+    return path
+
+
+def write_json(obj, path: Path) -> Path:
+    """JSON with non-finite floats written as null (valid JSON for every reader)."""
+    def clean(v):
+        if isinstance(v, float) and not math.isfinite(v):
+            return None
+        if isinstance(v, dict):
+            return {k: clean(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [clean(x) for x in v]
+        return v
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(clean(obj), indent=2, ensure_ascii=False) + "\n", encoding="utf-8")
+    return path
+
+
+def plot_surface(g1, g2, z, path: Path, labels: tuple[str, str, str], title: str) -> Path:
+    """A control surface as a filled contour map."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(6, 5))
+    cs = ax.contourf(g1, g2, z.T, levels=31, cmap="coolwarm")
+    fig.colorbar(cs, ax=ax, label=labels[2])
+    ax.set_xlabel(labels[0])
+    ax.set_ylabel(labels[1])
+    ax.set_title(title, fontsize=10)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
