@@ -46,7 +46,7 @@ def test_balances_a_mismatched_true_plant(design):
     plant = NOMINAL.perturbed(scale={"m_b": 1.15, "l": 1.1, "n_yb": 1.3, "d_w": 2.0})
     run = run_paper_experiment(2, "it2", design, plant=plant)
     assert abs(run.distance[-1] - 0.7) < 0.02
-    assert np.all(np.abs(run.signal("theta")[run.t > 8]) < 0.01)
+    assert np.all(np.abs(run.signal("theta")[run.t > 12]) < 0.01)
 
 
 def test_control_period_must_be_whole_number_of_physics_steps(design):

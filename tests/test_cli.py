@@ -1,0 +1,64 @@
+"""The command line as a user runs it: exit status, one-line errors, files written."""
+import json
+import subprocess
+import sys
+
+import pytest
+
+
+def twin(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "twin.cli", *args], capture_output=True, text=True, cwd=cwd)
+
+
+def test_design_writes_json(tmp_path):
+    out = tmp_path / "gains.json"
+    r = twin("design", "--decay-rate", "2", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    assert "certificate PASSED" in r.stdout and "G1" in r.stdout and "ms)" in r.stdout
+    data = json.loads(out.read_text())
+    assert len(data["gains"]) == 2 and all(len(g) == 4 for g in data["gains"])
+    assert len(data["P"]) == 4 and data["decay_rate"] == 2.0
+    assert {"solve_time_s", "epsilon", "rho"} <= set(data)
+
+
+@pytest.mark.parametrize("args, message", [
+    (["design", "--rho", "0.1"], "rho = 0.1 N·m is too small"),
+    (["design", "--epsilon", "-2"], "epsilon must be a finite number > 0"),
+    (["design", "--decay-rate", "500", "--rho", "1e6"], "decay rate 500 1/s is infeasible"),
+    (["analytic", "2", "--duration", "-1"], "--duration must be in (0, 3600] s"),
+])
+def test_user_errors_are_one_line(args, message):
+    r = twin(*args)
+    assert r.returncode == 2
+    assert "Traceback" not in r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and message in lines[0], r.stderr
+
+
+def test_bad_gains_file_is_one_line(tmp_path):
+    bad = tmp_path / "g.json"
+    bad.write_text('{"gains": [[1, 2, 3]]}')
+    r = twin("analytic", "1", "--gains", str(bad), "--out", str(tmp_path / "o"))
+    assert r.returncode == 2 and "'gains' must be 2 lists of 4" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_analytic_run_writes_outputs(tmp_path):
+    gains = tmp_path / "g.json"
+    assert twin("design", "--out", str(gains)).returncode == 0
+    out = tmp_path / "exp2"
+    r = twin("analytic", "2", "--controller", "both", "--gains", str(gains), "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    for name in ("figure.png", "metrics.json", "design.json", "trajectory_it2.csv", "trajectory_t1.csv"):
+        assert (out / name).stat().st_size > 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert abs(m["controllers"]["it2"]["final_position_error_m"]) < 0.01
+    header = (out / "trajectory_it2.csv").read_text().splitlines()[0]
+    assert "theta [rad]" in header and "ul [N·m]" in header
+
+
+def test_surface_export(tmp_path):
+    r = twin("surface", "direction", "--points", "11", "--out", str(tmp_path))
+    assert r.returncode == 0, r.stderr
+    rows = (tmp_path / "direction_it2.csv").read_text().splitlines()
+    assert len(rows) == 1 + 11 * 11
+    assert (tmp_path / "direction_it2.png").stat().st_size > 0
