@@ -11,12 +11,20 @@ Nie–Tan and KM all reduce to the type-1 weighted average Σ f y / Σ f.
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 
 from twin.errors import TwinError
 from twin.fuzzy import type_reduction as tr
 from twin.fuzzy.sets import Partition
+
+try:  # the optional compiled kernel (setup.py); TWIN_PURE_PYTHON=1 turns it off
+    from twin.fuzzy import _kernel
+except ImportError:  # pragma: no cover - depends on the build
+    _kernel = None
+if os.environ.get("TWIN_PURE_PYTHON", "") not in ("", "0"):
+    _kernel = None
 
 TYPE_REDUCERS = ("bmm", "nt", "km")
 
@@ -38,10 +46,14 @@ class MamdaniFLS:
     m, n : float
         BMM weights of the lower and upper terms; m + n = 1 keeps the output a convex
         combination of the consequent centres.
+    compiled : bool
+        Use the compiled kernel (``twin.fuzzy._kernel``) for BMM and Nie–Tan when it is
+        built; it performs the pure-Python path's arithmetic in the same order, so the
+        results are identical. False forces pure Python/numpy.
     """
 
     def __init__(self, input1: Partition, input2: Partition, output_centres, rule_table,
-                 type_reduction: str = "bmm", m: float = 0.5, n: float = 0.5):
+                 type_reduction: str = "bmm", m: float = 0.5, n: float = 0.5, compiled: bool = True):
         if type_reduction not in TYPE_REDUCERS:
             raise TwinError(f"type reduction must be one of {', '.join(TYPE_REDUCERS)}, got {type_reduction!r}")
         table = np.asarray(rule_table)
@@ -62,6 +74,16 @@ class MamdaniFLS:
         self.m, self.n = float(m), float(n)
         self.y = centres[table].ravel()  # consequent centre per rule, row-major (i, j)
         self._y_py = [[float(v) for v in row] for row in centres[table]]
+        self._kernel = None
+        if compiled and _kernel is not None and type_reduction != "km" and max(len(input1), len(input2)) <= 64:
+            self._kernel = _kernel.make(input1.kernel_lower, input1.kernel_upper, input2.kernel_lower,
+                                        input2.kernel_upper, np.ascontiguousarray(self.y).tobytes(),
+                                        0 if type_reduction == "bmm" else 1, self.m, self.n)
+
+    @property
+    def compiled(self) -> bool:
+        """True if evaluations run in the compiled kernel."""
+        return self._kernel is not None
 
     # -- vectorised ---------------------------------------------------------------
     def firing(self, x1, x2) -> tuple[np.ndarray, np.ndarray]:
@@ -77,6 +99,13 @@ class MamdaniFLS:
     def evaluate(self, x1, x2) -> np.ndarray:
         """Crisp outputs for arrays of normalised inputs (broadcast together)."""
         _require_finite(x1, x2)
+        if self._kernel is not None:
+            a, b = np.broadcast_arrays(np.asarray(x1, dtype=float), np.asarray(x2, dtype=float))
+            a = np.ascontiguousarray(a, dtype=np.float64)
+            b = np.ascontiguousarray(b, dtype=np.float64)
+            out = np.empty(a.shape)
+            _kernel.evaluate_many(self._kernel, a, b, out)
+            return out
         f_lo, f_up = self.firing(x1, x2)
         return self._reduce(f_lo, f_up)
 
@@ -102,6 +131,8 @@ class MamdaniFLS:
         """
         if not (math.isfinite(x1) and math.isfinite(x2)):
             raise TwinError(f"fuzzy system inputs must be finite numbers, got ({x1}, {x2})")
+        if self._kernel is not None:
+            return _kernel.evaluate(self._kernel, x1, x2)
         if self.type_reduction == "km":
             return float(self.evaluate(x1, x2))
         Y = self._y_py

@@ -111,6 +111,9 @@ class Partition:
         # (between the open supports) found by bisection.
         self.scalar_lower = _feet([s.lower for s in sets]) + tuple([float(v) for v in col] for col in self._lo)
         self.scalar_upper = _feet([s.upper for s in sets]) + tuple([float(v) for v in col] for col in self._up)
+        # for the compiled kernel: K rows of (peak, 1/(peak-left), 1/(right-peak), height)
+        self.kernel_lower = np.ascontiguousarray(p[:, 0:4]).tobytes()
+        self.kernel_upper = np.ascontiguousarray(p[:, 4:8]).tobytes()
 
     def __len__(self) -> int:
         return len(self.sets)
