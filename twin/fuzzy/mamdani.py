@@ -101,10 +101,9 @@ class MamdaniFLS:
         _require_finite(x1, x2)
         if self._kernel is not None:
             a, b = np.broadcast_arrays(np.asarray(x1, dtype=float), np.asarray(x2, dtype=float))
-            a = np.ascontiguousarray(a, dtype=np.float64)
-            b = np.ascontiguousarray(b, dtype=np.float64)
             out = np.empty(a.shape)
-            _kernel.evaluate_many(self._kernel, a, b, out)
+            _kernel.evaluate_many(self._kernel, np.ascontiguousarray(a.ravel()), np.ascontiguousarray(b.ravel()),
+                                  out.reshape(-1))
             return out
         f_lo, f_up = self.firing(x1, x2)
         return self._reduce(f_lo, f_up)
