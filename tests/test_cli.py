@@ -2,12 +2,14 @@
 import json
 import subprocess
 import sys
+import tempfile
 
 import pytest
 
 
-def twin(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "twin.cli", *args], capture_output=True, text=True, cwd=cwd)
+def twin(*args):
+    # run outside the checkout, so that the installed package is what runs, as for a user
+    return subprocess.run([sys.executable, "-m", "twin.cli", *args], capture_output=True, text=True, cwd=tempfile.gettempdir())
 
 
 def test_design_writes_json(tmp_path):
