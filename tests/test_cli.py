@@ -28,6 +28,13 @@ def test_design_writes_json(tmp_path):
     (["design", "--epsilon", "-2"], "epsilon must be a finite number > 0"),
     (["design", "--decay-rate", "500", "--rho", "1e6"], "decay rate 500 1/s is infeasible"),
     (["analytic", "2", "--duration", "-1"], "--duration must be in (0, 3600] s"),
+    (["analytic", "2", "--duration", "nan"], "--duration must be in (0, 3600] s"),
+    (["design", "--rho", "abc"], "Invalid value for '--rho': 'abc' is not a valid float"),
+    (["analytic", "7"], "'7' is not one of '1', '2', '3'"),
+    (["analytic"], "Missing argument 'EXPERIMENT'. Choose from: 1, 2, 3"),
+    (["surface", "speed"], "'speed' is not one of 'position', 'direction'"),
+    (["design", "--nope"], "No such option '--nope'"),
+    (["fly"], "No such command 'fly'"),
 ])
 def test_user_errors_are_one_line(args, message):
     r = twin(*args)

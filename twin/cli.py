@@ -17,7 +17,22 @@ EXPERIMENT_CHOICES = ("1", "2", "3", "paper-exp1", "paper-exp2", "paper-exp3")
 
 
 class _Group(click.Group):
-    """Turns TwinError and file errors into one line and exit status 2."""
+    """Turns usage errors, TwinError and file errors into one line and exit status 2."""
+
+    def main(self, args=None, prog_name=None, **extra):
+        try:
+            rv = super().main(args=args, prog_name=prog_name, standalone_mode=False, **extra)
+        except click.UsageError as exc:
+            hint = f" (see 'twin {exc.ctx.info_name if exc.ctx and exc.ctx.parent else ''} --help')".replace("  ", " ")
+            click.echo(f"error: {' '.join(exc.format_message().split())}{hint}", err=True)
+            sys.exit(2)
+        except click.ClickException as exc:
+            click.echo(f"error: {exc.format_message()}", err=True)
+            sys.exit(exc.exit_code)
+        except click.Abort:
+            click.echo("error: aborted", err=True)
+            sys.exit(1)
+        sys.exit(rv if isinstance(rv, int) else 0)
 
     def invoke(self, ctx):
         try:
@@ -117,7 +132,7 @@ def _load_design(path: Path | None, epsilon, rho, decay_rate, max_gain):
 
 
 @main.command()
-@click.argument("experiment", type=click.Choice(EXPERIMENT_CHOICES))
+@click.argument("experiment", type=click.Choice(EXPERIMENT_CHOICES), metavar="EXPERIMENT")
 @click.option("--controller", type=click.Choice(["it2", "t1", "both"]), default="both", show_default=True)
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=Path("runs/analytic"),
               show_default=True, help="Output directory.")
@@ -165,7 +180,7 @@ def analytic(experiment, controller, out, duration, gains_file, epsilon, rho, de
 
 
 @main.command()
-@click.argument("which", type=click.Choice(["position", "direction"]))
+@click.argument("which", type=click.Choice(["position", "direction"]), metavar="{position|direction}")
 @click.option("--controller", type=click.Choice(["it2", "t1"]), default="it2", show_default=True)
 @click.option("--points", type=click.IntRange(3, 1001), default=81, show_default=True, help="Grid points per input.")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=Path("runs/surfaces"),
