@@ -134,23 +134,10 @@ class MamdaniFLS:
             return _kernel.evaluate(self._kernel, x1, x2)
         if self.type_reduction == "km":
             return float(self.evaluate(x1, x2))
-        Y = self._y_py
         i0, a_up, k0, a_lo = self.input1.active(x1)
         j0, b_up, l0, b_lo = self.input2.active(x2)
-        s_up = w_up = 0.0
-        for i, a in enumerate(a_up, i0):
-            row = Y[i]
-            for j, b in enumerate(b_up, j0):
-                f = a if a < b else b
-                s_up += f
-                w_up += f * row[j]
-        s_lo = w_lo = 0.0
-        for i, a in enumerate(a_lo, k0):
-            row = Y[i]
-            for j, b in enumerate(b_lo, l0):
-                f = a if a < b else b
-                s_lo += f
-                w_lo += f * row[j]
+        s_up, w_up = _min_firing_sums(a_up, i0, b_up, j0, self._y_py)
+        s_lo, w_lo = _min_firing_sums(a_lo, k0, b_lo, l0, self._y_py)
         if self.type_reduction == "nt":
             return (w_lo + w_up) / (s_lo + s_up)
         if s_lo > 0.0:
@@ -164,6 +151,19 @@ class MamdaniFLS:
         g1 = np.linspace(-1.0, 1.0, n1)
         g2 = np.linspace(-1.0, 1.0, n2)
         return g1, g2, self.evaluate(g1[:, None], g2[None, :])
+
+
+def _min_firing_sums(a_run, i0: int, b_run, j0: int, Y) -> tuple[float, float]:
+    """(Σ f, Σ f y) over rules (i, j) with f = min(a_i, b_j), for the active runs of
+    memberships a (sets i0…) and b (sets j0…); row-major order, as the C kernel."""
+    s = w = 0.0
+    for i, a in enumerate(a_run, i0):
+        row = Y[i]
+        for j, b in enumerate(b_run, j0):
+            f = a if a < b else b
+            s += f
+            w += f * row[j]
+    return s, w
 
 
 def _require_finite(*arrays) -> None:
