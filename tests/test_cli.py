@@ -25,8 +25,10 @@ def test_design_writes_json(tmp_path):
 
 @pytest.mark.parametrize("args, message", [
     (["design", "--rho", "0.1"], "rho = 0.1 N·m is too small"),
-    (["design", "--epsilon", "-2"], "epsilon must be a finite number > 0"),
-    (["design", "--decay-rate", "500", "--rho", "1e6"], "decay rate 500 1/s is infeasible"),
+    (["design", "--epsilon", "-2"], "epsilon must be a finite number in (0, 100]"),
+    (["design", "--decay-rate", "500"], "decay rate must be a finite number in [0, 100]"),
+    (["design", "--rho", "1e300"], "rho must be a finite number in (0, 1e+06]"),
+    (["design", "--max-gain", "0.5"], "max gain 0.5 is too small for decay rate 3 1/s"),
     (["analytic", "2", "--duration", "-1"], "--duration must be in (0, 3600] s"),
     (["analytic", "2", "--duration", "nan"], "--duration must be in (0, 3600] s"),
     (["design", "--rho", "abc"], "Invalid value for '--rho': 'abc' is not a valid float"),

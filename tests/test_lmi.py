@@ -33,19 +33,47 @@ def test_input_bound_of_lemma_2_holds_on_the_ts_model(design):
     (A1, A2), (B1, B2) = ts_matrices(NOMINAL)
     rng = np.random.default_rng(7)
     worst = 0.0
+
+    def f(x):
+        m1 = rule1_weight(x[0])
+        u = (m1 * design.gains[0] + (1 - m1) * design.gains[1]) @ x
+        return m1 * (A1 @ x + B1[:, 0] * u) + (1 - m1) * (A2 @ x + B2[:, 0] * u), u
+
     for _ in range(20):
         x = rng.normal(size=4)
         x *= design.epsilon / np.linalg.norm(x)
-        for _ in range(1500):
-            m1 = rule1_weight(x[0])
-            u = (m1 * design.gains[0] + (1 - m1) * design.gains[1]) @ x
+        for _ in range(3000):  # 3 s, RK4
+            k1, u = f(x)
             worst = max(worst, abs(u))
-            dx = m1 * (A1 @ x + B1[:, 0] * u) + (1 - m1) * (A2 @ x + B2[:, 0] * u)
-            x = x + 1e-4 * dx
+            k2, _ = f(x + 0.0005 * k1)
+            k3, _ = f(x + 0.0005 * k2)
+            k4, _ = f(x + 0.001 * k3)
+            x = x + (0.001 / 6) * (k1 + 2 * k2 + 2 * k3 + k4)
+        assert np.linalg.norm(x) < 1e-3 * design.epsilon  # it converged (decay rate 3 1/s)
     assert worst <= design.peak_input * 1.001
     assert design.peak_input <= design.rho
     # the bound also limits the gains: ‖G_i‖ ≤ √t / ε
     assert np.linalg.norm(design.gains, axis=1).max() <= design.peak_input / design.epsilon * 1.0001
+
+
+def test_certificate_check_fails_for_a_decay_rate_it_was_not_designed_for(design):
+    from twin.controllers import lmi
+
+    (A1, A2), (B1, B2) = ts_matrices(NOMINAL)
+    sol = lmi._certified_solution([A1, A2], [B1, B2], 3.0, None)
+    Q, N, Y, T, _ = sol
+    assert lmi.verify_certificate([A1, A2], [B1, B2], Q, N, Y, 1.0, 1e6, 3.0, T).passed
+    cert = lmi.verify_certificate([A1, A2], [B1, B2], Q, N, Y, 1.0, 1e6, 10.0, T)
+    assert not cert.passed and cert.lyapunov_margin < 0
+    # and for a ρ below the peak
+    assert not lmi.verify_certificate([A1, A2], [B1, B2], Q, N, Y, 1.0, 0.5, 3.0, T).passed
+
+
+def test_decay_rate_zero_is_reported_as_nearly_marginal():
+    d = design_balance_gains(decay_rate=0.0)
+    assert d.certificate.passed
+    assert -0.1 < d.slowest_vertex_pole < 0  # the paper's Lemma 1 alone: stable, barely
+    assert design_balance_gains(decay_rate=3.0).slowest_vertex_pole < -2.5
 
 
 def test_certificate_check_can_fail(design):
@@ -79,8 +107,21 @@ def test_rho_too_small_is_a_clear_error():
 
 
 def test_decay_rate_too_large_is_a_clear_error():
-    with pytest.raises(InfeasibleDesign, match=r"decay rate 200 1/s is infeasible.*largest feasible"):
-        design_balance_gains(decay_rate=200.0, rho=1e6)
+    with pytest.raises(InfeasibleDesign, match=r"decay rate 60 1/s cannot be certified.*largest certified is about") as info:
+        design_balance_gains(decay_rate=60.0, rho=1e6)
+    # the value it reports really is certified
+    largest = float(str(info.value).split("largest certified is about ")[1].split()[0])
+    assert 5.0 < largest < 60.0
+    assert design_balance_gains(decay_rate=largest, rho=1e6).certificate.passed
+
+
+def test_epsilon_only_sets_the_scale_and_large_rho_is_harmless():
+    ref = design_balance_gains(epsilon=0.5, rho=1e6, decay_rate=5.0)
+    for eps in (1e-6, 0.05, 5.0):
+        d = design_balance_gains(epsilon=eps, rho=1e6, decay_rate=5.0)
+        assert np.allclose(d.gains, ref.gains, rtol=1e-12)
+        assert d.peak_input == pytest.approx(ref.peak_input * eps / 0.5, rel=1e-9)
+        assert d.certificate.passed
 
 
 def test_max_gain_bound():
@@ -90,7 +131,8 @@ def test_max_gain_bound():
         design_balance_gains(max_gain=0.1)
 
 
-@pytest.mark.parametrize("kw", [{"epsilon": -1}, {"rho": 0}, {"decay_rate": float("nan")}, {"rho": "big"}])
+@pytest.mark.parametrize("kw", [{"epsilon": -1}, {"rho": 0}, {"decay_rate": float("nan")}, {"rho": "big"},
+                                {"rho": 1e300}, {"epsilon": 1e200}, {"max_gain": 0}, {"decay_rate": 1e3}])
 def test_bad_design_inputs(kw):
     with pytest.raises(TwinError):
         design_balance_gains(**kw)

@@ -108,7 +108,8 @@ def _print_design(d) -> None:
     click.echo("        " + "".join(f"{n:>16}" for n in names))
     for i, g in enumerate(d.gains):
         click.echo(f"  G{i + 1}  " + "".join(f"{v:16.6g}" for v in g))
-    click.echo(f"certified peak |u| = {d.peak_input:.4g} N·m for ‖x0‖ ≤ {d.epsilon:g}")
+    click.echo(f"certified peak |u| = {d.peak_input:.4g} N·m for ‖x0‖ ≤ {d.epsilon:g} (on the TS model); "
+               f"slowest rule closed-loop pole {d.slowest_vertex_pole:.3g} 1/s")
     click.echo(d.certificate.summary())
 
 

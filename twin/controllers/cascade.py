@@ -14,10 +14,15 @@ The ψ channel of the PDC (a design choice the paper leaves open). The LMI gains
 feedback on ψ, which on its own regulates the robot back to where it started and would
 fight the position loop: with θ_off → 0 at the target, the robot would return to ψ = 0.
 So ψ is measured from the target, ψ_e = ψ − p_d / r, and clipped to ±``psi_error_limit``
-(rad) so that a distant target never asks the PDC for more than its certified region
-allows. Far from the target the FLS and the clipped ψ channel both drive the robot; near
-it the ψ channel holds it exactly where it should be. Without a position target the PDC
-regulates ψ to zero, as in the paper's first experiment.
+(rad) so that a distant target does not turn into a huge torque. Far from the target the
+FLS and the clipped ψ channel both drive the robot; near it the ψ channel holds it
+exactly where it should be. Without a position target the PDC regulates ψ to zero, as
+in the paper's first experiment.
+
+How much each part contributes (nominal analytic model, paper experiment 2, time to
+reach 0.7 m within 1 cm): 5.7 s with the FLS, 6.7 s with θ_off ≡ 0, 8.3 s with the FLS's
+sign flipped; the FLS alone (ψ channel off) moves the robot only to 0.40 m in 15 s,
+because Table I caps θ_off at π/40 rad. The tests check each of these directions.
 """
 from __future__ import annotations
 

@@ -12,12 +12,28 @@ What the paper lacks, added here:
 * an objective: minimise t with [[Q, N_iᵀ], [N_i, t]] ⪰ 0, the squared worst-case input
   over the certified ellipsoid. Because ε² I ⪯ Q, this also bounds the gains,
   ‖G_i‖₂ ≤ √t / ε, so the design returns the *smallest* gains that meet the decay
-  rate, not arbitrary feasible ones; ``max_gain`` turns that bound into a constraint.
+  rate, not arbitrary feasible ones.
+
+ε only sets the scale of (Q, N, Y, t), so the problem is solved once for ε = 1 and
+the gains do not depend on ε; ρ (|u| ≤ ρ) and ``max_gain`` (‖G_i‖ ≤ max_gain) are then
+checks on the minimal peak, and an infeasible request names the smallest value that
+works. Only the decay rate can make the problem itself infeasible.
 
 After solving, :func:`verify_certificate` re-checks everything with numpy eigenvalues,
 independent of the solver's status: every LMI with a margin, plus the closed-loop
 Lyapunov inequality (Σ_ij m_i m_j (A_i + B_i G_j))ᵀ P + P (…) + 2aP ≺ 0 on a grid of
 weights m1 ∈ [0, 1], built from P and G alone.
+
+What the certificate does *not* say, plainly:
+
+* it is about the TS model. Its invariant ellipsoid xᵀPx ≤ 1 reaches far beyond the
+  model's θ domain of ±π/6 (√Q11 ≈ 3 rad with the defaults), where the two-rule model no
+  longer describes equation (1); closed-loop behaviour on equation (1) and on the twin
+  is checked by simulation, not proven here;
+* with decay rate 0 (the paper's Lemma 1 alone) the gains can be nearly marginal:
+  ``slowest_vertex_pole`` reports max Re λ(A_i + B_i G_i) so that this shows;
+* it covers the IT2 PDC, whose weights equal the model's. The type-1 PDC uses the same
+  gains with other weights, which the Y_ij relaxation does not cover.
 """
 from __future__ import annotations
 
@@ -40,6 +56,12 @@ DEFAULT_DECAY_RATE = 3.0  # 1/s: θ from 0.48 rad to below 0.01 rad in about 1.1
 # room (relative to its scale) and the independent check then needs no tolerance at all.
 # SCS, a first-order method, is less precise and gets more room.
 _ROOM = {"CLARABEL": 1e-5, "SCS": 1e-2}
+# Accepted ranges (beyond them the numbers stop meaning anything for this robot, or overflow)
+_MAX_EPSILON = 100.0
+_MAX_RHO = 1e6  # N·m
+_MAX_DECAY = 100.0  # 1/s
+_MAX_GAIN = 1e9
+
 # Typical magnitudes of [θ, θ̇, ψ, ψ̇] during a recovery (rad, rad/s, rad, rad/s).
 _DEFAULT_SCALING = np.array([1.0, 10.0, 10.0, 50.0])
 _SOLVER_OPTIONS = {
@@ -94,6 +116,7 @@ class BalanceDesign:
     solver: str
     certificate: Certificate
     params: RobotParams = field(repr=False, default=NOMINAL)
+    slowest_vertex_pole: float = math.nan  # max Re λ(A_i + B_i G_i), 1/s
 
     def to_json_dict(self) -> dict:
         return {
@@ -108,6 +131,7 @@ class BalanceDesign:
             "decay_rate": self.decay_rate,
             "max_gain": self.max_gain,
             "peak_input_nm": self.peak_input,
+            "slowest_vertex_pole_per_s": self.slowest_vertex_pole,
             "certificate": {
                 "passed": self.certificate.passed,
                 "lmi_margins": self.certificate.lmi_margins,
@@ -118,24 +142,30 @@ class BalanceDesign:
         }
 
 
-def _check_positive(name: str, value: float, allow_zero: bool = False) -> float:
+def _check_positive(name: str, value: float, allow_zero: bool = False, upper: float = math.inf) -> float:
     try:
         v = float(value)
     except (TypeError, ValueError):
         raise TwinError(f"{name} must be a number, got {value!r}") from None
-    if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
-        bound = ">= 0" if allow_zero else "> 0"
-        raise TwinError(f"{name} must be a finite number {bound}, got {value!r}")
+    if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero) or v > upper:
+        bound = "in [0, " if allow_zero else "in (0, "
+        raise TwinError(f"{name} must be a finite number {bound}{upper:g}], got {value!r}")
     return v
 
 
-def _solve(A, B, epsilon, decay_rate, t_max, solver, T=None, feasibility_only=False):
-    """Build and solve the SDP in scaled coordinates z = T⁻¹ x (T diagonal, positive).
+def _solve(A, B, decay_rate, solver, T=None, feasibility_only=False):
+    """Build and solve the SDP for ε = 1 in scaled coordinates z = T⁻¹ x (T diagonal > 0).
 
     Returns (status, Q̃, Ñ list, Ỹ blocks, t, solver name) in the z coordinates:
     Q = T Q̃ T, N = Ñ T, Y_ij = T Ỹ_ij T. The congruence keeps every LMI's sign but makes
     Q̃ far better conditioned (Q spans four decades in the x coordinates).
+
+    ε only sets the scale: every LMI is homogeneous in (Q, N, Y) except ε² I ⪯ Q, so
+    (ε²Q, ε²N, ε²Y, ε²t) solves the problem for ε whenever (Q, N, Y, t) solves it for 1,
+    with the same gains. ρ and the gain bound are checks on the minimal t, not
+    constraints (a constraint t ≤ ρ² with a huge ρ only spoils the solver's scaling).
     """
+    epsilon = 1.0
     import cvxpy as cp
 
     n = A[0].shape[0]
@@ -164,8 +194,6 @@ def _solve(A, B, epsilon, decay_rate, t_max, solver, T=None, feasibility_only=Fa
                 lhs = 0.5 * (lhs + lhs.T)
                 cons.append(lhs << (-delta * I if i == j else -0.1 * delta * I))
             cons.append(cp.bmat([[Q, N[i].T], [N[i], cp.reshape(t, (1, 1), order="C")]]) >> 0)
-        if t_max is not None:
-            cons.append(t <= (1 - room) * t_max)
         return cp.Problem(cp.Minimize(0 if feasibility_only else t), cons), Q, N, Yb, t
 
     names = [solver] if solver else ["CLARABEL", "SCS"]
@@ -216,8 +244,8 @@ def verify_certificate(A, B, Q, N, Y, epsilon, rho, decay_rate, T=None, weight_g
             phi = 0.5 * (phi + phi.T)
             s = max(np.linalg.norm(A[i] @ Q, 2), scale)
             margins[f"Phi{i + 1}{j + 1}+Y{i + 1}{j + 1}<=0"] = float(-np.linalg.eigvalsh(phi).max() / s)
-        Mi = np.block([[Q, N[i].T], [N[i], np.array([[rho**2]])]])
-        margins[f"input bound rule {i + 1}"] = float(np.linalg.eigvalsh(0.5 * (Mi + Mi.T)).min() / max(scale, rho**2))
+        # Lemma 2's [[Q, N_iᵀ], [N_i, ρ²]] ⪰ 0 is, with Q ≻ 0, its Schur complement:
+        margins[f"input bound rule {i + 1}"] = float(1.0 - (N[i] @ np.linalg.solve(Q, N[i].T)).item() / rho**2)
 
     P = np.linalg.inv(Q)
     P = 0.5 * (P + P.T)
@@ -268,82 +296,97 @@ def design_balance_gains(
         With a one-line message naming the requirement (ρ, max_gain or decay rate)
         that cannot be met and the value that can.
     """
-    epsilon = _check_positive("epsilon", epsilon)
-    rho = _check_positive("rho", rho)
-    decay_rate = _check_positive("decay rate", decay_rate, allow_zero=True)
+    epsilon = _check_positive("epsilon", epsilon, upper=_MAX_EPSILON)
+    rho = _check_positive("rho", rho, upper=_MAX_RHO)
+    decay_rate = _check_positive("decay rate", decay_rate, allow_zero=True, upper=_MAX_DECAY)
     if max_gain is not None:
-        max_gain = _check_positive("max gain", max_gain)
+        max_gain = _check_positive("max gain", max_gain, upper=_MAX_GAIN)
     import cvxpy  # noqa: F401  (imported before the clock starts: solve time excludes import)
 
     A, B = ts_matrices(params)
-    t_max = rho**2 if max_gain is None else min(rho**2, (max_gain * epsilon) ** 2)
     t0 = time.perf_counter()
-    T = _DEFAULT_SCALING
-    status, Q, N, Y, t, used = _solve(A, B, epsilon, decay_rate, t_max, solver, T)
-    if Q is None:
-        _explain_infeasible(A, B, epsilon, rho, decay_rate, max_gain, solver, status)
-    cert = verify_certificate(A, B, Q, N, Y, epsilon, rho, decay_rate, T)
-    if not cert.passed:
-        # Rescale by the solution's own spread and solve again: usually what fixes it.
-        T = T * np.sqrt(np.diag(Q) / np.diag(Q).min())
-        status, Q, N, Y, t, used = _solve(A, B, epsilon, decay_rate, t_max, solver, T)
-        if Q is None:
-            _explain_infeasible(A, B, epsilon, rho, decay_rate, max_gain, solver, status)
-        cert = verify_certificate(A, B, Q, N, Y, epsilon, rho, decay_rate, T)
+    sol = _certified_solution(A, B, decay_rate, solver)
     elapsed = time.perf_counter() - t0
-    if not cert.passed:
+    if isinstance(sol, str):
+        _explain_decay(A, B, decay_rate, solver, sol)
+    Q1, N1, Y1, T, used = sol
+    Qx1 = Q1 * T[:, None] * T[None, :]  # ε = 1, x coordinates
+    Px1 = np.linalg.inv(Qx1)
+    gains = np.vstack([-(Ni * T[None, :]) @ Px1 for Ni in N1])
+    # peak |u| over the invariant ellipsoid of the starts ‖x0‖ ≤ ε, from Q and G alone
+    peak = epsilon * max(math.sqrt(max(float(g @ Qx1 @ g), 0.0)) for g in gains)
+    if peak > rho:
         raise InfeasibleDesign(
-            f"the solver ({used}, status {status}) returned gains that fail the independent check "
-            f"({cert.summary()}); relax rho, epsilon or the decay rate"
+            f"rho = {rho:g} N·m is too small for epsilon = {epsilon:g} and decay rate {decay_rate:g} 1/s: "
+            f"the smallest feasible rho is {peak * (1 + 1e-6):.4g} N·m; raise --rho, or lower --epsilon or --decay-rate"
         )
-    Qx = Q * T[:, None] * T[None, :]
-    Px = np.linalg.inv(Qx)
-    gains = np.vstack([-(Ni * T[None, :]) @ Px for Ni in N])
+    if max_gain is not None and peak / epsilon > max_gain:
+        raise InfeasibleDesign(
+            f"max gain {max_gain:g} is too small for decay rate {decay_rate:g} 1/s: the smallest feasible is "
+            f"{peak / epsilon * (1 + 1e-6):.4g}; raise --max-gain or lower --decay-rate"
+        )
+    # Checked at ε = 1 with ρ/ε: the exact equivalent of (ε²Q, ε²N, ε²Y) with ρ, without
+    # the rounding that multiplying by ε² = 1e-18 (say) would bring into the margins.
+    cert = verify_certificate(A, B, Q1, N1, Y1, 1.0, rho / epsilon, decay_rate, T)
+    if not cert.passed:  # pragma: no cover - the ε = 1 solution passed and peak <= ρ was checked
+        raise InfeasibleDesign(f"the design failed the independent check ({cert.summary()}); relax rho")
+    e2 = epsilon**2
+    Px = Px1 / e2
     return BalanceDesign(
         gains=gains,
         P=0.5 * (Px + Px.T),
-        Q=Qx,
+        Q=Qx1 * e2,
         epsilon=epsilon,
         rho=rho,
         decay_rate=decay_rate,
         max_gain=max_gain,
-        peak_input=float(np.sqrt(max(t, 0.0))),
+        peak_input=peak,
         solve_time_s=elapsed,
         solver=used,
         certificate=cert,
         params=params,
+        slowest_vertex_pole=_slowest_vertex_pole(A, B, gains),
     )
 
 
-def _explain_infeasible(A, B, epsilon, rho, decay_rate, max_gain, solver, status) -> None:
-    """Find which requirement made the design infeasible and raise a one-line error."""
+def _slowest_vertex_pole(A, B, gains) -> float:
+    """max Re λ(A_i + B_i G_i) over the rules, 1/s: the closed loop at θ = 0 (rule 1) and
+    at |θ| ≥ π/6 (rule 2). Near 0 means nearly marginal, whatever the certificate says."""
+    return float(max(np.linalg.eigvals(A[i] + B[i] @ gains[i:i + 1]).real.max() for i in range(len(A))))
+
+
+def _certified_solution(A, B, decay_rate, solver):
+    """Solve for ε = 1 and check the certificate; on failure rescale by the solution's own
+    spread and try once more. Returns (Q̃, Ñ, Ỹ, T, solver) or a string saying why not."""
     T = _DEFAULT_SCALING
-    status2, _, _, _, t_free, _ = _solve(A, B, epsilon, decay_rate, None, solver, T)
-    if t_free is None:
-        # Without the input bound only the decay rate constrains: find the largest that works.
-        lo, hi = 0.0, decay_rate
-        for _ in range(8):
-            mid = 0.5 * (lo + hi)
-            if _solve(A, B, epsilon, mid, None, solver, T, feasibility_only=True)[1] is not None:
-                lo = mid
-            else:
-                hi = mid
-        raise InfeasibleDesign(
-            f"decay rate {decay_rate:g} 1/s is infeasible for this plant (solver status: {status2}); "
-            f"the largest feasible is about {lo:.3g} 1/s: lower --decay-rate"
-        )
-    need = math.sqrt(t_free)
-    if need > rho:
-        raise InfeasibleDesign(
-            f"rho = {rho:g} N·m is too small for epsilon = {epsilon:g} and decay rate {decay_rate:g} 1/s: "
-            f"the smallest feasible rho is {need:.4g} N·m; raise --rho, or lower --epsilon or --decay-rate"
-        )
-    if max_gain is None or need <= max_gain * epsilon:
-        raise InfeasibleDesign(
-            f"the solver could not solve the design reliably (status: {status}) at decay rate "
-            f"{decay_rate:g} 1/s with epsilon = {epsilon:g}: lower --decay-rate or --epsilon"
-        )
+    for attempt in range(2):
+        status, Q, N, Y, _, used = _solve(A, B, decay_rate, solver, T)
+        if Q is None:
+            return f"solver status {status}"
+        cert = verify_certificate(A, B, Q, N, Y, 1.0, math.inf, decay_rate, T)
+        if cert.passed:
+            return Q, N, Y, T, used
+        T = T * np.sqrt(np.diag(Q) / np.diag(Q).min())
+    return f"{used} returned gains that fail the independent check ({cert.summary()})"
+
+
+def _explain_decay(A, B, decay_rate, solver, why) -> None:
+    """The decay rate is the only requirement that can make the ε = 1 problem fail: find
+    the largest decay rate that still gives a certified design and raise a one-line error."""
+    lo, hi = 0.0, min(decay_rate, _MAX_DECAY)
+    for _ in range(12):  # quick yes/no solves: near the limit a full solve can take seconds
+        mid = 0.5 * (lo + hi)
+        if _solve(A, B, mid, solver, _DEFAULT_SCALING, feasibility_only=True)[1] is None:
+            hi = mid
+        else:
+            lo = mid
+    for _ in range(8):  # report only a value that the full design really certifies
+        if lo <= 1e-3 or not isinstance(_certified_solution(A, B, lo, solver), str):
+            break
+        lo *= 0.9
     raise InfeasibleDesign(
-        f"max gain {max_gain:g} is too small for epsilon = {epsilon:g} and decay rate {decay_rate:g} 1/s: "
-        f"the smallest feasible is {need / epsilon:.4g}; raise it or lower --decay-rate"
+        f"decay rate {decay_rate:g} 1/s cannot be certified for this plant ({why}); "
+        f"the largest certified is about {lo:.4g} 1/s: lower --decay-rate"
     )
+
+
