@@ -53,6 +53,13 @@ def test_bad_gains_file_is_one_line(tmp_path):
     assert r.returncode == 2 and "'gains' must be 2 lists of 4" in r.stderr and "Traceback" not in r.stderr
 
 
+def test_gains_file_and_design_options_are_exclusive(tmp_path):
+    gains = tmp_path / "g.json"
+    gains.write_text('{"gains": [[1, 0, 0, 0], [1, 0, 0, 0]]}')
+    r = twin("analytic", "1", "--gains", str(gains), "--rho", "3", "--out", str(tmp_path / "o"))
+    assert r.returncode == 2 and "--gains uses a finished design; --rho would be ignored" in r.stderr
+
+
 def test_analytic_run_writes_outputs(tmp_path):
     gains = tmp_path / "g.json"
     assert twin("design", "--out", str(gains)).returncode == 0

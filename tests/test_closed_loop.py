@@ -68,3 +68,50 @@ def test_constant_disturbance_shifts_but_does_not_topple(design):
     run = simulate(build_cascade("it2", design, exp), exp, disturbance=lambda t: (0.0, 0.05, 0.0), duration=6)
     assert np.all(np.abs(run.signal("theta")[run.t > 3]) < 0.2)
     assert np.all(np.isfinite(run.x))
+
+
+def _time_to_reach(run, target, tol=0.01):
+    outside = np.nonzero(np.abs(run.distance - target) >= tol)[0]
+    return np.inf if outside[-1] == len(run.t) - 1 else run.t[outside[-1] + 1]
+
+
+class _Negated:
+    def __init__(self, fls):
+        self.fls = fls
+
+    def __call__(self, a, b):
+        return -self.fls(a, b)
+
+
+def test_position_fls_drives_towards_the_target_on_its_own(design):
+    """With the ψ channel off, the FLS alone must move the robot towards p_d (and a
+    sign-flipped FLS away from it): this catches a wrong θ_off sign convention."""
+    exp = PAPER_EXPERIMENTS[2]
+    alone = simulate(build_cascade("it2", design, exp, psi_error_limit=1e-9), exp)
+    assert 0.2 < alone.distance[-1] < 0.7
+    assert np.all(np.diff(alone.distance[alone.t > 2]) > -1e-4)  # steadily towards the target
+    flipped = build_cascade("it2", design, exp, psi_error_limit=1e-9)
+    flipped.position = _Negated(flipped.position)
+    assert simulate(flipped, exp).distance[-1] < -0.2
+
+
+def test_position_fls_shortens_the_approach(design):
+    exp = PAPER_EXPERIMENTS[2]
+    times = {}
+    for mode in ("fls", "zero", "flipped"):
+        c = build_cascade("it2", design, exp)
+        if mode == "zero":
+            c.position = lambda a, b: 0.0
+        elif mode == "flipped":
+            c.position = _Negated(c.position)
+        times[mode] = _time_to_reach(simulate(c, exp, duration=20.0), 0.7)
+    assert times["fls"] < 0.95 * times["zero"] < 0.95 * times["flipped"]
+
+
+def test_bad_simulation_inputs(design):
+    exp = PAPER_EXPERIMENTS[1]
+    ctrl = build_cascade("it2", design, exp)
+    with pytest.raises(TwinError, match="x0 must be 8 finite numbers"):
+        simulate(ctrl, exp, x0=[0.1, 0.0])
+    with pytest.raises(TwinError, match="duration must be at least one control period"):
+        simulate(ctrl, exp, duration=0.001)

@@ -83,3 +83,27 @@ def test_rule_table_used_by_kernel_is_table_ii():
     # 0.2 with consequents summing to 0, so the upper term is 1/2.6; BMM: 0.5 + 0.5/2.6
     assert changed.evaluate_scalar(0.0, 0.0) == pytest.approx(0.5 + 0.5 / 2.6, abs=1e-15)
     assert abs(table_ii_fls().evaluate_scalar(0.0, 0.0)) < 1e-15
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+@pytest.mark.parametrize("reducer", ["bmm", "nt", "km"])
+def test_no_rule_firing_is_a_clear_error_in_every_path(compiled, reducer):
+    """Sets with a gap between them: no NaN may come out, whatever the path."""
+    from twin.errors import TwinError
+
+    gap = Partition([IT2Set("L", Triangle(-math.inf, -1.0, -0.5), Triangle(-math.inf, -1.0, -0.4)),
+                     IT2Set("H", Triangle(0.5, 1.0, math.inf), Triangle(0.4, 1.0, math.inf))])
+    fls = MamdaniFLS(gap, gap, [-1.0, 1.0], np.array([[1, 1], [0, 0]]), type_reduction=reducer,
+                     compiled=compiled)
+    assert fls.evaluate_scalar(-1.0, 1.0) == pytest.approx(1.0)
+    with pytest.raises(TwinError, match="no rule fires at the inputs"):
+        fls.evaluate_scalar(0.0, 0.0)
+    with pytest.raises(TwinError, match="no rule fires at the inputs"):
+        fls.evaluate(np.array([-1.0, 0.0]), np.array([1.0, 0.0]))
+
+
+def test_mismatched_batch_shapes_are_a_clear_error():
+    from twin.errors import TwinError
+
+    with pytest.raises(TwinError, match="broadcast"):
+        table_ii_fls().evaluate(np.zeros(3), np.zeros(4))

@@ -60,3 +60,10 @@ def test_perturbed_true_plant():
         NOMINAL.perturbed(scale={"mass": 2})
     with pytest.raises(TwinError, match="m_b"):
         NOMINAL.perturbed(offset={"m_b": -3.0})
+
+
+def test_defaulted_n_xb_follows_n_yb_in_a_perturbed_plant():
+    assert NOMINAL.perturbed(scale={"n_yb": 2.0}).n_xb == pytest.approx(0.00256)
+    assert NOMINAL.replace(n_yb=0.002).n_xb == 0.002
+    explicit = NOMINAL.replace(n_xb=0.003)
+    assert explicit.perturbed(scale={"n_yb": 2.0}).n_xb == 0.003

@@ -125,11 +125,16 @@ def simulate(controller: FuzzyCascade, experiment: Experiment, params: RobotPara
     """
     k = steps_per_control(physics_dt, control_dt)
     duration = experiment.duration if duration is None else float(duration)
-    n_ctrl = int(round(duration / control_dt))
+    if not (math.isfinite(duration) and duration >= control_dt):
+        raise TwinError(f"duration must be at least one control period ({control_dt:g} s), got {duration:g} s")
+    n_ctrl = int(round(duration / control_dt))  # logged at the control rate: duration rounds to it
     x = np.zeros(8)
     x[0] = experiment.theta0
     if x0 is not None:
-        x = np.array(x0, dtype=float).reshape(8)
+        x = np.asarray(x0, dtype=float)
+        if x.shape != (8,) or not np.all(np.isfinite(x)):
+            raise TwinError(f"x0 must be 8 finite numbers {STATE_NAMES}, got shape {x.shape}")
+        x = x.copy()
     log = np.empty((n_ctrl + 1, 8))
     cmds = np.zeros((n_ctrl + 1, 5))
     for i in range(n_ctrl + 1):

@@ -116,6 +116,11 @@ def _print_design(d) -> None:
 def _load_design(path: Path | None, epsilon, rho, decay_rate, max_gain):
     from twin.controllers.lmi import design_balance_gains
 
+    ctx = click.get_current_context()
+    given = [f"--{n.replace('_', '-')}" for n in ("epsilon", "rho", "decay_rate", "max_gain")
+             if ctx.get_parameter_source(n) == click.core.ParameterSource.COMMANDLINE]
+    if path is not None and given:
+        raise TwinError(f"--gains uses a finished design; {', '.join(given)} would be ignored: give one or the other")
     if path is None:
         return design_balance_gains(epsilon=epsilon, rho=rho, decay_rate=decay_rate, max_gain=max_gain)
     from types import SimpleNamespace

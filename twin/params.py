@@ -6,7 +6,6 @@ gravity. :class:`RobotParams` is immutable; :meth:`RobotParams.perturbed` builds
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass, field, fields
 from typing import Mapping
@@ -59,6 +58,8 @@ class RobotParams:
     n_xb: float | None = field(default=None)
 
     def __post_init__(self) -> None:
+        # remembered so that a perturbed n_yb carries a defaulted n_xb along with it
+        object.__setattr__(self, "_n_xb_default", self.n_xb is None)
         if self.n_xb is None:
             object.__setattr__(self, "n_xb", self.n_yb)
         for f in fields(self):
@@ -133,9 +134,10 @@ class RobotParams:
         for name in list(scale) + list(offset):
             if name not in PARAMETER_DOCS:
                 raise TwinError(f"unknown parameter {name!r}; allowed: {', '.join(PARAMETER_DOCS)}")
-        values = self.as_dict()
+        values = self._own_values()
         for name in set(scale) | set(offset):
-            values[name] = values[name] * float(scale.get(name, 1.0)) + float(offset.get(name, 0.0))
+            base = getattr(self, name)
+            values[name] = base * float(scale.get(name, 1.0)) + float(offset.get(name, 0.0))
         return RobotParams(**values)
 
     def replace(self, **changes: float) -> "RobotParams":
@@ -143,7 +145,14 @@ class RobotParams:
         for name in changes:
             if name not in PARAMETER_DOCS:
                 raise TwinError(f"unknown parameter {name!r}; allowed: {', '.join(PARAMETER_DOCS)}")
-        return dataclasses.replace(self, **changes)
+        return RobotParams(**{**self._own_values(), **changes})
+
+    def _own_values(self) -> dict:
+        """Constructor arguments that rebuild this set (n_xb None where it was defaulted)."""
+        values = self.as_dict()
+        if self._n_xb_default:
+            values["n_xb"] = None
+        return values
 
     def as_dict(self) -> dict[str, float]:
         """Parameters by name, SI units."""

@@ -373,6 +373,7 @@ def _certified_solution(A, B, decay_rate, solver):
 def _explain_decay(A, B, decay_rate, solver, why) -> None:
     """The decay rate is the only requirement that can make the ε = 1 problem fail: find
     the largest decay rate that still gives a certified design and raise a one-line error."""
+    solver = solver or "CLARABEL"  # SCS near the limit takes seconds per try and rarely certifies
     lo, hi = 0.0, min(decay_rate, _MAX_DECAY)
     for _ in range(12):  # quick yes/no solves: near the limit a full solve can take seconds
         mid = 0.5 * (lo + hi)

@@ -14,6 +14,7 @@
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -106,6 +107,14 @@ static PyObject *make(PyObject *self, PyObject *args) {
     int reducer;
     double m, n;
     if (!PyArg_ParseTuple(args, "OOOOOidd", &lo1, &up1, &lo2, &up2, &y, &reducer, &m, &n)) return NULL;
+    if (reducer != 0 && reducer != 1) {
+        PyErr_SetString(PyExc_ValueError, "reducer must be 0 (BMM) or 1 (Nie-Tan)");
+        return NULL;
+    }
+    if (!isfinite(m) || !isfinite(n) || m < 0.0 || n < 0.0 || m + n <= 0.0) {
+        PyErr_SetString(PyExc_ValueError, "BMM weights m, n must be finite, >= 0 and not both 0");
+        return NULL;
+    }
     fls_t *f = (fls_t *)calloc(1, sizeof(fls_t));
     if (!f) return PyErr_NoMemory();
     f->k1 = -1;
@@ -157,25 +166,46 @@ static PyObject *evaluate(PyObject *self, PyObject *const *args, Py_ssize_t narg
     return PyFloat_FromDouble(eval_one(f, x1, x2));
 }
 
+/* A C-contiguous buffer of float64 ("d"); writable if asked. Returns 0 or -1 with an error set. */
+static int get_doubles(PyObject *obj, Py_buffer *view, int writable, const char *name) {
+    int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
+    if (PyObject_GetBuffer(obj, view, flags) < 0) return -1;
+    if (view->itemsize != (Py_ssize_t)sizeof(double) || view->format == NULL || strcmp(view->format, "d") != 0) {
+        PyErr_Format(PyExc_TypeError, "%s must be a contiguous float64 buffer", name);
+        PyBuffer_Release(view);
+        return -1;
+    }
+    return 0;
+}
+
 static PyObject *evaluate_many(PyObject *self, PyObject *args) {
-    PyObject *cap;
+    PyObject *cap, *o1, *o2, *oo;
     Py_buffer b1, b2, bo;
-    if (!PyArg_ParseTuple(args, "Oy*y*w*", &cap, &b1, &b2, &bo)) return NULL;
-    PyObject *result = NULL;
+    if (!PyArg_ParseTuple(args, "OOOO", &cap, &o1, &o2, &oo)) return NULL;
     fls_t *f = (fls_t *)PyCapsule_GetPointer(cap, CAPSULE);
-    if (f) {
+    if (!f) return NULL;
+    if (get_doubles(o1, &b1, 0, "x1") < 0) return NULL;
+    if (get_doubles(o2, &b2, 0, "x2") < 0) {
+        PyBuffer_Release(&b1);
+        return NULL;
+    }
+    if (get_doubles(oo, &bo, 1, "out") < 0) {
+        PyBuffer_Release(&b1);
+        PyBuffer_Release(&b2);
+        return NULL;
+    }
+    PyObject *result = NULL;
+    if (b2.len != b1.len || bo.len != b1.len) {
+        PyErr_SetString(PyExc_ValueError, "x1, x2 and out must have the same length");
+    } else {
         Py_ssize_t n = b1.len / (Py_ssize_t)sizeof(double);
-        if (b2.len != b1.len || bo.len != b1.len || b1.len % sizeof(double)) {
-            PyErr_SetString(PyExc_ValueError, "x1, x2 and out must be float64 buffers of equal length");
-        } else {
-            const double *x1 = (const double *)b1.buf, *x2 = (const double *)b2.buf;
-            double *out = (double *)bo.buf;
-            Py_BEGIN_ALLOW_THREADS
-            for (Py_ssize_t i = 0; i < n; i++) out[i] = eval_one(f, x1[i], x2[i]);
-            Py_END_ALLOW_THREADS
-            result = Py_None;
-            Py_INCREF(result);
-        }
+        const double *x1 = (const double *)b1.buf, *x2 = (const double *)b2.buf;
+        double *out = (double *)bo.buf;
+        Py_BEGIN_ALLOW_THREADS
+        for (Py_ssize_t i = 0; i < n; i++) out[i] = eval_one(f, x1[i], x2[i]);
+        Py_END_ALLOW_THREADS
+        result = Py_None;
+        Py_INCREF(result);
     }
     PyBuffer_Release(&b1);
     PyBuffer_Release(&b2);

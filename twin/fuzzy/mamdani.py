@@ -99,14 +99,22 @@ class MamdaniFLS:
     def evaluate(self, x1, x2) -> np.ndarray:
         """Crisp outputs for arrays of normalised inputs (broadcast together)."""
         _require_finite(x1, x2)
-        if self._kernel is not None:
+        try:
             a, b = np.broadcast_arrays(np.asarray(x1, dtype=float), np.asarray(x2, dtype=float))
+        except ValueError:
+            raise TwinError(f"fuzzy system inputs must have shapes that broadcast together, got "
+                            f"{np.shape(x1)} and {np.shape(x2)}") from None
+        if self._kernel is not None:
             out = np.empty(a.shape)
             _kernel.evaluate_many(self._kernel, np.ascontiguousarray(a.ravel()), np.ascontiguousarray(b.ravel()),
                                   out.reshape(-1))
-            return out
-        f_lo, f_up = self.firing(x1, x2)
-        return self._reduce(f_lo, f_up)
+        else:
+            with np.errstate(invalid="ignore", divide="ignore"):
+                out = self._reduce(*self.firing(a, b))
+        if not np.all(np.isfinite(out)):
+            bad = np.argwhere(~np.isfinite(np.asarray(out)).reshape(a.shape))[0] if a.ndim else ()
+            raise TwinError(_no_rule_fires(a[tuple(bad)], b[tuple(bad)]))
+        return out
 
     def _reduce(self, f_lo, f_up):
         if self.type_reduction == "bmm":
@@ -131,12 +139,17 @@ class MamdaniFLS:
         if not (math.isfinite(x1) and math.isfinite(x2)):
             raise TwinError(f"fuzzy system inputs must be finite numbers, got ({x1}, {x2})")
         if self._kernel is not None:
-            return _kernel.evaluate(self._kernel, x1, x2)
+            y = _kernel.evaluate(self._kernel, x1, x2)
+            if y != y:  # NaN: no rule fired (a partition with gaps)
+                raise TwinError(_no_rule_fires(x1, x2))
+            return y
         if self.type_reduction == "km":
             return float(self.evaluate(x1, x2))
         i0, a_up, k0, a_lo = self.input1.active(x1)
         j0, b_up, l0, b_lo = self.input2.active(x2)
         s_up, w_up = _min_firing_sums(a_up, i0, b_up, j0, self._y_py)
+        if s_up <= 0.0:
+            raise TwinError(_no_rule_fires(x1, x2))
         s_lo, w_lo = _min_firing_sums(a_lo, k0, b_lo, l0, self._y_py)
         if self.type_reduction == "nt":
             return (w_lo + w_up) / (s_lo + s_up)
@@ -151,6 +164,11 @@ class MamdaniFLS:
         g1 = np.linspace(-1.0, 1.0, n1)
         g2 = np.linspace(-1.0, 1.0, n2)
         return g1, g2, self.evaluate(g1[:, None], g2[None, :])
+
+
+def _no_rule_fires(x1, x2) -> str:
+    return (f"no rule fires at the inputs ({float(x1):g}, {float(x2):g}): the fuzzy sets leave a gap there; "
+            f"widen the upper membership functions so that they cover the whole input range")
 
 
 def _min_firing_sums(a_run, i0: int, b_run, j0: int, Y) -> tuple[float, float]:

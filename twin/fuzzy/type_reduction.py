@@ -16,6 +16,8 @@ partitions built by :func:`twin.fuzzy.sets.uniform_partition` never get there).
 """
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 
@@ -85,6 +87,7 @@ def _switch_extreme(f_lo, f_up, y, lower_end: bool):
     # also the case "all rules use rest" (switch before the first rule)
     num = np.concatenate([tot_rest_wy, num], axis=-1)
     den = np.concatenate([tot_rest_w, den], axis=-1)
-    with np.errstate(invalid="ignore", divide="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN where no rule fires: NaN out, caller raises
         ratios = np.where(den > 0, num / den, np.nan)
-    return np.nanmin(ratios, axis=-1) if lower_end else np.nanmax(ratios, axis=-1)
+        return np.nanmin(ratios, axis=-1) if lower_end else np.nanmax(ratios, axis=-1)
