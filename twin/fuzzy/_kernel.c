@@ -47,38 +47,33 @@ static void memberships(const double *p, int k, double x, double *out) {
     }
 }
 
+/* Σ f and Σ f·y over the rules (i, j) that fire, f = min(a_i, b_j), row-major. */
+static void min_firing_sums(const fls_t *f, const double *a, const double *b, double *s, double *w) {
+    double ss = 0.0, ww = 0.0;
+    for (int i = 0; i < f->k1; i++) {
+        if (a[i] <= 0.0) continue;
+        const double *row = f->y + (size_t)i * f->k2;
+        for (int j = 0; j < f->k2; j++) {
+            if (b[j] <= 0.0) continue;
+            double v = a[i] < b[j] ? a[i] : b[j];
+            ss += v;
+            ww += v * row[j];
+        }
+    }
+    *s = ss;
+    *w = ww;
+}
+
 static double eval_one(const fls_t *f, double x1, double x2) {
     double a_lo[MAX_SETS], a_up[MAX_SETS], b_lo[MAX_SETS], b_up[MAX_SETS];
     memberships(f->lo1, f->k1, x1, a_lo);
     memberships(f->up1, f->k1, x1, a_up);
     memberships(f->lo2, f->k2, x2, b_lo);
     memberships(f->up2, f->k2, x2, b_up);
-    double s_up = 0.0, w_up = 0.0, s_lo = 0.0, w_lo = 0.0;
-    /* upper sums first, then lower, skipping non-firing rules: the Python path's order */
-    for (int i = 0; i < f->k1; i++) {
-        double a = a_up[i];
-        if (a <= 0.0) continue;
-        const double *row = f->y + (size_t)i * f->k2;
-        for (int j = 0; j < f->k2; j++) {
-            double b = b_up[j];
-            if (b <= 0.0) continue;
-            double fu = a < b ? a : b;
-            s_up += fu;
-            w_up += fu * row[j];
-        }
-    }
-    for (int i = 0; i < f->k1; i++) {
-        double a = a_lo[i];
-        if (a <= 0.0) continue;
-        const double *row = f->y + (size_t)i * f->k2;
-        for (int j = 0; j < f->k2; j++) {
-            double b = b_lo[j];
-            if (b <= 0.0) continue;
-            double fl = a < b ? a : b;
-            s_lo += fl;
-            w_lo += fl * row[j];
-        }
-    }
+    double s_up, w_up, s_lo, w_lo;
+    /* upper sums first, then lower: the Python path's order */
+    min_firing_sums(f, a_up, b_up, &s_up, &w_up);
+    min_firing_sums(f, a_lo, b_lo, &s_lo, &w_lo);
     if (f->reducer == 1) return (w_lo + w_up) / (s_lo + s_up);
     if (s_lo > 0.0) return f->m * w_lo / s_lo + f->n * w_up / s_up;
     return (f->m + f->n) * w_up / s_up;

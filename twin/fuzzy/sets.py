@@ -133,9 +133,7 @@ class Partition:
     def memberships_scalar(self, x: float) -> tuple[list[float], list[float]]:
         """All K lower and upper memberships of one float, as two lists (no numpy)."""
         n = len(self.sets)
-        lo = _active_run(x, -math.inf, n, *self.scalar_lower[2:])
-        up = _active_run(x, -math.inf, n, *self.scalar_upper[2:])
-        return lo, up
+        return _active_run(x, 0, n, *self.scalar_lower[2:]), _active_run(x, 0, n, *self.scalar_upper[2:])
 
     def active(self, x: float) -> tuple[int, list[float], int, list[float]]:
         """(i0, upper memberships, j0, lower memberships): the contiguous runs of sets
@@ -148,11 +146,11 @@ class Partition:
         return i0, up, j0, _active_run(x, j0, bisect_left(left, x), pk, il, ir, h)
 
 
-def _active_run(x: float, i0, i1: int, pk, il, ir, h) -> list[float]:
-    """Memberships of sets i0..i1−1 at x (i0 = −inf means 0). The min of the rising and
-    falling lines is <= 1 by construction, so only the clip at 0 is needed."""
+def _active_run(x: float, i0: int, i1: int, pk, il, ir, h) -> list[float]:
+    """Memberships of sets i0..i1−1 at x. The min of the rising and falling lines is <= 1
+    by construction, so only the clip at 0 is needed."""
     out = []
-    for k in range(0 if i0 == -math.inf else i0, i1):
+    for k in range(i0, i1):
         d = x - pk[k]
         v = 1.0 + d * il[k]
         w = 1.0 - d * ir[k]
