@@ -143,3 +143,17 @@ def test_json_keys(design):
     assert np.array(j["gains"]).shape == (2, 4) and np.array(j["P"]).shape == (4, 4)
     for key in ("solve_time_s", "epsilon", "rho", "decay_rate"):
         assert isinstance(j[key], float)
+
+
+def test_type1_pdc_keeps_the_decay_rate_along_theta(design):
+    """The certificate covers the IT2 weights; along the weights both controllers really
+    meet (θ in the model's domain) the designed decay rate holds for both, and a decay
+    rate the design was not made for does not."""
+    from twin.controllers.balance import PDCBalanceController
+    from twin.controllers.lmi import decay_along_theta
+
+    for kind in ("it2", "t1"):
+        rate = decay_along_theta(design, PDCBalanceController(design.gains, kind).weight)
+        assert design.decay_rate <= rate < design.decay_rate + 0.5
+    slow = design_balance_gains(decay_rate=1.0)
+    assert decay_along_theta(slow, PDCBalanceController(slow.gains, "t1").weight) < 2.0

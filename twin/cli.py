@@ -111,6 +111,12 @@ def _print_design(d) -> None:
     click.echo(f"certified peak |u| = {d.peak_input:.4g} N·m for ‖x0‖ ≤ {d.epsilon:g} (on the TS model); "
                f"slowest rule closed-loop pole {d.slowest_vertex_pole:.3g} 1/s")
     click.echo(d.certificate.summary())
+    from twin.controllers.balance import PDCBalanceController
+    from twin.controllers.lmi import decay_along_theta
+
+    rates = [decay_along_theta(d, PDCBalanceController(d.gains, k).weight) for k in ("it2", "t1")]
+    click.echo(f"decay of xᵀPx along θ in [-π/6, π/6] on the TS model (grid check): "
+               f"IT2 PDC {rates[0]:.4g} 1/s, type-1 PDC {rates[1]:.4g} 1/s")
 
 
 def _load_design(path: Path | None, epsilon, rho, decay_rate, max_gain):

@@ -33,7 +33,9 @@ What the certificate does *not* say, plainly:
 * with decay rate 0 (the paper's Lemma 1 alone) the gains can be nearly marginal:
   ``slowest_vertex_pole`` reports max Re λ(A_i + B_i G_i) so that this shows;
 * it covers the IT2 PDC, whose weights equal the model's. The type-1 PDC uses the same
-  gains with other weights, which the Y_ij relaxation does not cover.
+  gains with other weights, which the Y_ij relaxation does not cover (at arbitrary
+  weight pairs the decay inequality fails); :func:`decay_along_theta` checks it along the
+  weights it actually meets, θ ∈ [−π/6, π/6], on a grid.
 """
 from __future__ import annotations
 
@@ -46,7 +48,7 @@ import numpy as np
 
 from twin.errors import InfeasibleDesign, TwinError
 from twin.params import NOMINAL, RobotParams
-from twin.plant.ts_model import ts_matrices
+from twin.plant.ts_model import rule1_weight, ts_matrices
 
 DEFAULT_EPSILON = 0.5  # ‖x0‖ bound of the certified region (mixed units of x); covers θ0 = 0.48 rad
 DEFAULT_RHO = 2.0  # N·m: bound on |u| = |ul + ur| (1 N·m per wheel)
@@ -391,3 +393,28 @@ def _explain_decay(A, B, decay_rate, solver, why) -> None:
     )
 
 
+
+
+def decay_along_theta(design: BalanceDesign, controller_weight, n: int = 721) -> float:
+    """Largest decay rate (1/s) that V = xᵀPx shows on the TS model along θ ∈ [−π/6, π/6]
+    when the controller weights its rules by ``controller_weight(θ)`` (its m1).
+
+    A grid check with the design's P, not a certificate: it is how the type-1 PDC, whose
+    weights differ from the model's, is compared with the IT2 one (which the LMIs cover).
+    V̇ ≤ −2aV at θ holds for a = −λmax(P^{-1/2} sym(P A_cl) P^{-1/2}), with
+    A_cl = Σ_ij m_i(θ) h_j(θ) (A_i + B_i G_j); the minimum over the grid is returned.
+    """
+    A, B = ts_matrices(design.params)
+    G, P = design.gains, design.P
+    w, V = np.linalg.eigh(P)
+    P_half_inv = V @ np.diag(w ** -0.5) @ V.T
+    worst = math.inf
+    for theta in np.linspace(-math.pi / 6, math.pi / 6, n):
+        m1 = rule1_weight(theta)
+        h1 = controller_weight(theta)
+        m, h = (m1, 1.0 - m1), (h1, 1.0 - h1)
+        Acl = sum(m[i] * h[j] * (A[i] + B[i] @ G[j:j + 1]) for i in range(2) for j in range(2))
+        S = P @ Acl
+        M = P_half_inv @ (0.5 * (S + S.T)) @ P_half_inv
+        worst = min(worst, -float(np.linalg.eigvalsh(0.5 * (M + M.T)).max()))
+    return worst
