@@ -22,7 +22,8 @@ in the paper's first experiment.
 How much each part contributes (nominal analytic model, paper experiment 2, time to
 reach 0.7 m within 1 cm): 5.7 s with the FLS, 6.7 s with θ_off ≡ 0, 8.3 s with the FLS's
 sign flipped; the FLS alone (ψ channel off) moves the robot only to 0.40 m in 15 s,
-because Table I caps θ_off at π/40 rad. The tests check each of these directions.
+because Table I normalises p_e by 3 m (0.7 m is 0.23 of the range, so θ_off stays near
+0.01 rad). The tests check each of these directions.
 """
 from __future__ import annotations
 

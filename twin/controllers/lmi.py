@@ -11,13 +11,14 @@ What the paper lacks, added here:
   e^{−2at} on the TS model and ‖x(t)‖ ≤ √cond(P) ‖x0‖ e^{−at};
 * an objective: minimise t with [[Q, N_iᵀ], [N_i, t]] ⪰ 0, the squared worst-case input
   over the certified ellipsoid. Because ε² I ⪯ Q, this also bounds the gains,
-  ‖G_i‖₂ ≤ √t / ε, so the design returns the *smallest* gains that meet the decay
-  rate, not arbitrary feasible ones.
+  ‖G_i‖₂ ≤ √t / ε, so the design returns small gains that meet the decay rate, not
+  arbitrary feasible ones. (What is minimised is the certified peak-input
+  bound; the gains' norms come out below it, not necessarily at their own minimum.)
 
 ε only sets the scale of (Q, N, Y, t), so the problem is solved once for ε = 1 and
 the gains do not depend on ε; ρ (|u| ≤ ρ) and ``max_gain`` (‖G_i‖ ≤ max_gain) are then
-checks on the minimal peak, and an infeasible request names the smallest value that
-works. Only the decay rate can make the problem itself infeasible.
+checks on the design (the peak bound and the gains' norms), and an infeasible request
+names the value that works. Only the decay rate can make the problem itself infeasible.
 
 After solving, :func:`verify_certificate` re-checks everything with numpy eigenvalues,
 independent of the solver's status: every LMI with a margin, plus the closed-loop
@@ -303,7 +304,11 @@ def design_balance_gains(
     decay_rate = _check_positive("decay rate", decay_rate, allow_zero=True, upper=_MAX_DECAY)
     if max_gain is not None:
         max_gain = _check_positive("max gain", max_gain, upper=_MAX_GAIN)
-    import cvxpy  # noqa: F401  (imported before the clock starts: solve time excludes import)
+    import cvxpy  # (imported before the clock starts: solve time excludes import)
+
+    if solver is not None and solver.upper() not in cvxpy.installed_solvers():
+        raise TwinError(f"solver {solver!r} is not installed; installed: {', '.join(cvxpy.installed_solvers())}")
+    solver = solver.upper() if solver else None
 
     A, B = ts_matrices(params)
     t0 = time.perf_counter()
@@ -320,12 +325,14 @@ def design_balance_gains(
     if peak > rho:
         raise InfeasibleDesign(
             f"rho = {rho:g} N·m is too small for epsilon = {epsilon:g} and decay rate {decay_rate:g} 1/s: "
-            f"the smallest feasible rho is {peak * (1 + 1e-6):.4g} N·m; raise --rho, or lower --epsilon or --decay-rate"
+            f"the smallest feasible rho is {_round_up(peak)} N·m (solver {used}); raise --rho, or lower --epsilon"
+            + (" or --decay-rate" if decay_rate > 0 else "")
         )
-    if max_gain is not None and peak / epsilon > max_gain:
+    gain_norm = float(np.linalg.norm(gains, axis=1).max())
+    if max_gain is not None and gain_norm > max_gain:
         raise InfeasibleDesign(
-            f"max gain {max_gain:g} is too small for decay rate {decay_rate:g} 1/s: the smallest feasible is "
-            f"{peak / epsilon * (1 + 1e-6):.4g}; raise --max-gain or lower --decay-rate"
+            f"max gain {max_gain:g} is below the designed gains' norm {_round_up(gain_norm)} at decay rate "
+            f"{decay_rate:g} 1/s; raise --max-gain" + (" or lower --decay-rate" if decay_rate > 0 else "")
         )
     # Checked at ε = 1 with ρ/ε: the exact equivalent of (ε²Q, ε²N, ε²Y) with ρ, without
     # the rounding that multiplying by ε² = 1e-18 (say) would bring into the margins.
@@ -349,6 +356,11 @@ def design_balance_gains(
         params=params,
         slowest_vertex_pole=_slowest_vertex_pole(A, B, gains),
     )
+
+
+def _round_up(v: float) -> str:
+    """v with 4 significant digits, never below v (so that passing it back works)."""
+    return f"{v * (1 + 2e-4):.4g}"
 
 
 def _slowest_vertex_pole(A, B, gains) -> float:
@@ -383,14 +395,17 @@ def _explain_decay(A, B, decay_rate, solver, why) -> None:
             hi = mid
         else:
             lo = mid
+    certified = False
     for _ in range(8):  # report only a value that the full design really certifies
-        if lo <= 1e-3 or not isinstance(_certified_solution(A, B, lo, solver), str):
+        if lo > 1e-3 and not isinstance(_certified_solution(A, B, lo, solver), str):
+            certified = True
             break
         lo *= 0.9
-    raise InfeasibleDesign(
-        f"decay rate {decay_rate:g} 1/s cannot be certified for this plant ({why}); "
-        f"the largest certified is about {lo:.4g} 1/s: lower --decay-rate"
-    )
+    what = ("the solver finds it infeasible" if "infeasible" in why
+            else f"the solver's answer failed the independent check, a numerical limit ({why})")
+    advice = (f"the largest certified is about {lo:.4g} 1/s: lower --decay-rate" if certified
+              else "no certified decay rate was found below it: lower --decay-rate")
+    raise InfeasibleDesign(f"decay rate {decay_rate:g} 1/s cannot be certified for this plant: {what}; {advice}")
 
 
 
