@@ -18,8 +18,10 @@ from twin.controllers.cascade import DEFAULT_PSI_ERROR_LIMIT, FuzzyCascade
 from twin.controllers.lmi import BalanceDesign, design_balance_gains
 from twin.controllers.mamdani import DEFAULT_FOU, direction_controller, position_controller
 from twin.errors import TwinError
+from twin.metrics import settling_time
 from twin.params import NOMINAL, RobotParams
 from twin.plant.analytic import STATE_NAMES, rk4_step
+from twin.timing import steps_per_control
 
 
 @dataclass(frozen=True)
@@ -76,12 +78,7 @@ class AnalyticRun:
 
     def settling_time(self, tol: float = 0.01) -> float:
         """First time (s) after which |θ| stays below ``tol`` rad; inf if it never does."""
-        bad = np.nonzero(np.abs(self.signal("theta")) >= tol)[0]
-        if len(bad) == 0:
-            return float(self.t[0])
-        if bad[-1] == len(self.t) - 1:
-            return math.inf
-        return float(self.t[bad[-1] + 1])
+        return settling_time(self.t, self.signal("theta"), tol)
 
     def summary(self) -> dict:
         e = self.experiment
@@ -99,20 +96,6 @@ class AnalyticRun:
         if e is not None and e.alpha_d is not None:
             out["final_heading_error_rad"] = float(self.signal("alpha")[-1] - e.alpha_d)
         return out
-
-
-def steps_per_control(physics_dt: float, control_dt: float) -> int:
-    """Physics steps per control period; a clear error unless it is a whole number."""
-    if not (physics_dt > 0 and control_dt > 0 and math.isfinite(physics_dt) and math.isfinite(control_dt)):
-        raise TwinError(f"time steps must be positive, got physics {physics_dt} s and control {control_dt} s")
-    ratio = control_dt / physics_dt
-    k = round(ratio)
-    if k < 1 or abs(ratio - k) > 1e-9 * max(1.0, ratio):
-        raise TwinError(
-            f"the control period ({control_dt:g} s) must be a whole number of physics steps ({physics_dt:g} s); "
-            f"got {ratio:g}: choose a control rate that divides the physics rate"
-        )
-    return k
 
 
 def simulate(controller: FuzzyCascade, experiment: Experiment, params: RobotParams = NOMINAL,

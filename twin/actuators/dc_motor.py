@@ -1,0 +1,149 @@
+"""Brushed DC motor and its PWM driver, one per wheel: what turns a torque command into
+the torque the wheel actually receives.
+
+Electrical model (SI units; the motor drives the wheel directly, as in the paper)::
+
+    L di/dt = V − R i − k_e ω,   τ = k_t i,   V = d · V_s
+
+with ω the shaft speed relative to the body (the wheel joint rate ψ̇ − θ̇, rad/s), d the
+PWM duty in [−1, 1], V_s the supply voltage. In SI units k_t = k_e (N·m/A = V·s/rad).
+
+Driver (runs at the control rate, as the microcontroller's PWM update does):
+
+1. current command i* = τ* / k_t, limited to ±``current_limit`` (A);
+2. voltage V* = R i* (+ k_e ω_k with ``back_emf_compensation``, ω_k the shaft speed
+   measured at the update), duty d = V* / V_s clipped to [−1, 1] (the supply limit, the
+   back-EMF speed–torque curve), zeroed inside the ``dead_band`` and quantised to the
+   PWM resolution (2^bits − 1 steps per direction);
+3. the duty is held until the next update.
+
+Between updates, with no inductance, the torque is affine in the shaft speed:
+τ(ω) = k_t (V − k_e ω) / R = τ_0 − c ω with the electrical damping c = k_t k_e / R.
+The twin hands τ_0 to PyBullet as the joint torque and c to its joint damping, so the
+speed–torque curve acts at every physics step inside the engine. A non-zero inductance
+adds the electrical lag; its time constant L/R (0.3 ms for 1 mH) is shorter than the 1 ms
+physics step, which is why the default leaves it off; when on, the twin integrates the
+current exactly per physics step (slower).
+
+Defaults: a 12 V brushed motor sized for this robot: 1.2 N·m stall torque per wheel
+(gravity needs m_b g l sin 0.5 ≈ 0.75 N·m in total to hold the body at 0.5 rad), 35 rad/s
+no-load speed (1.4 m/s on r = 4 cm), so k_t = k_e = 0.343 N·m/A, R = 3.43 Ω, stall
+current 3.5 A; 10-bit PWM (a 20 kHz PWM from a 16–72 MHz microcontroller timer has 800–3600 counts); no dead band; back-EMF compensation on (the firmware adds
+k_e ω from the encoder, so a torque command is delivered until the voltage runs out).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from twin.errors import TwinError
+
+
+@dataclass(frozen=True)
+class DCMotorParams:
+    """Motor and driver parameters (see the module docstring). Units in the field comments."""
+
+    supply_voltage: float = 12.0  # V
+    stall_torque: float = 1.2  # N·m at the supply voltage
+    no_load_speed: float = 35.0  # rad/s at the supply voltage
+    current_limit: float | None = None  # A; None: the stall current
+    pwm_bits: int = 10  # duty resolution: 2**bits − 1 steps per direction
+    dead_band: float = 0.0  # |duty| below this gives no voltage (static friction, driver dead time)
+    inductance: float = 0.0  # H; 0 leaves out the electrical lag
+    back_emf_compensation: bool = True
+
+    def __post_init__(self):
+        for name in ("supply_voltage", "stall_torque", "no_load_speed"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise TwinError(f"motor {name} must be a positive number, got {v!r}")
+        if self.current_limit is not None and not (math.isfinite(self.current_limit) and self.current_limit > 0):
+            raise TwinError(f"motor current_limit must be a positive current in A or None, got {self.current_limit!r}")
+        if not (isinstance(self.pwm_bits, int) and 1 <= self.pwm_bits <= 24):
+            raise TwinError(f"motor pwm_bits must be an integer from 1 to 24, got {self.pwm_bits!r}")
+        if not (math.isfinite(self.dead_band) and 0.0 <= self.dead_band < 1.0):
+            raise TwinError(f"motor dead_band must be a duty fraction in [0, 1), got {self.dead_band!r}")
+        if not (math.isfinite(self.inductance) and self.inductance >= 0.0):
+            raise TwinError(f"motor inductance must be >= 0 H, got {self.inductance!r}")
+
+    @property
+    def k_t(self) -> float:
+        """Torque constant in N·m/A, equal to the back-EMF constant k_e in V·s/rad."""
+        return self.supply_voltage / self.no_load_speed
+
+    @property
+    def resistance(self) -> float:
+        """Armature resistance R in Ω."""
+        return self.k_t * self.supply_voltage / self.stall_torque
+
+    @property
+    def stall_current(self) -> float:
+        """V_s / R in A."""
+        return self.supply_voltage / self.resistance
+
+    @property
+    def electrical_damping(self) -> float:
+        """c = k_t k_e / R in N·m·s/rad: the slope of the speed–torque curve."""
+        return self.k_t * self.k_t / self.resistance
+
+    @property
+    def max_current(self) -> float:
+        return self.stall_current if self.current_limit is None else float(self.current_limit)
+
+    @property
+    def pwm_steps(self) -> int:
+        return (1 << self.pwm_bits) - 1
+
+
+DEFAULT_MOTOR = DCMotorParams()
+
+
+class MotorDriver:
+    """PWM update of one motor: torque command → duty (held for a control period)."""
+
+    def __init__(self, params: DCMotorParams = DEFAULT_MOTOR):
+        if not isinstance(params, DCMotorParams):
+            raise TwinError(f"motor must be DCMotorParams or None (ideal torque source), got {params!r}")
+        self.params = params
+        self._kt = params.k_t
+        self._R = params.resistance
+        self._vs = params.supply_voltage
+        self._imax = params.max_current
+        self._steps = params.pwm_steps
+        self._comp = params.back_emf_compensation
+
+    def duty(self, torque_cmd: float, omega: float) -> tuple[float, bool]:
+        """(duty in [−1, 1], saturated) for a torque command in N·m at shaft speed ω in rad/s.
+
+        ``saturated`` is true when the current limit or the supply voltage cut the command.
+        """
+        i_cmd = torque_cmd / self._kt
+        saturated = abs(i_cmd) > self._imax
+        if saturated:
+            i_cmd = math.copysign(self._imax, i_cmd)
+        v = self._R * i_cmd
+        if self._comp:
+            v += self._kt * omega
+        d = v / self._vs
+        if d > 1.0 or d < -1.0:
+            saturated = True
+            d = 1.0 if d > 0 else -1.0
+        if abs(d) < self.params.dead_band:
+            return 0.0, saturated
+        return round(d * self._steps) / self._steps, saturated
+
+    def torque_at(self, duty: float, omega: float) -> float:
+        """Steady-state torque in N·m for a duty at shaft speed ω (no inductance)."""
+        return self._kt * (duty * self._vs - self._kt * omega) / self._R
+
+    def stall_part(self, duty: float) -> float:
+        """τ_0 = k_t V / R in N·m: the speed-independent part of the torque for a duty."""
+        return self._kt * duty * self._vs / self._R
+
+    def current_step(self, current: float, duty: float, omega: float, dt: float) -> float:
+        """Current after ``dt`` s with the electrical lag, exact for constant V and ω."""
+        L = self.params.inductance
+        i_ss = (duty * self._vs - self._kt * omega) / self._R
+        if L <= 0.0:
+            return i_ss
+        return i_ss + (current - i_ss) * math.exp(-dt * self._R / L)

@@ -1,0 +1,548 @@
+"""The PyBullet digital twin: the robot of :mod:`twin.plant.urdf` on a floor, driven by
+DC motors, with disturbances, read out as ground truth.
+
+Physics and time
+    One ``BulletClient`` in DIRECT mode per twin (no global connection: two twins in
+    one process never interfere). Bullet's Featherstone multibody at ``physics_rate``
+    (default 1 kHz); commands are taken every control period (default 200 Hz), which
+    must be a whole number of physics steps. Bullet's default velocity motors are
+    switched off; the wheel torques go in with TORQUE_CONTROL at every physics step.
+    Bullet's default link damping (0.04) is switched off: the only dissipation is the
+    paper's.
+
+Equation (1)'s resistances
+    d_b (body–wheel) acts on the joint rate ψ̇_i − θ̇ and is Bullet's joint damping, so
+    it is applied inside the engine at every physics step. d_w (wheel–ground) acts on
+    the absolute wheel rate ψ̇_i, which joint damping cannot express; it enters as a
+    joint torque −d_w ψ̇_i plus the torque −d_w (ψ̇_l + ψ̇_r) on the body about the axle,
+    which together do exactly the virtual work −d_w ψ̇_i δψ_i of equation (1) and nothing
+    on θ. Both are evaluated at the start of each control period and held (a 5 ms hold
+    on a term whose time constant is m11 / 2d_w ≈ 0.25 s).
+
+Actuators
+    :class:`~twin.actuators.DCMotorParams` per wheel (``motor=None``: an ideal torque
+    source). The PWM duty is set at the control rate; the back-EMF slope of the
+    speed–torque curve is joint damping, so it acts at the physics rate too.
+
+Ground truth (:class:`GroundTruth`, at the end of each control period)
+    θ is the body pitch from the vertical (ZYX Euler angles: yaw α, pitch θ, roll φ),
+    positive leaning forward; ψ_i = q_i + θ the wheel angles from the vertical (q_i the
+    joint angles); α the heading, unwrapped; distance p = r ψ as in the paper; (x, y)
+    the axle midpoint in the world.
+
+Termination
+    The run ends with status ``"fell"`` when |θ| exceeds ``fall_angle`` (default 1.0 rad,
+    where the body box of the nominal robot is about to touch a flat floor) or the body
+    touches the floor, and ``"diverged"`` if the physics returns a non-finite state.
+    Neither raises: :attr:`BulletTwin.status` and :attr:`BulletTwin.end_reason` say what
+    happened; calling :meth:`BulletTwin.step` afterwards is an error.
+"""
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+from twin.actuators.dc_motor import DEFAULT_MOTOR, DCMotorParams, MotorDriver
+from twin.errors import TwinError
+from twin.params import NOMINAL, RobotParams
+from twin.plant.disturbances import Disturbances, Ground
+from twin.plant.urdf import BODY_DEPTH, body_height, robot_urdf
+from twin.timing import steps_per_control
+
+WHEEL_JOINTS = (0, 1)  # left, right: the order of the joints in the URDF
+_ZERO3 = (0.0, 0.0, 0.0)
+
+
+class GroundTruth(NamedTuple):
+    """The true state at one instant (SI units)."""
+
+    t: float  # s
+    theta: float  # rad, body pitch from the vertical, positive forward
+    theta_dot: float  # rad/s
+    psi_l: float  # rad, left wheel angle from the vertical
+    psi_r: float  # rad
+    psi: float  # rad, (ψl + ψr) / 2
+    psi_dot: float  # rad/s
+    alpha: float  # rad, heading, unwrapped, positive turning left
+    alpha_dot: float  # rad/s
+    distance: float  # m, p = r ψ
+    x: float  # m, axle midpoint in the world
+    y: float  # m
+    roll: float  # rad, body roll (0 with both wheels on a level floor)
+    psi_l_dot: float  # rad/s
+    psi_r_dot: float  # rad/s
+
+    def state6(self) -> tuple[float, float, float, float, float, float]:
+        """[θ, θ̇, ψ, ψ̇, α, α̇], the controllers' state."""
+        return (self.theta, self.theta_dot, self.psi, self.psi_dot, self.alpha, self.alpha_dot)
+
+
+TRUTH_UNITS = dict(t="s", theta="rad", theta_dot="rad/s", psi_l="rad", psi_r="rad", psi="rad", psi_dot="rad/s",
+                   alpha="rad", alpha_dot="rad/s", distance="m", x="m", y="m", roll="rad",
+                   psi_l_dot="rad/s", psi_r_dot="rad/s")
+
+
+class Actuation(NamedTuple):
+    """What the motors did over one control period."""
+
+    duty_l: float  # PWM duty in [−1, 1] (0 for an ideal torque source)
+    duty_r: float
+    torque_l: float  # N·m delivered by the motor (at the PWM update; mean over the period with inductance)
+    torque_r: float
+    saturated_l: bool  # the current limit or the supply voltage cut the command
+    saturated_r: bool
+
+
+ACTUATION_UNITS = dict(duty_l="1", duty_r="1", torque_l="N·m", torque_r="N·m", saturated_l="bool", saturated_r="bool")
+
+
+@dataclass(frozen=True)
+class TwinConfig:
+    """Everything that defines a twin (all deterministic; sample random parts beforehand).
+
+    Parameters
+    ----------
+    params : RobotParams
+        The true plant (the controllers may be designed on another set).
+    physics_rate, control_rate : Hz
+        The control period must be a whole number of physics steps.
+    motor : DCMotorParams or None
+        Motor and driver of each wheel; None is an ideal torque source.
+    ground : Ground
+        Friction coefficients and slope of the floor.
+    disturbances : Disturbances
+        Pushes, payload, centre-of-mass offset, friction changes.
+    fall_angle : rad
+        |θ| beyond this ends the run as ``"fell"``.
+    solver_iterations : int
+        Bullet's constraint-solver iterations per step.
+    """
+
+    params: RobotParams = NOMINAL
+    physics_rate: float = 1000.0
+    control_rate: float = 200.0
+    motor: DCMotorParams | None = DEFAULT_MOTOR
+    ground: Ground = field(default_factory=Ground)
+    disturbances: Disturbances = field(default_factory=Disturbances)
+    fall_angle: float = 1.0
+    solver_iterations: int = 50
+
+    def __post_init__(self):
+        if not isinstance(self.params, RobotParams):
+            raise TwinError(f"params must be a RobotParams, got {type(self.params).__name__}")
+        if self.motor is not None and not isinstance(self.motor, DCMotorParams):
+            raise TwinError(f"motor must be DCMotorParams or None (ideal torque source), got {self.motor!r}")
+        if not isinstance(self.ground, Ground):
+            raise TwinError(f"ground must be a Ground, got {self.ground!r}")
+        if not isinstance(self.disturbances, Disturbances):
+            raise TwinError(f"disturbances must be a Disturbances, got {self.disturbances!r}")
+        for name in ("physics_rate", "control_rate"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and 0 < v <= 100_000):
+                raise TwinError(f"{name} must be a frequency in (0, 100000] Hz, got {v!r}")
+        steps_per_control(1.0 / self.physics_rate, 1.0 / self.control_rate)
+        if not (math.isfinite(self.fall_angle) and 0.05 <= self.fall_angle <= 1.5):
+            raise TwinError(f"fall_angle must be in [0.05, 1.5] rad, got {self.fall_angle!r}")
+        if not (isinstance(self.solver_iterations, int) and 1 <= self.solver_iterations <= 1000):
+            raise TwinError(f"solver_iterations must be an integer from 1 to 1000, got {self.solver_iterations!r}")
+
+    @property
+    def steps_per_control(self) -> int:
+        return steps_per_control(1.0 / self.physics_rate, 1.0 / self.control_rate)
+
+
+def _quat_from_matrix(R) -> tuple[float, float, float, float]:
+    """(x, y, z, w) of a rotation matrix given as rows."""
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = R
+    tr = m00 + m11 + m22
+    if tr > 0:
+        s = 2.0 * math.sqrt(tr + 1.0)
+        return ((m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s, 0.25 * s)
+    if m00 > m11 and m00 > m22:
+        s = 2.0 * math.sqrt(1.0 + m00 - m11 - m22)
+        return (0.25 * s, (m01 + m10) / s, (m02 + m20) / s, (m21 - m12) / s)
+    if m11 > m22:
+        s = 2.0 * math.sqrt(1.0 + m11 - m00 - m22)
+        return ((m01 + m10) / s, 0.25 * s, (m12 + m21) / s, (m02 - m20) / s)
+    s = 2.0 * math.sqrt(1.0 + m22 - m00 - m11)
+    return ((m02 + m20) / s, (m12 + m21) / s, 0.25 * s, (m10 - m01) / s)
+
+
+def _unit(v):
+    n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    return (v[0] / n, v[1] / n, v[2] / n)
+
+
+def _cross(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def _dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def initial_pose(params: RobotParams, ground: Ground, theta0: float, alpha0: float, x0: float, y0: float):
+    """Axle-midpoint position and orientation quaternion with both wheels on the floor.
+
+    The axle lies in the floor plane, heading ``alpha0``; the body is pitched ``theta0``
+    from the vertical about the axle.
+    """
+    n = ground.normal()
+    a_h = (-math.sin(alpha0), math.cos(alpha0), 0.0)
+    k = _dot(a_h, n)
+    a = _unit((a_h[0] - k * n[0], a_h[1] - k * n[1], a_h[2] - k * n[2]))
+    up = (0.0, 0.0, 1.0)
+    k = _dot(up, a)
+    z_u = _unit((up[0] - k * a[0], up[1] - k * a[1], up[2] - k * a[2]))
+    x_u = _cross(a, z_u)
+    c, s = math.cos(theta0), math.sin(theta0)
+    x_b = tuple(c * xu - s * zu for xu, zu in zip(x_u, z_u))
+    z_b = tuple(c * zu + s * xu for xu, zu in zip(x_u, z_u))
+    R = tuple((x_b[i], a[i], z_b[i]) for i in range(3))
+    z0 = ground.height(x0, y0)
+    pos = (x0 + params.r * n[0], y0 + params.r * n[1], z0 + params.r * n[2])
+    return pos, _quat_from_matrix(R)
+
+
+def _touch_angle(params: RobotParams) -> float:
+    """Smallest pitch (rad) at which the body box can reach a level floor."""
+    h = body_height(params)
+    corners = [(sx * 0.5 * BODY_DEPTH, params.l + sz * 0.5 * h) for sx in (-1, 1) for sz in (-1, 1)]
+    for i in range(1, 158):
+        th = 0.01 * i
+        if any(params.r + (-x * math.sin(th) + z * math.cos(th)) <= 0.0 for x, z in corners):
+            return th
+    return math.pi / 2
+
+
+class BulletTwin:
+    """One simulated robot in its own PyBullet world.
+
+    Parameters
+    ----------
+    config : TwinConfig
+    theta0 : float
+        Initial body pitch in rad (wheel angles ψ_i start at 0, all rates at 0).
+    alpha0 : float
+        Initial heading in rad.
+    position : (2,) m
+        Initial axle midpoint (x, y) on the floor.
+
+    Use as a context manager, or call :meth:`close`, to free the physics server.
+    """
+
+    def __init__(self, config: TwinConfig | None = None, theta0: float = 0.0, alpha0: float = 0.0,
+                 position=(0.0, 0.0)):
+        import pybullet
+        import pybullet_data
+        from pybullet_utils.bullet_client import BulletClient
+
+        self.config = config = config if config is not None else TwinConfig()
+        if not isinstance(config, TwinConfig):
+            raise TwinError(f"config must be a TwinConfig, got {type(config).__name__}")
+        for name, v in (("theta0", theta0), ("alpha0", alpha0)):
+            if not (isinstance(v, (int, float)) and math.isfinite(v)):
+                raise TwinError(f"{name} must be a finite angle in rad, got {v!r}")
+        if not abs(theta0) < config.fall_angle:
+            raise TwinError(f"theta0 must be inside the fall limit ±{config.fall_angle:g} rad, got {theta0!r}")
+        x0, y0 = (float(v) for v in position)
+        if not (math.isfinite(x0) and math.isfinite(y0)):
+            raise TwinError(f"position must be 2 finite coordinates in m, got {position!r}")
+        p = config.params
+        self.params = p
+        self.k = config.steps_per_control
+        self.physics_dt = 1.0 / config.physics_rate
+        self.control_dt = self.k * self.physics_dt
+        self._pb = pybullet
+        self.client = BulletClient(connection_mode=pybullet.DIRECT)
+        c = self.client
+        c.setPhysicsEngineParameter(fixedTimeStep=self.physics_dt, numSolverIterations=config.solver_iterations,
+                                    numSubSteps=0, deterministicOverlappingPairs=1)
+        c.setGravity(0.0, 0.0, -p.g)
+
+        g = config.ground
+        plane_q = c.getQuaternionFromEuler((0.0, 0.0, 0.0))
+        if g.slope != 0.0:
+            # the floor rises towards slope_direction: rotate about the horizontal axis ⟂ to it
+            axis = (-math.sin(g.slope_direction), math.cos(g.slope_direction), 0.0)
+            h = -0.5 * g.slope
+            plane_q = (axis[0] * math.sin(h), axis[1] * math.sin(h), 0.0, math.cos(h))
+        self.plane = c.loadURDF(os.path.join(pybullet_data.getDataPath(), "plane.urdf"), (0.0, 0.0, 0.0), plane_q,
+                                useFixedBase=True)
+        c.changeDynamics(self.plane, -1, lateralFriction=1.0, rollingFriction=0.0, spinningFriction=0.0,
+                         restitution=0.0)
+
+        d = config.disturbances
+        self.urdf = robot_urdf(p, d.payload, d.com_offset)
+        pos, quat = initial_pose(p, g, float(theta0), float(alpha0), x0, y0)
+        fd, path = tempfile.mkstemp(suffix=".urdf", prefix="mtwip-")
+        try:
+            with os.fdopen(fd, "w") as f:
+                f.write(self.urdf)
+            self.robot = c.loadURDF(path, pos, quat, flags=pybullet.URDF_USE_INERTIA_FROM_FILE)
+        finally:
+            os.unlink(path)
+        rob = self.robot
+        self.motor = None if config.motor is None else MotorDriver(config.motor)
+        self._motor_damping = 0.0 if config.motor is None else config.motor.electrical_damping
+        self._lagged = config.motor is not None and config.motor.inductance > 0.0
+        for link in range(-1, c.getNumJoints(rob)):
+            c.changeDynamics(rob, link, linearDamping=0.0, angularDamping=0.0, restitution=0.0)
+        for j in WHEEL_JOINTS:
+            c.resetJointState(rob, j, -float(theta0), 0.0)
+            # with inductance the back-EMF is integrated in Python; otherwise it is joint damping
+            damping = p.d_b + (0.0 if self._lagged else self._motor_damping)
+            c.changeDynamics(rob, j, jointDamping=damping, lateralFriction=g.lateral_friction,
+                             rollingFriction=g.rolling_friction, spinningFriction=g.spinning_friction)
+        c.setJointMotorControlArray(rob, WHEEL_JOINTS, pybullet.VELOCITY_CONTROL, forces=(0.0, 0.0))
+        self._friction = {"left": [g.lateral_friction, g.rolling_friction, g.spinning_friction],
+                          "right": [g.lateral_friction, g.rolling_friction, g.spinning_friction]}
+        self._pending_friction = list(d.friction_changes)
+        self._pushes = d.pushes
+        self._com_local = (d.com_offset[0], d.com_offset[1], p.l + d.com_offset[2])
+        self._contact_check_angle = max(0.0, _touch_angle(p) - abs(g.slope) - 0.15)
+
+        # bound once: BulletClient builds a new partial on every attribute access
+        self._step_sim = c.stepSimulation
+        self._set_motors = c.setJointMotorControlArray
+        self._ext_torque = c.applyExternalTorque
+        self._ext_force = c.applyExternalForce
+        self._base_pose = c.getBasePositionAndOrientation
+        self._base_vel = c.getBaseVelocity
+        self._joint_states = c.getJointStates
+        self._torque_mode = pybullet.TORQUE_CONTROL
+        self._world = pybullet.WORLD_FRAME
+
+        self.n_physics = 0
+        self.status = "running"
+        self.end_reason = ""
+        self._alpha = None
+        self._current = (0.0, 0.0)
+        self._d_w = p.d_w
+        self.push_force = (0.0, 0.0, 0.0)
+        self.actuation = Actuation(0.0, 0.0, 0.0, 0.0, False, False)
+        self.truth = self._read_truth()
+        self._check_end()
+
+    # ---- lifecycle ---------------------------------------------------------------------
+    def close(self) -> None:
+        """Disconnect the physics server (idempotent)."""
+        client = getattr(self, "client", None)
+        if client is not None and client._client >= 0:
+            client.disconnect()
+            client._client = -1
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def __del__(self):
+        try:
+            self.close()
+        except Exception:
+            pass
+
+    @property
+    def t(self) -> float:
+        """Simulated time in s."""
+        return self.n_physics * self.physics_dt
+
+    # ---- stepping ----------------------------------------------------------------------
+    def step(self, ul: float, ur: float) -> GroundTruth:
+        """Apply the torque commands ``ul``, ``ur`` (N·m) for one control period.
+
+        Returns the ground truth at the end of the period (also :attr:`truth`);
+        :attr:`actuation` holds what the motors delivered, :attr:`push_force` the push
+        (N, world frame) that acted. Raises :class:`TwinError` if the run has ended or a
+        command is not a finite number.
+        """
+        if self.status != "running":
+            raise TwinError(f"the run has ended ({self.status}: {self.end_reason}); start a new twin")
+        if not (math.isfinite(ul) and math.isfinite(ur)):
+            raise TwinError(f"wheel torque commands must be finite numbers in N·m, got ul={ul!r}, ur={ur!r}")
+        tr = self.truth
+        t0 = self.t
+        if self._pending_friction:
+            self._apply_friction_changes(t0)
+        # equation (1)'s d_w: a joint torque per wheel and their sum on the body about the axle
+        hold_l = -self._d_w * tr.psi_l_dot
+        hold_r = -self._d_w * tr.psi_r_dot
+        tb = hold_l + hold_r
+        ax, ay, az = self._axle_dir
+        body_torque = (tb * ax, tb * ay, tb * az)
+        push = self._push_setup(tr, t0) if self._pushes else None
+        motor = self.motor
+        if motor is None:
+            act = Actuation(0.0, 0.0, float(ul), float(ur), False, False)
+            tau_l, tau_r = act.torque_l, act.torque_r
+        else:
+            w_l = tr.psi_l_dot - tr.theta_dot  # shaft speeds relative to the body
+            w_r = tr.psi_r_dot - tr.theta_dot
+            dl, sl = motor.duty(ul, w_l)
+            dr, sr = motor.duty(ur, w_r)
+            act = Actuation(dl, dr, motor.torque_at(dl, w_l), motor.torque_at(dr, w_r), sl, sr)
+            # the speed-dependent part −c ω is the joint damping set at construction
+            tau_l, tau_r = motor.stall_part(dl), motor.stall_part(dr)
+        rob, mode, world = self.robot, self._torque_mode, self._world
+        set_motors, step_sim, ext_torque = self._set_motors, self._step_sim, self._ext_torque
+        if self._lagged:
+            act = self._step_lagged(act, hold_l, hold_r, body_torque, push, t0)
+        elif push is None:
+            forces = (tau_l + hold_l, tau_r + hold_r)
+            for _ in range(self.k):
+                ext_torque(rob, -1, body_torque, world)
+                set_motors(rob, WHEEL_JOINTS, mode, forces=forces)
+                step_sim()
+            self.push_force = _ZERO3
+        else:
+            forces = (tau_l + hold_l, tau_r + hold_r)
+            acting = _ZERO3
+            for j in range(self.k):
+                acting = self._apply_push(push, t0 + j * self.physics_dt) or acting
+                ext_torque(rob, -1, body_torque, world)
+                set_motors(rob, WHEEL_JOINTS, mode, forces=forces)
+                step_sim()
+            self.push_force = acting
+        self.n_physics += self.k
+        self.actuation = act
+        self.truth = self._read_truth()
+        self._check_end()
+        return self.truth
+
+    def _step_lagged(self, act: Actuation, hold_l, hold_r, body_torque, push, t0) -> Actuation:
+        """Physics steps with the motors' electrical lag integrated per step (inductance > 0)."""
+        m, dt = self.motor, self.physics_dt
+        imax, kt = m.params.max_current, m.params.k_t
+        dl, dr = act.duty_l, act.duty_r
+        sum_l = sum_r = 0.0
+        acting = _ZERO3
+        for j in range(self.k):
+            # shaft speeds relative to the body drive the back-EMF
+            (_, wl, _, _), (_, wr, _, _) = self._joint_states(self.robot, WHEEL_JOINTS)
+            il, ir = self._current
+            tl, trq = kt * il, kt * ir
+            sum_l += tl
+            sum_r += trq
+            if push is not None:
+                acting = self._apply_push(push, t0 + j * dt) or acting
+            self._ext_torque(self.robot, -1, body_torque, self._world)
+            self._set_motors(self.robot, WHEEL_JOINTS, self._torque_mode, forces=(tl + hold_l, trq + hold_r))
+            self._step_sim()
+            il = m.current_step(il, dl, wl, dt)
+            ir = m.current_step(ir, dr, wr, dt)
+            self._current = (max(-imax, min(imax, il)), max(-imax, min(imax, ir)))
+        self.push_force = acting
+        return act._replace(torque_l=sum_l / self.k, torque_r=sum_r / self.k)
+
+    # ---- disturbances ------------------------------------------------------------------
+    def _apply_friction_changes(self, t: float) -> None:
+        while self._pending_friction and self._pending_friction[0].time <= t + 1e-12:
+            ch = self._pending_friction.pop(0)
+            for side, j in (("left", 0), ("right", 1)):
+                if ch.wheel not in (side, "both"):
+                    continue
+                f = self._friction[side]
+                for i, v in enumerate((ch.lateral, ch.rolling, ch.spinning)):
+                    if v is not None:
+                        f[i] = v
+                self.client.changeDynamics(self.robot, j, lateralFriction=f[0], rollingFriction=f[1],
+                                           spinningFriction=f[2])
+
+    def _push_setup(self, tr: GroundTruth, t0: float):
+        """The pushes that overlap this control period, with world force and point (held over it)."""
+        t1 = t0 + self.control_dt
+        active = [p for p in self._pushes if p.start < t1 and p.start + p.duration > t0]
+        if not active:
+            return None
+        R = self._rotation()
+        axle = self._axle_position()
+        out = []
+        ca, sa = math.cos(tr.alpha), math.sin(tr.alpha)
+        for p in active:
+            fx, fy, fz = p.force
+            if p.frame == "heading":
+                f = (fx * ca - fy * sa, fx * sa + fy * ca, fz)
+            else:
+                f = (fx, fy, fz)
+            pt = tuple(axle[i] + R[i][0] * p.point[0] + R[i][1] * p.point[1] + R[i][2] * p.point[2] for i in range(3))
+            out.append((p.start, p.start + p.duration, f, pt))
+        return out
+
+    def _apply_push(self, push, t: float):
+        total = None
+        eps = 1e-9
+        for start, end, f, pt in push:
+            if start - eps <= t < end - eps:
+                self._ext_force(self.robot, -1, f, pt, self._world)
+                total = f if total is None else tuple(a + b for a, b in zip(total, f))
+        return total
+
+    # ---- readout -----------------------------------------------------------------------
+    def _rotation(self):
+        (_, q) = self._base_pose(self.robot)
+        x, y, z, w = q
+        return ((1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)),
+                (2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)),
+                (2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)))
+
+    def _axle_position(self):
+        com, _ = self._base_pose(self.robot)
+        R = self._rotation()
+        cl = self._com_local
+        return tuple(com[i] - (R[i][0] * cl[0] + R[i][1] * cl[1] + R[i][2] * cl[2]) for i in range(3))
+
+    def _read_truth(self) -> GroundTruth:
+        com, q = self._base_pose(self.robot)
+        _, w = self._base_vel(self.robot)
+        (ql, ql_d, _, _), (qr, qr_d, _, _) = self._joint_states(self.robot, WHEEL_JOINTS)
+        x, y, z, qw = q
+        r00 = 1 - 2 * (y * y + z * z)
+        r10 = 2 * (x * y + z * qw)
+        r20 = 2 * (x * z - y * qw)
+        r21 = 2 * (y * z + x * qw)
+        r22 = 1 - 2 * (x * x + y * y)
+        theta = math.asin(max(-1.0, min(1.0, -r20)))
+        roll = math.atan2(r21, r22)
+        yaw = math.atan2(r10, r00)
+        if self._alpha is None:
+            alpha = yaw
+        else:
+            alpha = self._alpha + math.remainder(yaw - self._alpha, 2.0 * math.pi)
+        self._alpha = alpha
+        ca, sa = math.cos(alpha), math.sin(alpha)
+        theta_dot = -sa * w[0] + ca * w[1]
+        # ZYX Euler rates: ω = α̇ ẑ + θ̇ ŷ' + φ̇ x̂''
+        ct = math.cos(theta)
+        roll_rate = (ca * w[0] + sa * w[1]) / ct if ct > 1e-9 else 0.0
+        alpha_dot = w[2] + roll_rate * math.sin(theta)
+        psi_l, psi_r = ql + theta, qr + theta
+        psi_l_dot, psi_r_dot = ql_d + theta_dot, qr_d + theta_dot
+        psi = 0.5 * (psi_l + psi_r)
+        # axle midpoint = centre of mass − R · (centre of mass in the body frame)
+        r01 = 2 * (x * y - z * qw)
+        r02 = 2 * (x * z + y * qw)
+        r11 = 1 - 2 * (x * x + z * z)
+        r12 = 2 * (y * z - x * qw)
+        self._axle_dir = (r01, r11, r21)
+        cl = self._com_local
+        ax = com[0] - (r00 * cl[0] + r01 * cl[1] + r02 * cl[2])
+        ay = com[1] - (r10 * cl[0] + r11 * cl[1] + r12 * cl[2])
+        return GroundTruth(self.t, theta, theta_dot, psi_l, psi_r, psi, 0.5 * (psi_l_dot + psi_r_dot), alpha,
+                           alpha_dot, self.params.r * psi, ax, ay, roll, psi_l_dot, psi_r_dot)
+
+    def _check_end(self) -> None:
+        tr = self.truth
+        # NaN and infinity propagate through the physics and through this sum
+        if not math.isfinite(tr.theta + tr.theta_dot + tr.psi + tr.psi_dot + tr.alpha_dot + tr.x + tr.y):
+            self.status, self.end_reason = "diverged", f"the physics returned a non-finite state at t = {tr.t:.3f} s"
+        elif abs(tr.theta) > self.config.fall_angle:
+            self.status = "fell"
+            self.end_reason = f"|θ| = {abs(tr.theta):.3f} rad passed the fall limit {self.config.fall_angle:g} rad at t = {tr.t:.3f} s"
+        elif abs(tr.theta) > self._contact_check_angle and self.client.getContactPoints(self.robot, self.plane, -1):
+            self.status = "fell"
+            self.end_reason = f"the body touched the floor at t = {tr.t:.3f} s (θ = {tr.theta:.3f} rad)"

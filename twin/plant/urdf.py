@@ -1,0 +1,171 @@
+"""The robot as a URDF, generated from a parameter set.
+
+Generating the URDF (rather than deriving parameters from a fixed file) lets every
+"true plant" of an uncertainty study, a payload or a centre-of-mass offset have its own
+robot. ``urdf/mtwip.urdf`` in the repository is this module's output for the nominal
+parameters (``python -m twin.plant.urdf > urdf/mtwip.urdf``); a test keeps them equal.
+
+Frames (SI units, right-handed, z up): the body link's frame sits at the axle midpoint
+with x forward, y along the axle towards the left wheel, z up. Joint angles are the
+wheel rotations relative to the body about +y, so a positive joint rate rolls a wheel
+forward (+x); that is the encoder reading ψ − θ of paper-notes.
+
+Links::
+
+    body         mass m_b, centre of mass l above the axle (plus any offset),
+                 inertia diag(n_xb, n_yb, n_zb) about its centre of mass
+    wheel_left   continuous joint at (0, +b, 0), mass m_w,
+    wheel_right  continuous joint at (0, -b, 0), inertia diag(n_wd, n_wa, n_wd)
+    payload      optional, fixed to the body: a point-like box of the payload's mass
+
+Collision shapes: the body is a box; each wheel collides as a sphere of radius r, so
+its contact with the ground is a single point directly under the axle, the contact
+the analytic model assumes (a cylinder gives Bullet a multi-point manifold that
+chatters). The visuals are a cylinder per wheel, with a white spoke so rotation reads
+on video.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from twin.errors import TwinError
+from twin.params import NOMINAL, RobotParams
+
+WHEEL_WIDTH = 0.025  # m, visual only
+WHEEL_CLEARANCE = 0.005  # m between body side and wheel, visual only
+BODY_DEPTH = 0.08  # m, body box extent along x
+BODY_COLOUR = (0.93, 0.49, 0.13, 1.0)  # orange: reads well on the grey checker floor
+WHEEL_COLOUR = (0.12, 0.12, 0.14, 1.0)
+SPOKE_COLOUR = (0.95, 0.95, 0.95, 1.0)
+PAYLOAD_COLOUR = (0.15, 0.45, 0.85, 1.0)
+PAYLOAD_SIZE = 0.03  # m, edge of the payload's visual cube (its inertia is a point mass's)
+
+
+@dataclass(frozen=True)
+class Payload:
+    """A mass fixed to the body: ``mass`` in kg at ``position`` (m, body frame, from the axle midpoint)."""
+
+    mass: float
+    position: tuple[float, float, float] = (0.0, 0.0, 0.1)
+
+    def __post_init__(self):
+        if not (isinstance(self.mass, (int, float)) and math.isfinite(self.mass) and self.mass > 0):
+            raise TwinError(f"payload mass must be a positive number in kg, got {self.mass!r}")
+        pos = tuple(float(v) for v in self.position)
+        if len(pos) != 3 or not all(math.isfinite(v) and abs(v) <= 1.0 for v in pos):
+            raise TwinError(f"payload position must be 3 finite coordinates within ±1 m of the axle, got {self.position!r}")
+        object.__setattr__(self, "position", pos)
+        object.__setattr__(self, "mass", float(self.mass))
+
+
+def _check_offset(com_offset) -> tuple[float, float, float]:
+    off = tuple(float(v) for v in com_offset)
+    if len(off) != 3 or not all(math.isfinite(v) and abs(v) <= 0.1 for v in off):
+        raise TwinError(f"centre-of-mass offset must be 3 finite coordinates within ±0.1 m, got {com_offset!r}")
+    return off
+
+
+def body_height(params: RobotParams) -> float:
+    """Height of the body box in m: centred on the centre of mass, at least 12 cm."""
+    return max(0.12, 2.4 * params.l)
+
+
+def body_width(params: RobotParams) -> float:
+    """Width (along the axle) of the body box in m, leaving room for the wheels."""
+    return max(0.02, 2.0 * params.b - WHEEL_WIDTH - 2.0 * WHEEL_CLEARANCE)
+
+
+def _f(v: float) -> str:
+    return repr(float(v))
+
+
+def _xyz(v) -> str:
+    return " ".join(_f(c) for c in v)
+
+
+def _rgba(name: str, c) -> str:
+    return f'<material name="{name}"><color rgba="{_xyz(c)}"/></material>'
+
+
+def _inertial(mass: float, origin, ixx: float, iyy: float, izz: float) -> str:
+    return (f'<inertial><origin xyz="{_xyz(origin)}" rpy="0 0 0"/><mass value="{_f(mass)}"/>'
+            f'<inertia ixx="{_f(ixx)}" ixy="0" ixz="0" iyy="{_f(iyy)}" iyz="0" izz="{_f(izz)}"/></inertial>')
+
+
+def robot_urdf(params: RobotParams = NOMINAL, payload: Payload | None = None,
+               com_offset=(0.0, 0.0, 0.0), name: str = "mtwip") -> str:
+    """URDF text of the robot with parameters ``params``.
+
+    Parameters
+    ----------
+    params : RobotParams
+        Masses, inertias and geometry (Table III).
+    payload : Payload, optional
+        An extra mass fixed to the body.
+    com_offset : (3,) m
+        Offset of the body's centre of mass from (0, 0, l) in the body frame, as a
+        mis-built or unevenly loaded robot has. The box geometry does not move.
+    """
+    off = _check_offset(com_offset)
+    if payload is not None and not isinstance(payload, Payload):
+        raise TwinError(f"payload must be a Payload(mass, position), got {payload!r}")
+    p = params
+    h, w = body_height(p), body_width(p)
+    com = (off[0], off[1], p.l + off[2])
+    spoke = (0.7 * p.r, 0.2 * WHEEL_WIDTH + 0.002, 0.12 * p.r)
+    lines = [
+        '<?xml version="1.0"?>',
+        f'<!-- generated by twin.plant.urdf from a RobotParams set; do not edit by hand -->',
+        f'<robot name="{name}">',
+        '  ' + _rgba("body", BODY_COLOUR),
+        '  ' + _rgba("wheel", WHEEL_COLOUR),
+        '  ' + _rgba("spoke", SPOKE_COLOUR),
+        '  ' + _rgba("payload", PAYLOAD_COLOUR),
+        '  <link name="body">',
+        '    ' + _inertial(p.m_b, com, p.n_xb, p.n_yb, p.n_zb),
+        f'    <visual><origin xyz="0 0 {_f(p.l)}" rpy="0 0 0"/><geometry><box size="{_xyz((BODY_DEPTH, w, h))}"/></geometry><material name="body"/></visual>',
+        f'    <collision><origin xyz="0 0 {_f(p.l)}" rpy="0 0 0"/><geometry><box size="{_xyz((BODY_DEPTH, w, h))}"/></geometry></collision>',
+        '  </link>',
+    ]
+    for side, sign in (("left", 1.0), ("right", -1.0)):
+        # spoke offset outward so that it shows on the wheel's outer face
+        spoke_y = sign * 0.5 * WHEEL_WIDTH
+        lines += [
+            f'  <link name="wheel_{side}">',
+            '    ' + _inertial(p.m_w, (0.0, 0.0, 0.0), p.n_wd, p.n_wa, p.n_wd),
+            f'    <visual><origin xyz="0 0 0" rpy="{_f(math.pi / 2)} 0 0"/><geometry><cylinder radius="{_f(p.r)}" length="{_f(WHEEL_WIDTH)}"/></geometry><material name="wheel"/></visual>',
+            f'    <visual><origin xyz="{_f(0.35 * p.r)} {_f(spoke_y)} 0" rpy="0 0 0"/><geometry><box size="{_xyz(spoke)}"/></geometry><material name="spoke"/></visual>',
+            f'    <collision><origin xyz="0 0 0" rpy="0 0 0"/><geometry><sphere radius="{_f(p.r)}"/></geometry></collision>',
+            '  </link>',
+            f'  <joint name="wheel_{side}_joint" type="continuous">',
+            '    <parent link="body"/>',
+            f'    <child link="wheel_{side}"/>',
+            f'    <origin xyz="0 {_f(sign * p.b)} 0" rpy="0 0 0"/>',
+            '    <axis xyz="0 1 0"/>',
+            # damping is applied by the twin as equation (1) states, not by the engine
+            '    <dynamics damping="0" friction="0"/>',
+            '  </joint>',
+        ]
+    if payload is not None:
+        # a point mass: a tiny inertia keeps the multibody well conditioned
+        tiny = payload.mass * (PAYLOAD_SIZE ** 2) / 6.0
+        lines += [
+            '  <link name="payload">',
+            '    ' + _inertial(payload.mass, (0.0, 0.0, 0.0), tiny, tiny, tiny),
+            f'    <visual><origin xyz="0 0 0" rpy="0 0 0"/><geometry><box size="{_xyz((PAYLOAD_SIZE,) * 3)}"/></geometry><material name="payload"/></visual>',
+            '  </link>',
+            '  <joint name="payload_joint" type="fixed">',
+            '    <parent link="body"/>',
+            '    <child link="payload"/>',
+            f'    <origin xyz="{_xyz(payload.position)}" rpy="0 0 0"/>',
+            '  </joint>',
+        ]
+    lines.append('</robot>')
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":  # regenerate urdf/mtwip.urdf
+    import sys
+
+    sys.stdout.write(robot_urdf())
