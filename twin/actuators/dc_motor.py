@@ -147,3 +147,16 @@ class MotorDriver:
         if L <= 0.0:
             return i_ss
         return i_ss + (current - i_ss) * math.exp(-dt * self._R / L)
+
+    def current_mean(self, current: float, duty: float, omega: float, dt: float) -> float:
+        """Mean current over the next ``dt`` s from ``current``, exact for constant V and ω.
+
+        The twin applies k_t times this as the torque of a physics step, so the lag is
+        resolved even when L/R is shorter than the step.
+        """
+        L = self.params.inductance
+        i_ss = (duty * self._vs - self._kt * omega) / self._R
+        if L <= 0.0:
+            return i_ss
+        tau = L / self._R
+        return i_ss + (current - i_ss) * (tau / dt) * -math.expm1(-dt / tau)

@@ -425,7 +425,8 @@ class BulletTwin:
             # shaft speeds relative to the body drive the back-EMF
             (_, wl, _, _), (_, wr, _, _) = self._joint_states(self.robot, WHEEL_JOINTS)
             il, ir = self._current
-            tl, trq = kt * il, kt * ir
+            tl = kt * max(-imax, min(imax, m.current_mean(il, dl, wl, dt)))
+            trq = kt * max(-imax, min(imax, m.current_mean(ir, dr, wr, dt)))
             sum_l += tl
             sum_r += trq
             if push is not None:
