@@ -20,7 +20,7 @@ from twin.controllers.mamdani import DEFAULT_FOU, direction_controller, position
 from twin.errors import TwinError
 from twin.metrics import settling_time
 from twin.params import NOMINAL, RobotParams
-from twin.plant.analytic import STATE_NAMES, rk4_step
+from twin.plant.analytic import STATE_NAMES, STATE_UNITS, rk4_step
 from twin.timing import steps_per_control
 
 
@@ -75,6 +75,18 @@ class AnalyticRun:
     def distance(self) -> np.ndarray:
         """Travelled distance p = r ψ in m."""
         return self.params.r * self.signal("psi")
+
+    @property
+    def total_torque(self) -> np.ndarray:
+        """ul + ur in N·m, as applied."""
+        return self.ul + self.ur
+
+    def columns(self) -> tuple[list[str], list[str], np.ndarray]:
+        """(names, units, data (n, k)) of everything logged, for CSV files."""
+        names = ["t", *STATE_NAMES, "ul", "ur", "u_balance", "theta_off", "u_alpha"]
+        units = ["s", *STATE_UNITS, "N·m", "N·m", "N·m", "rad", "N·m"]
+        data = np.column_stack([self.t, self.x, self.ul, self.ur, self.u, self.theta_off, self.u_alpha])
+        return names, units, data
 
     def settling_time(self, tol: float = 0.01) -> float:
         """First time (s) after which |θ| stays below ``tol`` rad; inf if it never does."""

@@ -69,6 +69,22 @@ class TwinRun:
     def signal_units() -> dict[str, str]:
         return {**TRUTH_UNITS, **COMMAND_UNITS, **ACTUATION_UNITS, **PUSH_UNITS}
 
+    @property
+    def distance(self) -> np.ndarray:
+        """Travelled distance p = r ψ in m."""
+        return self.signal("distance")
+
+    @property
+    def total_torque(self) -> np.ndarray:
+        """Torque delivered by both motors, N·m."""
+        return self.signal("torque_l") + self.signal("torque_r")
+
+    def columns(self) -> tuple[list[str], list[str], np.ndarray]:
+        """(names, units, data (n, k)) of everything logged, for CSV files."""
+        names = list(self.signal_names())
+        units = [self.signal_units()[n] for n in names]
+        return names, units, np.column_stack([self.truth, self.commands, self.actuation, self.push])
+
     def settling_time(self, tol: float = 0.01) -> float:
         """First time (s) after which |θ| stays below ``tol`` rad; inf if it never does or fell."""
         if self.fell:

@@ -54,6 +54,7 @@ def main():
     Examples:
       twin design --decay-rate 3 --out gains.json
       twin analytic 3 --controller both --out runs/exp3
+      twin physics 3 --controller both --out runs/exp3-twin
       twin surface position --out runs/surfaces
     """
 
@@ -164,30 +165,80 @@ def analytic(experiment, controller, out, duration, gains_file, epsilon, rho, de
       twin analytic 3 --controller both --out runs/exp3
       twin analytic 1 --controller t1 --duration 5
     """
+    _paper_experiment("analytic", experiment, controller, out, duration, gains_file,
+                      (epsilon, rho, decay_rate, max_gain))
+
+
+@main.command()
+@click.argument("experiment", type=click.Choice(EXPERIMENT_CHOICES), metavar="EXPERIMENT")
+@click.option("--controller", type=click.Choice(["it2", "t1", "both"]), default="both", show_default=True)
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=Path("runs/physics"),
+              show_default=True, help="Output directory.")
+@click.option("--duration", type=float, default=None, help="Simulated time in s (default: the experiment's 15 s).")
+@click.option("--ideal-motor", is_flag=True, help="Ideal torque sources instead of the default DC motors.")
+@click.option("--gains", "gains_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Gains from 'twin design --out' (default: design now).")
+@_design_options
+def physics(experiment, controller, out, duration, ideal_motor, gains_file, epsilon, rho, decay_rate, max_gain):
+    """Run a paper experiment on the PyBullet twin: figure, metrics, trajectories.
+
+    The robot of urdf/ on a floor, 1 kHz physics, DC motors with 10-bit PWM (or
+    --ideal-motor), controllers at 200 Hz acting on ground truth (the sensor models and
+    the estimator come next). EXPERIMENT is 1, 2 or 3 as for 'twin analytic'. Writes
+    figure.png, metrics.json, trajectory_<controller>.csv and design.json into --out.
+
+    \b
+    Examples:
+      twin physics 3 --controller both --out runs/exp3-twin
+      twin physics 1 --ideal-motor --duration 5
+    """
+    _paper_experiment("twin", experiment, controller, out, duration, gains_file,
+                      (epsilon, rho, decay_rate, max_gain), ideal_motor=ideal_motor)
+
+
+def _paper_experiment(plant, experiment, controller, out, duration, gains_file, design_options, ideal_motor=False):
+    """Run paper experiment N with one or both controllers on a plant and write the outputs."""
     from twin import analytic_loop as al
     from twin import report
 
     number = int(experiment[-1])
     if duration is not None and not (math.isfinite(duration) and 0 < duration <= 3600):
         raise TwinError(f"--duration must be in (0, 3600] s, got {duration:g}")
-    d = _load_design(gains_file, epsilon, rho, decay_rate, max_gain)
+    d = _load_design(gains_file, *design_options)
     exp = al.PAPER_EXPERIMENTS[number]
     kinds = ["it2", "t1"] if controller == "both" else [controller]
+    if plant == "twin":
+        from twin.bullet_loop import simulate_twin
+        from twin.plant.bullet import TwinConfig
+
+        config = TwinConfig(motor=None) if ideal_motor else TwinConfig()
+        description = "PyBullet twin, nominal, " + ("ideal actuators" if ideal_motor else "DC motors") + ", ground truth"
+
+        def run_one(kind):
+            return simulate_twin(al.build_cascade(kind, d, exp), exp, config, duration=duration, controller_name=kind)
+    else:
+        description = "analytic model, nominal"
+
+        def run_one(kind):
+            return al.simulate(al.build_cascade(kind, d, exp), exp, duration=duration, controller_name=kind)
     runs, metrics = [], {}
     for kind in kinds:
-        run = al.simulate(al.build_cascade(kind, d, exp), exp, duration=duration, controller_name=kind)
+        run = run_one(kind)
         runs.append(run)
         metrics[kind] = run.summary()
         report.write_trajectory_csv(run, out / f"trajectory_{kind}.csv")
-    report.write_json({"experiment": exp.name, "description": exp.description, "plant": "analytic model, nominal",
+    report.write_json({"experiment": exp.name, "description": exp.description, "plant": description,
                        "controllers": metrics}, out / "metrics.json")
     report.write_json(d.to_json_dict(), out / "design.json")
-    report.plot_runs(runs, out / "figure.png", f"{exp.name}: {exp.description} (analytic model)")
-    click.echo(f"{exp.name}: {exp.description}")
-    keys = [k for k in metrics[kinds[0]] if k != "controller"]
+    report.plot_runs(runs, out / "figure.png", f"{exp.name}: {exp.description} ({description})")
+    click.echo(f"{exp.name}: {exp.description} ({description})")
+    keys = [k for k, v in metrics[kinds[0]].items() if isinstance(v, (int, float)) and not isinstance(v, bool)]
     click.echo(f"  {'metric':28}" + "".join(f"{k.upper():>12}" for k in kinds))
     for k in keys:
         click.echo(f"  {k:28}" + "".join(f"{metrics[c][k]:12.4g}" for c in kinds))
+    for kind in kinds:
+        if metrics[kind].get("status", "ok") != "ok":
+            click.echo(f"  {kind.upper()}: {metrics[kind]['status']}: {metrics[kind]['end_reason']}")
     click.echo(f"wrote {out}/figure.png, metrics.json, design.json, " + ", ".join(f"trajectory_{k}.csv" for k in kinds))
 
 

@@ -9,7 +9,6 @@ from pathlib import Path
 import numpy as np
 
 from twin.analytic_loop import AnalyticRun
-from twin.plant.analytic import STATE_NAMES, STATE_UNITS
 
 _COLOURS = {"it2": "tab:blue", "t1": "tab:orange"}
 
@@ -23,12 +22,15 @@ def _pyplot():
     return plt
 
 
-def plot_runs(runs: list[AnalyticRun], path: Path, title: str = "") -> Path:
-    """The paper's Figs. 6–8 panels (θ, command, dψ/dt, distance, α) with runs overlaid."""
+def plot_runs(runs: list, path: Path, title: str = "") -> Path:
+    """The paper's Figs. 6–8 panels (θ, torque, dψ/dt, distance, α) with runs overlaid.
+
+    ``runs``: :class:`~twin.analytic_loop.AnalyticRun` or :class:`~twin.bullet_loop.TwinRun`.
+    """
     plt = _pyplot()
     panels = [
         ("θ [rad]", lambda r: r.signal("theta")),
-        ("total torque u = ul + ur [N·m]", lambda r: r.ul + r.ur),
+        ("total torque ul + ur [N·m]", lambda r: r.total_torque),
         ("dψ/dt [rad/s]", lambda r: r.signal("psi_dot")),
         ("distance p = rψ [m]", lambda r: r.distance),
         ("heading α [rad]", lambda r: r.signal("alpha")),
@@ -60,14 +62,12 @@ def _save(plt, fig, path: Path) -> Path:
 
 
 def write_trajectory_csv(run: AnalyticRun, path: Path) -> Path:
-    """Time, state and commands with units in the header."""
-    header = ["t [s]"] + [f"{n} [{u}]" for n, u in zip(STATE_NAMES, STATE_UNITS)] + [
-        "ul [N·m]", "ur [N·m]", "u_balance [N·m]", "theta_off [rad]", "u_alpha [N·m]"]
-    data = np.column_stack([run.t, run.x, run.ul, run.ur, run.u, run.theta_off, run.u_alpha])
+    """Every logged signal, one row per control step, with units in the header."""
+    names, units, data = run.columns()
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
-        w.writerow(header)
+        w.writerow([f"{n} [{u}]" for n, u in zip(names, units)])
         for row in data:
             w.writerow([repr(float(v)) for v in row])
     return path

@@ -39,8 +39,10 @@ Termination
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import os
+import sys
 import tempfile
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -154,6 +156,43 @@ class TwinConfig:
         return steps_per_control(1.0 / self.physics_rate, 1.0 / self.control_rate)
 
 
+@contextlib.contextmanager
+def _quiet_native_output():
+    """Silence what PyBullet's C code prints (its build time on import, ``argv[0]=`` on
+    connect) by pointing file descriptors 1 and 2 at /dev/null for the duration."""
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    saved = []
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+    except OSError:
+        yield
+        return
+    try:
+        for fd in (1, 2):
+            try:
+                saved.append((fd, os.dup(fd)))
+                os.dup2(devnull, fd)
+            except OSError:
+                pass
+        yield
+    finally:
+        for fd, copy in saved:
+            os.dup2(copy, fd)
+            os.close(copy)
+        os.close(devnull)
+
+
+def _connect():
+    """A new DIRECT physics server of its own, and the pybullet module."""
+    with _quiet_native_output():
+        import pybullet
+        from pybullet_utils.bullet_client import BulletClient
+
+        return BulletClient(connection_mode=pybullet.DIRECT), pybullet
+
+
 def _quat_from_matrix(R) -> tuple[float, float, float, float]:
     """(x, y, z, w) of a rotation matrix given as rows."""
     (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = R
@@ -236,9 +275,7 @@ class BulletTwin:
 
     def __init__(self, config: TwinConfig | None = None, theta0: float = 0.0, alpha0: float = 0.0,
                  position=(0.0, 0.0)):
-        import pybullet
         import pybullet_data
-        from pybullet_utils.bullet_client import BulletClient
 
         self.config = config = config if config is not None else TwinConfig()
         if not isinstance(config, TwinConfig):
@@ -256,8 +293,7 @@ class BulletTwin:
         self.k = config.steps_per_control
         self.physics_dt = 1.0 / config.physics_rate
         self.control_dt = self.k * self.physics_dt
-        self._pb = pybullet
-        self.client = BulletClient(connection_mode=pybullet.DIRECT)
+        self.client, pybullet = _connect()
         c = self.client
         c.setPhysicsEngineParameter(fixedTimeStep=self.physics_dt, numSolverIterations=config.solver_iterations,
                                     numSubSteps=0, deterministicOverlappingPairs=1)
