@@ -206,6 +206,15 @@ def test_push_beyond_authority_ends_in_fell(balance):
             twin.step(0.0, 0.0)
 
 
+def test_fall_angle_is_configurable(balance):
+    """A stricter fall limit ends the run when |θ| first passes it, well before the body nears the floor."""
+    push = Push((-12.0, 0.0, 0.0), start=0.5, duration=0.1)
+    r = simulate_twin(balance, UPRIGHT, TwinConfig(fall_angle=0.3, disturbances=Disturbances(pushes=(push,))))
+    assert r.status == "fell" and "fall limit 0.3 rad" in r.end_reason
+    theta = np.abs(r.signal("theta"))
+    assert theta[-1] > 0.3 and np.all(theta[:-1] <= 0.3)
+
+
 # ---- configuration errors ------------------------------------------------------------------
 
 @pytest.mark.parametrize("physics, control", [(1000.0, 300.0), (1000.0, 2000.0), (240.0, 100.0)])

@@ -132,6 +132,16 @@ class MotorDriver:
             return 0.0, saturated
         return round(d * self._steps) / self._steps, saturated
 
+    def update(self, torque_cmd: float, omega: float) -> tuple[float, bool, float, float]:
+        """One PWM update: (duty, saturated, τ_0, τ) for a command (N·m) at shaft speed ω (rad/s).
+
+        τ_0 = k_t V / R is the speed-independent torque the duty gives, τ = τ_0 − c ω the
+        torque delivered at the update.
+        """
+        d, saturated = self.duty(torque_cmd, omega)
+        tau0 = self._kt * d * self._vs / self._R
+        return d, saturated, tau0, tau0 - self._kt * self._kt * omega / self._R
+
     def torque_at(self, duty: float, omega: float) -> float:
         """Steady-state torque in N·m for a duty at shaft speed ω (no inductance)."""
         return self._kt * (duty * self._vs - self._kt * omega) / self._R

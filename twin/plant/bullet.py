@@ -340,8 +340,13 @@ class BulletTwin:
         self._pushes = d.pushes
         self._com_local = (d.com_offset[0], d.com_offset[1], p.l + d.com_offset[2])
         self._contact_check_angle = max(0.0, _touch_angle(p) - abs(g.slope) - 0.15)
+        # below this |θ| a finite state needs no closer look (see step)
+        self._quiet_angle = min(self._contact_check_angle, config.fall_angle)
 
-        # bound once: BulletClient builds a new partial on every attribute access
+        # the hot path calls pybullet's functions with this client's id: BulletClient
+        # builds a new functools.partial on every attribute access
+        self._pb = pybullet
+        self._cid = c._client
         self._step_sim = c.stepSimulation
         self._set_motors = c.setJointMotorControlArray
         self._ext_torque = c.applyExternalTorque
@@ -402,7 +407,7 @@ class BulletTwin:
         if not (math.isfinite(ul) and math.isfinite(ur)):
             raise TwinError(f"wheel torque commands must be finite numbers in N·m, got ul={ul!r}, ur={ur!r}")
         tr = self.truth
-        t0 = self.t
+        t0 = self.n_physics * self.physics_dt
         if self._pending_friction:
             self._apply_friction_changes(t0)
         # equation (1)'s d_w: a joint torque per wheel and their sum on the body about the axle
@@ -411,44 +416,46 @@ class BulletTwin:
         tb = hold_l + hold_r
         ax, ay, az = self._axle_dir
         body_torque = (tb * ax, tb * ay, tb * az)
-        push = self._push_setup(tr, t0) if self._pushes else None
         motor = self.motor
         if motor is None:
             act = Actuation(0.0, 0.0, float(ul), float(ur), False, False)
-            tau_l, tau_r = act.torque_l, act.torque_r
+            forces = (act.torque_l + hold_l, act.torque_r + hold_r)
         else:
-            w_l = tr.psi_l_dot - tr.theta_dot  # shaft speeds relative to the body
-            w_r = tr.psi_r_dot - tr.theta_dot
-            dl, sl = motor.duty(ul, w_l)
-            dr, sr = motor.duty(ur, w_r)
-            act = Actuation(dl, dr, motor.torque_at(dl, w_l), motor.torque_at(dr, w_r), sl, sr)
-            # the speed-dependent part −c ω is the joint damping set at construction
-            tau_l, tau_r = motor.stall_part(dl), motor.stall_part(dr)
-        rob, mode, world = self.robot, self._torque_mode, self._world
-        set_motors, step_sim, ext_torque = self._set_motors, self._step_sim, self._ext_torque
+            # shaft speeds relative to the body; the speed-dependent part −c ω of the torque
+            # is the joint damping set at construction, so only τ_0 is sent
+            dl, sl, tau0_l, tq_l = motor.update(ul, tr.psi_l_dot - tr.theta_dot)
+            dr, sr, tau0_r, tq_r = motor.update(ur, tr.psi_r_dot - tr.theta_dot)
+            act = Actuation(dl, dr, tq_l, tq_r, sl, sr)
+            forces = (tau0_l + hold_l, tau0_r + hold_r)
+        push = self._push_setup(tr, t0) if self._pushes else None
         if self._lagged:
             act = self._step_lagged(act, hold_l, hold_r, body_torque, push, t0)
-        elif push is None:
-            forces = (tau_l + hold_l, tau_r + hold_r)
-            for _ in range(self.k):
-                ext_torque(rob, -1, body_torque, world)
-                set_motors(rob, WHEEL_JOINTS, mode, forces=forces)
-                step_sim()
-            self.push_force = _ZERO3
         else:
-            forces = (tau_l + hold_l, tau_r + hold_r)
-            acting = _ZERO3
-            for j in range(self.k):
-                acting = self._apply_push(push, t0 + j * self.physics_dt) or acting
-                ext_torque(rob, -1, body_torque, world)
-                set_motors(rob, WHEEL_JOINTS, mode, forces=forces)
-                step_sim()
-            self.push_force = acting
+            pb, cid, rob = self._pb, self._cid, self.robot
+            ext_torque, set_motors, step_sim = pb.applyExternalTorque, pb.setJointMotorControlArray, pb.stepSimulation
+            mode, world = self._torque_mode, self._world
+            if push is None:
+                for _ in range(self.k):
+                    ext_torque(rob, -1, body_torque, world, cid)
+                    set_motors(rob, WHEEL_JOINTS, mode, forces=forces, physicsClientId=cid)
+                    step_sim(cid)
+                self.push_force = _ZERO3
+            else:
+                acting = _ZERO3
+                for j in range(self.k):
+                    acting = self._apply_push(push, t0 + j * self.physics_dt) or acting
+                    ext_torque(rob, -1, body_torque, world, cid)
+                    set_motors(rob, WHEEL_JOINTS, mode, forces=forces, physicsClientId=cid)
+                    step_sim(cid)
+                self.push_force = acting
         self.n_physics += self.k
         self.actuation = act
-        self.truth = self._read_truth()
-        self._check_end()
-        return self.truth
+        self.truth = truth = self._read_truth()
+        # NaN and infinity propagate through the physics and through this sum
+        if not (math.isfinite(truth.theta + truth.theta_dot + truth.psi + truth.psi_dot + truth.alpha_dot + truth.x)
+                and abs(truth.theta) <= self._quiet_angle):
+            self._check_end()
+        return truth
 
     def _step_lagged(self, act: Actuation, hold_l, hold_r, body_torque, push, t0) -> Actuation:
         """Physics steps with the motors' electrical lag integrated per step (inductance > 0)."""
@@ -534,9 +541,10 @@ class BulletTwin:
         return tuple(com[i] - (R[i][0] * cl[0] + R[i][1] * cl[1] + R[i][2] * cl[2]) for i in range(3))
 
     def _read_truth(self) -> GroundTruth:
-        com, q = self._base_pose(self.robot)
-        _, w = self._base_vel(self.robot)
-        (ql, ql_d, _, _), (qr, qr_d, _, _) = self._joint_states(self.robot, WHEEL_JOINTS)
+        pb, cid, rob = self._pb, self._cid, self.robot
+        com, q = pb.getBasePositionAndOrientation(rob, cid)
+        w = pb.getBaseVelocity(rob, cid)[1]
+        (ql, ql_d, _, _), (qr, qr_d, _, _) = pb.getJointStates(rob, WHEEL_JOINTS, cid)
         x, y, z, qw = q
         r00 = 1 - 2 * (y * y + z * z)
         r10 = 2 * (x * y + z * qw)
@@ -574,7 +582,6 @@ class BulletTwin:
 
     def _check_end(self) -> None:
         tr = self.truth
-        # NaN and infinity propagate through the physics and through this sum
         if not math.isfinite(tr.theta + tr.theta_dot + tr.psi + tr.psi_dot + tr.alpha_dot + tr.x + tr.y):
             self.status, self.end_reason = "diverged", f"the physics returned a non-finite state at t = {tr.t:.3f} s"
         elif abs(tr.theta) > self.config.fall_angle:
