@@ -53,18 +53,28 @@ class DCMotorParams:
     back_emf_compensation: bool = True
 
     def __post_init__(self):
-        for name in ("supply_voltage", "stall_torque", "no_load_speed"):
+        def number(name, lo, hi, lo_open=False, unit=""):
             v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise TwinError(f"motor {name} must be a positive number, got {v!r}")
-        if self.current_limit is not None and not (math.isfinite(self.current_limit) and self.current_limit > 0):
-            raise TwinError(f"motor current_limit must be a positive current in A or None, got {self.current_limit!r}")
-        if not (isinstance(self.pwm_bits, int) and 1 <= self.pwm_bits <= 24):
+            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+            ok = ok and (lo < v if lo_open else lo <= v) and v <= hi
+            if not ok:
+                bound = f"{'(' if lo_open else '['}{lo:g}, {hi:g}]"
+                raise TwinError(f"motor {name} must be a number in {bound}{' ' + unit if unit else ''}, got {v!r}")
+            object.__setattr__(self, name, float(v))
+
+        number("supply_voltage", 0.0, 1e4, True, "V")
+        number("stall_torque", 0.0, 1e4, True, "N·m")
+        number("no_load_speed", 0.0, 1e5, True, "rad/s")
+        if self.current_limit is not None:
+            number("current_limit", 0.0, 1e5, True, "A")
+        if not (isinstance(self.pwm_bits, int) and not isinstance(self.pwm_bits, bool) and 1 <= self.pwm_bits <= 24):
             raise TwinError(f"motor pwm_bits must be an integer from 1 to 24, got {self.pwm_bits!r}")
-        if not (math.isfinite(self.dead_band) and 0.0 <= self.dead_band < 1.0):
+        number("dead_band", 0.0, 1.0)
+        if self.dead_band >= 1.0:
             raise TwinError(f"motor dead_band must be a duty fraction in [0, 1), got {self.dead_band!r}")
-        if not (math.isfinite(self.inductance) and self.inductance >= 0.0):
-            raise TwinError(f"motor inductance must be >= 0 H, got {self.inductance!r}")
+        number("inductance", 0.0, 10.0, False, "H")
+        if not isinstance(self.back_emf_compensation, bool):
+            raise TwinError(f"motor back_emf_compensation must be true or false, got {self.back_emf_compensation!r}")
 
     @property
     def k_t(self) -> float:
@@ -103,7 +113,7 @@ class MotorDriver:
 
     def __init__(self, params: DCMotorParams = DEFAULT_MOTOR):
         if not isinstance(params, DCMotorParams):
-            raise TwinError(f"motor must be DCMotorParams or None (ideal torque source), got {params!r}")
+            raise TwinError(f"a motor driver needs DCMotorParams, got {params!r}")
         self.params = params
         self._kt = params.k_t
         self._R = params.resistance
@@ -117,6 +127,8 @@ class MotorDriver:
 
         ``saturated`` is true when the current limit or the supply voltage cut the command.
         """
+        if not (math.isfinite(torque_cmd) and math.isfinite(omega)):
+            raise TwinError(f"motor torque command and shaft speed must be finite, got {torque_cmd!r} N·m, {omega!r} rad/s")
         i_cmd = torque_cmd / self._kt
         saturated = abs(i_cmd) > self._imax
         if saturated:
@@ -168,5 +180,7 @@ class MotorDriver:
         i_ss = (duty * self._vs - self._kt * omega) / self._R
         if L <= 0.0:
             return i_ss
+        if dt <= 0.0:
+            return current
         tau = L / self._R
         return i_ss + (current - i_ss) * (tau / dt) * -math.expm1(-dt / tau)

@@ -147,15 +147,18 @@ class Disturbances:
     friction_changes: tuple[FrictionChange, ...] = field(default=())
 
     def __post_init__(self):
-        object.__setattr__(self, "pushes", tuple(self.pushes))
+        for name, kind in (("pushes", Push), ("friction_changes", FrictionChange)):
+            items = getattr(self, name)
+            try:
+                items = tuple(items)
+            except TypeError:
+                raise TwinError(f"{name} must be a sequence of {kind.__name__} objects, got {items!r}") from None
+            for item in items:
+                if not isinstance(item, kind):
+                    raise TwinError(f"{name} must hold {kind.__name__} objects, got {item!r}")
+            object.__setattr__(self, name, items)
         object.__setattr__(self, "friction_changes", tuple(sorted(self.friction_changes, key=lambda c: c.time)))
         object.__setattr__(self, "com_offset", _vec3("centre-of-mass offset", self.com_offset, 0.1, "m"))
-        for p in self.pushes:
-            if not isinstance(p, Push):
-                raise TwinError(f"pushes must be Push objects, got {p!r}")
-        for c in self.friction_changes:
-            if not isinstance(c, FrictionChange):
-                raise TwinError(f"friction changes must be FrictionChange objects, got {c!r}")
         if self.payload is not None and not isinstance(self.payload, Payload):
             raise TwinError(f"payload must be a Payload(mass, position), got {self.payload!r}")
 
@@ -195,6 +198,9 @@ def random_pushes(rng: np.random.Generator, count: int, force: tuple[float, floa
         raise TwinError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
     if not (isinstance(count, int) and 0 <= count <= 1000):
         raise TwinError(f"push count must be an integer from 0 to 1000, got {count!r}")
+    for name, pair in (("force", force), ("window", window)):
+        if not (isinstance(pair, (tuple, list)) and len(pair) == 2):
+            raise TwinError(f"push {name} range must be (low, high), got {pair!r}")
     f_lo, f_hi = (_finite("push force bound", v, 0.0, 1e4, "N") for v in force)
     t_lo, t_hi = (_finite("push window bound", v, 0.0, 1e6, "s") for v in window)
     if f_lo > f_hi or t_lo > t_hi:

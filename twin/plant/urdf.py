@@ -50,13 +50,17 @@ class Payload:
     position: tuple[float, float, float] = (0.0, 0.0, 0.1)
 
     def __post_init__(self):
-        if not (isinstance(self.mass, (int, float)) and math.isfinite(self.mass) and self.mass > 0):
-            raise TwinError(f"payload mass must be a positive number in kg, got {self.mass!r}")
-        pos = tuple(float(v) for v in self.position)
+        m = self.mass
+        if not (isinstance(m, (int, float)) and not isinstance(m, bool) and math.isfinite(m) and m > 0):
+            raise TwinError(f"payload mass must be a positive number in kg, got {m!r}")
+        try:
+            pos = tuple(float(v) for v in self.position)
+        except (TypeError, ValueError):
+            pos = ()
         if len(pos) != 3 or not all(math.isfinite(v) and abs(v) <= 1.0 for v in pos):
             raise TwinError(f"payload position must be 3 finite coordinates within ±1 m of the axle, got {self.position!r}")
         object.__setattr__(self, "position", pos)
-        object.__setattr__(self, "mass", float(self.mass))
+        object.__setattr__(self, "mass", float(m))
 
 
 def _check_offset(com_offset) -> tuple[float, float, float]:
