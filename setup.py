@@ -1,8 +1,11 @@
-"""Only the optional compiled kernel lives here; all metadata is in pyproject.toml."""
+"""Only the optional compiled kernels live here; all metadata is in pyproject.toml."""
 import sys
 
 from setuptools import Extension, setup
 
-# No FMA contraction: the kernel must round exactly like the pure-Python path.
+# No FMA contraction: the kernels must round exactly like their pure-Python paths.
 flags = [] if sys.platform == "win32" else ["-O2", "-ffp-contract=off"]
-setup(ext_modules=[Extension("twin.fuzzy._kernel", ["twin/fuzzy/_kernel.c"], optional=True, extra_compile_args=flags)])
+setup(ext_modules=[
+    Extension("twin.fuzzy._kernel", ["twin/fuzzy/_kernel.c"], optional=True, extra_compile_args=flags),
+    Extension("twin.plant._fastpath", ["twin/plant/_fastpath.c"], optional=True, extra_compile_args=flags),
+])

@@ -45,6 +45,7 @@ import os
 import sys
 import tempfile
 from dataclasses import dataclass, field
+from math import asin, atan2, cos, isfinite, remainder, sin
 from typing import NamedTuple
 
 from twin.actuators.dc_motor import DEFAULT_MOTOR, DCMotorParams, MotorDriver
@@ -55,7 +56,19 @@ from twin.plant.urdf import BODY_DEPTH, body_height, robot_urdf
 from twin.timing import steps_per_control
 
 WHEEL_JOINTS = (0, 1)  # left, right: the order of the joints in the URDF
+_ZERO2 = (0.0, 0.0)
 _ZERO3 = (0.0, 0.0, 0.0)
+_TWO_PI = 2.0 * math.pi
+_new = tuple.__new__
+_TORQUE_CONTROL = 1  # pybullet.TORQUE_CONTROL, checked at connection
+_WORLD_FRAME = 2  # pybullet.WORLD_FRAME, checked at connection
+
+try:  # the optional compiled hot path (setup.py); TWIN_PURE_PYTHON=1 turns it off
+    from twin.plant import _fastpath
+except ImportError:  # pragma: no cover - no C compiler at install time
+    _fastpath = None
+if os.environ.get("TWIN_PURE_PYTHON", "") not in ("", "0"):
+    _fastpath = None
 
 
 class GroundTruth(NamedTuple):
@@ -257,6 +270,46 @@ def _touch_angle(params: RobotParams) -> float:
     return math.pi / 2
 
 
+def truth_from_states(cls, pose, vel, joints, alpha_prev, com_local, r: float, t: float):
+    """Ground truth from PyBullet's base pose, base velocity and wheel joint states.
+
+    Returns ``(cls(...), axle_dir)``, ``axle_dir`` the world direction of the body's y
+    axis. ``alpha_prev`` (rad or None) unwraps the heading. ``twin.plant._fastpath.truth``
+    is the same arithmetic compiled; the two agree bit for bit.
+    """
+    (cx, cy, _), (x, y, z, qw) = pose
+    w0, w1, w2 = vel[1]
+    (ql, ql_d, *_), (qr, qr_d, *_) = joints
+    r00 = 1 - 2 * (y * y + z * z)
+    r10 = 2 * (x * y + z * qw)
+    r20 = 2 * (x * z - y * qw)
+    r21 = 2 * (y * z + x * qw)
+    r22 = 1 - 2 * (x * x + y * y)
+    s = -r20
+    theta = asin(1.0 if s > 1.0 else (-1.0 if s < -1.0 else s))
+    roll = atan2(r21, r22)
+    yaw = atan2(r10, r00)
+    alpha = yaw if alpha_prev is None else alpha_prev + remainder(yaw - alpha_prev, _TWO_PI)
+    ca, sa = cos(alpha), sin(alpha)
+    theta_dot = -sa * w0 + ca * w1
+    # ZYX Euler rates: ω = α̇ ẑ + θ̇ ŷ' + φ̇ x̂''
+    ct = cos(theta)
+    roll_rate = (ca * w0 + sa * w1) / ct if ct > 1e-9 else 0.0
+    alpha_dot = w2 + roll_rate * sin(theta)
+    psi_l, psi_r = ql + theta, qr + theta
+    psi_l_dot, psi_r_dot = ql_d + theta_dot, qr_d + theta_dot
+    psi = 0.5 * (psi_l + psi_r)
+    r01 = 2 * (x * y - z * qw)
+    r02 = 2 * (x * z + y * qw)
+    r11 = 1 - 2 * (x * x + z * z)
+    r12 = 2 * (y * z - x * qw)
+    c0, c1, c2 = com_local
+    # axle midpoint = centre of mass − R · (centre of mass in the body frame)
+    return _new(cls, (t, theta, theta_dot, psi_l, psi_r, psi, 0.5 * (psi_l_dot + psi_r_dot), alpha, alpha_dot,
+                      r * psi, cx - (r00 * c0 + r01 * c1 + r02 * c2), cy - (r10 * c0 + r11 * c1 + r12 * c2),
+                      roll, psi_l_dot, psi_r_dot)), (r01, r11, r21)
+
+
 class BulletTwin:
     """One simulated robot in its own PyBullet world.
 
@@ -347,6 +400,16 @@ class BulletTwin:
         # builds a new functools.partial on every attribute access
         self._pb = pybullet
         self._cid = c._client
+        self._hot = (self.robot, self._cid, pybullet.applyExternalTorque, pybullet.setJointMotorControlArray,
+                     pybullet.stepSimulation, pybullet.getBasePositionAndOrientation, pybullet.getBaseVelocity,
+                     pybullet.getJointStates, self.k)
+        self._r = p.r
+        self._truth_from_states = _fastpath.truth if _fastpath is not None else truth_from_states
+        self._motor_consts = None
+        if _fastpath is not None and self.motor is not None:
+            m = config.motor
+            self._motor_consts = (m.k_t, m.resistance, m.supply_voltage, m.max_current, float(m.pwm_steps),
+                                  float(m.back_emf_compensation), m.dead_band)
         self._step_sim = c.stepSimulation
         self._set_motors = c.setJointMotorControlArray
         self._ext_torque = c.applyExternalTorque
@@ -354,6 +417,8 @@ class BulletTwin:
         self._base_pose = c.getBasePositionAndOrientation
         self._base_vel = c.getBaseVelocity
         self._joint_states = c.getJointStates
+        if (pybullet.TORQUE_CONTROL, pybullet.WORLD_FRAME) != (_TORQUE_CONTROL, _WORLD_FRAME):  # pragma: no cover
+            raise TwinError("this PyBullet build numbers TORQUE_CONTROL / WORLD_FRAME differently; please report it")
         self._torque_mode = pybullet.TORQUE_CONTROL
         self._world = pybullet.WORLD_FRAME
 
@@ -404,57 +469,79 @@ class BulletTwin:
         """
         if self.status != "running":
             raise TwinError(f"the run has ended ({self.status}: {self.end_reason}); start a new twin")
-        if not (math.isfinite(ul) and math.isfinite(ur)):
+        if not (isfinite(ul) and isfinite(ur)):
             raise TwinError(f"wheel torque commands must be finite numbers in N·m, got ul={ul!r}, ur={ur!r}")
+        # the hot path indexes the truth tuple: 2 = θ̇, 13 = ψ̇_l, 14 = ψ̇_r (see GroundTruth)
         tr = self.truth
-        t0 = self.n_physics * self.physics_dt
         if self._pending_friction:
-            self._apply_friction_changes(t0)
+            self._apply_friction_changes(self.n_physics * self.physics_dt)
         # equation (1)'s d_w: a joint torque per wheel and their sum on the body about the axle
-        hold_l = -self._d_w * tr.psi_l_dot
-        hold_r = -self._d_w * tr.psi_r_dot
+        d_w = self._d_w
+        hold_l = -d_w * tr[13]
+        hold_r = -d_w * tr[14]
         tb = hold_l + hold_r
         ax, ay, az = self._axle_dir
         body_torque = (tb * ax, tb * ay, tb * az)
         motor = self.motor
         if motor is None:
-            act = Actuation(0.0, 0.0, float(ul), float(ur), False, False)
-            forces = (act.torque_l + hold_l, act.torque_r + hold_r)
+            act = _new(Actuation, (0.0, 0.0, float(ul), float(ur), False, False))
+            forces = (act[2] + hold_l, act[3] + hold_r)
         else:
             # shaft speeds relative to the body; the speed-dependent part −c ω of the torque
             # is the joint damping set at construction, so only τ_0 is sent
-            dl, sl, tau0_l, tq_l = motor.update(ul, tr.psi_l_dot - tr.theta_dot)
-            dr, sr, tau0_r, tq_r = motor.update(ur, tr.psi_r_dot - tr.theta_dot)
-            act = Actuation(dl, dr, tq_l, tq_r, sl, sr)
+            w_l = tr[13] - tr[2]
+            w_r = tr[14] - tr[2]
+            if self._motor_consts is not None:
+                dl, dr, tq_l, tq_r, sl, sr, tau0_l, tau0_r = _fastpath.motors(ul, ur, w_l, w_r, *self._motor_consts)
+            else:
+                dl, sl, tau0_l, tq_l = motor.update(ul, w_l)
+                dr, sr, tau0_r, tq_r = motor.update(ur, w_r)
+            act = _new(Actuation, (dl, dr, tq_l, tq_r, sl, sr))
             forces = (tau0_l + hold_l, tau0_r + hold_r)
-        push = self._push_setup(tr, t0) if self._pushes else None
+        if self._pushes or self._lagged:
+            return self._step_general(act, forces, hold_l, hold_r, body_torque)
+        rob, cid, ext_torque, set_motors, step_sim, base_pose, base_vel, joint_states, k = self._hot
+        # positional arguments (targetPositions, targetVelocities, forces, positionGains,
+        # velocityGains, physicsClientId): keyword parsing costs PyBullet 0.4 µs a call, and
+        # TORQUE_CONTROL reads only the forces
+        for _ in range(k):
+            ext_torque(rob, -1, body_torque, _WORLD_FRAME, cid)
+            set_motors(rob, WHEEL_JOINTS, _TORQUE_CONTROL, _ZERO2, _ZERO2, forces, _ZERO2, _ZERO2, cid)
+            step_sim(cid)
+        self.push_force = _ZERO3
+        self.n_physics = n = self.n_physics + k
+        self.actuation = act
+        truth, self._axle_dir = self._truth_from_states(
+            GroundTruth, base_pose(rob, cid), base_vel(rob, cid), joint_states(rob, WHEEL_JOINTS, cid),
+            self._alpha, self._com_local, self._r, n * self.physics_dt)
+        self._alpha = truth[7]
+        self.truth = truth
+        # NaN and infinity propagate through the physics and through this sum
+        if not (isfinite(truth[1] + truth[2] + truth[5] + truth[6] + truth[8] + truth[10])
+                and abs(truth[1]) <= self._quiet_angle):
+            self._check_end()
+        return truth
+
+    def _step_general(self, act: Actuation, forces, hold_l, hold_r, body_torque) -> GroundTruth:
+        """The rest of :meth:`step` with pushes or the motors' electrical lag."""
+        t0 = self.n_physics * self.physics_dt
+        push = self._push_setup(self.truth, t0) if self._pushes else None
         if self._lagged:
             act = self._step_lagged(act, hold_l, hold_r, body_torque, push, t0)
         else:
-            pb, cid, rob = self._pb, self._cid, self.robot
-            ext_torque, set_motors, step_sim = pb.applyExternalTorque, pb.setJointMotorControlArray, pb.stepSimulation
-            mode, world = self._torque_mode, self._world
-            if push is None:
-                for _ in range(self.k):
-                    ext_torque(rob, -1, body_torque, world, cid)
-                    set_motors(rob, WHEEL_JOINTS, mode, forces=forces, physicsClientId=cid)
-                    step_sim(cid)
-                self.push_force = _ZERO3
-            else:
-                acting = _ZERO3
-                for j in range(self.k):
+            rob, cid, ext_torque, set_motors, step_sim, *_ = self._hot
+            acting = _ZERO3
+            for j in range(self.k):
+                if push is not None:
                     acting = self._apply_push(push, t0 + j * self.physics_dt) or acting
-                    ext_torque(rob, -1, body_torque, world, cid)
-                    set_motors(rob, WHEEL_JOINTS, mode, forces=forces, physicsClientId=cid)
-                    step_sim(cid)
-                self.push_force = acting
+                ext_torque(rob, -1, body_torque, _WORLD_FRAME, cid)
+                set_motors(rob, WHEEL_JOINTS, _TORQUE_CONTROL, _ZERO2, _ZERO2, forces, _ZERO2, _ZERO2, cid)
+                step_sim(cid)
+            self.push_force = acting
         self.n_physics += self.k
         self.actuation = act
         self.truth = truth = self._read_truth()
-        # NaN and infinity propagate through the physics and through this sum
-        if not (math.isfinite(truth.theta + truth.theta_dot + truth.psi + truth.psi_dot + truth.alpha_dot + truth.x)
-                and abs(truth.theta) <= self._quiet_angle):
-            self._check_end()
+        self._check_end()
         return truth
 
     def _step_lagged(self, act: Actuation, hold_l, hold_r, body_torque, push, t0) -> Actuation:
@@ -475,7 +562,7 @@ class BulletTwin:
             if push is not None:
                 acting = self._apply_push(push, t0 + j * dt) or acting
             self._ext_torque(self.robot, -1, body_torque, self._world)
-            self._set_motors(self.robot, WHEEL_JOINTS, self._torque_mode, forces=(tl + hold_l, trq + hold_r))
+            self._set_motors(self.robot, WHEEL_JOINTS, self._torque_mode, forces=(tl + hold_l, trq + hold_r))  # slow path
             self._step_sim()
             il = m.current_step(il, dl, wl, dt)
             ir = m.current_step(ir, dr, wr, dt)
@@ -542,43 +629,12 @@ class BulletTwin:
 
     def _read_truth(self) -> GroundTruth:
         pb, cid, rob = self._pb, self._cid, self.robot
-        com, q = pb.getBasePositionAndOrientation(rob, cid)
-        w = pb.getBaseVelocity(rob, cid)[1]
-        (ql, ql_d, _, _), (qr, qr_d, _, _) = pb.getJointStates(rob, WHEEL_JOINTS, cid)
-        x, y, z, qw = q
-        r00 = 1 - 2 * (y * y + z * z)
-        r10 = 2 * (x * y + z * qw)
-        r20 = 2 * (x * z - y * qw)
-        r21 = 2 * (y * z + x * qw)
-        r22 = 1 - 2 * (x * x + y * y)
-        theta = math.asin(max(-1.0, min(1.0, -r20)))
-        roll = math.atan2(r21, r22)
-        yaw = math.atan2(r10, r00)
-        if self._alpha is None:
-            alpha = yaw
-        else:
-            alpha = self._alpha + math.remainder(yaw - self._alpha, 2.0 * math.pi)
-        self._alpha = alpha
-        ca, sa = math.cos(alpha), math.sin(alpha)
-        theta_dot = -sa * w[0] + ca * w[1]
-        # ZYX Euler rates: ω = α̇ ẑ + θ̇ ŷ' + φ̇ x̂''
-        ct = math.cos(theta)
-        roll_rate = (ca * w[0] + sa * w[1]) / ct if ct > 1e-9 else 0.0
-        alpha_dot = w[2] + roll_rate * math.sin(theta)
-        psi_l, psi_r = ql + theta, qr + theta
-        psi_l_dot, psi_r_dot = ql_d + theta_dot, qr_d + theta_dot
-        psi = 0.5 * (psi_l + psi_r)
-        # axle midpoint = centre of mass − R · (centre of mass in the body frame)
-        r01 = 2 * (x * y - z * qw)
-        r02 = 2 * (x * z + y * qw)
-        r11 = 1 - 2 * (x * x + z * z)
-        r12 = 2 * (y * z - x * qw)
-        self._axle_dir = (r01, r11, r21)
-        cl = self._com_local
-        ax = com[0] - (r00 * cl[0] + r01 * cl[1] + r02 * cl[2])
-        ay = com[1] - (r10 * cl[0] + r11 * cl[1] + r12 * cl[2])
-        return GroundTruth(self.t, theta, theta_dot, psi_l, psi_r, psi, 0.5 * (psi_l_dot + psi_r_dot), alpha,
-                           alpha_dot, self.params.r * psi, ax, ay, roll, psi_l_dot, psi_r_dot)
+        truth, self._axle_dir = self._truth_from_states(
+            GroundTruth, pb.getBasePositionAndOrientation(rob, cid), pb.getBaseVelocity(rob, cid),
+            pb.getJointStates(rob, WHEEL_JOINTS, cid), self._alpha, self._com_local, self.params.r,
+            self.n_physics * self.physics_dt)
+        self._alpha = truth[7]
+        return truth
 
     def _check_end(self) -> None:
         tr = self.truth

@@ -1,0 +1,157 @@
+/* Optional compiled hot path of the PyBullet twin (twin/plant/bullet.py).
+
+   Two functions doing exactly the arithmetic of their Python counterparts, in the same
+   order, so that results are bit-identical (tests/test_twin_fastpath.py checks it):
+
+     truth(cls, pose, vel, joints, alpha_prev, com_local, r, t) -> (GroundTruth, axle_dir)
+         = BulletTwin._truth_from_states
+     motors(ul, ur, wl, wr, kt, R, vs, imax, steps, comp, dead)
+         -> (duty_l, duty_r, torque_l, torque_r, sat_l, sat_r, tau0_l, tau0_r)
+         = MotorDriver.update for both wheels
+
+   Built by setup.py with -ffp-contract=off (no fused multiply-adds, which would round
+   differently). Python's round() rounds half to even like nearbyint() in the default
+   rounding mode; "+ 0.0" turns nearbyint's -0.0 into the 0.0 that round() gives. */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <math.h>
+
+static int floats(PyObject *seq, double *out, Py_ssize_t n, const char *what) {
+    if (!PyTuple_Check(seq) || PyTuple_GET_SIZE(seq) < n) {
+        PyErr_Format(PyExc_TypeError, "%s must be a tuple of at least %zd numbers", what, n);
+        return -1;
+    }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        out[i] = PyFloat_AsDouble(PyTuple_GET_ITEM(seq, i));
+        if (out[i] == -1.0 && PyErr_Occurred()) return -1;
+    }
+    return 0;
+}
+
+static int pair(PyObject *seq, PyObject **a, PyObject **b, const char *what) {
+    if (!PyTuple_Check(seq) || PyTuple_GET_SIZE(seq) != 2) {
+        PyErr_Format(PyExc_TypeError, "%s must be a pair", what);
+        return -1;
+    }
+    *a = PyTuple_GET_ITEM(seq, 0);
+    *b = PyTuple_GET_ITEM(seq, 1);
+    return 0;
+}
+
+static PyObject *truth(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    if (nargs != 8) {
+        PyErr_SetString(PyExc_TypeError, "truth takes 8 arguments");
+        return NULL;
+    }
+    if (!PyType_Check(args[0]) || !PyType_IsSubtype((PyTypeObject *)args[0], &PyTuple_Type)) {
+        PyErr_SetString(PyExc_TypeError, "truth needs a tuple subclass");
+        return NULL;
+    }
+    PyTypeObject *cls = (PyTypeObject *)args[0];
+    double com[3], q[4], w[3], cl[3], jl[2], jr[2];
+    PyObject *a, *b;
+    if (pair(args[1], &a, &b, "pose") || floats(a, com, 3, "position") || floats(b, q, 4, "quaternion")) return NULL;
+    if (pair(args[2], &a, &b, "velocity") || floats(b, w, 3, "angular velocity")) return NULL;
+    if (pair(args[3], &a, &b, "joint states") || floats(a, jl, 2, "left joint") || floats(b, jr, 2, "right joint"))
+        return NULL;
+    if (floats(args[5], cl, 3, "com_local")) return NULL;
+    double r = PyFloat_AsDouble(args[6]);
+    if (r == -1.0 && PyErr_Occurred()) return NULL;
+    double t = PyFloat_AsDouble(args[7]);
+    if (t == -1.0 && PyErr_Occurred()) return NULL;
+
+    double x = q[0], y = q[1], z = q[2], qw = q[3];
+    double r00 = 1 - 2 * (y * y + z * z);
+    double r10 = 2 * (x * y + z * qw);
+    double r20 = 2 * (x * z - y * qw);
+    double r21 = 2 * (y * z + x * qw);
+    double r22 = 1 - 2 * (x * x + y * y);
+    double s = -r20;
+    double theta = asin(s > 1.0 ? 1.0 : (s < -1.0 ? -1.0 : s));
+    double roll = atan2(r21, r22);
+    double yaw = atan2(r10, r00);
+    double alpha;
+    if (args[4] == Py_None) {
+        alpha = yaw;
+    } else {
+        double a0 = PyFloat_AsDouble(args[4]);
+        if (a0 == -1.0 && PyErr_Occurred()) return NULL;
+        alpha = a0 + remainder(yaw - a0, 2.0 * M_PI);
+    }
+    double ca = cos(alpha), sa = sin(alpha);
+    double theta_dot = -sa * w[0] + ca * w[1];
+    double ct = cos(theta);
+    double roll_rate = ct > 1e-9 ? (ca * w[0] + sa * w[1]) / ct : 0.0;
+    double alpha_dot = w[2] + roll_rate * sin(theta);
+    double psi_l = jl[0] + theta, psi_r = jr[0] + theta;
+    double psi_l_dot = jl[1] + theta_dot, psi_r_dot = jr[1] + theta_dot;
+    double psi = 0.5 * (psi_l + psi_r);
+    double r01 = 2 * (x * y - z * qw);
+    double r02 = 2 * (x * z + y * qw);
+    double r11 = 1 - 2 * (x * x + z * z);
+    double r12 = 2 * (y * z - x * qw);
+    double v[15] = {t, theta, theta_dot, psi_l, psi_r, psi, 0.5 * (psi_l_dot + psi_r_dot), alpha, alpha_dot,
+                    r * psi, com[0] - (r00 * cl[0] + r01 * cl[1] + r02 * cl[2]),
+                    com[1] - (r10 * cl[0] + r11 * cl[1] + r12 * cl[2]), roll, psi_l_dot, psi_r_dot};
+    PyObject *gt = cls->tp_alloc(cls, 15);
+    if (!gt) return NULL;
+    for (int i = 0; i < 15; i++) {
+        PyObject *f = PyFloat_FromDouble(v[i]);
+        if (!f) {
+            Py_DECREF(gt);
+            return NULL;
+        }
+        PyTuple_SET_ITEM(gt, i, f);
+    }
+    return Py_BuildValue("(N(ddd))", gt, r01, r11, r21);
+}
+
+static void motor(double cmd, double omega, double kt, double R, double vs, double imax, double steps, int comp,
+                  double dead, double *duty, int *sat, double *tau0, double *torque) {
+    double i_cmd = cmd / kt;
+    int saturated = fabs(i_cmd) > imax;
+    if (saturated) i_cmd = copysign(imax, i_cmd);
+    double v = R * i_cmd;
+    if (comp) v += kt * omega;
+    double d = v / vs;
+    if (d > 1.0 || d < -1.0) {
+        saturated = 1;
+        d = d > 0 ? 1.0 : -1.0;
+    }
+    if (fabs(d) < dead)
+        d = 0.0;
+    else
+        d = (nearbyint(d * steps) + 0.0) / steps;
+    double t0 = kt * d * vs / R;
+    *duty = d;
+    *sat = saturated;
+    *tau0 = t0;
+    *torque = t0 - kt * kt * omega / R;
+}
+
+static PyObject *motors(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    if (nargs != 11) {
+        PyErr_SetString(PyExc_TypeError, "motors takes 11 arguments");
+        return NULL;
+    }
+    double a[11];
+    for (int i = 0; i < 11; i++) {
+        a[i] = PyFloat_AsDouble(args[i]);
+        if (a[i] == -1.0 && PyErr_Occurred()) return NULL;
+    }
+    double dl, dr, t0l, t0r, ql, qr;
+    int sl, sr;
+    motor(a[0], a[2], a[4], a[5], a[6], a[7], a[8], a[9] != 0.0, a[10], &dl, &sl, &t0l, &ql);
+    motor(a[1], a[3], a[4], a[5], a[6], a[7], a[8], a[9] != 0.0, a[10], &dr, &sr, &t0r, &qr);
+    return Py_BuildValue("(ddddNNdd)", dl, dr, ql, qr, PyBool_FromLong(sl), PyBool_FromLong(sr), t0l, t0r);
+}
+
+static PyMethodDef methods[] = {
+    {"truth", (PyCFunction)(void (*)(void))truth, METH_FASTCALL, "Ground truth from PyBullet's state tuples."},
+    {"motors", (PyCFunction)(void (*)(void))motors, METH_FASTCALL, "PWM update of both motors."},
+    {NULL, NULL, 0, NULL}};
+
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_fastpath", "Compiled hot path of the twin.", -1,
+                                    methods};
+
+PyMODINIT_FUNC PyInit__fastpath(void) { return PyModule_Create(&module); }
