@@ -318,6 +318,8 @@ def test_twins_use_their_own_connection():
     b.close()
     a.close()  # idempotent
     assert pybullet.isConnected() == before
+    with pytest.raises(TwinError, match="closed"):
+        a.step(0.0, 0.0)
 
 
 def test_truth_fields_are_consistent():

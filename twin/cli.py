@@ -230,7 +230,7 @@ def _paper_experiment(plant, experiment, controller, out, duration, gains_file, 
     report.write_json({"experiment": exp.name, "description": exp.description, "plant": description,
                        "controllers": metrics}, out / "metrics.json")
     report.write_json(d.to_json_dict(), out / "design.json")
-    report.plot_runs(runs, out / "figure.png", f"{exp.name}: {exp.description} ({description})")
+    report.plot_runs(runs, out / "figure.png", f"{exp.name}: {exp.description}\n{description}")
     click.echo(f"{exp.name}: {exp.description} ({description})")
     keys = [k for k, v in metrics[kinds[0]].items() if isinstance(v, (int, float)) and not isinstance(v, bool)]
     click.echo(f"  {'metric':28}" + "".join(f"{k.upper():>12}" for k in kinds))

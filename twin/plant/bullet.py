@@ -415,7 +415,6 @@ class BulletTwin:
         self._ext_torque = c.applyExternalTorque
         self._ext_force = c.applyExternalForce
         self._base_pose = c.getBasePositionAndOrientation
-        self._base_vel = c.getBaseVelocity
         self._joint_states = c.getJointStates
         if (pybullet.TORQUE_CONTROL, pybullet.WORLD_FRAME) != (_TORQUE_CONTROL, _WORLD_FRAME):  # pragma: no cover
             raise TwinError("this PyBullet build numbers TORQUE_CONTROL / WORLD_FRAME differently; please report it")
@@ -435,11 +434,13 @@ class BulletTwin:
 
     # ---- lifecycle ---------------------------------------------------------------------
     def close(self) -> None:
-        """Disconnect the physics server (idempotent)."""
+        """Disconnect the physics server (idempotent); a running twin ends as "closed"."""
         client = getattr(self, "client", None)
         if client is not None and client._client >= 0:
             client.disconnect()
             client._client = -1
+        if getattr(self, "status", None) == "running":
+            self.status, self.end_reason = "closed", "the twin was closed"
 
     def __enter__(self):
         return self
