@@ -4,9 +4,10 @@ The controllers act on ground truth here (ideal sensing); the sensor models and 
 estimator put themselves between the twin and the controllers in the next layer.
 
 Logged at the control rate: row i holds the ground truth at t_i, the command computed
-from it, and what the motors delivered and the pushes did over [t_i, t_i+1). A run that
-falls or diverges stops at the row where that was detected; its last row's actuation
-is zero, because nothing was applied after it.
+from it, and what the motors delivered and the pushes did over [t_i, t_i+1) (period
+means). A run that falls stops at the row where that was detected; its last row's
+actuation is zero, because nothing was applied after it. A run that diverges (a
+non-finite state from the physics) stops at the last finite row: no NaN is logged.
 """
 from __future__ import annotations
 
@@ -134,6 +135,9 @@ def simulate_twin(controller: FuzzyCascade, experiment: Experiment, config: Twin
         tr = twin.truth
         n = n_ctrl + 1
         for i in range(n_ctrl + 1):
+            if twin.status == "diverged":
+                n = i  # the non-finite state is not logged: the log ends with the last finite one
+                break
             truth[i] = tr
             c = controller(tr.state6(), p_d, alpha_d)
             cmds[i] = (c.ul, c.ur, c.u, c.theta_off, c.u_alpha)

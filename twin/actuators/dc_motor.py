@@ -10,7 +10,8 @@ PWM duty in [−1, 1], V_s the supply voltage. In SI units k_t = k_e (N·m/A = V
 
 Driver (runs at the control rate, as the microcontroller's PWM update does):
 
-1. current command i* = τ* / k_t, limited to ±``current_limit`` (A);
+1. current command i* = τ* / k_t, limited to ±``current_limit`` (A) (the limit acts on the
+   command; between updates the current follows the motor equation, with no clamp);
 2. voltage V* = R i* (+ k_e ω_k with ``back_emf_compensation``, ω_k the shaft speed
    measured at the update), duty d = V* / V_s clipped to [−1, 1] (the supply limit, the
    back-EMF speed–torque curve), zeroed inside the ``dead_band`` and quantised to the

@@ -61,15 +61,14 @@ static PyObject *truth(PyObject *self, PyObject *const *args, Py_ssize_t nargs) 
     if (t == -1.0 && PyErr_Occurred()) return NULL;
 
     double x = q[0], y = q[1], z = q[2], qw = q[3];
-    double r00 = 1 - 2 * (y * y + z * z);
-    double r10 = 2 * (x * y + z * qw);
+    double r01 = 2 * (x * y - z * qw);
+    double r11 = 1 - 2 * (x * x + z * z);
     double r20 = 2 * (x * z - y * qw);
     double r21 = 2 * (y * z + x * qw);
     double r22 = 1 - 2 * (x * x + y * y);
-    double s = -r20;
-    double theta = asin(s > 1.0 ? 1.0 : (s < -1.0 ? -1.0 : s));
-    double roll = atan2(r21, r22);
-    double yaw = atan2(r10, r00);
+    double theta = atan2(-r20, r22);
+    double roll = asin(r21 > 1.0 ? 1.0 : (r21 < -1.0 ? -1.0 : r21));
+    double yaw = atan2(-r01, r11);
     double alpha;
     if (args[4] == Py_None) {
         alpha = yaw;
@@ -79,16 +78,15 @@ static PyObject *truth(PyObject *self, PyObject *const *args, Py_ssize_t nargs) 
         alpha = a0 + remainder(yaw - a0, 2.0 * M_PI);
     }
     double ca = cos(alpha), sa = sin(alpha);
-    double theta_dot = -sa * w[0] + ca * w[1];
-    double ct = cos(theta);
-    double roll_rate = ct > 1e-9 ? (ca * w[0] + sa * w[1]) / ct : 0.0;
-    double alpha_dot = w[2] + roll_rate * sin(theta);
+    double cr = cos(roll);
+    double theta_dot = cr > 1e-9 ? (-sa * w[0] + ca * w[1]) / cr : 0.0;
+    double alpha_dot = w[2] - theta_dot * r21;
     double psi_l = jl[0] + theta, psi_r = jr[0] + theta;
     double psi_l_dot = jl[1] + theta_dot, psi_r_dot = jr[1] + theta_dot;
     double psi = 0.5 * (psi_l + psi_r);
-    double r01 = 2 * (x * y - z * qw);
+    double r00 = 1 - 2 * (y * y + z * z);
     double r02 = 2 * (x * z + y * qw);
-    double r11 = 1 - 2 * (x * x + z * z);
+    double r10 = 2 * (x * y + z * qw);
     double r12 = 2 * (y * z - x * qw);
     double v[15] = {t, theta, theta_dot, psi_l, psi_r, psi, 0.5 * (psi_l_dot + psi_r_dot), alpha, alpha_dot,
                     r * psi, com[0] - (r00 * cl[0] + r01 * cl[1] + r02 * cl[2]),

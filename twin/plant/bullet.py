@@ -25,17 +25,30 @@ Actuators
     speed–torque curve is joint damping, so it acts at the physics rate too.
 
 Ground truth (:class:`GroundTruth`, at the end of each control period)
-    θ is the body pitch from the vertical (ZYX Euler angles: yaw α, pitch θ, roll φ),
-    positive leaning forward; ψ_i = q_i + θ the wheel angles from the vertical (q_i the
-    joint angles); α the heading, unwrapped; distance p = r ψ as in the paper; (x, y)
-    the axle midpoint in the world.
+    The body's orientation is decomposed as R = Rz(α) Rx(φ) Ry(θ): heading α (unwrapped,
+    positive turning left), roll φ about the heading, pitch θ about the axle from the
+    vertical (positive leaning forward). θ is then the rotation about the wheels' joint
+    axis even when the body rolls (across a slope), so ψ_i = q_i + θ are the wheel angles
+    from the vertical (q_i the joint angles); distance p = r ψ as in the paper; (x, y) the
+    axle midpoint in the world. Rates are the time derivatives of these angles.
+
+Logged per control period (:attr:`BulletTwin.actuation`, :attr:`BulletTwin.push_force`)
+    Duties and saturation flags at the PWM update; delivered torques and push forces as
+    the period's means.
 
 Termination
-    The run ends with status ``"fell"`` when |θ| exceeds ``fall_angle`` (default 1.0 rad,
-    where the body box of the nominal robot is about to touch a flat floor) or the body
-    touches the floor, and ``"diverged"`` if the physics returns a non-finite state.
-    Neither raises: :attr:`BulletTwin.status` and :attr:`BulletTwin.end_reason` say what
-    happened; calling :meth:`BulletTwin.step` afterwards is an error.
+    The run ends with status ``"fell"`` when the body's tilt from the vertical (pitch and
+    roll together: cos tilt = cos θ cos φ) exceeds ``fall_angle`` (default 1.0 rad; the
+    nominal body box touches a level floor at 0.97 rad of pitch), or the body touches the
+    floor; and ``"diverged"`` if the physics returns a non-finite state. Neither raises:
+    :attr:`BulletTwin.status` and :attr:`BulletTwin.end_reason` say what happened; calling
+    :meth:`BulletTwin.step` afterwards is an error.
+
+Limits
+    Bullet applies joint damping explicitly, so d_b plus the motor's back-EMF slope must
+    satisfy damping · dt / n_wa < 1 (a clear error otherwise, naming the physics rate
+    that would do). Bullet's default cap of 100 rad/s on joint rates is lifted to
+    :data:`MAX_JOINT_RATE`.
 """
 from __future__ import annotations
 
@@ -56,6 +69,7 @@ from twin.plant.urdf import BODY_DEPTH, body_height, robot_urdf
 from twin.timing import steps_per_control
 
 WHEEL_JOINTS = (0, 1)  # left, right: the order of the joints in the URDF
+MAX_JOINT_RATE = 1000.0  # rad/s, Bullet's cap on the wheel joint rates (its default is 100)
 _ZERO2 = (0.0, 0.0)
 _ZERO3 = (0.0, 0.0, 0.0)
 _TWO_PI = 2.0 * math.pi
@@ -154,15 +168,29 @@ class TwinConfig:
             raise TwinError(f"ground must be a Ground, got {self.ground!r}")
         if not isinstance(self.disturbances, Disturbances):
             raise TwinError(f"disturbances must be a Disturbances, got {self.disturbances!r}")
-        for name in ("physics_rate", "control_rate"):
+        for name, lo in (("physics_rate", 10.0), ("control_rate", 1.0)):
             v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and 0 < v <= 100_000):
-                raise TwinError(f"{name} must be a frequency in (0, 100000] Hz, got {v!r}")
-        steps_per_control(1.0 / self.physics_rate, 1.0 / self.control_rate)
-        if not (math.isfinite(self.fall_angle) and 0.05 <= self.fall_angle <= 1.5):
+            if not (_is_number(v) and lo <= v <= 100_000):
+                raise TwinError(f"{name} must be a frequency in [{lo:g}, 100000] Hz, got {v!r}")
+        k = steps_per_control(1.0 / self.physics_rate, 1.0 / self.control_rate)
+        if k > 1000:
+            raise TwinError(f"the control period is {k} physics steps; at most 1000 are allowed "
+                            f"(raise control_rate or lower physics_rate)")
+        if not (_is_number(self.fall_angle) and 0.05 <= self.fall_angle <= 1.5):
             raise TwinError(f"fall_angle must be in [0.05, 1.5] rad, got {self.fall_angle!r}")
-        if not (isinstance(self.solver_iterations, int) and 1 <= self.solver_iterations <= 1000):
+        if not (isinstance(self.solver_iterations, int) and not isinstance(self.solver_iterations, bool)
+                and 1 <= self.solver_iterations <= 1000):
             raise TwinError(f"solver_iterations must be an integer from 1 to 1000, got {self.solver_iterations!r}")
+        # Bullet applies joint damping explicitly: a lifted wheel (inertia n_wa about its
+        # axle) is stable only for D dt / n_wa < 2; keep well inside that
+        damping = self.params.d_b + (0.0 if self.motor is None else self.motor.electrical_damping)
+        ratio = damping / (self.physics_rate * self.params.n_wa)
+        if ratio >= 1.0:
+            needed = math.ceil(damping / self.params.n_wa)
+            raise TwinError(
+                f"the wheel joint damping d_b + k_t²/R = {damping:.4g} N·m·s/rad is too stiff for "
+                f"{self.physics_rate:g} Hz physics (damping · dt / n_wa = {ratio:.2f}, must be < 1): "
+                f"raise physics_rate to at least {needed} Hz or choose a motor with a flatter speed–torque curve")
 
     @property
     def steps_per_control(self) -> int:
@@ -206,6 +234,11 @@ def _connect():
         return BulletClient(connection_mode=pybullet.DIRECT), pybullet
 
 
+def _is_number(v) -> bool:
+    """A finite real number (not a bool)."""
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
 def _quat_from_matrix(R) -> tuple[float, float, float, float]:
     """(x, y, z, w) of a rotation matrix given as rows."""
     (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = R
@@ -239,8 +272,9 @@ def _dot(a, b):
 def initial_pose(params: RobotParams, ground: Ground, theta0: float, alpha0: float, x0: float, y0: float):
     """Axle-midpoint position and orientation quaternion with both wheels on the floor.
 
-    The axle lies in the floor plane, heading ``alpha0``; the body is pitched ``theta0``
-    from the vertical about the axle.
+    The axle midpoint is above (x0, y0) (m), the axle lies in the floor plane with the
+    robot heading ``alpha0``, and the body is pitched ``theta0`` from the vertical about
+    the axle (rad).
     """
     n = ground.normal()
     a_h = (-math.sin(alpha0), math.cos(alpha0), 0.0)
@@ -254,8 +288,9 @@ def initial_pose(params: RobotParams, ground: Ground, theta0: float, alpha0: flo
     x_b = tuple(c * xu - s * zu for xu, zu in zip(x_u, z_u))
     z_b = tuple(c * zu + s * xu for xu, zu in zip(x_u, z_u))
     R = tuple((x_b[i], a[i], z_b[i]) for i in range(3))
-    z0 = ground.height(x0, y0)
-    pos = (x0 + params.r * n[0], y0 + params.r * n[1], z0 + params.r * n[2])
+    # the wheels touch the floor r from the axle against the normal
+    cx, cy = x0 - params.r * n[0], y0 - params.r * n[1]
+    pos = (x0, y0, ground.height(cx, cy) + params.r * n[2])
     return pos, _quat_from_matrix(R)
 
 
@@ -280,28 +315,28 @@ def truth_from_states(cls, pose, vel, joints, alpha_prev, com_local, r: float, t
     (cx, cy, _), (x, y, z, qw) = pose
     w0, w1, w2 = vel[1]
     (ql, ql_d, *_), (qr, qr_d, *_) = joints
-    r00 = 1 - 2 * (y * y + z * z)
-    r10 = 2 * (x * y + z * qw)
+    # R = Rz(α) Rx(φ) Ry(θ): heading, roll about the heading, pitch about the axle (the
+    # wheels' joint axis), so that ψ_i = q_i + θ also when the body rolls
+    r01 = 2 * (x * y - z * qw)
+    r11 = 1 - 2 * (x * x + z * z)
     r20 = 2 * (x * z - y * qw)
     r21 = 2 * (y * z + x * qw)
     r22 = 1 - 2 * (x * x + y * y)
-    s = -r20
-    theta = asin(1.0 if s > 1.0 else (-1.0 if s < -1.0 else s))
-    roll = atan2(r21, r22)
-    yaw = atan2(r10, r00)
+    theta = atan2(-r20, r22)
+    roll = asin(1.0 if r21 > 1.0 else (-1.0 if r21 < -1.0 else r21))
+    yaw = atan2(-r01, r11)
     alpha = yaw if alpha_prev is None else alpha_prev + remainder(yaw - alpha_prev, _TWO_PI)
     ca, sa = cos(alpha), sin(alpha)
-    theta_dot = -sa * w0 + ca * w1
-    # ZYX Euler rates: ω = α̇ ẑ + θ̇ ŷ' + φ̇ x̂''
-    ct = cos(theta)
-    roll_rate = (ca * w0 + sa * w1) / ct if ct > 1e-9 else 0.0
-    alpha_dot = w2 + roll_rate * sin(theta)
+    # ω = α̇ ẑ + φ̇ x̂' + θ̇ ŷ'' with x̂' = (cos α, sin α, 0), ŷ'' the body's y axis
+    cr = cos(roll)
+    theta_dot = (-sa * w0 + ca * w1) / cr if cr > 1e-9 else 0.0
+    alpha_dot = w2 - theta_dot * r21
     psi_l, psi_r = ql + theta, qr + theta
     psi_l_dot, psi_r_dot = ql_d + theta_dot, qr_d + theta_dot
     psi = 0.5 * (psi_l + psi_r)
-    r01 = 2 * (x * y - z * qw)
+    r00 = 1 - 2 * (y * y + z * z)
     r02 = 2 * (x * z + y * qw)
-    r11 = 1 - 2 * (x * x + z * z)
+    r10 = 2 * (x * y + z * qw)
     r12 = 2 * (y * z - x * qw)
     c0, c1, c2 = com_local
     # axle midpoint = centre of mass − R · (centre of mass in the body frame)
@@ -321,7 +356,7 @@ class BulletTwin:
     alpha0 : float
         Initial heading in rad.
     position : (2,) m
-        Initial axle midpoint (x, y) on the floor.
+        Initial axle midpoint (x, y); the wheels stand on the floor below it.
 
     Use as a context manager, or call :meth:`close`, to free the physics server.
     """
@@ -333,14 +368,19 @@ class BulletTwin:
         self.config = config = config if config is not None else TwinConfig()
         if not isinstance(config, TwinConfig):
             raise TwinError(f"config must be a TwinConfig, got {type(config).__name__}")
+        try:
+            theta0, alpha0 = float(theta0), float(alpha0)
+            x0, y0 = (float(v) for v in position)
+        except (TypeError, ValueError):
+            raise TwinError(f"theta0 and alpha0 must be angles in rad and position 2 coordinates in m, got "
+                            f"theta0={theta0!r}, alpha0={alpha0!r}, position={position!r}") from None
         for name, v in (("theta0", theta0), ("alpha0", alpha0)):
-            if not (isinstance(v, (int, float)) and math.isfinite(v)):
+            if not math.isfinite(v):
                 raise TwinError(f"{name} must be a finite angle in rad, got {v!r}")
         if not abs(theta0) < config.fall_angle:
             raise TwinError(f"theta0 must be inside the fall limit ±{config.fall_angle:g} rad, got {theta0!r}")
-        x0, y0 = (float(v) for v in position)
-        if not (math.isfinite(x0) and math.isfinite(y0)):
-            raise TwinError(f"position must be 2 finite coordinates in m, got {position!r}")
+        if not (abs(x0) <= 1e4 and abs(y0) <= 1e4):
+            raise TwinError(f"position must be 2 finite coordinates within ±10 km, got {position!r}")
         p = config.params
         self.params = p
         self.k = config.steps_per_control
@@ -366,7 +406,7 @@ class BulletTwin:
 
         d = config.disturbances
         self.urdf = robot_urdf(p, d.payload, d.com_offset)
-        pos, quat = initial_pose(p, g, float(theta0), float(alpha0), x0, y0)
+        pos, quat = initial_pose(p, g, theta0, alpha0, x0, y0)
         fd, path = tempfile.mkstemp(suffix=".urdf", prefix="mtwip-")
         try:
             with os.fdopen(fd, "w") as f:
@@ -381,19 +421,25 @@ class BulletTwin:
         for link in range(-1, c.getNumJoints(rob)):
             c.changeDynamics(rob, link, linearDamping=0.0, angularDamping=0.0, restitution=0.0)
         for j in WHEEL_JOINTS:
-            c.resetJointState(rob, j, -float(theta0), 0.0)
+            c.resetJointState(rob, j, -theta0, 0.0)
             # with inductance the back-EMF is integrated in Python; otherwise it is joint damping
             damping = p.d_b + (0.0 if self._lagged else self._motor_damping)
+            # Bullet caps joint rates at 100 rad/s by default (4 m/s here); lift the cap far above
+            # anything the motors can reach, so that it never shapes the motion
             c.changeDynamics(rob, j, jointDamping=damping, lateralFriction=g.lateral_friction,
-                             rollingFriction=g.rolling_friction, spinningFriction=g.spinning_friction)
+                             rollingFriction=g.rolling_friction, spinningFriction=g.spinning_friction,
+                             )
         c.setJointMotorControlArray(rob, WHEEL_JOINTS, pybullet.VELOCITY_CONTROL, forces=(0.0, 0.0))
+        for j in WHEEL_JOINTS:
+            c.changeDynamics(rob, j, maxJointVelocity=MAX_JOINT_RATE)
         self._friction = {"left": [g.lateral_friction, g.rolling_friction, g.spinning_friction],
                           "right": [g.lateral_friction, g.rolling_friction, g.spinning_friction]}
         self._pending_friction = list(d.friction_changes)
         self._pushes = d.pushes
         self._com_local = (d.com_offset[0], d.com_offset[1], p.l + d.com_offset[2])
-        self._contact_check_angle = max(0.0, _touch_angle(p) - abs(g.slope) - 0.15)
-        # below this |θ| a finite state needs no closer look (see step)
+        # the body can reach the floor only when tilted this far (pitching on the slope, or rolling)
+        self._contact_check_angle = max(0.0, min(_touch_angle(p) - abs(g.slope) - 0.15, 0.6))
+        # below this |θ| + |φ| (an upper bound of the tilt) a finite state needs no closer look
         self._quiet_angle = min(self._contact_check_angle, config.fall_angle)
 
         # the hot path calls pybullet's functions with this client's id: BulletClient
@@ -404,6 +450,9 @@ class BulletTwin:
                      pybullet.stepSimulation, pybullet.getBasePositionAndOrientation, pybullet.getBaseVelocity,
                      pybullet.getJointStates, self.k)
         self._r = p.r
+        # half the motor's electrical damping (N·m·s/rad), for the period-mean torque; with
+        # inductance the back-EMF is integrated per step instead
+        self._half_c = 0.0 if self._lagged else 0.5 * self._motor_damping
         self._truth_from_states = _fastpath.truth if _fastpath is not None else truth_from_states
         self._motor_consts = None
         if _fastpath is not None and self.motor is not None:
@@ -470,7 +519,11 @@ class BulletTwin:
         """
         if self.status != "running":
             raise TwinError(f"the run has ended ({self.status}: {self.end_reason}); start a new twin")
-        if not (isfinite(ul) and isfinite(ur)):
+        try:
+            finite = isfinite(ul) and isfinite(ur)
+        except TypeError:
+            finite = False
+        if not finite:
             raise TwinError(f"wheel torque commands must be finite numbers in N·m, got ul={ul!r}, ur={ur!r}")
         # the hot path indexes the truth tuple: 2 = θ̇, 13 = ψ̇_l, 14 = ψ̇_r (see GroundTruth)
         tr = self.truth
@@ -483,24 +536,24 @@ class BulletTwin:
         tb = hold_l + hold_r
         ax, ay, az = self._axle_dir
         body_torque = (tb * ax, tb * ay, tb * az)
+        # shaft speeds relative to the body (rad/s)
+        w_l = tr[13] - tr[2]
+        w_r = tr[14] - tr[2]
         motor = self.motor
         if motor is None:
-            act = _new(Actuation, (0.0, 0.0, float(ul), float(ur), False, False))
-            forces = (act[2] + hold_l, act[3] + hold_r)
+            dl = dr = 0.0
+            sl = sr = False
+            tq_l, tq_r = tau0_l, tau0_r = float(ul), float(ur)
+        elif self._motor_consts is not None:
+            dl, dr, tq_l, tq_r, sl, sr, tau0_l, tau0_r = _fastpath.motors(ul, ur, w_l, w_r, *self._motor_consts)
         else:
-            # shaft speeds relative to the body; the speed-dependent part −c ω of the torque
-            # is the joint damping set at construction, so only τ_0 is sent
-            w_l = tr[13] - tr[2]
-            w_r = tr[14] - tr[2]
-            if self._motor_consts is not None:
-                dl, dr, tq_l, tq_r, sl, sr, tau0_l, tau0_r = _fastpath.motors(ul, ur, w_l, w_r, *self._motor_consts)
-            else:
-                dl, sl, tau0_l, tq_l = motor.update(ul, w_l)
-                dr, sr, tau0_r, tq_r = motor.update(ur, w_r)
-            act = _new(Actuation, (dl, dr, tq_l, tq_r, sl, sr))
-            forces = (tau0_l + hold_l, tau0_r + hold_r)
+            dl, sl, tau0_l, tq_l = motor.update(ul, w_l)
+            dr, sr, tau0_r, tq_r = motor.update(ur, w_r)
+        # the speed-dependent part −c ω of the motor torque is the joint damping set at
+        # construction, so only τ_0 is sent
+        forces = (tau0_l + hold_l, tau0_r + hold_r)
         if self._pushes or self._lagged:
-            return self._step_general(act, forces, hold_l, hold_r, body_torque)
+            return self._step_general(dl, dr, sl, sr, tq_l, tq_r, w_l, w_r, forces, hold_l, hold_r, body_torque)
         rob, cid, ext_torque, set_motors, step_sim, base_pose, base_vel, joint_states, k = self._hot
         # positional arguments (targetPositions, targetVelocities, forces, positionGains,
         # velocityGains, physicsClientId): keyword parsing costs PyBullet 0.4 µs a call, and
@@ -511,65 +564,59 @@ class BulletTwin:
             step_sim(cid)
         self.push_force = _ZERO3
         self.n_physics = n = self.n_physics + k
-        self.actuation = act
         truth, self._axle_dir = self._truth_from_states(
             GroundTruth, base_pose(rob, cid), base_vel(rob, cid), joint_states(rob, WHEEL_JOINTS, cid),
             self._alpha, self._com_local, self._r, n * self.physics_dt)
         self._alpha = truth[7]
         self.truth = truth
+        # delivered torque, the period's mean: τ_0 − c ω with ω taken as linear over the period
+        half_c = self._half_c
+        self.actuation = _new(Actuation, (dl, dr, tq_l - half_c * (truth[13] - truth[2] - w_l),
+                                          tq_r - half_c * (truth[14] - truth[2] - w_r), sl, sr))
         # NaN and infinity propagate through the physics and through this sum
-        if not (isfinite(truth[1] + truth[2] + truth[5] + truth[6] + truth[8] + truth[10])
-                and abs(truth[1]) <= self._quiet_angle):
+        if not (isfinite(truth[1] + truth[2] + truth[5] + truth[6] + truth[7] + truth[8] + truth[10] + truth[11])
+                and abs(truth[1]) + abs(truth[12]) <= self._quiet_angle):
             self._check_end()
         return truth
 
-    def _step_general(self, act: Actuation, forces, hold_l, hold_r, body_torque) -> GroundTruth:
+    def _step_general(self, dl, dr, sl, sr, tq_l, tq_r, w_l, w_r, forces, hold_l, hold_r,
+                      body_torque) -> GroundTruth:
         """The rest of :meth:`step` with pushes or the motors' electrical lag."""
         t0 = self.n_physics * self.physics_dt
         push = self._push_setup(self.truth, t0) if self._pushes else None
-        if self._lagged:
-            act = self._step_lagged(act, hold_l, hold_r, body_torque, push, t0)
-        else:
-            rob, cid, ext_torque, set_motors, step_sim, *_ = self._hot
-            acting = _ZERO3
-            for j in range(self.k):
-                if push is not None:
-                    acting = self._apply_push(push, t0 + j * self.physics_dt) or acting
-                ext_torque(rob, -1, body_torque, _WORLD_FRAME, cid)
-                set_motors(rob, WHEEL_JOINTS, _TORQUE_CONTROL, _ZERO2, _ZERO2, forces, _ZERO2, _ZERO2, cid)
-                step_sim(cid)
-            self.push_force = acting
-        self.n_physics += self.k
-        self.actuation = act
+        rob, cid, ext_torque, set_motors, step_sim, *_ = self._hot
+        motor, dt, k = self.motor, self.physics_dt, self.k
+        fx = fy = fz = 0.0
+        sum_l = sum_r = 0.0
+        for j in range(k):
+            if push is not None:
+                f = self._apply_push(push, t0 + j * dt)
+                fx, fy, fz = fx + f[0], fy + f[1], fz + f[2]
+            if self._lagged:
+                # the electrical lag, resolved per physics step: the mean current over the step,
+                # exact for a constant voltage and shaft speed
+                (_, wl, _, _), (_, wr, _, _) = self._joint_states(rob, WHEEL_JOINTS)
+                il, ir = self._current
+                kt = motor.params.k_t
+                tl, trq = kt * motor.current_mean(il, dl, wl, dt), kt * motor.current_mean(ir, dr, wr, dt)
+                sum_l += tl
+                sum_r += trq
+                forces = (tl + hold_l, trq + hold_r)
+                self._current = (motor.current_step(il, dl, wl, dt), motor.current_step(ir, dr, wr, dt))
+            ext_torque(rob, -1, body_torque, _WORLD_FRAME, cid)
+            set_motors(rob, WHEEL_JOINTS, _TORQUE_CONTROL, _ZERO2, _ZERO2, forces, _ZERO2, _ZERO2, cid)
+            step_sim(cid)
+        self.push_force = (fx / k, fy / k, fz / k)
+        self.n_physics += k
         self.truth = truth = self._read_truth()
+        if self._lagged:
+            self.actuation = _new(Actuation, (dl, dr, sum_l / k, sum_r / k, sl, sr))
+        else:
+            half_c = self._half_c
+            self.actuation = _new(Actuation, (dl, dr, tq_l - half_c * (truth[13] - truth[2] - w_l),
+                                              tq_r - half_c * (truth[14] - truth[2] - w_r), sl, sr))
         self._check_end()
         return truth
-
-    def _step_lagged(self, act: Actuation, hold_l, hold_r, body_torque, push, t0) -> Actuation:
-        """Physics steps with the motors' electrical lag integrated per step (inductance > 0)."""
-        m, dt = self.motor, self.physics_dt
-        imax, kt = m.params.max_current, m.params.k_t
-        dl, dr = act.duty_l, act.duty_r
-        sum_l = sum_r = 0.0
-        acting = _ZERO3
-        for j in range(self.k):
-            # shaft speeds relative to the body drive the back-EMF
-            (_, wl, _, _), (_, wr, _, _) = self._joint_states(self.robot, WHEEL_JOINTS)
-            il, ir = self._current
-            tl = kt * max(-imax, min(imax, m.current_mean(il, dl, wl, dt)))
-            trq = kt * max(-imax, min(imax, m.current_mean(ir, dr, wr, dt)))
-            sum_l += tl
-            sum_r += trq
-            if push is not None:
-                acting = self._apply_push(push, t0 + j * dt) or acting
-            self._ext_torque(self.robot, -1, body_torque, self._world)
-            self._set_motors(self.robot, WHEEL_JOINTS, self._torque_mode, forces=(tl + hold_l, trq + hold_r))  # slow path
-            self._step_sim()
-            il = m.current_step(il, dl, wl, dt)
-            ir = m.current_step(ir, dr, wr, dt)
-            self._current = (max(-imax, min(imax, il)), max(-imax, min(imax, ir)))
-        self.push_force = acting
-        return act._replace(torque_l=sum_l / self.k, torque_r=sum_r / self.k)
 
     # ---- disturbances ------------------------------------------------------------------
     def _apply_friction_changes(self, t: float) -> None:
@@ -605,14 +652,15 @@ class BulletTwin:
             out.append((p.start, p.start + p.duration, f, pt))
         return out
 
-    def _apply_push(self, push, t: float):
-        total = None
+    def _apply_push(self, push, t: float) -> tuple[float, float, float]:
+        """Apply the pushes acting in the physics step starting at ``t``; their total force (N)."""
+        fx = fy = fz = 0.0
         eps = 1e-9
         for start, end, f, pt in push:
             if start - eps <= t < end - eps:
                 self._ext_force(self.robot, -1, f, pt, self._world)
-                total = f if total is None else tuple(a + b for a, b in zip(total, f))
-        return total
+                fx, fy, fz = fx + f[0], fy + f[1], fz + f[2]
+        return fx, fy, fz
 
     # ---- readout -----------------------------------------------------------------------
     def _rotation(self):
@@ -639,11 +687,17 @@ class BulletTwin:
 
     def _check_end(self) -> None:
         tr = self.truth
-        if not math.isfinite(tr.theta + tr.theta_dot + tr.psi + tr.psi_dot + tr.alpha_dot + tr.x + tr.y):
+        if not math.isfinite(tr.theta + tr.theta_dot + tr.psi + tr.psi_dot + tr.alpha + tr.alpha_dot + tr.x + tr.y):
             self.status, self.end_reason = "diverged", f"the physics returned a non-finite state at t = {tr.t:.3f} s"
-        elif abs(tr.theta) > self.config.fall_angle:
+            return
+        # tilt of the body's axis from the vertical: cos(tilt) = cos θ cos φ
+        tilt = math.acos(max(-1.0, min(1.0, math.cos(tr.theta) * math.cos(tr.roll))))
+        if tilt > self.config.fall_angle:
             self.status = "fell"
-            self.end_reason = f"|θ| = {abs(tr.theta):.3f} rad passed the fall limit {self.config.fall_angle:g} rad at t = {tr.t:.3f} s"
-        elif abs(tr.theta) > self._contact_check_angle and self.client.getContactPoints(self.robot, self.plane, -1):
+            self.end_reason = (f"the body tilted {tilt:.3f} rad from the vertical (pitch {tr.theta:.3f}, roll "
+                               f"{tr.roll:.3f} rad), past the fall limit {self.config.fall_angle:g} rad, "
+                               f"at t = {tr.t:.3f} s")
+        elif tilt > self._contact_check_angle and self.client.getContactPoints(self.robot, self.plane, -1):
             self.status = "fell"
-            self.end_reason = f"the body touched the floor at t = {tr.t:.3f} s (θ = {tr.theta:.3f} rad)"
+            self.end_reason = (f"the body touched the floor at t = {tr.t:.3f} s (pitch {tr.theta:.3f}, "
+                               f"roll {tr.roll:.3f} rad)")
