@@ -89,30 +89,12 @@ UPRIGHT_LIMIT = 0.1  # rad: |θ| at every window end must stay below this
 pc = time.perf_counter
 
 
-@contextlib.contextmanager
-def quiet_native_output():
-    """Point fds 1 and 2 at /dev/null (PyBullet's C code prints on import and connect)."""
-    for stream in (sys.stdout, sys.stderr):
-        with contextlib.suppress(Exception):
-            stream.flush()
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    saved = [(fd, os.dup(fd)) for fd in (1, 2)]
-    try:
-        for fd, _ in saved:
-            os.dup2(devnull, fd)
-        yield
-    finally:
-        for fd, copy in saved:
-            os.dup2(copy, fd)
-            os.close(copy)
-        os.close(devnull)
-
+from twin.plant.bullet import WHEEL_JOINTS, BulletTwin, TwinConfig, quiet_native_output  # noqa: E402
 
 with quiet_native_output():
     import pybullet as p
     import pybullet_data
 
-from twin.plant.bullet import WHEEL_JOINTS, BulletTwin, TwinConfig  # noqa: E402
 from twin.plant.urdf import robot_urdf  # noqa: E402
 
 

@@ -61,8 +61,7 @@ def test_motor_update_is_identical(motor):
     """Saturation, dead band, quantisation (ties to even, no −0.0), compensation on and off."""
     rng = np.random.default_rng(1)
     driver = MotorDriver(motor)
-    consts = (motor.k_t, motor.resistance, motor.supply_voltage, motor.max_current, float(motor.pwm_steps),
-              float(motor.back_emf_compensation), motor.dead_band)
+    consts = driver.constants
     cmds = np.concatenate([rng.normal(scale=0.5, size=20000), [0.0, -0.0, 1e-12, -1e-12, 5.0, -5.0]])
     speeds = np.concatenate([rng.normal(scale=30.0, size=20000), [0.0, 0.0, 0.0, 0.0, 100.0, -100.0]])
     # commands landing exactly on half a PWM step test the rounding of ties

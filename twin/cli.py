@@ -144,15 +144,24 @@ def _load_design(path: Path | None, epsilon, rho, decay_rate, max_gain):
     return SimpleNamespace(gains=gains, to_json_dict=lambda: data)
 
 
+def _experiment_options(default_out: str):
+    """The arguments shared by the commands that run a paper experiment."""
+    def decorate(f):
+        f = _design_options(f)
+        f = click.option("--gains", "gains_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
+                         help="Use a design written by 'twin design --out' instead of designing anew.")(f)
+        f = click.option("--duration", type=float, default=None,
+                         help="Simulated time in s (default: the experiment's 15 s).")(f)
+        f = click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=Path(default_out),
+                         show_default=True, help="Output directory.")(f)
+        f = click.option("--controller", type=click.Choice(["it2", "t1", "both"]), default="both",
+                         show_default=True)(f)
+        return click.argument("experiment", type=click.Choice(EXPERIMENT_CHOICES), metavar="EXPERIMENT")(f)
+    return decorate
+
+
 @main.command()
-@click.argument("experiment", type=click.Choice(EXPERIMENT_CHOICES), metavar="EXPERIMENT")
-@click.option("--controller", type=click.Choice(["it2", "t1", "both"]), default="both", show_default=True)
-@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=Path("runs/analytic"),
-              show_default=True, help="Output directory.")
-@click.option("--duration", type=float, default=None, help="Simulated time in s (default: the experiment's 15 s).")
-@click.option("--gains", "gains_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="Use a design written by 'twin design --out' instead of designing anew.")
-@_design_options
+@_experiment_options("runs/analytic")
 def analytic(experiment, controller, out, duration, gains_file, epsilon, rho, decay_rate, max_gain):
     """Run a paper experiment on the analytic model (equation 1): figure, metrics, trajectories.
 
@@ -170,15 +179,8 @@ def analytic(experiment, controller, out, duration, gains_file, epsilon, rho, de
 
 
 @main.command()
-@click.argument("experiment", type=click.Choice(EXPERIMENT_CHOICES), metavar="EXPERIMENT")
-@click.option("--controller", type=click.Choice(["it2", "t1", "both"]), default="both", show_default=True)
-@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=Path("runs/physics"),
-              show_default=True, help="Output directory.")
-@click.option("--duration", type=float, default=None, help="Simulated time in s (default: the experiment's 15 s).")
+@_experiment_options("runs/physics")
 @click.option("--ideal-motor", is_flag=True, help="Ideal torque sources instead of the default DC motors.")
-@click.option("--gains", "gains_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="Gains from 'twin design --out' (default: design now).")
-@_design_options
 def physics(experiment, controller, out, duration, ideal_motor, gains_file, epsilon, rho, decay_rate, max_gain):
     """Run a paper experiment on the PyBullet twin: figure, metrics, trajectories.
 

@@ -122,6 +122,9 @@ class MotorDriver:
         self._imax = params.max_current
         self._steps = params.pwm_steps
         self._comp = params.back_emf_compensation
+        # the arguments of the compiled twin.plant._fastpath.motors after the four inputs
+        self.constants = (self._kt, self._R, self._vs, self._imax, float(self._steps), float(self._comp),
+                          params.dead_band)
 
     def duty(self, torque_cmd: float, omega: float) -> tuple[float, bool]:
         """(duty in [−1, 1], saturated) for a torque command in N·m at shaft speed ω in rad/s.

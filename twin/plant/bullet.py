@@ -198,7 +198,7 @@ class TwinConfig:
 
 
 @contextlib.contextmanager
-def _quiet_native_output():
+def quiet_native_output():
     """Silence what PyBullet's C code prints (its build time on import, ``argv[0]=`` on
     connect) by pointing file descriptors 1 and 2 at /dev/null for the duration."""
     for stream in (sys.stdout, sys.stderr):
@@ -227,7 +227,7 @@ def _quiet_native_output():
 
 def _connect():
     """A new DIRECT physics server of its own, and the pybullet module."""
-    with _quiet_native_output():
+    with quiet_native_output():
         import pybullet
         from pybullet_utils.bullet_client import BulletClient
 
@@ -454,21 +454,9 @@ class BulletTwin:
         # inductance the back-EMF is integrated per step instead
         self._half_c = 0.0 if self._lagged else 0.5 * self._motor_damping
         self._truth_from_states = _fastpath.truth if _fastpath is not None else truth_from_states
-        self._motor_consts = None
-        if _fastpath is not None and self.motor is not None:
-            m = config.motor
-            self._motor_consts = (m.k_t, m.resistance, m.supply_voltage, m.max_current, float(m.pwm_steps),
-                                  float(m.back_emf_compensation), m.dead_band)
-        self._step_sim = c.stepSimulation
-        self._set_motors = c.setJointMotorControlArray
-        self._ext_torque = c.applyExternalTorque
-        self._ext_force = c.applyExternalForce
-        self._base_pose = c.getBasePositionAndOrientation
-        self._joint_states = c.getJointStates
+        self._motor_consts = self.motor.constants if _fastpath is not None and self.motor is not None else None
         if (pybullet.TORQUE_CONTROL, pybullet.WORLD_FRAME) != (_TORQUE_CONTROL, _WORLD_FRAME):  # pragma: no cover
             raise TwinError("this PyBullet build numbers TORQUE_CONTROL / WORLD_FRAME differently; please report it")
-        self._torque_mode = pybullet.TORQUE_CONTROL
-        self._world = pybullet.WORLD_FRAME
 
         self.n_physics = 0
         self.status = "running"
@@ -595,7 +583,7 @@ class BulletTwin:
             if self._lagged:
                 # the electrical lag, resolved per physics step: the mean current over the step,
                 # exact for a constant voltage and shaft speed
-                (_, wl, _, _), (_, wr, _, _) = self._joint_states(rob, WHEEL_JOINTS)
+                (_, wl, _, _), (_, wr, _, _) = self._pb.getJointStates(rob, WHEEL_JOINTS, cid)
                 il, ir = self._current
                 kt = motor.params.k_t
                 tl, trq = kt * motor.current_mean(il, dl, wl, dt), kt * motor.current_mean(ir, dr, wr, dt)
@@ -638,8 +626,9 @@ class BulletTwin:
         active = [p for p in self._pushes if p.start < t1 and p.start + p.duration > t0]
         if not active:
             return None
-        R = self._rotation()
-        axle = self._axle_position()
+        com, R = self._pose()
+        cl = self._com_local
+        axle = tuple(com[i] - (R[i][0] * cl[0] + R[i][1] * cl[1] + R[i][2] * cl[2]) for i in range(3))
         out = []
         ca, sa = math.cos(tr.alpha), math.sin(tr.alpha)
         for p in active:
@@ -658,23 +647,17 @@ class BulletTwin:
         eps = 1e-9
         for start, end, f, pt in push:
             if start - eps <= t < end - eps:
-                self._ext_force(self.robot, -1, f, pt, self._world)
+                self._pb.applyExternalForce(self.robot, -1, f, pt, _WORLD_FRAME, self._cid)
                 fx, fy, fz = fx + f[0], fy + f[1], fz + f[2]
         return fx, fy, fz
 
     # ---- readout -----------------------------------------------------------------------
-    def _rotation(self):
-        (_, q) = self._base_pose(self.robot)
-        x, y, z, w = q
-        return ((1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)),
-                (2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)),
-                (2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)))
-
-    def _axle_position(self):
-        com, _ = self._base_pose(self.robot)
-        R = self._rotation()
-        cl = self._com_local
-        return tuple(com[i] - (R[i][0] * cl[0] + R[i][1] * cl[1] + R[i][2] * cl[2]) for i in range(3))
+    def _pose(self):
+        """Centre of mass (m, world) and rotation matrix (rows) of the body."""
+        com, (x, y, z, w) = self._pb.getBasePositionAndOrientation(self.robot, self._cid)
+        return com, ((1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)),
+                     (2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)),
+                     (2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)))
 
     def _read_truth(self) -> GroundTruth:
         pb, cid, rob = self._pb, self._cid, self.robot
