@@ -1,5 +1,39 @@
-"""State estimation from simulated sensors (θ, ψ, α with covariance).
+"""State estimation from the twin's sensors: θ, ψ, α and their rates, with covariance.
 
-The filterpy-based estimator and its baselines arrive with the sensor models; until then
-the controllers of :mod:`twin` act on the true state of the analytic model.
+``model``       what the estimator knows: equation (1), the motor driver, the sensors' models and noise
+``ekf``         the extended Kalman filter (filterpy) with gating and latency handling
+``baselines``   a complementary filter and the two-state angle-plus-bias Kalman filter of hobby robots
+``consistency`` NEES, NIS and their χ² bounds
+
+:func:`build_estimator` makes any of them for a twin configuration.
 """
+from __future__ import annotations
+
+from estimation.baselines import AngleBiasKalman, ComplementaryFilter
+from estimation.ekf import EKFEstimator, Estimate
+from estimation.model import EstimatorModel
+
+ESTIMATORS = ("ekf", "complementary", "kalman2")
+
+
+def build_estimator(kind: str, sensors, control_rate: float, motor, params, alpha0: float = 0.0):
+    """An estimator of ``kind`` (one of :data:`ESTIMATORS`) for these sensors.
+
+    ``sensors`` a :class:`twin.sensors.SensorConfig`; ``control_rate`` Hz; ``motor`` the
+    motors' specification (or None); ``params`` the robot model the estimator assumes;
+    ``alpha0`` the initial heading (rad).
+    """
+    from twin.errors import TwinError
+
+    if kind not in ESTIMATORS:
+        raise TwinError(f"estimator must be one of {', '.join(ESTIMATORS)}, got {kind!r}")
+    if kind == "ekf":
+        every, d_imu, d_enc = sensors.steps(control_rate)
+        model = EstimatorModel(params, motor, sensors.imu, sensors.encoders, control_rate)
+        return EKFEstimator(model, every, d_imu, d_enc, alpha0=alpha0)
+    cls = ComplementaryFilter if kind == "complementary" else AngleBiasKalman
+    return cls(control_rate, params.r, params.b, alpha0)
+
+
+__all__ = ["ESTIMATORS", "AngleBiasKalman", "ComplementaryFilter", "EKFEstimator", "Estimate", "EstimatorModel",
+           "build_estimator"]

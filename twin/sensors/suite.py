@@ -1,0 +1,231 @@
+"""The robot's sensors as the estimator sees them: IMU and wheel encoders, noise, faults
+and latency, read once per control period.
+
+Timing. Control instants are t_k = k T (T the control period). The IMU samples at
+instants that are control instants (its rate divides the control rate), the encoders at
+every control instant; a sample taken at step k arrives at step k + d (d = latency / T,
+a whole number). :meth:`SensorSuite.read` returns, at each control instant, the newest
+sample of each sensor that arrived then (``None`` where nothing new arrived). Before
+t = 0 the robot stood still, so the first readings are of that rest state
+(:meth:`SensorSuite.start`).
+
+Randomness. One generator per run, split with ``Generator.spawn`` into independent
+streams for the gyro, the accelerometer, the encoders' count phases and each sensor's
+fault draws, so adding a fault does not change the noise.
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from twin.errors import TwinError
+from twin.sensors.faults import FAULT_TYPES, Dropout, LatencyChange, Spikes, Stuck
+from twin.sensors.noise import TriadNoise
+from twin.sensors.specs import DEFAULT_ENCODERS, DEFAULT_IMU, EncoderSpec, ImuSpec
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    """IMU, encoders and the faults to inject."""
+
+    imu: ImuSpec = DEFAULT_IMU
+    encoders: EncoderSpec = DEFAULT_ENCODERS
+    faults: tuple = ()
+
+    def __post_init__(self):
+        if not isinstance(self.imu, ImuSpec):
+            raise TwinError(f"imu must be an ImuSpec, got {self.imu!r}")
+        if not isinstance(self.encoders, EncoderSpec):
+            raise TwinError(f"encoders must be an EncoderSpec, got {self.encoders!r}")
+        faults = tuple(self.faults) if isinstance(self.faults, (list, tuple)) else None
+        if faults is None or not all(isinstance(f, FAULT_TYPES) for f in faults):
+            raise TwinError(f"faults must be a list of Dropout, Stuck, Spikes or LatencyChange, got {self.faults!r}")
+        object.__setattr__(self, "faults", faults)
+
+    def steps(self, control_rate: float) -> tuple[int, int, int]:
+        """(control steps per IMU sample, IMU latency steps, encoder latency steps); a
+        one-line error if the IMU rate does not divide the control rate or a latency is
+        not a whole number of control periods."""
+        every = _whole(control_rate / self.imu.rate, f"the control rate ({control_rate:g} Hz) must be a whole "
+                       f"multiple of the IMU rate ({self.imu.rate:g} Hz)")
+        if every < 1:
+            raise TwinError(f"the IMU rate ({self.imu.rate:g} Hz) must not exceed the control rate "
+                            f"({control_rate:g} Hz): the IMU is read once per control period at most")
+        d_imu = latency_steps(self.imu.latency, control_rate, "IMU latency")
+        d_enc = latency_steps(self.encoders.latency, control_rate, "encoder latency")
+        for f in self.faults:
+            if isinstance(f, LatencyChange):
+                latency_steps(f.latency, control_rate, "LatencyChange latency")
+        return every, d_imu, d_enc
+
+
+def _whole(x: float, message: str) -> int:
+    k = round(x)
+    if abs(x - k) > 1e-9 * max(1.0, abs(x)):
+        raise TwinError(message)
+    return int(k)
+
+
+def latency_steps(latency: float, control_rate: float, what: str) -> int:
+    """``latency`` (s) in control periods; a one-line error unless it is a whole number."""
+    return _whole(latency * control_rate, f"{what} ({latency:g} s) must be a whole number of control periods "
+                  f"({1.0 / control_rate:g} s)")
+
+
+class Measurement(NamedTuple):
+    """What reached the estimator at control instant ``t`` (s); None: nothing new."""
+
+    t: float
+    gyro: tuple | None  # rad/s, body axes (x forward, y along the axle to the left, z up the body)
+    accel: tuple | None  # m/s², specific force, body axes
+    encoders: tuple | None  # rad, (left, right) wheel angle relative to the body since power-up
+
+
+class _Channel:
+    """One sensor's samples on their way out: faults, then the latency queue."""
+
+    def __init__(self, name: str, latency: int, faults, rng: np.random.Generator, sample_dt: float,
+                 control_dt: float, clip=None):
+        self.name = name
+        self.latency = latency
+        self.control_dt = control_dt
+        self.dropouts = [f for f in faults if isinstance(f, Dropout) and name in f.sensors]
+        self.stucks = [f for f in faults if isinstance(f, Stuck) and name in f.sensors]
+        self.spikes = [(f, min(1.0, f.rate * sample_dt)) for f in faults if isinstance(f, Spikes) and name in f.sensors]
+        self.latency_changes = sorted((f for f in faults if isinstance(f, LatencyChange) and name in f.sensors),
+                                      key=lambda f: f.time)
+        self.rng = rng
+        self.clip = clip
+        self.queue: deque = deque()
+        self.last = None
+        self.counts = dict(produced=0, dropped=0, stuck=0, spiked=0, superseded=0)
+
+    def produce(self, k: int, values: tuple) -> None:
+        t = k * self.control_dt
+        self.counts["produced"] += 1
+        d = self.latency
+        for f in self.latency_changes:
+            if f.time <= t + 1e-9:
+                d = round(f.latency / self.control_dt)
+        if any(f.active(t) for f in self.dropouts):
+            self.counts["dropped"] += 1
+            return
+        if self.last is not None and any(f.active(t) for f in self.stucks):
+            values = self.last
+            self.counts["stuck"] += 1
+        else:
+            self.last = values
+        for f, p in self.spikes:
+            if f.active(t) and self.rng.random() < p:
+                signs = self.rng.integers(0, 2, len(values))
+                values = tuple(v + (f.magnitude if s else -f.magnitude) for v, s in zip(values, signs))
+                if self.clip is not None:
+                    values = tuple(self.clip(v) for v in values)
+                self.counts["spiked"] += 1
+        self.queue.append((k + d, values))
+
+    def deliver(self, k: int):
+        newest = None
+        q = self.queue
+        if q and any(a <= k for a, _ in q):
+            keep = deque()
+            for arrival, values in q:
+                if arrival <= k:
+                    if newest is not None:
+                        self.counts["superseded"] += 1
+                    newest = values
+                else:
+                    keep.append((arrival, values))
+            self.queue = keep
+        return newest
+
+
+class SensorSuite:
+    """IMU and encoders of one run.
+
+    Parameters
+    ----------
+    config : SensorConfig
+    control_rate : float
+        Hz; the IMU rate must divide it, latencies must be whole control periods.
+    rng : numpy.random.Generator
+        The run's sensor generator (split into child streams here).
+    gravity : float
+        m/s², only to describe the rest state before t = 0.
+    """
+
+    def __init__(self, config: SensorConfig, control_rate: float, rng: np.random.Generator):
+        if not isinstance(config, SensorConfig):
+            raise TwinError(f"sensors must be a SensorConfig, got {config!r}")
+        if not isinstance(rng, np.random.Generator):
+            raise TwinError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
+        self.config = config
+        self.control_rate = float(control_rate)
+        T = 1.0 / self.control_rate
+        self.every, d_imu, d_enc = config.steps(control_rate)
+        g_rng, a_rng, e_rng, gf_rng, af_rng, ef_rng = rng.spawn(6)
+        imu_dt = self.every * T
+        self.gyro = TriadNoise(config.imu.gyro, imu_dt, g_rng)
+        self.accel = TriadNoise(config.imu.accel, imu_dt, a_rng)
+        self.counts_per_rad = config.encoders.counts_per_rev / (2.0 * math.pi)
+        self.encoder_phase = tuple(float(v) for v in e_rng.random(2))  # where the first edge lies, in counts
+        self._q0 = None
+        self.channels = {
+            "gyro": _Channel("gyro", d_imu, config.faults, gf_rng, imu_dt, T, self.gyro.clip),
+            "accel": _Channel("accel", d_imu, config.faults, af_rng, imu_dt, T, self.accel.clip),
+            "encoders": _Channel("encoders", d_enc, config.faults, ef_rng, T, T),
+        }
+        self.last_gyro_bias = self.gyro.bias
+
+    def encoder_counts(self, q_l: float, q_r: float) -> tuple[int, int]:
+        """Counts since power-up for wheel angles relative to the body ``q_l``, ``q_r`` (rad)."""
+        c = self.counts_per_rad
+        (q0l, q0r), (pl, pr) = self._q0, self.encoder_phase
+        return math.floor((q_l - q0l) * c + pl), math.floor((q_r - q0r) * c + pr)
+
+    def start(self, gyro, accel, q_l: float, q_r: float) -> None:
+        """Power up with the robot at rest: ``gyro`` (rad/s) and ``accel`` (m/s²) the true
+        body-frame readings of the rest state, q_l, q_r the wheel angles relative to the
+        body (rad). Fills the latency queues with samples of that state."""
+        self._q0 = (float(q_l), float(q_r))
+        for name in ("gyro", "accel"):
+            ch = self.channels[name]
+            for j in range(-ch.latency, 0):
+                if j % self.every == 0:
+                    self._imu_sample(name, j, gyro if name == "gyro" else accel)
+        ch = self.channels["encoders"]
+        for j in range(-ch.latency, 0):
+            ch.produce(j, (0.0, 0.0))
+
+    def _imu_sample(self, name: str, k: int, true) -> None:
+        noise = self.gyro if name == "gyro" else self.accel
+        if name == "gyro":
+            self.last_gyro_bias = noise.bias
+        self.channels[name].produce(k, noise.sample(*true))
+
+    def read(self, k: int, gyro, accel, q_l: float, q_r: float) -> Measurement:
+        """Sample what is due at control step ``k`` and return what arrives then.
+
+        ``gyro``, ``accel``: the true IMU readings at t_k (from
+        :func:`twin.sensors.imu.imu_kinematics`; ignored on steps without an IMU sample);
+        ``q_l``, ``q_r``: the wheels' angles relative to the body (rad).
+        """
+        if self._q0 is None:
+            raise TwinError("call SensorSuite.start before reading the sensors")
+        if k % self.every == 0:
+            self._imu_sample("gyro", k, gyro)
+            self._imu_sample("accel", k, accel)
+        cl, cr = self.encoder_counts(q_l, q_r)
+        res = 1.0 / self.counts_per_rad
+        self.channels["encoders"].produce(k, (cl * res, cr * res))
+        ch = self.channels
+        return Measurement(k / self.control_rate, ch["gyro"].deliver(k), ch["accel"].deliver(k),
+                           ch["encoders"].deliver(k))
+
+    def fault_counts(self) -> dict:
+        """Per sensor: samples produced, dropped, stuck, spiked, superseded."""
+        return {name: dict(ch.counts) for name, ch in self.channels.items()}
