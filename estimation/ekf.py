@@ -1,30 +1,59 @@
-"""The twin's state estimator: an extended Kalman filter (filterpy) of θ, ψ, α, their
-rates, the gyro biases and the encoders' zero, with gated updates and latency handling.
+"""The twin's state estimator: an extended Kalman filter (filterpy) driven by the IMU and
+corrected by the wheel encoders, with gyro-bias states, χ² gating and latency handling.
 
-Why an EKF and not a UKF. The process is equation (1) over one 5 ms period, in which
-the state moves little: linearising it there costs an error of order (ω Δt)² with
-ω ≈ 12 rad/s the body's unstable pole, far below the process noise; the measurement
-models are smooth (sines of θ and quadratic rates). A UKF would need 19 sigma points,
-each through an RK4 step and the accelerometer model, for no measurable gain; the
-analytic Jacobians of :mod:`estimation.model` are cheap and tested against finite
-differences.
+Design: a strapdown filter. The IMU drives the prediction (as in inertial navigation),
+so its process noise is the IMU's own: the gyro's and accelerometer's noise densities,
+scale-factor tolerances, ADC steps and bias random walks, straight from
+:mod:`twin.sensors.specs`. The encoders correct it. No model of the robot's dynamics is
+needed for that, so a mismatched plant, a payload, a slope or a push does not bias the
+estimate. Equation (1) with the commands serves where there is no IMU sample: through
+dropouts, to test a suspicious IMU sample, and to predict across the sensors' latency.
 
-One control step (:meth:`EKFEstimator.step`)
-    1. The filter runs L = max(IMU latency, encoder latency) periods behind: it predicts
-       to t_{k−L} with the command applied then, and updates with the samples taken at
-       t_{k−L}, which arrive now. Predict-only when a sensor delivers nothing (dropouts).
-    2. Each sensor's update (gyro, accelerometer, encoders: 2 values each) is gated: its
-       normalised innovation squared ε = yᵀ S⁻¹ y is compared with the χ²(2) quantile at
-       1 − ``gate_probability``; a failing measurement is rejected and counted. After
-       ``max_rejects_in_row`` rejections in a row a sensor's next update is accepted
-       (logged): the filter re-synchronises rather than coasting forever.
-    3. The estimate handed to the controllers is the filter's state predicted forward
-       the L periods with the commands since (no measurement is that fresh).
-    A non-finite state or covariance never leaves: the last good estimate is restored
-    with its covariance inflated, and the reason is logged in :attr:`events`.
+Why an EKF and not a UKF: over one 5 ms period the prediction is nearly linear (the
+nonlinear terms are sines of θ, which moves by milliradians per period) and the encoder
+measurement is linear. A UKF would push 15 sigma points through the same equations for
+no measurable gain. The analytic Jacobians are tested against finite differences.
 
-filterpy's textbook names are kept: x, P, F, Q, H, R, y (innovation), S, K and the
-likelihood of the last update are attributes of :attr:`EKFEstimator.kf`.
+State (7,), SI units::
+
+    x = [θ, ψ, v, α, b_y, b_z, c, s_y, h]
+
+θ pitch (rad); ψ mean wheel angle (rad); v the IMU point's forward speed (m/s) in the
+heading frame, v = r ψ̇ + θ̇ dz; α heading (rad); b_y, b_z gyro biases about the axle and
+the body's z axis (rad/s); c the encoders' zero: they count from power-up, so they read
+q_i − q_i(0) = ψ_i − θ + c with c = θ(0).
+
+Prediction from t_{m−1} to t_m with the IMU samples ω (gyro) and f (accelerometer) at
+both ends (dx = x_i cos θ + z_i sin θ, dz = −x_i sin θ + z_i cos θ for the IMU at (x_i, z_i)
+in the body frame)::
+
+    θ⁺ = θ + Δt (½(ω_y⁻ + ω_y) − b_y)                         θ̇ = ω_y − b_y
+    α⁺ = α + Δt ½(α̇⁻ + α̇),   α̇ = (ω_z − b_z) / cos θ
+    v⁺ = v + Δt (f_x cos θ⁺ + f_z sin θ⁺ + α̇² dx)             (the point's forward acceleration)
+    ψ⁺ = ψ + Δt ½(ψ̇⁻ + ψ̇),   ψ̇ = (v − θ̇ dz) / r
+
+(the end-of-period accelerometer sample stands for the period: the torque, and with it
+the acceleration, is constant over a period). A tilt error δθ shows as a horizontal
+acceleration g δθ, which the encoders see as a drifting ψ: that is what makes θ and the
+biases observable while the robot balances.
+
+Measurements: the encoders, [ē, ẽ] = [(e_l + e_r)/2, (e_r − e_l)/2] = [ψ − θ + c,
+(b/r)(α − α_0)], noise one count uniform (Δ²/24 for the mean and the half-difference).
+
+Gating (χ² on the normalised innovation squared ε = yᵀ S⁻¹ y, 2 degrees of freedom, at
+1 − ``gate_probability``): when the encoders' ε fails the gate, the step is repeated with
+the IMU sample replaced by the one equation (1) predicts (from the commands); if the
+encoders then pass, the IMU sample was the outlier and is rejected, otherwise the encoder
+sample is. Rejections are counted per sensor. After ``max_rejects_in_row`` encoder
+rejections in a row the next one is accepted (logged): the filter re-synchronises
+rather than coasting forever.
+
+Latency: the filter runs L = max(IMU, encoder latency) periods behind, where every
+sample it uses has arrived; the estimate handed to the controllers is its state
+predicted the L periods forward with equation (1) and the commands since.
+
+No NaN or infinity leaves: a non-finite state or covariance restores the last good
+estimate with its covariance inflated, and the reason is logged in ``events``.
 """
 from __future__ import annotations
 
@@ -35,9 +64,14 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from scipy.stats import chi2
 
-from estimation.model import AL, BY, BZ, C0, N_STATES, PS, PSD, TH, THD, ALD, EstimatorModel
+from estimation.model import EstimatorModel
 from twin.errors import TwinError
 
+STATE_NAMES = ("theta", "psi", "imu_speed", "alpha", "gyro_bias_y", "gyro_bias_z", "encoder_zero", "gyro_scale_y",
+               "encoder_heading_zero")
+STATE_UNITS = ("rad", "rad", "m/s", "rad", "rad/s", "rad/s", "rad", "1", "rad")
+N = len(STATE_NAMES)
+TH, PS, V, AL, BY, BZ, C0, SY, H0 = range(N)
 GROUPS = ("gyro", "accel", "encoders")
 
 
@@ -53,29 +87,15 @@ class Estimate(NamedTuple):
 
 
 class TwinEKF(ExtendedKalmanFilter):
-    """filterpy's EKF with equation (1) as its nonlinear prediction."""
+    """filterpy's EKF whose nonlinear prediction is computed (with F and Q) beforehand."""
 
-    def __init__(self, model: EstimatorModel):
-        super().__init__(dim_x=N_STATES, dim_z=2, dim_u=2)
-        self.model = model
-        self.x = np.zeros(N_STATES)
+    def __init__(self):
+        super().__init__(dim_x=N, dim_z=2)
+        self.x = np.zeros(N)
+        self._x_next = self.x
 
-    def predict(self, u=(0.0, 0.0)):
-        """Prior for the next control instant with the motor torques τ_0 = ``u`` (N·m) held:
-        F and Q are linearised at the current x, then filterpy's predict runs."""
-        self._x_next, self.F, G = self.model.transition(self.x, u[0], u[1])
-        self.Q = self.model.process_noise(G)
-        super().predict(u)
-
-    def predict_x(self, u=(0.0, 0.0)):
-        """x ← the RK4 step of equation (1) (computed with F in :meth:`predict`)."""
+    def predict_x(self, u=0):
         self.x = self._x_next
-
-    def nis(self, z, H, hx, R) -> tuple[float, np.ndarray]:
-        """(ε, S): the normalised innovation squared of measurement ``z`` before updating."""
-        y = np.asarray(z, float) - hx
-        S = H @ self.P @ H.T + R
-        return float(y @ np.linalg.solve(S, y)), S
 
 
 class EKFEstimator:
@@ -84,7 +104,8 @@ class EKFEstimator:
     Parameters
     ----------
     model : EstimatorModel
-        What the filter assumes (nominal robot, motor and sensor specifications).
+        Sensor specifications (for Q and R), the IMU's position, and equation (1) with
+        the motors (for dropouts, outlier tests and the latency).
     imu_every : int
         Control periods per IMU sample.
     imu_latency, encoder_latency : int
@@ -104,23 +125,45 @@ class EKFEstimator:
         if not (0.0 < gate_probability < 0.5):
             raise TwinError(f"gate_probability must be in (0, 0.5), got {gate_probability!r}")
         self.model = model
-        self.kf = TwinEKF(model)
-        self.imu_every, self.d_imu, self.d_enc = int(imu_every), int(imu_latency), int(encoder_latency)
+        self.kf = TwinEKF()
+        self.every, self.d_imu, self.d_enc = int(imu_every), int(imu_latency), int(encoder_latency)
         self.lag = max(self.d_imu, self.d_enc)
+        self.dt = self.every * model.dt
         self.alpha0 = float(alpha0)
         self.gate = float(chi2.ppf(1.0 - gate_probability, 2))
+        # an IMU sample is called an outlier only on much stronger evidence: wrongly
+        # replacing a real sample by the model's is worse than keeping a mild outlier
+        self.imu_gate = float(chi2.ppf(1.0 - 1e-9, 2))
         self.max_rejects_in_row = int(max_rejects_in_row)
+        imu = model.imu
+        self.xi, self.zi = imu.position[0], imu.position[2]
+        self.r = model.r
+        self.b_r = model.b_r
+        # per-sample noise of the IMU: white noise and the ADC step (the scale-factor part
+        # depends on the reading and is added per sample)
+        self._g_var = imu.gyro.white_sigma(self.dt) ** 2 + imu.gyro.lsb ** 2 / 12.0
+        self._a_var = imu.accel.white_sigma(self.dt) ** 2 + imu.accel.lsb ** 2 / 12.0
+        self._g_sf, self._a_sf = imu.gyro.scale_factor_error ** 2, imu.accel.scale_factor_error ** 2
+        self._bias_q = imu.gyro.bias_random_walk ** 2 * self.dt
+        q = model.encoders.resolution ** 2 / 24.0
+        self.R = np.diag([q, q])
+        self.H = np.zeros((2, N))
+        self.H[0, PS] = self.H[0, C0] = 1.0
+        self.H[0, TH] = -1.0
+        self.H[1, AL] = self.b_r
+        self.H[1, H0] = 1.0
         self.k = -1
-        self.m = 0  # the filter's step index (it runs ``lag`` periods behind)
+        self.m = 0
         self._commands: dict[int, tuple[float, float]] = {}
         self._imu: dict[int, tuple] = {}
         self._enc: dict[int, tuple] = {}
-        self._torque = (0.0, 0.0)  # τ_0 acting just before the filter's time
         self.accepted = dict.fromkeys(GROUPS, 0)
         self.rejected = dict.fromkeys(GROUPS, 0)
-        self.in_row = dict.fromkeys(GROUPS, 0)
-        self.last_nis = dict.fromkeys(GROUPS, math.nan)
+        self.in_row = 0
+        self.last_nis = math.nan
         self.predict_only = 0
+        self.unchanged_encoders = 0
+        self._last_enc = None
         self.events: list[tuple[float, str]] = []
         self.resets = 0
 
@@ -131,45 +174,66 @@ class EKFEstimator:
 
     @property
     def x(self) -> np.ndarray:
-        """The filter's state (9,) at its own time t_{k−lag}."""
+        """The filter's state (7,) at its own time t_{k−lag}."""
         return self.kf.x
 
     @property
     def P(self) -> np.ndarray:
         return self.kf.P
 
+    def rates(self, x=None) -> tuple[float, float]:
+        """(θ̇, α̇) in rad/s at the filter's time: the gyro's mean rates over the last two
+        periods extrapolated linearly to the end of the last one."""
+        x = self.kf.x if x is None else x
+        (wy, wz), (wy0, wz0) = self._w, self._w_prev
+        wy, wz = 1.5 * wy - 0.5 * wy0, 1.5 * wz - 0.5 * wz0
+        return (wy - x[BY]) / (1.0 + x[SY]), (wz - x[BZ]) / math.cos(x[TH])
+
+    def state6(self, x=None) -> np.ndarray:
+        """[θ, θ̇, ψ, ψ̇, α, α̇] at the filter's time (or of state ``x``)."""
+        x = self.kf.x if x is None else x
+        thd, ald = self.rates(x)
+        th = x[TH]
+        dz = -self.xi * math.sin(th) + self.zi * math.cos(th)
+        return np.array([th, thd, x[PS], (x[V] - thd * dz) / self.r, x[AL], ald])
+
     def stats(self) -> dict:
         return {"accepted": dict(self.accepted), "rejected": dict(self.rejected),
                 "rejected_total": self.rejected_total, "predict_only_steps": self.predict_only,
+                "unchanged_encoder_samples": self.unchanged_encoders,
                 "resets": self.resets, "events": [f"t = {t:.3f} s: {why}" for t, why in self.events]}
 
     def start(self, meas) -> Estimate:
         """Initialise from the first readings, the robot at rest (control step 0).
 
-        θ from the accelerometer's direction of gravity; rates 0; ψ 0 (the twin's wheel
+        θ from the accelerometer's direction of gravity; v = 0; ψ = 0 (the twin's wheel
         angles start at 0); the encoders' zero c = θ, exactly as uncertain as θ; gyro
         biases 0 with the turn-on σ of the specification.
         """
-        if meas.accel is None or not all(math.isfinite(v) for v in meas.accel):
-            raise TwinError("the estimator needs an accelerometer reading at start to find the initial tilt")
-        m = self.model
+        ok = lambda v: v is not None and all(math.isfinite(c) for c in v)  # noqa: E731
+        if not ok(meas.accel) or not ok(meas.gyro):
+            raise TwinError("the estimator needs a gyro and an accelerometer reading at start")
+        spec_a, spec_g = self.model.imu.accel, self.model.imu.gyro
         fx, _, fz = meas.accel
         theta0 = math.atan2(-fx, fz)
         g = math.hypot(fx, fz)
-        spec_a, spec_g = m.imu.accel, m.imu.gyro
-        var_theta = (spec_a.white_sigma(m.imu_dt) ** 2 + spec_a.turn_on_bias ** 2
-                     + (spec_a.scale_factor_error * g) ** 2 * 0.5) / max(g, 1.0) ** 2
-        x = np.zeros(N_STATES)
+        var_theta = (self._a_var + spec_a.turn_on_bias ** 2 + self._a_sf * g * g) / max(g, 1.0) ** 2
+        x = np.zeros(N)
         x[TH] = x[C0] = theta0
         x[AL] = self.alpha0
-        P = np.diag([var_theta, 1e-8, 1e-10, 1e-8, 1e-10, 1e-8, spec_g.turn_on_bias ** 2 + 1e-10,
-                     spec_g.turn_on_bias ** 2 + 1e-10, var_theta])
-        P[TH, C0] = P[C0, TH] = var_theta * (1.0 - 1e-9)
+        bias_var = spec_g.turn_on_bias ** 2 + 1e-12
+        # where the encoders' first edges lie is unknown: a constant offset of variance
+        # Δ²/12 per wheel, Δ²/24 in the mean and in the half-difference
+        edge_var = self.R[0, 0]
+        P = np.diag([var_theta, 1e-12, 1e-12, 1e-12, bias_var, bias_var, var_theta + edge_var,
+                     spec_g.scale_factor_error ** 2 + 1e-12, edge_var])
+        P[TH, C0] = P[C0, TH] = var_theta
         self.kf.x, self.kf.P = x, P
+        self._w = self._w_prev = (meas.gyro[1], meas.gyro[2])
         self.k, self.m = 0, 0
         self._store(meas, 0)
-        self._good = (x.copy(), P.copy())
-        return self._estimate(x)
+        self._good = (x.copy(), P.copy(), self._w, self._w_prev)
+        return Estimate(*self.state6())
 
     def step(self, meas, command) -> Estimate:
         """Advance to the next control instant.
@@ -182,116 +246,189 @@ class EKFEstimator:
         k = self.k = self.k + 1
         self._commands[k - 1] = (float(command[0]), float(command[1]))
         self._store(meas, k)
-        m_target = k - self.lag
-        kf = self.kf
-        try:
-            if m_target >= 1:
-                self._predict(self._commands.get(m_target - 1, (0.0, 0.0)))
-                self.m = m_target
-            if m_target >= 0:
-                used = self._update_at(m_target, meas.t - self.lag * self.model.dt)
-                if not used:
-                    self.predict_only += 1
-            self._check_finite(meas.t)
-        except (np.linalg.LinAlgError, FloatingPointError, ValueError, ZeroDivisionError) as err:
-            self._restore(meas.t, f"numerical failure in the filter ({err}); restored the last good estimate")
-        # forget what the filter has passed
+        m = k - self.lag
+        if m >= self.every and m % self.every == 0 and m > self.m:
+            try:
+                self._advance(m, meas.t - self.lag * self.model.dt)
+            except (np.linalg.LinAlgError, FloatingPointError, ValueError, ZeroDivisionError) as err:
+                self._restore(meas.t, f"numerical failure in the filter ({err}); restored the last good estimate")
+            self.m = m
         for d in (self._commands, self._imu, self._enc):
-            for old in [j for j in d if j < self.m - 1]:
+            for old in [j for j in d if j < self.m - self.every]:
                 del d[old]
-        return self._estimate(self._forward(kf.x, self.m, k))
+        return Estimate(*self._forward(self.state6(), self.m, k))
 
     # ---- internals ---------------------------------------------------------------------
     def _store(self, meas, k: int) -> None:
         ok = lambda v: v is not None and all(math.isfinite(c) for c in v)  # noqa: E731
-        bad = [n for n, v in (("gyro", meas.gyro), ("accel", meas.accel), ("encoders", meas.encoders))
-               if v is not None and not ok(v)]
-        for n in bad:
-            self.events.append((meas.t, f"non-finite {n} reading ignored"))
+        for n, v in (("gyro", meas.gyro), ("accel", meas.accel), ("encoders", meas.encoders)):
+            if v is not None and not ok(v):
+                self.events.append((meas.t, f"non-finite {n} reading ignored"))
         if ok(meas.gyro) and ok(meas.accel):
             self._imu[k - self.d_imu] = (meas.gyro, meas.accel)
         elif ok(meas.gyro) or ok(meas.accel):
-            self._imu[k - self.d_imu] = (meas.gyro if ok(meas.gyro) else None,
-                                         meas.accel if ok(meas.accel) else None)
+            self.events.append((meas.t, "an IMU sample without its gyro or accelerometer half was dropped"))
         if ok(meas.encoders):
             self._enc[k - self.d_enc] = meas.encoders
 
-    def _predict(self, command) -> None:
-        kf, model = self.kf, self.model
-        tau = model.delivered(kf.x, command[0], command[1])
-        kf.predict(u=tau)
-        self._torque = tau
-
-    def _update_at(self, m: int, t: float) -> bool:
-        kf, model = self.kf, self.model
-        used = False
+    def _advance(self, m: int, t: float) -> None:
+        """Predict from the filter's time to t_m and update with the encoders there."""
+        kf = self.kf
+        x, P = kf.x, kf.P
+        command = self._commands.get(m - self.every, (0.0, 0.0))
         imu = self._imu.get(m)
-        if imu is not None:
-            gyro, accel = imu
-            if gyro is not None:
-                z = (gyro[1], gyro[2])
-                H = model.gyro_jacobian(kf.x)
-                used |= self._gated("gyro", z, H, model.gyro(kf.x), model.gyro_noise(kf.x), t)
-            if accel is not None:
-                z = (accel[0], accel[2])
-                tl, tr = self._torque
-                H, Hu = model.accel_jacobian(kf.x, tl, tr)
-                hx = model.accel(kf.x, tl, tr)
-                used |= self._gated("accel", z, H, hx, model.accel_noise(hx, Hu), t, (tl, tr))
         enc = self._enc.get(m)
-        if enc is not None:
-            z = (0.5 * (enc[0] + enc[1]), 0.5 * (enc[1] - enc[0]))
-            used |= self._gated("encoders", z, model.encoders_jacobian(), model.encoders_h(kf.x, self.alpha0),
-                                model.encoders_noise(), t)
-        if used:
-            kf.P = 0.5 * (kf.P + kf.P.T)
-        return used
-
-    def _gated(self, group: str, z, H, hx, R, t: float, torque=None) -> bool:
-        kf = self.kf
-        eps, _ = kf.nis(z, H, hx, R)
-        self.last_nis[group] = eps
-        if not (eps <= self.gate):
-            if self.in_row[group] < self.max_rejects_in_row:
-                self.rejected[group] += 1
-                self.in_row[group] += 1
-                return False
-            self.events.append((t, f"{group} accepted after {self.in_row[group]} rejections in a row "
-                                   f"(NIS {eps:.3g} > gate {self.gate:.3g}): re-synchronising"))
-        self.in_row[group] = 0
-        kf.update(np.asarray(z, float), lambda x, H=H: H, lambda x, hx=hx: hx, R=R)
-        self.accepted[group] += 1
-        return True
-
-    def _check_finite(self, t: float) -> None:
-        kf = self.kf
+        if imu is None:
+            self.predict_only += 1
+            sample = self._synthetic(x, command)
+            pred = self._propagate(x, sample)
+        else:
+            sample = ((imu[0][1], imu[0][2], imu[1][0], imu[1][2]), None)
+            pred = self._propagate(x, sample)
+            if enc is not None:
+                z = self._z(enc)
+                eps = self._nis(pred, P, z)
+                if not eps <= self.imu_gate:
+                    alt = self._propagate(x, self._synthetic(x, command))
+                    if self._nis(alt, P, z) <= self.gate:
+                        self.rejected["gyro"] += 1
+                        self.rejected["accel"] += 1
+                        self.events.append((t, f"IMU sample rejected as an outlier (encoder NIS {eps:.3g} with it)"))
+                        pred = alt
+                        sample = None
+            if sample is not None:
+                self.accepted["gyro"] += 1
+                self.accepted["accel"] += 1
+        x_next, F, Q, w = pred
+        kf._x_next, kf.F, kf.Q = x_next, F, Q
+        kf.predict()
+        self._w_prev, self._w = self._w, w
+        if enc is not None and enc == self._last_enc:
+            # unchanged counts repeat the same quantisation error: no new information
+            enc = None
+            self.unchanged_encoders += 1
+        if enc is None:
+            if imu is not None:
+                self.predict_only += 1
+        else:
+            self._last_enc = enc
+            self._update(self._z(enc), t)
+        kf.P = 0.5 * (kf.P + kf.P.T)
         if np.isfinite(kf.x).all() and np.isfinite(kf.P).all() and (np.diag(kf.P) > 0).all():
-            self._good = (kf.x.copy(), kf.P.copy())
+            self._good = (kf.x.copy(), kf.P.copy(), self._w, self._w_prev)
         else:
             self._restore(t, "the state or covariance became non-finite or lost positivity; "
                              "restored the last good estimate")
 
+    def _z(self, enc) -> np.ndarray:
+        return np.array([0.5 * (enc[0] + enc[1]), 0.5 * (enc[1] - enc[0])])
+
+    def _hx(self, x) -> np.ndarray:
+        return np.array([x[PS] - x[TH] + x[C0], self.b_r * (x[AL] - self.alpha0) + x[H0]])
+
+    def _nis(self, pred, P, z) -> float:
+        x_next, F, Q, _ = pred
+        Pp = F @ P @ F.T + Q
+        y = z - self._hx(x_next)
+        S = self.H @ Pp @ self.H.T + self.R
+        return float(y @ np.linalg.solve(S, y))
+
+    def _update(self, z, t: float) -> None:
+        kf = self.kf
+        y = z - self._hx(kf.x)
+        S = self.H @ kf.P @ self.H.T + self.R
+        eps = float(y @ np.linalg.solve(S, y))
+        self.last_nis = eps
+        if not eps <= self.gate:
+            if self.in_row < self.max_rejects_in_row:
+                self.rejected["encoders"] += 1
+                self.in_row += 1
+                self.predict_only += 1
+                return
+            self.events.append((t, f"encoders accepted after {self.in_row} rejections in a row "
+                                   f"(NIS {eps:.3g} > gate {self.gate:.3g}): re-synchronising"))
+        self.in_row = 0
+        H = self.H
+        kf.update(z, lambda x: H, self._hx, R=self.R)
+        self.accepted["encoders"] += 1
+
+    def _synthetic(self, x, command):
+        """The IMU sample equation (1) predicts at the end of the next period, and the
+        extra variance (gyro, accelerometer) that the model's torque uncertainty adds."""
+        (wy, wz, fx, fz), extra = self.model.synthetic_imu(self.state6(x), command, self.every)
+        return ((1.0 + x[SY]) * wy + x[BY], wz + x[BZ], fx, fz), extra
+
+    def _propagate(self, x, sample):
+        """(x⁺, F, Q, (ω_y, ω_z)): one strapdown step with IMU ``sample``.
+
+        ``sample`` is ((ω_y, ω_z, f_x, f_z), extra), the means over the period, with
+        ``extra`` None for a real sample or the (gyro, accel) variances a synthetic one
+        adds. F and the noise map are the exact derivatives of the step, built by the
+        chain rule over the state (vectors ``d*`` are gradients by x) and over the sample
+        (``i*``, by (ω_y, ω_z, f_x, f_z)).
+        """
+        (wy, wz, fx, fz), extra = sample
+        dt, r, xi, zi = self.dt, self.r, self.xi, self.zi
+        th, v, by, bz, sy = x[TH], x[V], x[BY], x[BZ], x[SY]
+        q = 1.0 / (1.0 + sy)
+        E = np.eye(N)
+        thm = (wy - by) * q
+        th1 = th + dt * thm
+        thb = 0.5 * (th + th1)
+        s0, c0, s1, c1 = math.sin(th), math.cos(th), math.sin(th1), math.cos(th1)
+        cb, tb = math.cos(thb), math.tan(thb)
+        ad = (wz - bz) / cb
+        dx0, dz0 = xi * c0 + zi * s0, -xi * s0 + zi * c0
+        dx1, dz1 = xi * c1 + zi * s1, -xi * s1 + zi * c1
+        Fx = c1 * fx + s1 * fz
+        Fz = -s1 * fx + c1 * fz
+        v1 = v + dt * (Fx + ad * ad * dx1)
+        x1 = x.copy()
+        x1[TH] = th1
+        x1[AL] = x[AL] + dt * ad
+        x1[V] = v1
+        # r ψ = (the IMU point's forward position) − dx(θ)
+        x1[PS] = x[PS] + (0.5 * dt * (v + v1) - dx1 + dx0) / r
+
+        dth1 = E[TH] + dt * (-q * E[BY] - thm * q * E[SY])
+        ith1 = np.array([dt * q, 0.0, 0.0, 0.0])
+        dad = ad * tb * 0.5 * (E[TH] + dth1) - E[BZ] / cb
+        iad = ad * tb * 0.5 * ith1 + np.array([0.0, 1.0 / cb, 0.0, 0.0])
+        dv1 = E[V] + dt * (Fz * dth1 + 2.0 * ad * dx1 * dad + ad * ad * dz1 * dth1)
+        iv1 = dt * (Fz * ith1 + np.array([0.0, 0.0, c1, s1]) + 2.0 * ad * dx1 * iad + ad * ad * dz1 * ith1)
+        F = E.copy()
+        F[TH] = dth1
+        F[AL] = E[AL] + dt * dad
+        F[V] = dv1
+        F[PS] = E[PS] + (0.5 * dt * (E[V] + dv1) - dz1 * dth1 + dz0 * E[TH]) / r
+        L = np.zeros((N, 4))
+        L[TH] = ith1
+        L[AL] = dt * iad
+        L[V] = iv1
+        L[PS] = (0.5 * dt * iv1 - dz1 * ith1) / r
+        gv, av = self._g_var, self._a_var
+        var = np.array([gv + self._g_sf * wy * wy, gv + self._g_sf * wz * wz,
+                        av + self._a_sf * fx * fx, av + self._a_sf * fz * fz])
+        if extra is not None:
+            var += (extra[0], extra[0], extra[1], extra[1])
+        Q = (L * var) @ L.T
+        Q[BY, BY] += self._bias_q
+        Q[BZ, BZ] += self._bias_q
+        return x1, F, Q, (wy, wz)
+
     def _restore(self, t: float, why: str) -> None:
-        x, P = self._good
-        self.kf.x, self.kf.P = x.copy(), 4.0 * P + np.diag(np.full(N_STATES, 1e-8))
+        x, P, self._w, self._w_prev = self._good
+        self.kf.x, self.kf.P = x.copy(), 4.0 * P + np.diag(np.full(N, 1e-10))
         self.resets += 1
         self.events.append((t, why))
 
-    def _forward(self, x: np.ndarray, m: int, k: int) -> np.ndarray:
-        """The filter's state at t_m predicted to t_k with the commands in between."""
+    def _forward(self, s6: np.ndarray, m: int, k: int) -> np.ndarray:
+        """The state [θ, θ̇, ψ, ψ̇, α, α̇] at t_m predicted to t_k with the commands in between."""
         model = self.model
+        s = s6
         for j in range(m, k):
-            cmd = self._commands.get(j, (0.0, 0.0))
-            tau = model.delivered(x, cmd[0], cmd[1])
-            x = model.step(x, tau[0], tau[1])
-        if not np.isfinite(x).all():
+            s = model.step6(s, self._commands.get(j, (0.0, 0.0)))
+        if not np.isfinite(s).all():
             self.events.append((k * model.dt, "forward prediction non-finite; handing out the filter's own state"))
-            x = self._good[0]
-        return x
-
-    @staticmethod
-    def _estimate(x) -> Estimate:
-        return Estimate(float(x[TH]), float(x[THD] ), float(x[PS]), float(x[PSD]), float(x[AL]), float(x[ALD]))
-
-
-__all__ = ["EKFEstimator", "Estimate", "TwinEKF", "GROUPS", "BY", "BZ"]
+            s = s6
+        return s

@@ -49,9 +49,10 @@ class TwinRun:
     ``sensing`` is "ideal" or the estimator's name; ``measurements`` what reached the
     estimator at each step; ``estimator_stats`` its counts (rejected measurements,
     resets, events); ``gyro_bias`` (n, 3) rad/s the gyro's true bias in the sample taken
-    at each step (NaN without one); ``filter_log`` (EKF with ``log_filter``) the
-    filter's own state ``x`` (n, 9) and covariance ``P`` (n, 9, 9) at t_{i − lag}, and
-    ``nis`` (n, 3) per update group (NaN where none was tried).
+    at each step (NaN without one); ``sensor_truth`` the sensors' drawn constants (scale
+    factors, turn-on biases, encoder phases); ``filter_log`` (EKF with ``log_filter``) the
+    filter's own state ``x`` (n, 7) and covariance ``P`` (n, 7, 7) at t_{i − lag} (see
+    :mod:`estimation.ekf`), and the encoder update's ``nis`` (n,) (NaN where none was tried).
     """
 
     t: np.ndarray
@@ -72,6 +73,7 @@ class TwinRun:
     gyro_bias: np.ndarray | None = field(default=None, repr=False)
     filter_log: dict | None = field(default=None, repr=False)
     seed: int | None = None
+    sensor_truth: dict = field(default_factory=dict, repr=False)
 
     @property
     def fell(self) -> bool:
@@ -197,17 +199,18 @@ def simulate_twin(controller: FuzzyCascade, experiment: Experiment, config: Twin
 
             suite = SensorSuite(sensors, config.control_rate, np.random.default_rng(np.random.SeedSequence(seed)))
             filt = build_estimator(estimator, sensors, config.control_rate, config.motor, model_params, alpha0)
-            twin.record_kinematics = True
             com = twin._com_local
             imu_pos = sensors.imu.position
             lever = (imu_pos[0] - com[0], imu_pos[1] - com[1], imu_pos[2] - com[2])
             g = config.params.g
-            pose, vel = twin.kinematics
-            gyro, accel = imu_kinematics(pose, vel, pose, vel, twin.physics_dt, lever, g)
+            imu_dt = suite.every * control_dt
+            last_imu = pose, vel = twin.kinematics  # the body at rest before t = 0
+            gyro, accel = imu_kinematics(pose, vel, pose, vel, imu_dt, lever, g)
             suite.start(gyro, accel, tr.psi_l - tr.theta, tr.psi_r - tr.theta)
             if log_filter and estimator == "ekf":
-                flog = {"x": np.full((n_rows, 9), np.nan), "P": np.full((n_rows, 9, 9), np.nan),
-                        "nis": np.full((n_rows, 3), np.nan), "lag": filt.lag}
+                nx = len(filt.x)
+                flog = {"x": np.full((n_rows, nx), np.nan), "P": np.full((n_rows, nx, nx), np.nan),
+                        "nis": np.full(n_rows, np.nan), "lag": filt.lag}
         n = n_rows
         c = None
         for i in range(n_rows):
@@ -218,9 +221,10 @@ def simulate_twin(controller: FuzzyCascade, experiment: Experiment, config: Twin
             if ideal:
                 state = tr.state6()
             else:
-                if i > 0:
-                    gyro, accel = imu_kinematics(*twin.kinematics, *twin.kinematics_prev, twin.physics_dt, lever, g)
                 if i % suite.every == 0:
+                    if i > 0:
+                        gyro, accel = imu_kinematics(*twin.kinematics, *last_imu, imu_dt, lever, g)
+                        last_imu = twin.kinematics
                     bias_log[i] = suite.gyro.bias
                 meas = suite.read(i, gyro, accel, tr.psi_l - tr.theta, tr.psi_r - tr.theta)
                 meas_log.append(meas)
@@ -228,8 +232,8 @@ def simulate_twin(controller: FuzzyCascade, experiment: Experiment, config: Twin
                 if flog is not None:
                     flog["x"][i] = filt.x
                     flog["P"][i] = filt.P
-                    flog["nis"][i] = [filt.last_nis[k] for k in ("gyro", "accel", "encoders")]
-                    filt.last_nis = dict.fromkeys(filt.last_nis, math.nan)
+                    flog["nis"][i] = filt.last_nis
+                    filt.last_nis = math.nan
             est[i] = state
             c = controller(state, p_d, alpha_d)
             cmds[i] = (c.ul, c.ur, c.u, c.theta_off, c.u_alpha)
@@ -248,4 +252,5 @@ def simulate_twin(controller: FuzzyCascade, experiment: Experiment, config: Twin
     return TwinRun(t, truth[:n], cmds[:n], act[:n], push[:n], status, reason, config, experiment, controller_name,
                    estimates=est[:n], sensing="ideal" if ideal else estimator, measurements=meas_log[:n],
                    estimator_stats={} if ideal else filt.stats(), sensor_counts={} if ideal else suite.fault_counts(),
-                   gyro_bias=None if ideal else bias_log[:n], filter_log=flog, seed=None if ideal else int(seed))
+                   gyro_bias=None if ideal else bias_log[:n], filter_log=flog, seed=None if ideal else int(seed),
+                   sensor_truth={} if ideal else suite.truth())

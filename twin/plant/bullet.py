@@ -34,10 +34,8 @@ Ground truth (:class:`GroundTruth`, at the end of each control period)
 
 Logged per control period (:attr:`BulletTwin.actuation`, :attr:`BulletTwin.push_force`)
     Duties and saturation flags at the PWM update; delivered torques and push forces as
-    the period's means. :attr:`BulletTwin.kinematics` is the body's raw PyBullet pose and
-    velocity at the end of the period; with ``record_kinematics`` set, also one physics
-    step earlier (:attr:`BulletTwin.kinematics_prev`), from which the IMU's acceleration is
-    taken.
+    the period's means. :attr:`BulletTwin.kinematics` holds the body's raw PyBullet pose
+    and velocity at the end of the period, for the IMU (:mod:`twin.sensors.imu`).
 
 Termination
     The run ends with status ``"fell"`` when the body's tilt from the vertical (pitch and
@@ -461,10 +459,6 @@ class BulletTwin:
         if (pybullet.TORQUE_CONTROL, pybullet.WORLD_FRAME) != (_TORQUE_CONTROL, _WORLD_FRAME):  # pragma: no cover
             raise TwinError("this PyBullet build numbers TORQUE_CONTROL / WORLD_FRAME differently; please report it")
 
-        # opt-in for the IMU: the base pose and velocity at the end of each control period
-        # (``kinematics``) and one physics step before it (``kinematics_prev``)
-        self.record_kinematics = False
-        self.kinematics_prev = None
         self.n_physics = 0
         self.status = "running"
         self.end_reason = ""
@@ -553,23 +547,13 @@ class BulletTwin:
         # positional arguments (targetPositions, targetVelocities, forces, positionGains,
         # velocityGains, physicsClientId): keyword parsing costs PyBullet 0.4 µs a call, and
         # TORQUE_CONTROL reads only the forces
-        if self.record_kinematics:
-            for _ in range(k - 1):
-                ext_torque(rob, -1, body_torque, _WORLD_FRAME, cid)
-                set_motors(rob, WHEEL_JOINTS, _TORQUE_CONTROL, _ZERO2, _ZERO2, forces, _ZERO2, _ZERO2, cid)
-                step_sim(cid)
-            self.kinematics_prev = (base_pose(rob, cid), base_vel(rob, cid))
+        for _ in range(k):
             ext_torque(rob, -1, body_torque, _WORLD_FRAME, cid)
             set_motors(rob, WHEEL_JOINTS, _TORQUE_CONTROL, _ZERO2, _ZERO2, forces, _ZERO2, _ZERO2, cid)
             step_sim(cid)
-        else:
-            for _ in range(k):
-                ext_torque(rob, -1, body_torque, _WORLD_FRAME, cid)
-                set_motors(rob, WHEEL_JOINTS, _TORQUE_CONTROL, _ZERO2, _ZERO2, forces, _ZERO2, _ZERO2, cid)
-                step_sim(cid)
-        self.kinematics = pose, vel = base_pose(rob, cid), base_vel(rob, cid)
         self.push_force = _ZERO3
         self.n_physics = n = self.n_physics + k
+        self.kinematics = pose, vel = base_pose(rob, cid), base_vel(rob, cid)
         truth, self._axle_dir = self._truth_from_states(
             GroundTruth, pose, vel, joint_states(rob, WHEEL_JOINTS, cid),
             self._alpha, self._com_local, self._r, n * self.physics_dt)
@@ -609,8 +593,6 @@ class BulletTwin:
                 sum_r += trq
                 forces = (tl + hold_l, trq + hold_r)
                 self._current = (motor.current_step(il, dl, wl, dt), motor.current_step(ir, dr, wr, dt))
-            if j == k - 1 and self.record_kinematics:
-                self.kinematics_prev = self._pb.getBasePositionAndOrientation(rob, cid), self._pb.getBaseVelocity(rob, cid)
             ext_torque(rob, -1, body_torque, _WORLD_FRAME, cid)
             set_motors(rob, WHEEL_JOINTS, _TORQUE_CONTROL, _ZERO2, _ZERO2, forces, _ZERO2, _ZERO2, cid)
             step_sim(cid)

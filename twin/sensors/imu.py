@@ -6,11 +6,18 @@ the sensing point P, with its tangential (ω̇ × r) and centripetal (ω × (ω 
 minus gravity, expressed in the body frame. A body at rest pitched θ forward reads
 f = (−g sin θ, 0, g cos θ).
 
-The acceleration is the change of P's velocity over the last physics step (1 ms at the
-default rate) divided by the step: the engine exposes velocities, not accelerations,
-and one step is the finest time it resolves.
+The accelerometer reports the mean specific force over its sample interval, resolved in
+the body axes at the sample instant: the change of P's velocity over the interval divided
+by its length (the engine exposes velocities, not accelerations). That is an ideal
+anti-aliasing filter of one sample's width; it is also what lets a strapdown estimator
+integrate the samples without a sampling error (the acceleration of a balancing robot
+changes by metres per second squared within a 5 ms period). The gyro likewise reports
+the mean angular velocity over the interval (the attitude change divided by its length),
+so that both are what a delta-angle / delta-velocity IMU integrates.
 """
 from __future__ import annotations
+
+import math
 
 
 def _rows(q):
@@ -31,12 +38,13 @@ def _point_velocity(pose, vel, lever):
 
 
 def imu_kinematics(pose, vel, pose_prev, vel_prev, dt: float, lever, g: float):
-    """True (gyro, specific force) in the body frame at the end of a physics step.
+    """True (gyro, specific force) in the body frame, means over the sample interval ending now.
 
     Parameters
     ----------
     pose, vel : PyBullet base pose ((x, y, z) m, quaternion) and velocity ((3,) m/s, (3,) rad/s)
-        of the body now; ``pose_prev``, ``vel_prev`` one physics step of ``dt`` s earlier.
+        of the body now; ``pose_prev``, ``vel_prev`` at the start of the interval, ``dt`` s
+        earlier (the same as now for a body at rest before the first sample).
     lever : (3,) m
         The sensing point in the body frame, relative to the body's centre of mass.
     g : float
@@ -44,16 +52,25 @@ def imu_kinematics(pose, vel, pose_prev, vel_prev, dt: float, lever, g: float):
 
     Returns
     -------
-    gyro : (3,) rad/s, angular velocity in body axes
-    accel : (3,) m/s², specific force in body axes
+    gyro : (3,) rad/s, the mean angular velocity over the interval (the rotation from the
+        previous attitude to this one, divided by ``dt``) in body axes
+    accel : (3,) m/s², the mean specific force over the interval in body axes now
     """
     v1, R = _point_velocity(pose, vel, lever)
     v0, _ = _point_velocity(pose_prev, vel_prev, lever)
     fx, fy, fz = (v1[0] - v0[0]) / dt, (v1[1] - v0[1]) / dt, (v1[2] - v0[2]) / dt + g
-    wx, wy, wz = vel[1]
-    # body components: Rᵀ v
-    gyro = (R[0][0] * wx + R[1][0] * wy + R[2][0] * wz, R[0][1] * wx + R[1][1] * wy + R[2][1] * wz,
-            R[0][2] * wx + R[1][2] * wy + R[2][2] * wz)
     accel = (R[0][0] * fx + R[1][0] * fy + R[2][0] * fz, R[0][1] * fx + R[1][1] * fy + R[2][1] * fz,
              R[0][2] * fx + R[1][2] * fy + R[2][2] * fz)
-    return gyro, accel
+    # relative rotation q_prev⁻¹ ⊗ q as a rotation vector in the body axes
+    ax, ay, az, aw = pose_prev[1]
+    bx, by, bz, bw = pose[1]
+    ax, ay, az = -ax, -ay, -az
+    rw = aw * bw - ax * bx - ay * by - az * bz
+    rx = aw * bx + ax * bw + ay * bz - az * by
+    ry = aw * by - ax * bz + ay * bw + az * bx
+    rz = aw * bz + ax * by - ay * bx + az * bw
+    if rw < 0.0:
+        rw, rx, ry, rz = -rw, -rx, -ry, -rz
+    n = math.sqrt(rx * rx + ry * ry + rz * rz)
+    k = (2.0 * math.atan2(n, rw) / n if n > 1e-12 else 2.0) / dt
+    return (k * rx, k * ry, k * rz), accel

@@ -226,6 +226,12 @@ class SensorSuite:
         return Measurement(k / self.control_rate, ch["gyro"].deliver(k), ch["accel"].deliver(k),
                            ch["encoders"].deliver(k))
 
+    def truth(self) -> dict:
+        """The constants this run drew: scale factors (1), turn-on biases, encoder phases (counts)."""
+        return {"gyro_scale": tuple(self.gyro.scale), "accel_scale": tuple(self.accel.scale),
+                "gyro_turn_on_bias": tuple(self.gyro.turn_on), "accel_turn_on_bias": tuple(self.accel.turn_on),
+                "encoder_phase": self.encoder_phase}
+
     def fault_counts(self) -> dict:
         """Per sensor: samples produced, dropped, stuck, spiked, superseded."""
         return {name: dict(ch.counts) for name, ch in self.channels.items()}
