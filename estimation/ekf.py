@@ -163,6 +163,10 @@ class EKFEstimator:
         self.last_nis = math.nan
         self.predict_only = 0
         self.unchanged_encoders = 0
+        self.saturated = 0
+        g, a = model.imu.gyro, model.imu.accel
+        # the largest readings the ADC can give (a sample there may be clipped)
+        self._limits = (g.lsb * ((1 << (g.bits - 1)) - 1),) * 2 + (a.lsb * ((1 << (a.bits - 1)) - 1),) * 2
         self._last_enc = None
         self.events: list[tuple[float, str]] = []
         self.resets = 0
@@ -200,7 +204,7 @@ class EKFEstimator:
     def stats(self) -> dict:
         return {"accepted": dict(self.accepted), "rejected": dict(self.rejected),
                 "rejected_total": self.rejected_total, "predict_only_steps": self.predict_only,
-                "unchanged_encoder_samples": self.unchanged_encoders,
+                "unchanged_encoder_samples": self.unchanged_encoders, "saturated_imu_samples": self.saturated,
                 "resets": self.resets, "events": [f"t = {t:.3f} s: {why}" for t, why in self.events]}
 
     def start(self, meas) -> Estimate:
@@ -284,6 +288,14 @@ class EKFEstimator:
             pred = self._propagate(x, sample)
         else:
             sample = ((imu[0][1], imu[0][2], imu[1][0], imu[1][2]), None)
+            sat = [abs(v) >= lim for v, lim in zip(sample[0], self._limits)]
+            if any(sat):
+                # a reading at the end of its range says only "at least this much": use the
+                # model's prediction for that axis instead
+                (syn, extra) = self._synthetic(x, command)
+                sample = (tuple(sv if k else v for v, sv, k in zip(sample[0], syn, sat)),
+                          tuple(e if k else 0.0 for e, k in zip(extra, sat)))
+                self.saturated += 1
             pred = self._propagate(x, sample)
             if enc is not None:
                 z = self._z(enc)
@@ -355,15 +367,14 @@ class EKFEstimator:
     def _synthetic(self, x, command):
         """The IMU sample equation (1) predicts at the end of the next period, and the
         extra variance (gyro, accelerometer) that the model's torque uncertainty adds."""
-        (wy, wz, fx, fz), extra = self.model.synthetic_imu(self.state6(x), command, self.every)
-        return ((1.0 + x[SY]) * wy + x[BY], wz + x[BZ], fx, fz), extra
+        (wy, wz, fx, fz), (gv, av) = self.model.synthetic_imu(self.state6(x), command, self.every)
+        return ((1.0 + x[SY]) * wy + x[BY], wz + x[BZ], fx, fz), (gv, gv, av, av)
 
     def _propagate(self, x, sample):
         """(x⁺, F, Q, (ω_y, ω_z)): one strapdown step with IMU ``sample``.
 
         ``sample`` is ((ω_y, ω_z, f_x, f_z), extra), the means over the period, with
-        ``extra`` None for a real sample or the (gyro, accel) variances a synthetic one
-        adds. F and the noise map are the exact derivatives of the step, built by the
+        ``extra`` None for a real sample or the variances (4,) that synthetic values add. F and the noise map are the exact derivatives of the step, built by the
         chain rule over the state (vectors ``d*`` are gradients by x) and over the sample
         (``i*``, by (ω_y, ω_z, f_x, f_z)).
         """
@@ -410,7 +421,7 @@ class EKFEstimator:
         var = np.array([gv + self._g_sf * wy * wy, gv + self._g_sf * wz * wz,
                         av + self._a_sf * fx * fx, av + self._a_sf * fz * fz])
         if extra is not None:
-            var += (extra[0], extra[0], extra[1], extra[1])
+            var += extra
         Q = (L * var) @ L.T
         Q[BY, BY] += self._bias_q
         Q[BZ, BZ] += self._bias_q
