@@ -8,13 +8,19 @@ import pytest
 
 from twin.actuators import DCMotorParams
 from twin.analytic_loop import PAPER_EXPERIMENTS, Experiment, build_cascade, simulate
-from twin.bullet_loop import TRUTH_NAMES, simulate_twin
+from twin.bullet_loop import TRUTH_NAMES
+from twin.bullet_loop import simulate_twin as _simulate_twin
 from twin.controllers.lmi import design_balance_gains
 from twin.errors import TwinError
 from twin.params import NOMINAL
 from twin.plant.bullet import BulletTwin, TwinConfig
 from twin.plant.disturbances import Disturbances, FrictionChange, Ground, Push, random_pushes, sample_plant
 from twin.plant.urdf import Payload
+
+
+def simulate_twin(*args, **kwargs):
+    """These are tests of the plant: the controllers read the ground truth (ideal sensing)."""
+    return _simulate_twin(*args, sensors=None, **kwargs)
 
 BALANCE_02 = Experiment("fidelity", "balance only from θ0 = 0.2 rad", theta0=0.2, duration=3.0)
 UPRIGHT = Experiment("upright", "balance only from upright", theta0=0.0, duration=4.0)

@@ -7,9 +7,14 @@ import pytest
 
 from twin.actuators import DCMotorParams, MotorDriver
 from twin.analytic_loop import Experiment, build_cascade
-from twin.bullet_loop import simulate_twin
+from twin.bullet_loop import simulate_twin as _simulate_twin
 from twin.plant import bullet
 from twin.plant.bullet import GroundTruth, TwinConfig, truth_from_states
+
+
+def simulate_twin(*args, **kwargs):
+    """These are tests of the plant: the controllers read the ground truth (ideal sensing)."""
+    return _simulate_twin(*args, sensors=None, **kwargs)
 
 PURE = os.environ.get("TWIN_PURE_PYTHON", "") not in ("", "0")
 needs_fastpath = pytest.mark.skipif(PURE or bullet._fastpath is None, reason="compiled fast path not available")
