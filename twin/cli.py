@@ -181,24 +181,34 @@ def analytic(experiment, controller, out, duration, gains_file, epsilon, rho, de
 @main.command()
 @_experiment_options("runs/physics")
 @click.option("--ideal-motor", is_flag=True, help="Ideal torque sources instead of the default DC motors.")
-def physics(experiment, controller, out, duration, ideal_motor, gains_file, epsilon, rho, decay_rate, max_gain):
+@click.option("--estimator", type=click.Choice(["ekf", "complementary", "kalman2"]), default="ekf", show_default=True,
+              help="What turns the IMU and encoder readings into the controllers' state.")
+@click.option("--ideal-sensing", is_flag=True, help="The controllers read the ground truth (a reference run).")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Seed of the sensors' noise and faults.")
+def physics(experiment, controller, out, duration, ideal_motor, estimator, ideal_sensing, seed, gains_file, epsilon,
+            rho, decay_rate, max_gain):
     """Run a paper experiment on the PyBullet twin: figure, metrics, trajectories.
 
     The robot of urdf/ on a floor, 1 kHz physics, DC motors with 10-bit PWM (or
-    --ideal-motor), controllers at 200 Hz acting on ground truth (the sensor models and
-    the estimator come next). EXPERIMENT is 1, 2 or 3 as for 'twin analytic'. Writes
+    --ideal-motor), an MPU-6050-class IMU and 1200-count encoders with their noise, and
+    the controllers at 200 Hz acting on the estimator's output (or, with --ideal-sensing,
+    on the ground truth). EXPERIMENT is 1, 2 or 3 as for 'twin analytic'. Writes
     figure.png, metrics.json, trajectory_<controller>.csv and design.json into --out.
 
     \b
     Examples:
       twin physics 3 --controller both --out runs/exp3-twin
-      twin physics 1 --ideal-motor --duration 5
+      twin physics 1 --estimator complementary --seed 4
+      twin physics 1 --ideal-motor --ideal-sensing --duration 5
     """
     _paper_experiment("twin", experiment, controller, out, duration, gains_file,
-                      (epsilon, rho, decay_rate, max_gain), ideal_motor=ideal_motor)
+                      (epsilon, rho, decay_rate, max_gain), ideal_motor=ideal_motor,
+                      sensing=None if ideal_sensing else (estimator, seed))
 
 
-def _paper_experiment(plant, experiment, controller, out, duration, gains_file, design_options, ideal_motor=False):
+def _paper_experiment(plant, experiment, controller, out, duration, gains_file, design_options, ideal_motor=False,
+                      sensing=None):
     """Run paper experiment N with one or both controllers on a plant and write the outputs."""
     from twin import analytic_loop as al
     from twin import report
@@ -213,11 +223,17 @@ def _paper_experiment(plant, experiment, controller, out, duration, gains_file, 
         from twin.bullet_loop import simulate_twin
         from twin.plant.bullet import TwinConfig
 
+        from twin.sensors import SensorConfig
+
         config = TwinConfig(motor=None) if ideal_motor else TwinConfig()
-        description = "PyBullet twin, nominal, " + ("ideal actuators" if ideal_motor else "DC motors") + ", ground truth"
+        sensors = None if sensing is None else SensorConfig()
+        estimator, seed = ("ekf", 0) if sensing is None else sensing
+        description = ("PyBullet twin, nominal, " + ("ideal actuators" if ideal_motor else "DC motors") + ", "
+                       + ("ground truth" if sensing is None else f"{estimator} estimator, sensor seed {seed}"))
 
         def run_one(kind):
-            return simulate_twin(al.build_cascade(kind, d, exp), exp, config, duration=duration, controller_name=kind)
+            return simulate_twin(al.build_cascade(kind, d, exp), exp, config, duration=duration, controller_name=kind,
+                                 sensors=sensors, estimator=estimator, seed=seed)
     else:
         description = "analytic model, nominal"
 
