@@ -50,15 +50,16 @@ def _samples(noise: TriadNoise, n: int, x=(0.0, 0.0, 0.0)) -> np.ndarray:
 
 # ---- Allan deviation ----------------------------------------------------------------------
 
+def _allan_diffs(y: np.ndarray, m: int) -> np.ndarray:
+    """Differences of consecutive overlapping cluster means of ``m`` samples, per axis (columns)."""
+    theta = np.vstack([np.zeros((1, y.shape[1])), np.cumsum(y, axis=0)])
+    return (theta[2 * m:] - 2.0 * theta[m:-m] + theta[:-2 * m]) / m
+
+
 def _avar(y: np.ndarray, dt: float, ms) -> np.ndarray:
-    """Overlapping Allan variance of the rows of ``y`` (n samples × axes) at cluster sizes ``ms``,
-    averaged over the axes (IEEE Std 952, via the integrated signal)."""
-    theta = np.vstack([np.zeros((1, y.shape[1])), np.cumsum(y, axis=0)]) * dt
-    out = []
-    for m in ms:
-        d = theta[2 * m:] - 2.0 * theta[m:-m] + theta[:-2 * m]
-        out.append(np.mean(d * d) / (2.0 * (m * dt) ** 2))
-    return np.array(out)
+    """Overlapping Allan variance of the columns of ``y`` (n samples × axes) at cluster sizes ``ms``,
+    averaged over the axes (IEEE Std 952)."""
+    return np.array([np.mean(_allan_diffs(y, m) ** 2) / 2.0 for m in ms])
 
 
 def _edf_white(n: int, m: int) -> float:
@@ -89,7 +90,7 @@ def _allan_run(spec: TriadSpec, true):
     custom = _ideal(spec, bias_random_walk=n_d / (ALLAN_WHITE_TO_WALK * dt))
     y = _samples(TriadNoise(custom, dt, np.random.default_rng(952)), ALLAN_N, true)
     ms = (1, 2, 5, 10, 20, 50, 100, 250, 500, 1000)
-    return custom, ms, _avar(y, dt, ms)
+    return custom, ms, _avar(y, dt, ms), y
 
 
 @pytest.mark.parametrize("which", ["gyro", "accel"])
@@ -108,7 +109,7 @@ def test_allan_deviation_shows_the_white_noise_and_the_bias_random_walk(which):
     500, 1000 Δt; accelerometer 1.0002 and 1.002, 0.997, 0.996 (same draws, scaled).
     """
     spec, true = (MPU6050_GYRO, (0.0, 0.0, 0.0)) if which == "gyro" else (MPU6050_ACCEL, (0.0, 0.0, G))
-    custom, ms, avar = _allan_run(spec, true)
+    custom, ms, avar, y = _allan_run(spec, true)
     dt = 1.0 / ALLAN_RATE
     n_d, k_rw = custom.noise_density, custom.bias_random_walk
     n_phase = ALLAN_N + 1
@@ -140,6 +141,11 @@ def test_allan_deviation_shows_the_white_noise_and_the_bias_random_walk(which):
         tol = N_SIGMA * _rel_sigma_adev(3 * _edf_rw(n_phase, m))
         assert k_hat / k_rw == pytest.approx(1.0, abs=tol), (m, k_hat / k_rw)
     assert slope(avar, -3, -1) == pytest.approx(0.5, abs=0.05)
+
+    # the axes are independent, in their white noise (τ = Δt) and in their walks (τ = 500 Δt)
+    for m, edf in ((1, _edf_white(n_phase, 1)), (500, _edf_rw(n_phase, 500))):
+        corr = np.corrcoef(_allan_diffs(y, m).T)
+        assert np.all(np.abs(corr[np.triu_indices(3, 1)]) < N_SIGMA / math.sqrt(edf)), (m, corr)
 
 
 @pytest.mark.parametrize("which", ["gyro", "accel"])
@@ -637,20 +643,22 @@ def test_latency_change_applies_from_its_time():
     assert en[:20] == list(range(20)) and en[20:23] == [None] * 3 and en[23:] == list(range(20, 37))
 
 
-def _run(config: SensorConfig, seed: int, n: int = 400):
+def _run(config: SensorConfig, seed: int, n: int = 1500):
+    """``n`` steps of the suite at rest (wheels turning); 1500 samples span three of the noise's
+    512-sample blocks of normal draws, so that a fault drawing from a noise stream would show."""
     suite = SensorSuite(config, RATE, np.random.default_rng(np.random.SeedSequence(seed)))
     suite.start(REST_G, REST_A, 0.0, 0.0)
     return [suite.read(k, REST_G, REST_A, 0.01 * k, -0.02 * k) for k in range(n)], suite
 
 
 def test_spikes_are_outliers_of_the_given_magnitude_and_are_counted():
-    """Gyro spikes at 100 /s (probability 0.5 per 5 ms sample) over [0.5, 1.5) s, magnitude 1 rad/s:
+    """Gyro spikes at 100 /s (probability 0.5 per 5 ms sample) over [0.5, 4.5) s, magnitude 1 rad/s:
     against the same seed without the fault, spiked readings differ by exactly ±1 on every axis
     (both signs occur), the others not at all; their number is ``fault_counts()["gyro"]["spiked"]``
-    and is 100 ± 5σ (measured 90). With magnitude 30 (beyond ±250 °/s) the outliers read exactly
+    and is 400 ± 5σ (measured 390). With magnitude 30 (beyond ±250 °/s) the outliers read exactly
     the full-scale codes. Encoders spiked at every step by ±0.3 rad, unclipped."""
     clean, _ = _run(SensorConfig(), 11)
-    faulty, suite = _run(SensorConfig(faults=(Spikes("gyro", start=0.5, duration=1.0, rate=100.0, magnitude=1.0),)),
+    faulty, suite = _run(SensorConfig(faults=(Spikes("gyro", start=0.5, duration=4.0, rate=100.0, magnitude=1.0),)),
                          11)
     spiked = 0
     signs = set()
@@ -658,13 +666,13 @@ def test_spikes_are_outliers_of_the_given_magnitude_and_are_counted():
         d = np.subtract(f.gyro, c.gyro)
         assert f.accel == c.accel and f.encoders == c.encoders
         if np.any(d != 0):
-            assert 101 <= k <= 300  # samples of [0.5, 1.5) s arrive one step late
+            assert 101 <= k <= 900  # samples of [0.5, 4.5) s arrive one step late
             assert np.allclose(np.abs(d), 1.0, atol=1e-12)
             signs.update(np.sign(d))
             spiked += 1
     counts = suite.fault_counts()["gyro"]
     assert counts["spiked"] == spiked
-    assert abs(spiked - 100) < N_SIGMA * math.sqrt(200 * 0.5 * 0.5)  # 200 samples in the window, p = 0.5
+    assert abs(spiked - 400) < N_SIGMA * math.sqrt(800 * 0.5 * 0.5)  # 800 samples in the window, p = 0.5
     assert signs == {-1.0, 1.0}
 
     lsb = MPU6050_GYRO.lsb
@@ -700,6 +708,10 @@ def test_same_seed_same_streams_and_faults_do_not_change_the_noise():
     assert [m.encoders for m in enc] != [m.encoders for m in base]
     drop, _ = _run(SensorConfig(faults=(Dropout("accel", start=0.1, duration=0.5),)), 5)
     assert [m.gyro for m in drop] == [m.gyro for m in base]
+    spiky, sg = _run(SensorConfig(faults=(Spikes("gyro", rate=50.0, magnitude=0.2),)), 5)
+    assert sg.fault_counts()["gyro"]["spiked"] > 100
+    assert [m.accel for m in spiky] == [m.accel for m in base]
+    assert [m.encoders for m in spiky] == [m.encoders for m in base]
 
 
 # ---- validation -------------------------------------------------------------------------------
