@@ -9,11 +9,18 @@
 """
 from __future__ import annotations
 
-from estimation.baselines import AngleBiasKalman, ComplementaryFilter
-from estimation.ekf import EKFEstimator, Estimate
-from estimation.model import EstimatorModel
+import importlib
 
 ESTIMATORS = ("ekf", "complementary", "kalman2")
+# filterpy and scipy load on first use, so that the command line starts quickly
+_LAZY = {"AngleBiasKalman": "baselines", "ComplementaryFilter": "baselines", "EKFEstimator": "ekf",
+         "Estimate": "ekf", "EstimatorModel": "model"}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        return getattr(importlib.import_module(f"estimation.{_LAZY[name]}"), name)
+    raise AttributeError(f"module 'estimation' has no attribute {name!r}")
 
 
 def build_estimator(kind: str, sensors, control_rate: float, motor, params, alpha0: float = 0.0):
@@ -23,6 +30,9 @@ def build_estimator(kind: str, sensors, control_rate: float, motor, params, alph
     motors' specification (or None); ``params`` the robot model the estimator assumes;
     ``alpha0`` the initial heading (rad).
     """
+    from estimation.baselines import AngleBiasKalman, ComplementaryFilter
+    from estimation.ekf import EKFEstimator
+    from estimation.model import EstimatorModel
     from twin.errors import TwinError
 
     if kind not in ESTIMATORS:

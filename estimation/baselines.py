@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 
-from estimation.ekf import Estimate
+from estimation.ekf import Estimate, finite_reading
 from twin.errors import TwinError
 
 _DEG = 180.0 / math.pi
@@ -65,7 +65,7 @@ class _TiltBaseline:
         if self.k < 0:
             raise TwinError("call start() with the first measurement before step()")
         self.k += 1
-        ok = lambda v: v is not None and all(math.isfinite(c) for c in v)  # noqa: E731
+        ok = finite_reading
         if ok(meas.gyro):
             self._gyro = meas.gyro  # a missing sample: the last one is used again
         self._filter(self._gyro[1], self.accel_angle(meas.accel) if ok(meas.accel) else None)

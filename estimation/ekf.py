@@ -75,6 +75,11 @@ TH, PS, V, AL, BY, BZ, C0, SY, H0 = range(N)
 GROUPS = ("gyro", "accel", "encoders")
 
 
+def finite_reading(v) -> bool:
+    """A sensor reading that arrived (not None) with every value finite."""
+    return v is not None and all(math.isfinite(c) for c in v)
+
+
 class Estimate(NamedTuple):
     """The controllers' state [θ, θ̇, ψ, ψ̇, α, α̇] (rad, rad/s) at one control instant."""
 
@@ -214,7 +219,7 @@ class EKFEstimator:
         angles start at 0); the encoders' zero c = θ, exactly as uncertain as θ; gyro
         biases 0 with the turn-on σ of the specification.
         """
-        ok = lambda v: v is not None and all(math.isfinite(c) for c in v)  # noqa: E731
+        ok = finite_reading
         if not ok(meas.accel) or not ok(meas.gyro):
             raise TwinError("the estimator needs a gyro and an accelerometer reading at start")
         spec_a, spec_g = self.model.imu.accel, self.model.imu.gyro
@@ -264,7 +269,7 @@ class EKFEstimator:
 
     # ---- internals ---------------------------------------------------------------------
     def _store(self, meas, k: int) -> None:
-        ok = lambda v: v is not None and all(math.isfinite(c) for c in v)  # noqa: E731
+        ok = finite_reading
         for n, v in (("gyro", meas.gyro), ("accel", meas.accel), ("encoders", meas.encoders)):
             if v is not None and not ok(v):
                 self.events.append((meas.t, f"non-finite {n} reading ignored"))
@@ -282,35 +287,36 @@ class EKFEstimator:
         command = self._commands.get(m - self.every, (0.0, 0.0))
         imu = self._imu.get(m)
         enc = self._enc.get(m)
+        syn = None  # the model's sample, computed when needed
+        eps = None  # the encoders' NIS against the prior that is kept, once known
         if imu is None:
             self.predict_only += 1
-            sample = self._synthetic(x, command)
-            pred = self._propagate(x, sample)
+            syn = self._synthetic(x, command)
+            pred = self._propagate(x, syn)
         else:
             sample = ((imu[0][1], imu[0][2], imu[1][0], imu[1][2]), None)
             sat = [abs(v) >= lim for v, lim in zip(sample[0], self._limits)]
             if any(sat):
                 # a reading at the end of its range says only "at least this much": use the
                 # model's prediction for that axis instead
-                (syn, extra) = self._synthetic(x, command)
-                sample = (tuple(sv if k else v for v, sv, k in zip(sample[0], syn, sat)),
-                          tuple(e if k else 0.0 for e, k in zip(extra, sat)))
+                syn = self._synthetic(x, command)
+                sample = (tuple(sv if k else v for v, sv, k in zip(sample[0], syn[0], sat)),
+                          tuple(e if k else 0.0 for e, k in zip(syn[1], sat)))
                 self.saturated += 1
             pred = self._propagate(x, sample)
+            accepted = True
             if enc is not None:
                 z = self._z(enc)
                 eps = self._nis(pred, P, z)
                 if not eps <= self.imu_gate:
-                    alt = self._propagate(x, self._synthetic(x, command))
-                    if self._nis(alt, P, z) <= self.gate:
-                        self.rejected["gyro"] += 1
-                        self.rejected["accel"] += 1
+                    alt = self._propagate(x, syn if syn is not None else self._synthetic(x, command))
+                    eps_alt = self._nis(alt, P, z)
+                    if eps_alt <= self.gate:
                         self.events.append((t, f"IMU sample rejected as an outlier (encoder NIS {eps:.3g} with it)"))
-                        pred = alt
-                        sample = None
-            if sample is not None:
-                self.accepted["gyro"] += 1
-                self.accepted["accel"] += 1
+                        pred, eps, accepted = alt, eps_alt, False
+            group = self.accepted if accepted else self.rejected
+            group["gyro"] += 1
+            group["accel"] += 1
         x_next, F, Q, w = pred
         kf._x_next, kf.F, kf.Q = x_next, F, Q
         kf.predict()
@@ -324,7 +330,7 @@ class EKFEstimator:
                 self.predict_only += 1
         else:
             self._last_enc = enc
-            self._update(self._z(enc), t)
+            self._update(self._z(enc), t, eps)
         kf.P = 0.5 * (kf.P + kf.P.T)
         if np.isfinite(kf.x).all() and np.isfinite(kf.P).all() and (np.diag(kf.P) > 0).all():
             self._good = (kf.x.copy(), kf.P.copy(), self._w, self._w_prev)
@@ -345,11 +351,14 @@ class EKFEstimator:
         S = self.H @ Pp @ self.H.T + self.R
         return float(y @ np.linalg.solve(S, y))
 
-    def _update(self, z, t: float) -> None:
+    def _update(self, z, t: float, eps: float | None = None) -> None:
+        """Gated encoder update; ``eps`` is the NIS of ``z`` against the current prior if
+        already known."""
         kf = self.kf
-        y = z - self._hx(kf.x)
-        S = self.H @ kf.P @ self.H.T + self.R
-        eps = float(y @ np.linalg.solve(S, y))
+        if eps is None:
+            y = z - self._hx(kf.x)
+            S = self.H @ kf.P @ self.H.T + self.R
+            eps = float(y @ np.linalg.solve(S, y))
         self.last_nis = eps
         if not eps <= self.gate:
             if self.in_row < self.max_rejects_in_row:

@@ -25,6 +25,7 @@ import numpy as np
 
 from twin.actuators.dc_motor import DCMotorParams
 from twin.params import NOMINAL, RobotParams
+from twin.plant.analytic import _NO_TAU, _rhs
 from twin.sensors.specs import DEFAULT_ENCODERS, DEFAULT_IMU, EncoderSpec, ImuSpec
 
 TORQUE_TOLERANCE = 0.05  # 1σ of the delivered torque relative to the command (±10 % at 2σ)
@@ -52,10 +53,9 @@ class EstimatorModel:
         self.params, self.motor, self.imu, self.encoders = p, motor, imu, encoders
         self.dt = 1.0 / float(control_rate)
         self.c_e = 0.0 if motor is None else motor.electrical_damping
-        self.m11, self.m12, self.m22, self.g_b, self.m33, self.n_bla = p.m11, p.m12, p.m22, p.g_b, p.m33, p.n_bla
-        self.D = p.d_b + self.c_e  # body–wheel damping seen by the body: the drive's and the back-EMF's
-        self.W = p.d_w
-        self.Dy = (2.0 * p.b * p.b / (p.r * p.r)) * (self.D + self.W)
+        self.m11, self.m12, self.m22 = p.m11, p.m12, p.m22
+        # equation (1) with the back-EMF slope added to the body–wheel damping
+        self._plant = p.replace(d_b=p.d_b + self.c_e)
         self.b_r = p.b / p.r
         self.r, self.g = p.r, p.g
         self.xi, self.zi = imu.position[0], imu.position[2]
@@ -86,25 +86,9 @@ class EstimatorModel:
         return (top if ul > top else (-top if ul < -top else ul)), (top if ur > top else (-top if ur < -top else ur))
 
     # ---- dynamics ----------------------------------------------------------------------
-    def accelerations(self, x, tl: float, tr: float) -> tuple[float, float, float]:
-        """(θ̈, ψ̈, α̈) in rad/s² at state ``x`` with motor torques τ_0 ``tl``, ``tr`` (N·m)."""
-        th, thd, psd, ald = x[TH], x[THD], x[PSD], x[ALD]
-        s, c = math.sin(th), math.cos(th)
-        m11, m12, m22, n = self.m11, self.m12, self.m22, self.n_bla
-        drive = 2.0 * self.D * (thd - psd)
-        u = tl + tr
-        rhs1 = m12 * (thd * thd + ald * ald) * s - 2.0 * self.W * psd + drive + u
-        rhs2 = n * ald * ald * s * c + self.g_b * s - drive - u
-        det = m11 * m22 - (m12 * c) ** 2
-        psdd = (m22 * rhs1 - m12 * c * rhs2) / det
-        thdd = (m11 * rhs2 - m12 * c * rhs1) / det
-        yaw = -2.0 * n * ald * thd * s * c - m12 * ald * psd * s - self.Dy * ald + self.b_r * (tr - tl)
-        return thdd, psdd, yaw / (self.m33 + n * s * s)
-
     def f(self, t: float, s, u) -> np.ndarray:
         """ṡ (6,) for state ``s`` (6,) and motor torques τ_0 ``u`` = (τ_l, τ_r) in N·m."""
-        thdd, psdd, aldd = self.accelerations(s, u[0], u[1])
-        return np.array([s[THD], thdd, s[PSD], psdd, s[ALD], aldd])
+        return np.array(_rhs(s, u[0], u[1], self._plant, _NO_TAU)[:6])
 
     def step(self, s, tl: float, tr: float, periods: int = 1) -> np.ndarray:
         """State after ``periods`` control periods (classical RK4 per period), τ_0 = (tl, tr) held."""
@@ -127,17 +111,6 @@ class EstimatorModel:
     def torque_sigma(self, tau: float) -> float:
         """σ (N·m) of the torque a motor delivers for the model's τ_0 = ``tau``."""
         return math.sqrt(self.sigma_tau ** 2 + (TORQUE_TOLERANCE * tau) ** 2)
-
-    def specific_force(self, s, tl: float, tr: float) -> tuple[float, float]:
-        """(f_x, f_z) m/s² in body axes at the IMU point for state ``s`` and torques τ_0."""
-        th, thd, ald = s[TH], s[THD], s[ALD]
-        thdd, psdd, _ = self.accelerations(s, tl, tr)
-        sn, c = math.sin(th), math.cos(th)
-        dx = self.xi * c + self.zi * sn
-        dz = -self.xi * sn + self.zi * c
-        Fx = self.r * psdd + thdd * dz - (thd * thd + ald * ald) * dx
-        Fz = self.g - thdd * dx - thd * thd * dz
-        return Fx * c - Fz * sn, Fx * sn + Fz * c
 
     def synthetic_imu(self, s, command, periods: int = 1):
         """The IMU sample (means over the interval, as :mod:`twin.sensors.imu` defines them)

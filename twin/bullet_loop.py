@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from estimation import ESTIMATORS
 from twin.analytic_loop import Experiment
 from twin.controllers.cascade import FuzzyCascade
 from twin.errors import TwinError
@@ -35,7 +36,6 @@ COMMAND_UNITS = dict(ul_cmd="N·m", ur_cmd="N·m", u="N·m", theta_off="rad", u_
 ACTUATION_NAMES = Actuation._fields
 PUSH_NAMES = ("push_fx", "push_fy", "push_fz")
 PUSH_UNITS = dict(push_fx="N", push_fy="N", push_fz="N")
-ESTIMATORS = ("ekf", "complementary", "kalman2")
 
 
 @dataclass

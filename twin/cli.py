@@ -11,6 +11,7 @@ from pathlib import Path
 
 import click
 
+from estimation import ESTIMATORS as ESTIMATOR_KINDS
 from twin.errors import TwinError
 
 EXPERIMENT_CHOICES = ("1", "2", "3", "paper-exp1", "paper-exp2", "paper-exp3")
@@ -181,7 +182,7 @@ def analytic(experiment, controller, out, duration, gains_file, epsilon, rho, de
 @main.command()
 @_experiment_options("runs/physics")
 @click.option("--ideal-motor", is_flag=True, help="Ideal torque sources instead of the default DC motors.")
-@click.option("--estimator", type=click.Choice(["ekf", "complementary", "kalman2"]), default="ekf", show_default=True,
+@click.option("--estimator", type=click.Choice(ESTIMATOR_KINDS), default="ekf", show_default=True,
               help="What turns the IMU and encoder readings into the controllers' state.")
 @click.option("--ideal-sensing", is_flag=True, help="The controllers read the ground truth (a reference run).")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,

@@ -38,6 +38,7 @@ import math
 from dataclasses import dataclass
 
 from twin.errors import TwinError
+from twin.validation import bounded_number
 
 
 @dataclass(frozen=True)
@@ -55,13 +56,7 @@ class DCMotorParams:
 
     def __post_init__(self):
         def number(name, lo, hi, lo_open=False, unit=""):
-            v = getattr(self, name)
-            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-            ok = ok and (lo < v if lo_open else lo <= v) and v <= hi
-            if not ok:
-                bound = f"{'(' if lo_open else '['}{lo:g}, {hi:g}]"
-                raise TwinError(f"motor {name} must be a number in {bound}{' ' + unit if unit else ''}, got {v!r}")
-            object.__setattr__(self, name, float(v))
+            object.__setattr__(self, name, bounded_number("motor", name, getattr(self, name), lo, hi, unit, lo_open))
 
         number("supply_voltage", 0.0, 1e4, True, "V")
         number("stall_torque", 0.0, 1e4, True, "N·m")

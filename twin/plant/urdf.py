@@ -30,6 +30,7 @@ import math
 from dataclasses import dataclass
 
 from twin.errors import TwinError
+from twin.validation import body_point
 from twin.params import NOMINAL, RobotParams
 
 WHEEL_WIDTH = 0.025  # m, visual only
@@ -53,13 +54,7 @@ class Payload:
         m = self.mass
         if not (isinstance(m, (int, float)) and not isinstance(m, bool) and math.isfinite(m) and m > 0):
             raise TwinError(f"payload mass must be a positive number in kg, got {m!r}")
-        try:
-            pos = tuple(float(v) for v in self.position)
-        except (TypeError, ValueError):
-            pos = ()
-        if len(pos) != 3 or not all(math.isfinite(v) and abs(v) <= 1.0 for v in pos):
-            raise TwinError(f"payload position must be 3 finite coordinates within ±1 m of the axle, got {self.position!r}")
-        object.__setattr__(self, "position", pos)
+        object.__setattr__(self, "position", body_point("payload position", self.position))
         object.__setattr__(self, "mass", float(m))
 
 

@@ -49,18 +49,10 @@ import math
 from dataclasses import dataclass, field
 
 from twin.errors import TwinError
+from twin.validation import body_point, bounded_number
 
 DEG = math.pi / 180.0
 G0 = 9.80665  # m/s², the g of the datasheet's "g"
-
-
-def _number(owner: str, name: str, v, lo: float, hi: float, unit: str, lo_open: bool = False) -> float:
-    ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-    ok = ok and (lo < v if lo_open else lo <= v) and v <= hi
-    if not ok:
-        bound = f"{'(' if lo_open else '['}{lo:g}, {hi:g}]"
-        raise TwinError(f"{owner} {name} must be a number in {bound}{' ' + unit if unit else ''}, got {v!r}")
-    return float(v)
 
 
 @dataclass(frozen=True)
@@ -99,11 +91,11 @@ class TriadSpec:
         o = self.name
         for n, hi in (("noise_density", 1e3), ("bias_random_walk", 1e3), ("turn_on_bias", 1e3),
                       ("scale_factor_error", 0.5)):
-            object.__setattr__(self, n, _number(o, n, getattr(self, n), 0.0, hi, ""))
+            object.__setattr__(self, n, bounded_number(o, n, getattr(self, n), 0.0, hi, ""))
         if self.bias_correlation_time is not None:
             object.__setattr__(self, "bias_correlation_time",
-                               _number(o, "bias_correlation_time", self.bias_correlation_time, 0.0, 1e7, "s", True))
-        object.__setattr__(self, "full_scale", _number(o, "full_scale", self.full_scale, 0.0, 1e6, "", True))
+                               bounded_number(o, "bias_correlation_time", self.bias_correlation_time, 0.0, 1e7, "s", True))
+        object.__setattr__(self, "full_scale", bounded_number(o, "full_scale", self.full_scale, 0.0, 1e6, "", True))
         if not (isinstance(self.bits, int) and not isinstance(self.bits, bool) and 2 <= self.bits <= 32):
             raise TwinError(f"{o} bits must be an integer from 2 to 32, got {self.bits!r}")
 
@@ -145,15 +137,9 @@ class ImuSpec:
     def __post_init__(self):
         if not isinstance(self.gyro, TriadSpec) or not isinstance(self.accel, TriadSpec):
             raise TwinError("imu gyro and accel must be TriadSpec instances")
-        try:
-            pos = tuple(float(v) for v in self.position)
-        except (TypeError, ValueError):
-            pos = ()
-        if len(pos) != 3 or not all(math.isfinite(v) and abs(v) <= 1.0 for v in pos):
-            raise TwinError(f"imu position must be 3 coordinates in m within ±1 m of the axle, got {self.position!r}")
-        object.__setattr__(self, "position", pos)
-        object.__setattr__(self, "rate", _number("imu", "rate", self.rate, 0.0, 1e5, "Hz", True))
-        object.__setattr__(self, "latency", _number("imu", "latency", self.latency, 0.0, 1.0, "s"))
+        object.__setattr__(self, "position", body_point("imu position", self.position))
+        object.__setattr__(self, "rate", bounded_number("imu", "rate", self.rate, 0.0, 1e5, "Hz", True))
+        object.__setattr__(self, "latency", bounded_number("imu", "latency", self.latency, 0.0, 1.0, "s"))
 
 
 @dataclass(frozen=True)
@@ -171,7 +157,7 @@ class EncoderSpec:
         c = self.counts_per_rev
         if not (isinstance(c, int) and not isinstance(c, bool) and 4 <= c <= 10_000_000):
             raise TwinError(f"encoder counts_per_rev must be an integer from 4 to 10000000, got {c!r}")
-        object.__setattr__(self, "latency", _number("encoder", "latency", self.latency, 0.0, 1.0, "s"))
+        object.__setattr__(self, "latency", bounded_number("encoder", "latency", self.latency, 0.0, 1.0, "s"))
 
     @property
     def resolution(self) -> float:

@@ -50,11 +50,11 @@ class SensorConfig:
         """(control steps per IMU sample, IMU latency steps, encoder latency steps); a
         one-line error if the IMU rate does not divide the control rate or a latency is
         not a whole number of control periods."""
-        every = _whole(control_rate / self.imu.rate, f"the control rate ({control_rate:g} Hz) must be a whole "
-                       f"multiple of the IMU rate ({self.imu.rate:g} Hz)")
-        if every < 1:
+        if self.imu.rate > control_rate * (1.0 + 1e-9):
             raise TwinError(f"the IMU rate ({self.imu.rate:g} Hz) must not exceed the control rate "
                             f"({control_rate:g} Hz): the IMU is read once per control period at most")
+        every = _whole(control_rate / self.imu.rate, f"the control rate ({control_rate:g} Hz) must be a whole "
+                       f"multiple of the IMU rate ({self.imu.rate:g} Hz)")
         d_imu = latency_steps(self.imu.latency, control_rate, "IMU latency")
         d_enc = latency_steps(self.encoders.latency, control_rate, "encoder latency")
         for f in self.faults:
@@ -154,8 +154,6 @@ class SensorSuite:
         Hz; the IMU rate must divide it, latencies must be whole control periods.
     rng : numpy.random.Generator
         The run's sensor generator (split into child streams here).
-    gravity : float
-        m/s², only to describe the rest state before t = 0.
     """
 
     def __init__(self, config: SensorConfig, control_rate: float, rng: np.random.Generator):
