@@ -361,7 +361,7 @@ def closed_loop(runs: int):
         controller = build_cascade("it2", design, exp)
         gc.collect()
         t0 = pc()
-        run = simulate_twin(controller, exp)
+        run = simulate_twin(controller, exp, sensors=None)  # the twin and the controller alone (ideal sensing)
         wall = pc() - t0
         assert run.status == "ok", run.end_reason
         out.append((float(run.t[-1]), wall, len(run.t) - 1, float(run.signal("theta")[-1])))
@@ -507,7 +507,7 @@ def main(argv=None) -> int:
     (sim0, wall0, n0, th0), rest_runs = cl[0], cl[1:]
     rtf = [s / w for s, w, _, _ in rest_runs]
     print()
-    print("Closed loop: IT2 balance controller on the twin from θ0 = 0.2 rad, 10 s simulated (simulate_twin)")
+    print("Closed loop: IT2 balance controller on the twin from θ0 = 0.2 rad, 10 s simulated (simulate_twin, ideal sensing)")
     print(f"  first run in process (cold): {wall0:.3f} s wall, real-time factor {sim0 / wall0:.1f}")
     w_med = statistics.median(w for _, w, _, _ in rest_runs)
     print(f"  next {len(rest_runs)} run(s): real-time factor median {statistics.median(rtf):.1f}, best {max(rtf):.1f} "

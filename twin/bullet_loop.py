@@ -176,6 +176,8 @@ def simulate_twin(controller: FuzzyCascade, experiment: Experiment, config: Twin
         raise TwinError(f"duration must be at least one control period ({control_dt:g} s), got {duration:g} s")
     if sensors is not None and not isinstance(sensors, SensorConfig):
         raise TwinError(f"sensors must be a SensorConfig or None (ideal sensing), got {sensors!r}")
+    if sensors is not None:
+        sensors.steps(config.control_rate)  # rates and latencies fit the control period: check before building
     if estimator not in ESTIMATORS:
         raise TwinError(f"estimator must be one of {', '.join(ESTIMATORS)}, got {estimator!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
