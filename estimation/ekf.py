@@ -68,10 +68,10 @@ from estimation.model import EstimatorModel
 from twin.errors import TwinError
 
 STATE_NAMES = ("theta", "psi", "imu_speed", "alpha", "gyro_bias_y", "gyro_bias_z", "encoder_zero", "gyro_scale_y",
-               "encoder_heading_zero")
-STATE_UNITS = ("rad", "rad", "m/s", "rad", "rad/s", "rad/s", "rad", "1", "rad")
+               "encoder_heading_zero", "gyro_scale_z", "accel_scale_x", "accel_scale_z")
+STATE_UNITS = ("rad", "rad", "m/s", "rad", "rad/s", "rad/s", "rad", "1", "rad", "1", "1", "1")
 N = len(STATE_NAMES)
-TH, PS, V, AL, BY, BZ, C0, SY, H0 = range(N)
+TH, PS, V, AL, BY, BZ, C0, SY, H0, SZ, SAX, SAZ = range(N)
 GROUPS = ("gyro", "accel", "encoders")
 
 
@@ -135,10 +135,8 @@ class EKFEstimator:
         self.lag = max(self.d_imu, self.d_enc)
         self.dt = self.every * model.dt
         self.alpha0 = float(alpha0)
-        self.gate = float(chi2.ppf(1.0 - gate_probability, 2))
-        # an IMU sample is called an outlier only on much stronger evidence: wrongly
-        # replacing a real sample by the model's is worse than keeping a mild outlier
-        self.imu_gate = float(chi2.ppf(1.0 - 1e-9, 2))
+        # an IMU sample is called an outlier only on much stronger evidence (1 − 1e-9):
+        # wrongly replacing a real sample by the model's is worse than keeping a mild outlier
         self.max_rejects_in_row = int(max_rejects_in_row)
         imu = model.imu
         self.xi, self.zi = imu.position[0], imu.position[2]
@@ -150,13 +148,17 @@ class EKFEstimator:
         self._a_var = imu.accel.white_sigma(self.dt) ** 2 + imu.accel.lsb ** 2 / 12.0
         self._g_sf, self._a_sf = imu.gyro.scale_factor_error ** 2, imu.accel.scale_factor_error ** 2
         self._bias_q = imu.gyro.bias_random_walk ** 2 * self.dt
-        q = model.encoders.resolution ** 2 / 24.0
-        self.R = np.diag([q, q])
+        self.delta = model.encoders.resolution
+        # per wheel (left, right): e_i = ψ − θ + c ∓ ((b/r)(α − α_0) + h)
         self.H = np.zeros((2, N))
-        self.H[0, PS] = self.H[0, C0] = 1.0
-        self.H[0, TH] = -1.0
-        self.H[1, AL] = self.b_r
-        self.H[1, H0] = 1.0
+        for i, sgn in enumerate((-1.0, 1.0)):
+            self.H[i, PS] = self.H[i, C0] = 1.0
+            self.H[i, TH] = -1.0
+            self.H[i, AL] = sgn * self.b_r
+            self.H[i, H0] = sgn
+        self.gates = {k: float(chi2.ppf(1.0 - gate_probability, k)) for k in (1, 2)}
+        self.imu_gates = {k: float(chi2.ppf(1.0 - 1e-9, k)) for k in (1, 2)}
+        self.last_dof = 0
         self.k = -1
         self.m = 0
         self._commands: dict[int, tuple[float, float]] = {}
@@ -196,7 +198,7 @@ class EKFEstimator:
         x = self.kf.x if x is None else x
         (wy, wz), (wy0, wz0) = self._w, self._w_prev
         wy, wz = 1.5 * wy - 0.5 * wy0, 1.5 * wz - 0.5 * wz0
-        return (wy - x[BY]) / (1.0 + x[SY]), (wz - x[BZ]) / math.cos(x[TH])
+        return (wy - x[BY]) / (1.0 + x[SY]), (wz - x[BZ]) / ((1.0 + x[SZ]) * math.cos(x[TH]))
 
     def state6(self, x=None) -> np.ndarray:
         """[θ, θ̇, ψ, ψ̇, α, α̇] at the filter's time (or of state ``x``)."""
@@ -226,21 +228,29 @@ class EKFEstimator:
         fx, _, fz = meas.accel
         theta0 = math.atan2(-fx, fz)
         g = math.hypot(fx, fz)
-        var_theta = (self._a_var + spec_a.turn_on_bias ** 2 + self._a_sf * g * g) / max(g, 1.0) ** 2
+        # tan θ reads tan θ (1 + s_x)/(1 + s_z): the scale errors tilt it by sc (s_x − s_z)
+        sc = math.sin(theta0) * math.cos(theta0)
+        var_theta = (self._a_var + spec_a.turn_on_bias ** 2) / max(g, 1.0) ** 2 + 2.0 * sc * sc * self._a_sf
         x = np.zeros(N)
         x[TH] = x[C0] = theta0
         x[AL] = self.alpha0
         bias_var = spec_g.turn_on_bias ** 2 + 1e-12
         # where the encoders' first edges lie is unknown: a constant offset of variance
         # Δ²/12 per wheel, Δ²/24 in the mean and in the half-difference
-        edge_var = self.R[0, 0]
+        edge_var = self.delta ** 2 / 24.0
+        g_sf, a_sf = self._g_sf + 1e-12, self._a_sf + 1e-12
         P = np.diag([var_theta, 1e-12, 1e-12, 1e-12, bias_var, bias_var, var_theta + edge_var,
-                     spec_g.scale_factor_error ** 2 + 1e-12, edge_var])
+                     g_sf, edge_var, g_sf, a_sf, a_sf])
         P[TH, C0] = P[C0, TH] = var_theta
+        for i in (TH, C0):
+            P[i, SAX] = P[SAX, i] = -sc * self._a_sf
+            P[i, SAZ] = P[SAZ, i] = sc * self._a_sf
         self.kf.x, self.kf.P = x, P
         self._w = self._w_prev = (meas.gyro[1], meas.gyro[2])
         self.k, self.m = 0, 0
         self._store(meas, 0)
+        if finite_reading(meas.encoders):
+            self._last_enc, self._last_enc_m = tuple(meas.encoders), -self.d_enc
         self._good = (x.copy(), P.copy(), self._w, self._w_prev)
         return Estimate(*self.state6())
 
@@ -288,7 +298,7 @@ class EKFEstimator:
         imu = self._imu.get(m)
         enc = self._enc.get(m)
         syn = None  # the model's sample, computed when needed
-        eps = None  # the encoders' NIS against the prior that is kept, once known
+        em = eps = None  # the encoders' measurement model and NIS against the prior kept
         if imu is None:
             self.predict_only += 1
             syn = self._synthetic(x, command)
@@ -306,14 +316,13 @@ class EKFEstimator:
             pred = self._propagate(x, sample)
             accepted = True
             if enc is not None:
-                z = self._z(enc)
-                eps = self._nis(pred, P, z)
-                if not eps <= self.imu_gate:
+                em, eps = self._encoder_fit(enc, m, pred, P)
+                if em is not None and not eps <= self.imu_gates[len(em[0])]:
                     alt = self._propagate(x, syn if syn is not None else self._synthetic(x, command))
-                    eps_alt = self._nis(alt, P, z)
-                    if eps_alt <= self.gate:
+                    em_alt, eps_alt = self._encoder_fit(enc, m, alt, P)
+                    if eps_alt <= self.gates[len(em_alt[0])]:
                         self.events.append((t, f"IMU sample rejected as an outlier (encoder NIS {eps:.3g} with it)"))
-                        pred, eps, accepted = alt, eps_alt, False
+                        pred, em, eps, accepted = alt, em_alt, eps_alt, False
             group = self.accepted if accepted else self.rejected
             group["gyro"] += 1
             group["accel"] += 1
@@ -321,16 +330,18 @@ class EKFEstimator:
         kf._x_next, kf.F, kf.Q = x_next, F, Q
         kf.predict()
         self._w_prev, self._w = self._w, w
-        if enc is not None and enc == self._last_enc:
-            # unchanged counts repeat the same quantisation error: no new information
-            enc = None
+        if enc is not None and em is None:
+            em, eps = self._encoder_fit(enc, m, None, None)
+        if enc is not None and em is None:
+            # unchanged counts: no edge was crossed (no new information)
             self.unchanged_encoders += 1
+            self._last_enc_m = m
+            enc = None
         if enc is None:
             if imu is not None:
                 self.predict_only += 1
-        else:
-            self._last_enc = enc
-            self._update(self._z(enc), t, eps)
+        elif self._update(em, t, eps):
+            self._last_enc, self._last_enc_m = tuple(enc), m
         kf.P = 0.5 * (kf.P + kf.P.T)
         if np.isfinite(kf.x).all() and np.isfinite(kf.P).all() and (np.diag(kf.P) > 0).all():
             self._good = (kf.x.copy(), kf.P.copy(), self._w, self._w_prev)
@@ -338,46 +349,78 @@ class EKFEstimator:
             self._restore(t, "the state or covariance became non-finite or lost positivity; "
                              "restored the last good estimate")
 
-    def _z(self, enc) -> np.ndarray:
-        return np.array([0.5 * (enc[0] + enc[1]), 0.5 * (enc[1] - enc[0])])
+    def _encoder_fit(self, enc, m: int, pred, P):
+        """(measurement, NIS) of encoder sample ``enc`` at t_m against the prior of
+        ``pred`` = (x⁺, F, Q, ω) from ``P`` (None: the filter's current prior).
 
-    def _hx(self, x) -> np.ndarray:
-        return np.array([x[PS] - x[TH] + x[C0], self.b_r * (x[AL] - self.alpha0) + x[H0]])
+        The measurement is the position of the last edge each wheel crossed since the last
+        encoder sample used, for the wheels whose count changed: the wheel was exactly
+        there at an unknown instant of the interval T, so it now lies beyond the edge by
+        u·|q̇|T, u ~ U(0, 1), at most one count (mean half, variance (q̇T)²/12, plus the
+        uncertainty of q̇). Unchanged counts carry no new information (None, None)
+        - the same quantisation error again, which a white-noise model would count anew.
+        """
+        last = self._last_enc
+        if last is None:
+            self._last_enc, self._last_enc_m = tuple(enc), m
+            return None, None
+        changed = [i for i in (0, 1) if enc[i] != last[i]]
+        if not changed:
+            return None, None
+        if pred is None:
+            x, Pp, (wy, wz) = self.kf.x, self.kf.P, self._w
+        else:
+            x, F, Q, (wy, wz) = pred
+            Pp = F @ P @ F.T + Q
+        T = (m - self._last_enc_m) * self.model.dt
+        dlt, b_r = self.delta, self.b_r
+        th = x[TH]
+        thd = (wy - x[BY]) / (1.0 + x[SY])
+        dz = -self.xi * math.sin(th) + self.zi * math.cos(th)
+        wheel = (x[V] - thd * dz) / self.r - thd
+        spin = b_r * (wz - x[BZ]) / ((1.0 + x[SZ]) * math.cos(th))
+        var_q = Pp[V, V] / self.r ** 2 + self._g_var * ((1.0 + dz / self.r) ** 2 + b_r * b_r)
+        z, off, R = [], [], []
+        for i in changed:
+            sgn = 2 * i - 1
+            up = enc[i] > last[i]
+            d = min(abs(wheel + sgn * spin) * T, dlt)
+            d = d if up else -d
+            z.append(enc[i] - 0.5 * dlt if up else enc[i] + 0.5 * dlt)
+            off.append(-sgn * b_r * self.alpha0 - 0.5 * d)
+            R.append(min(d * d / 12.0 + var_q * T * T / 3.0, dlt * dlt / 12.0))
+        H = self.H[changed]
+        z, off, R = np.array(z), np.array(off), np.diag(R)
+        y = z - (H @ x + off)
+        S = H @ Pp @ H.T + R
+        return (z, off, H, R), float(y @ np.linalg.solve(S, y))
 
-    def _nis(self, pred, P, z) -> float:
-        x_next, F, Q, _ = pred
-        Pp = F @ P @ F.T + Q
-        y = z - self._hx(x_next)
-        S = self.H @ Pp @ self.H.T + self.R
-        return float(y @ np.linalg.solve(S, y))
-
-    def _update(self, z, t: float, eps: float | None = None) -> None:
-        """Gated encoder update; ``eps`` is the NIS of ``z`` against the current prior if
-        already known."""
+    def _update(self, em, t: float, eps: float) -> bool:
+        """Gated encoder update with measurement ``em`` whose NIS is ``eps``; True if used."""
         kf = self.kf
-        if eps is None:
-            y = z - self._hx(kf.x)
-            S = self.H @ kf.P @ self.H.T + self.R
-            eps = float(y @ np.linalg.solve(S, y))
-        self.last_nis = eps
-        if not eps <= self.gate:
+        z, off, H, R = em
+        dof = len(z)
+        self.last_nis, self.last_dof = eps, dof
+        gate = self.gates[dof]
+        if not eps <= gate:
             if self.in_row < self.max_rejects_in_row:
                 self.rejected["encoders"] += 1
                 self.in_row += 1
                 self.predict_only += 1
-                return
+                return False
             self.events.append((t, f"encoders accepted after {self.in_row} rejections in a row "
-                                   f"(NIS {eps:.3g} > gate {self.gate:.3g}): re-synchronising"))
+                                   f"(NIS {eps:.3g} > gate {gate:.3g}): re-synchronising"))
         self.in_row = 0
-        H = self.H
-        kf.update(z, lambda x: H, self._hx, R=self.R)
+        kf.update(z, lambda x: H, lambda x: H @ x + off, R=R)
         self.accepted["encoders"] += 1
+        return True
 
     def _synthetic(self, x, command):
         """The IMU sample equation (1) predicts at the end of the next period, and the
         extra variance (gyro, accelerometer) that the model's torque uncertainty adds."""
         (wy, wz, fx, fz), (gv, av) = self.model.synthetic_imu(self.state6(x), command, self.every)
-        return ((1.0 + x[SY]) * wy + x[BY], wz + x[BZ], fx, fz), (gv, gv, av, av)
+        return (((1.0 + x[SY]) * wy + x[BY], (1.0 + x[SZ]) * wz + x[BZ], (1.0 + x[SAX]) * fx, (1.0 + x[SAZ]) * fz),
+                (gv, gv, av, av))
 
     def _propagate(self, x, sample):
         """(x⁺, F, Q, (ω_y, ω_z)): one strapdown step with IMU ``sample``.
@@ -389,19 +432,20 @@ class EKFEstimator:
         """
         (wy, wz, fx, fz), extra = sample
         dt, r, xi, zi = self.dt, self.r, self.xi, self.zi
-        th, v, by, bz, sy = x[TH], x[V], x[BY], x[BZ], x[SY]
-        q = 1.0 / (1.0 + sy)
+        th, v, by, bz = x[TH], x[V], x[BY], x[BZ]
+        q, qz, qax, qaz = 1.0 / (1.0 + x[SY]), 1.0 / (1.0 + x[SZ]), 1.0 / (1.0 + x[SAX]), 1.0 / (1.0 + x[SAZ])
         E = np.eye(N)
         thm = (wy - by) * q
         th1 = th + dt * thm
         thb = 0.5 * (th + th1)
         s0, c0, s1, c1 = math.sin(th), math.cos(th), math.sin(th1), math.cos(th1)
         cb, tb = math.cos(thb), math.tan(thb)
-        ad = (wz - bz) / cb
+        ad = (wz - bz) * qz / cb
         dx0, dz0 = xi * c0 + zi * s0, -xi * s0 + zi * c0
         dx1, dz1 = xi * c1 + zi * s1, -xi * s1 + zi * c1
-        Fx = c1 * fx + s1 * fz
-        Fz = -s1 * fx + c1 * fz
+        fxt, fzt = fx * qax, fz * qaz
+        Fx = c1 * fxt + s1 * fzt
+        Fz = -s1 * fxt + c1 * fzt
         v1 = v + dt * (Fx + ad * ad * dx1)
         x1 = x.copy()
         x1[TH] = th1
@@ -412,10 +456,12 @@ class EKFEstimator:
 
         dth1 = E[TH] + dt * (-q * E[BY] - thm * q * E[SY])
         ith1 = np.array([dt * q, 0.0, 0.0, 0.0])
-        dad = ad * tb * 0.5 * (E[TH] + dth1) - E[BZ] / cb
-        iad = ad * tb * 0.5 * ith1 + np.array([0.0, 1.0 / cb, 0.0, 0.0])
-        dv1 = E[V] + dt * (Fz * dth1 + 2.0 * ad * dx1 * dad + ad * ad * dz1 * dth1)
-        iv1 = dt * (Fz * ith1 + np.array([0.0, 0.0, c1, s1]) + 2.0 * ad * dx1 * iad + ad * ad * dz1 * ith1)
+        dad = ad * tb * 0.5 * (E[TH] + dth1) - (qz / cb) * E[BZ] - ad * qz * E[SZ]
+        iad = ad * tb * 0.5 * ith1 + np.array([0.0, qz / cb, 0.0, 0.0])
+        dFx = Fz * dth1 - c1 * fxt * qax * E[SAX] - s1 * fzt * qaz * E[SAZ]
+        iFx = Fz * ith1 + np.array([0.0, 0.0, c1 * qax, s1 * qaz])
+        dv1 = E[V] + dt * (dFx + 2.0 * ad * dx1 * dad + ad * ad * dz1 * dth1)
+        iv1 = dt * (iFx + 2.0 * ad * dx1 * iad + ad * ad * dz1 * ith1)
         F = E.copy()
         F[TH] = dth1
         F[AL] = E[AL] + dt * dad
@@ -426,9 +472,8 @@ class EKFEstimator:
         L[AL] = dt * iad
         L[V] = iv1
         L[PS] = (0.5 * dt * iv1 - dz1 * ith1) / r
-        gv, av = self._g_var, self._a_var
-        var = np.array([gv + self._g_sf * wy * wy, gv + self._g_sf * wz * wz,
-                        av + self._a_sf * fx * fx, av + self._a_sf * fz * fz])
+        # white noise and ADC steps; the scale factors are states
+        var = np.array([self._g_var, self._g_var, self._a_var, self._a_var])
         if extra is not None:
             var += extra
         Q = (L * var) @ L.T

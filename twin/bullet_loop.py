@@ -52,7 +52,8 @@ class TwinRun:
     at each step (NaN without one); ``sensor_truth`` the sensors' drawn constants (scale
     factors, turn-on biases, encoder phases); ``filter_log`` (EKF with ``log_filter``) the
     filter's own state ``x`` (n, 7) and covariance ``P`` (n, 7, 7) at t_{i − lag} (see
-    :mod:`estimation.ekf`), and the encoder update's ``nis`` (n,) (NaN where none was tried).
+    :mod:`estimation.ekf`), and the encoder update's ``nis`` (n,) (NaN where none was tried) with its degrees of freedom
+    ``nis_dof`` (n,) (the number of wheels whose count changed; 0 where none was tried).
     """
 
     t: np.ndarray
@@ -212,7 +213,7 @@ def simulate_twin(controller: FuzzyCascade, experiment: Experiment, config: Twin
             if log_filter and estimator == "ekf":
                 nx = len(filt.x)
                 flog = {"x": np.full((n_rows, nx), np.nan), "P": np.full((n_rows, nx, nx), np.nan),
-                        "nis": np.full(n_rows, np.nan), "lag": filt.lag}
+                        "nis": np.full(n_rows, np.nan), "nis_dof": np.zeros(n_rows, dtype=int), "lag": filt.lag}
         n = n_rows
         c = None
         for i in range(n_rows):
@@ -235,7 +236,8 @@ def simulate_twin(controller: FuzzyCascade, experiment: Experiment, config: Twin
                     flog["x"][i] = filt.x
                     flog["P"][i] = filt.P
                     flog["nis"][i] = filt.last_nis
-                    filt.last_nis = math.nan
+                    flog["nis_dof"][i] = filt.last_dof
+                    filt.last_nis, filt.last_dof = math.nan, 0
             est[i] = state
             c = controller(state, p_d, alpha_d)
             cmds[i] = (c.ul, c.ur, c.u, c.theta_off, c.u_alpha)
@@ -249,7 +251,7 @@ def simulate_twin(controller: FuzzyCascade, experiment: Experiment, config: Twin
         reason = "" if status == "ok" else twin.end_reason
     t = truth[:n, 0].copy()
     if flog is not None:
-        for key in ("x", "P", "nis"):
+        for key in ("x", "P", "nis", "nis_dof"):
             flog[key] = flog[key][:n]
     return TwinRun(t, truth[:n], cmds[:n], act[:n], push[:n], status, reason, config, experiment, controller_name,
                    estimates=est[:n], sensing="ideal" if ideal else estimator, measurements=meas_log[:n],
