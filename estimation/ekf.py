@@ -208,6 +208,29 @@ class EKFEstimator:
         dz = -self.xi * math.sin(th) + self.zi * math.cos(th)
         return np.array([th, thd, x[PS], (x[V] - thd * dz) / self.r, x[AL], ald])
 
+    def covariance6(self) -> np.ndarray:
+        """Covariance (6, 6) of :meth:`state6` at the filter's time: P mapped through the
+        Jacobian of [θ, θ̇, ψ, ψ̇, α, α̇] by the state (central differences), plus the
+        gyro's white noise in the extrapolated rates (1.5² + 0.5² samples' worth)."""
+        x = self.kf.x
+        J = np.empty((6, N))
+        for j in range(N):
+            h = 1e-6 * max(1.0, abs(x[j]))
+            xp, xm = x.copy(), x.copy()
+            xp[j] += h
+            xm[j] -= h
+            J[:, j] = (self.state6(xp) - self.state6(xm)) / (2.0 * h)
+        C = J @ self.kf.P @ J.T
+        th = x[TH]
+        dz = -self.xi * math.sin(th) + self.zi * math.cos(th)
+        q_y, q_z = 1.0 / (1.0 + x[SY]), 1.0 / ((1.0 + x[SZ]) * math.cos(th))
+        w = 2.5 * self._g_var
+        # θ̇ enters ψ̇ through −θ̇ dz / r
+        g = np.array([0.0, q_y, 0.0, -q_y * dz / self.r, 0.0, 0.0])
+        C += w * np.outer(g, g)
+        C[5, 5] += w * q_z * q_z
+        return 0.5 * (C + C.T)
+
     def stats(self) -> dict:
         return {"accepted": dict(self.accepted), "rejected": dict(self.rejected),
                 "rejected_total": self.rejected_total, "predict_only_steps": self.predict_only,

@@ -50,8 +50,9 @@ class TwinRun:
     estimator at each step; ``estimator_stats`` its counts (rejected measurements,
     resets, events); ``gyro_bias`` (n, 3) rad/s the gyro's true bias in the sample taken
     at each step (NaN without one); ``sensor_truth`` the sensors' drawn constants (scale
-    factors, turn-on biases, encoder phases); ``filter_log`` (EKF with ``log_filter``) the
-    filter's own state ``x`` (n, 7) and covariance ``P`` (n, 7, 7) at t_{i − lag} (see
+    factors, turn-on biases, encoder phases); ``sensor_config`` and ``model_params`` what the
+    run was given; ``filter_log`` (EKF with ``log_filter``) the
+    filter's own state ``x`` (n, 12) and covariance ``P`` (n, 12, 12) at t_{i − lag} (see
     :mod:`estimation.ekf`), and the encoder update's ``nis`` (n,) (NaN where none was tried) with its degrees of freedom
     ``nis_dof`` (n,) (the number of wheels whose count changed; 0 where none was tried).
     """
@@ -75,6 +76,8 @@ class TwinRun:
     filter_log: dict | None = field(default=None, repr=False)
     seed: int | None = None
     sensor_truth: dict = field(default_factory=dict, repr=False)
+    sensor_config: SensorConfig | None = field(default=None, repr=False)
+    model_params: RobotParams | None = field(default=None, repr=False)
 
     @property
     def fell(self) -> bool:
@@ -257,4 +260,4 @@ def simulate_twin(controller: FuzzyCascade, experiment: Experiment, config: Twin
                    estimates=est[:n], sensing="ideal" if ideal else estimator, measurements=meas_log[:n],
                    estimator_stats={} if ideal else filt.stats(), sensor_counts={} if ideal else suite.fault_counts(),
                    gyro_bias=None if ideal else bias_log[:n], filter_log=flog, seed=None if ideal else int(seed),
-                   sensor_truth={} if ideal else suite.truth())
+                   sensor_truth={} if ideal else suite.truth(), sensor_config=sensors, model_params=model_params)

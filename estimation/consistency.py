@@ -1,0 +1,99 @@
+"""Is the EKF's covariance honest? Its true state from a twin run, NEES, NIS and the
+Monte Carlo χ² tests of Bar-Shalom, Li and Kirubarajan (2001, §5.4).
+
+For one run, the normalised estimation error squared NEES_k = e_kᵀ P_k⁻¹ e_k (e the
+filter's state minus the truth) is χ² with n = 12 degrees of freedom if the filter is
+consistent; the normalised innovation squared NIS_k of the encoder update is χ² with as
+many degrees of freedom as wheels whose count changed. Over N independent runs the
+averages at each step, N·NEES̄_k ~ χ²_{N n} and Σ NIS_k ~ χ²_{Σ dof}, have two-sided
+bounds; a consistent filter keeps about the confidence level of the steps inside them.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.stats import chi2
+
+from twin.errors import TwinError
+
+
+def filter_truth(run) -> np.ndarray:
+    """The true value of each EKF state (n, 12) on the rows of ``run.filter_log["x"]``.
+
+    Row i is the truth at t_{i − lag}, the filter's own time; the first lag + 1 rows are
+    NaN. The encoder zeros are the values that make the filter's measurement equations
+    exact: with q_j = ψ_j − θ the wheel angles relative to the body and φ_j the position
+    of each encoder's first edge (counts), c = ē − (ψ − θ) and h = ẽ − (b/r)(α − α_0),
+    where ē, ẽ are the mean and half-difference of the unquantised readings
+    q_j − q_j(0) + (φ_j − ½)Δ (b/r of the estimator's model).
+    """
+    if run.filter_log is None or run.sensor_config is None:
+        raise TwinError("filter_truth needs a run with the EKF and log_filter=True")
+    tr, st, cfg = run.truth, run.sensor_truth, run.sensor_config
+    col = {n: run.signal(n) for n in ("theta", "theta_dot", "psi_l", "psi_r", "psi", "psi_dot", "alpha")}
+    n = len(tr)
+    lag = run.filter_log["lag"]
+    xi, _, zi = cfg.imu.position
+    r = run.config.params.r
+    th = col["theta"]
+    dz = -xi * np.sin(th) + zi * np.cos(th)
+    delta = cfg.encoders.resolution
+    ql, qr = col["psi_l"] - th, col["psi_r"] - th
+    el = ql - ql[0] + (st["encoder_phase"][0] - 0.5) * delta
+    er = qr - qr[0] + (st["encoder_phase"][1] - 0.5) * delta
+    mp = run.model_params
+    b_r = mp.b / mp.r
+    alpha0 = col["alpha"][0]
+    bias = run.gyro_bias
+    gs, acs = st["gyro_scale"], st["accel_scale"]
+    x = np.column_stack([
+        th, col["psi"], r * col["psi_dot"] + col["theta_dot"] * dz, col["alpha"], bias[:, 1], bias[:, 2],
+        0.5 * (el + er) - (col["psi"] - th), np.full(n, gs[1]), 0.5 * (er - el) - b_r * (col["alpha"] - alpha0),
+        np.full(n, gs[2]), np.full(n, acs[0]), np.full(n, acs[2])])
+    out = np.full_like(x, np.nan)
+    out[lag + 1:] = x[1:n - lag]
+    return out
+
+
+def nees(run) -> np.ndarray:
+    """NEES (n,) of the EKF at each row (NaN where the truth is not defined)."""
+    x, P = run.filter_log["x"], run.filter_log["P"]
+    e = x - filter_truth(run)
+    ok = np.isfinite(e).all(axis=1)
+    out = np.full(len(e), np.nan)
+    out[ok] = np.einsum("ti,ti->t", e[ok], np.linalg.solve(P[ok], e[ok][..., None])[..., 0])
+    return out
+
+
+def monte_carlo(runs, start: float = 0.0, confidence: float = 0.95) -> dict:
+    """The two-sided χ² tests of NEES and NIS over independent ``runs`` of equal length.
+
+    Considers the rows with t ≥ ``start`` s. Returns the per-row average NEES (``nees``),
+    its ``nees_bounds``, the fraction of rows inside them (``nees_inside``), the overall
+    mean NEES against the state dimension (``nees_mean``, ``dim``); and for NIS the
+    fraction of rows, among those with an encoder update in some run, whose summed NIS
+    lies inside its bounds (``nis_inside``) and the overall NIS per degree of freedom
+    (``nis_per_dof``, 1 for a consistent filter).
+    """
+    if len(runs) < 2:
+        raise TwinError(f"a Monte Carlo consistency test needs at least 2 runs, got {len(runs)}")
+    if not (0.5 < confidence < 1.0):
+        raise TwinError(f"confidence must be in (0.5, 1), got {confidence!r}")
+    n = min(len(r.t) for r in runs)
+    keep = runs[0].t[:n] >= start - 1e-9
+    E = np.array([nees(r)[:n] for r in runs])[:, keep]
+    rows = np.isfinite(E).all(axis=0)
+    E = E[:, rows]
+    N, dim = len(runs), runs[0].filter_log["x"].shape[1]
+    a = 0.5 * (1.0 - confidence)
+    lo, hi = chi2.ppf([a, 1.0 - a], N * dim) / N
+    mean = E.mean(axis=0)
+    nis = np.array([np.nan_to_num(r.filter_log["nis"][:n]) for r in runs])[:, keep].sum(axis=0)
+    dof = np.array([r.filter_log["nis_dof"][:n] for r in runs])[:, keep].sum(axis=0)
+    used = dof > 0
+    nlo, nhi = chi2.ppf(a, dof[used]), chi2.ppf(1.0 - a, dof[used])
+    return {"runs": N, "dim": dim, "rows": int(E.shape[1]), "nees": mean, "nees_bounds": (float(lo), float(hi)),
+            "nees_inside": float(np.mean((mean >= lo) & (mean <= hi))), "nees_mean": float(E.mean()),
+            "nis_inside": float(np.mean((nis[used] >= nlo) & (nis[used] <= nhi))),
+            "nis_per_dof": float(nis[used].sum() / dof[used].sum()) if used.any() else math.nan}
