@@ -58,13 +58,14 @@ estimate with its covariance inflated, and the reason is logged in ``events``.
 from __future__ import annotations
 
 import math
+import os
 from typing import NamedTuple
 
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from scipy.stats import chi2
 
-from estimation.model import EstimatorModel
+from estimation.model import TORQUE_TOLERANCE, EstimatorModel
 from twin.errors import TwinError
 
 STATE_NAMES = ("theta", "psi", "imu_speed", "alpha", "gyro_bias_y", "gyro_bias_z", "encoder_zero", "gyro_scale_y",
@@ -73,6 +74,13 @@ STATE_UNITS = ("rad", "rad", "m/s", "rad", "rad/s", "rad/s", "rad", "1", "rad", 
 N = len(STATE_NAMES)
 TH, PS, V, AL, BY, BZ, C0, SY, H0, SZ, SAX, SAZ = range(N)
 GROUPS = ("gyro", "accel", "encoders")
+
+try:  # the optional compiled path (setup.py); TWIN_PURE_PYTHON=1 turns it off
+    from estimation import _ekf as _kernel
+except ImportError:  # pragma: no cover - no C compiler where it was installed
+    _kernel = None
+if os.environ.get("TWIN_PURE_PYTHON", "") not in ("", "0"):
+    _kernel = None
 
 
 def finite_reading(v) -> bool:
@@ -121,12 +129,17 @@ class EKFEstimator:
         Probability that the gate rejects a measurement that fits the model.
     max_rejects_in_row : int
         See the module docstring.
+    compiled : bool or None
+        Run the filter step in the compiled kernel (``estimation._ekf``, the same
+        algorithm without filterpy's per-call overhead); None: when it is built. False:
+        the pure-Python path on filterpy's ExtendedKalmanFilter, the reference.
     """
 
     name = "ekf"
 
     def __init__(self, model: EstimatorModel, imu_every: int = 1, imu_latency: int = 1, encoder_latency: int = 0,
-                 alpha0: float = 0.0, gate_probability: float = 1e-4, max_rejects_in_row: int = 40):
+                 alpha0: float = 0.0, gate_probability: float = 1e-4, max_rejects_in_row: int = 5,
+                 compiled: bool | None = None):
         if not (0.0 < gate_probability < 0.5):
             raise TwinError(f"gate_probability must be in (0, 0.5), got {gate_probability!r}")
         self.model = model
@@ -177,6 +190,18 @@ class EKFEstimator:
         self._last_enc = None
         self.events: list[tuple[float, str]] = []
         self.resets = 0
+        if compiled and _kernel is None:
+            raise TwinError("the compiled EKF kernel is not built here (estimation._ekf); use compiled=None or False")
+        self._core = None
+        if _kernel is not None and compiled is not False:
+            m = model
+            motor = m.motor
+            self._core = _kernel.new((
+                self.dt, self.r, self.xi, self.zi, self.b_r, self.alpha0, self.delta, self._g_var, self._a_var,
+                self._bias_q, 0.0, self.gates[1], self.gates[2], 0.0, self.imu_gates[1], self.imu_gates[2],
+                *self._limits, m.dt, m.m11, m.m12, m.m22, m._plant.n_bla, m._plant.d_b, m._plant.d_w, m._plant.g_b,
+                m._plant.yaw_damping, m._plant.m33, m.g, float(motor is not None), float(m.compensates),
+                m.tau_max, m.i_tau, m.sigma_tau, m.c_e, TORQUE_TOLERANCE, float(self.every)))
 
     # ---- public -----------------------------------------------------------------------
     @property
@@ -184,13 +209,28 @@ class EKFEstimator:
         return sum(self.rejected.values())
 
     @property
+    def compiled(self) -> bool:
+        """True if the filter steps run in the compiled kernel."""
+        return self._core is not None
+
+    @property
     def x(self) -> np.ndarray:
-        """The filter's state (7,) at its own time t_{k−lag}."""
+        """The filter's state (12,) at its own time t_{k−lag}."""
+        self._sync()
         return self.kf.x
 
     @property
     def P(self) -> np.ndarray:
+        """Its covariance (12, 12)."""
+        self._sync()
         return self.kf.P
+
+    def _sync(self) -> None:
+        """Bring the Python-side state up to date with the compiled kernel's."""
+        if self._core is not None:
+            x, P, w, wp = _kernel.state(self._core)
+            self.kf.x, self.kf.P = np.array(x), np.array(P).reshape(N, N)
+            self._w, self._w_prev = w, wp
 
     def rates(self, x=None) -> tuple[float, float]:
         """(θ̇, α̇) in rad/s at the filter's time: the gyro's mean rates over the last two
@@ -212,7 +252,7 @@ class EKFEstimator:
         """Covariance (6, 6) of :meth:`state6` at the filter's time: P mapped through the
         Jacobian of [θ, θ̇, ψ, ψ̇, α, α̇] by the state (central differences), plus the
         gyro's white noise in the extrapolated rates (1.5² + 0.5² samples' worth)."""
-        x = self.kf.x
+        x = self.x
         J = np.empty((6, N))
         for j in range(N):
             h = 1e-6 * max(1.0, abs(x[j]))
@@ -275,6 +315,8 @@ class EKFEstimator:
         if finite_reading(meas.encoders):
             self._last_enc, self._last_enc_m = tuple(meas.encoders), -self.d_enc
         self._good = (x.copy(), P.copy(), self._w, self._w_prev)
+        if self._core is not None:
+            _kernel.set_state(self._core, x, P.ravel(), self._w, self._w_prev)
         return Estimate(*self.state6())
 
     def step(self, meas, command) -> Estimate:
@@ -290,14 +332,24 @@ class EKFEstimator:
         self._store(meas, k)
         m = k - self.lag
         if m >= self.every and m % self.every == 0 and m > self.m:
-            try:
-                self._advance(m, meas.t - self.lag * self.model.dt)
-            except (np.linalg.LinAlgError, FloatingPointError, ValueError, ZeroDivisionError) as err:
-                self._restore(meas.t, f"numerical failure in the filter ({err}); restored the last good estimate")
+            t = meas.t - self.lag * self.model.dt
+            if self._core is not None:
+                self._advance_compiled(m, t)
+            else:
+                try:
+                    self._advance(m, t)
+                except (np.linalg.LinAlgError, FloatingPointError, ValueError, ZeroDivisionError) as err:
+                    self._restore(t, f"numerical failure in the filter ({err}); restored the last good estimate")
+            for j in range(self.m - self.every, m - self.every):  # samples no step will need again
+                self._commands.pop(j, None)
+                self._imu.pop(j, None)
+                self._enc.pop(j, None)
             self.m = m
-        for d in (self._commands, self._imu, self._enc):
-            for old in [j for j in d if j < self.m - self.every]:
-                del d[old]
+        if self._core is not None:
+            s, finite = _kernel.forward(self._core, [self._commands.get(j, (0.0, 0.0)) for j in range(self.m, k)])
+            if not finite:
+                self.events.append((k * self.model.dt, "forward prediction non-finite; handing out the filter's own state"))
+            return Estimate(*s)
         return Estimate(*self._forward(self.state6(), self.m, k))
 
     # ---- internals ---------------------------------------------------------------------
@@ -313,6 +365,50 @@ class EKFEstimator:
         if ok(meas.encoders):
             self._enc[k - self.d_enc] = meas.encoders
 
+    def _advance_compiled(self, m: int, t: float) -> None:
+        """:meth:`_advance` in the compiled kernel; the counts and events kept here."""
+        imu, enc = self._imu.get(m), self._enc.get(m)
+        command = self._commands.get(m - self.every, (0.0, 0.0))
+        sample = None if imu is None else (imu[0][1], imu[0][2], imu[1][0], imu[1][2])
+        if enc is not None and self._last_enc is None:
+            self._last_enc, self._last_enc_m = tuple(enc), m
+        T = (m - self._last_enc_m) * self.model.dt
+        code_i, sat, code_e, nis, dof, eps_imu, ok = _kernel.advance(
+            self._core, sample, enc, self._last_enc if enc is not None else None, T, command,
+            self.in_row < self.max_rejects_in_row)
+        if imu is None:
+            self.predict_only += 1
+        else:
+            self.saturated += sat
+            group = self.accepted if code_i == 1 else self.rejected
+            group["gyro"] += 1
+            group["accel"] += 1
+            if code_i == 2:
+                self.events.append((t, f"IMU sample rejected as an outlier (encoder NIS {eps_imu:.3g} with it)"))
+        if code_e <= 1:
+            if code_e == 1:
+                self.unchanged_encoders += 1
+                self._last_enc_m = m
+            if imu is not None:
+                self.predict_only += 1
+        else:
+            self.last_nis, self.last_dof = nis, dof
+            if code_e == 3:
+                self.rejected["encoders"] += 1
+                self.in_row += 1
+                self.predict_only += 1
+            else:
+                if code_e == 4:
+                    self.events.append((t, f"encoders accepted after {self.in_row} rejections in a row "
+                                           f"(NIS {nis:.3g} > gate {self.gates[dof]:.3g}): re-synchronising"))
+                self.in_row = 0
+                self.accepted["encoders"] += 1
+                self._last_enc, self._last_enc_m = tuple(enc), m
+        if not ok:
+            self.resets += 1
+            self.events.append((t, "the state or covariance became non-finite or lost positivity, or the update "
+                                   "failed numerically; restored the last good estimate"))
+
     def _advance(self, m: int, t: float) -> None:
         """Predict from the filter's time to t_m and update with the encoders there."""
         kf = self.kf
@@ -321,7 +417,6 @@ class EKFEstimator:
         imu = self._imu.get(m)
         enc = self._enc.get(m)
         syn = None  # the model's sample, computed when needed
-        em = eps = None  # the encoders' measurement model and NIS against the prior kept
         if imu is None:
             self.predict_only += 1
             syn = self._synthetic(x, command)
@@ -339,13 +434,13 @@ class EKFEstimator:
             pred = self._propagate(x, sample)
             accepted = True
             if enc is not None:
-                em, eps = self._encoder_fit(enc, m, pred, P)
-                if em is not None and not eps <= self.imu_gates[len(em[0])]:
+                tm, eps = self._encoder_fit(enc, m, pred, P, test=True)
+                if tm is not None and not eps <= self.imu_gates[len(tm[0])]:
                     alt = self._propagate(x, syn if syn is not None else self._synthetic(x, command))
-                    em_alt, eps_alt = self._encoder_fit(enc, m, alt, P)
-                    if eps_alt <= self.gates[len(em_alt[0])]:
+                    tm_alt, eps_alt = self._encoder_fit(enc, m, alt, P, test=True)
+                    if eps_alt <= self.gates[len(tm_alt[0])]:
                         self.events.append((t, f"IMU sample rejected as an outlier (encoder NIS {eps:.3g} with it)"))
-                        pred, em, eps, accepted = alt, em_alt, eps_alt, False
+                        pred, accepted = alt, False
             group = self.accepted if accepted else self.rejected
             group["gyro"] += 1
             group["accel"] += 1
@@ -353,7 +448,8 @@ class EKFEstimator:
         kf._x_next, kf.F, kf.Q = x_next, F, Q
         kf.predict()
         self._w_prev, self._w = self._w, w
-        if enc is not None and em is None:
+        em = eps = None
+        if enc is not None:
             em, eps = self._encoder_fit(enc, m, None, None)
         if enc is not None and em is None:
             # unchanged counts: no edge was crossed (no new information)
@@ -372,7 +468,7 @@ class EKFEstimator:
             self._restore(t, "the state or covariance became non-finite or lost positivity; "
                              "restored the last good estimate")
 
-    def _encoder_fit(self, enc, m: int, pred, P):
+    def _encoder_fit(self, enc, m: int, pred, P, test: bool = False):
         """(measurement, NIS) of encoder sample ``enc`` at t_m against the prior of
         ``pred`` = (x⁺, F, Q, ω) from ``P`` (None: the filter's current prior).
 
@@ -382,13 +478,18 @@ class EKFEstimator:
         u·|q̇|T, u ~ U(0, 1), at most one count (mean half, variance (q̇T)²/12, plus the
         uncertainty of q̇). Unchanged counts carry no new information (None, None)
         - the same quantisation error again, which a white-noise model would count anew.
+
+        ``test``: for the IMU outlier test, a wheel whose count did not change is still
+        somewhere inside its count: a row with the reading, variance Δ²/12. (That is
+        what catches an IMU spike between two edges.)
         """
         last = self._last_enc
         if last is None:
             self._last_enc, self._last_enc_m = tuple(enc), m
-            return None, None
+            last = self._last_enc
         changed = [i for i in (0, 1) if enc[i] != last[i]]
-        if not changed:
+        rows = (0, 1) if test else changed
+        if not rows:
             return None, None
         if pred is None:
             x, Pp, (wy, wz) = self.kf.x, self.kf.P, self._w
@@ -404,15 +505,20 @@ class EKFEstimator:
         spin = b_r * (wz - x[BZ]) / ((1.0 + x[SZ]) * math.cos(th))
         var_q = Pp[V, V] / self.r ** 2 + self._g_var * ((1.0 + dz / self.r) ** 2 + b_r * b_r)
         z, off, R = [], [], []
-        for i in changed:
+        for i in rows:
             sgn = 2 * i - 1
+            if i not in changed:
+                z.append(enc[i])
+                off.append(-sgn * b_r * self.alpha0)
+                R.append(dlt * dlt / 12.0)
+                continue
             up = enc[i] > last[i]
             d = min(abs(wheel + sgn * spin) * T, dlt)
             d = d if up else -d
             z.append(enc[i] - 0.5 * dlt if up else enc[i] + 0.5 * dlt)
             off.append(-sgn * b_r * self.alpha0 - 0.5 * d)
             R.append(min(d * d / 12.0 + var_q * T * T / 3.0, dlt * dlt / 12.0))
-        H = self.H[changed]
+        H = self.H[list(rows)]
         z, off, R = np.array(z), np.array(off), np.diag(R)
         y = z - (H @ x + off)
         S = H @ Pp @ H.T + R
@@ -505,6 +611,8 @@ class EKFEstimator:
         return x1, F, Q, (wy, wz)
 
     def _restore(self, t: float, why: str) -> None:
+        if self._core is not None:
+            raise TwinError("_restore belongs to the pure-Python path; the compiled kernel restores itself")
         x, P, self._w, self._w_prev = self._good
         self.kf.x, self.kf.P = x.copy(), 4.0 * P + np.diag(np.full(N, 1e-10))
         self.resets += 1

@@ -1,0 +1,620 @@
+/* Optional compiled path of the twin's EKF (estimation/ekf.py).
+
+   The same algorithm as EKFEstimator's pure-Python path (which runs on filterpy's
+   ExtendedKalmanFilter), for one filter step at a time; the Python wrapper keeps the
+   bookkeeping (sample queues, counters, events). tests/test_estimator_kernel.py checks
+   that both paths agree to rounding: the matrix products sum in another order than
+   NumPy's, so the paths are close, not bit-identical; each is deterministic.
+
+     new(consts)                       -> capsule holding the filter (see Core)
+     set_state(core, x, P, w, w_prev)  /  state(core) -> (x, P, w, w_prev) as tuples
+     advance(core, imu, enc, last, T, command, may_reject)
+         imu = (ω_y, ω_z, f_x, f_z) or None; enc, last = (e_l, e_r) or None; T the time
+         since the encoder sample ``last`` (s); command = (ul, ur) N·m held over the step.
+         -> (imu_code, saturated, enc_code, nis, dof, eps_imu, healthy)
+            imu_code 0 no sample, 1 used, 2 rejected as an outlier (model's sample used)
+            enc_code 0 no sample, 1 unchanged counts, 2 used, 3 rejected, 4 used although
+            failing the gate (may_reject false); healthy 0 if the state had to be restored
+     forward(core, commands) -> ([θ, θ̇, ψ, ψ̇, α, α̇] predicted over the commands, finite)
+     state6(core) -> the filter's own [θ, θ̇, ψ, ψ̇, α, α̇]
+
+   Built by setup.py with -ffp-contract=off like the other kernels. */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <math.h>
+#include <string.h>
+
+#define NX 12
+enum { TH, PS, V, AL, BY, BZ, C0, SY, H0, SZ, SAX, SAZ };
+enum { ITH, ITHD, IPS, IPSD, IAL, IALD };
+
+typedef struct {
+    /* filter */
+    double dt, r, xi, zi, b_r, alpha0, delta, g_var, a_var, bias_q;
+    double gate[3], imu_gate[3], lim[4];
+    /* the estimator's model: equation (1) with d_b + c_e, and the motors' driver */
+    double mdt, m11, m12, m22, n_bla, d_b, d_w, g_b, yaw_damping, m33, g;
+    double has_motor, compensates, tau_max, i_tau, sigma_tau, c_e, tol, every;
+    /* state */
+    double x[NX], P[NX * NX], w[2], w_prev[2];
+    double xg[NX], Pg[NX * NX], wg[2], wpg[2];
+} Core;
+
+#define NCONST 39 /* doubles before x */
+
+static void core_free(PyObject *cap) { PyMem_Free(PyCapsule_GetPointer(cap, "ekf_core")); }
+
+static Core *get(PyObject *cap) { return (Core *)PyCapsule_GetPointer(cap, "ekf_core"); }
+
+static int floats(PyObject *seq, double *out, Py_ssize_t n, const char *what) {
+    PyObject *f = PySequence_Fast(seq, what);
+    if (!f) return -1;
+    if (PySequence_Fast_GET_SIZE(f) != n) {
+        PyErr_Format(PyExc_ValueError, "%s must have %zd numbers", what, n);
+        Py_DECREF(f);
+        return -1;
+    }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        out[i] = PyFloat_AsDouble(PySequence_Fast_GET_ITEM(f, i));
+        if (out[i] == -1.0 && PyErr_Occurred()) {
+            Py_DECREF(f);
+            return -1;
+        }
+    }
+    Py_DECREF(f);
+    return 0;
+}
+
+static PyObject *tuple_of(const double *v, int n) {
+    PyObject *t = PyTuple_New(n);
+    if (!t) return NULL;
+    for (int i = 0; i < n; i++) {
+        PyObject *f = PyFloat_FromDouble(v[i]);
+        if (!f) {
+            Py_DECREF(t);
+            return NULL;
+        }
+        PyTuple_SET_ITEM(t, i, f);
+    }
+    return t;
+}
+
+/* ---- the model (estimation/model.py) ------------------------------------------------ */
+static void rhs(const Core *c, const double *s, double ul, double ur, double *d) {
+    double th = s[0], thd = s[1], psd = s[3], ald = s[5];
+    double sn = sin(th), cs = cos(th);
+    double drive = 2.0 * c->d_b * (thd - psd);
+    double u = ul + ur;
+    double rhs1 = c->m12 * (thd * thd + ald * ald) * sn - 2.0 * c->d_w * psd + drive + u + 0.0;
+    double rhs2 = c->n_bla * ald * ald * sn * cs + c->g_b * sn - drive - u + 0.0;
+    double mc = c->m12 * cs;
+    double det = c->m11 * c->m22 - mc * mc;
+    double yaw = -2.0 * c->n_bla * ald * thd * sn * cs - c->m12 * ald * psd * sn - c->yaw_damping * ald +
+                 c->b_r * (ur - ul) + 0.0;
+    d[0] = thd;
+    d[1] = (c->m11 * rhs2 - c->m12 * cs * rhs1) / det;
+    d[2] = psd;
+    d[3] = (c->m22 * rhs1 - c->m12 * cs * rhs2) / det;
+    d[4] = ald;
+    d[5] = yaw / (c->m33 + c->n_bla * sn * sn);
+}
+
+static void model_step(const Core *c, double *s, double tl, double tr, int periods) {
+    double k1[6], k2[6], k3[6], k4[6], y[6], dt = c->mdt;
+    for (int p = 0; p < periods; p++) {
+        rhs(c, s, tl, tr, k1);
+        for (int i = 0; i < 6; i++) y[i] = s[i] + 0.5 * dt * k1[i];
+        rhs(c, y, tl, tr, k2);
+        for (int i = 0; i < 6; i++) y[i] = s[i] + 0.5 * dt * k2[i];
+        rhs(c, y, tl, tr, k3);
+        for (int i = 0; i < 6; i++) y[i] = s[i] + dt * k3[i];
+        rhs(c, y, tl, tr, k4);
+        for (int i = 0; i < 6; i++) s[i] = s[i] + (dt / 6.0) * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]);
+    }
+}
+
+static double clip(double v, double lim) { return v > lim ? lim : (v < -lim ? -lim : v); }
+
+static void delivered(const Core *c, const double *s, double ul, double ur, double *tl, double *tr) {
+    if (c->has_motor == 0.0) {
+        *tl = ul;
+        *tr = ur;
+        return;
+    }
+    ul = clip(ul, c->i_tau);
+    ur = clip(ur, c->i_tau);
+    if (c->compensates != 0.0) {
+        double w = s[IPSD] - s[ITHD], h = c->b_r * s[IALD];
+        ul += c->c_e * (w - h);
+        ur += c->c_e * (w + h);
+    }
+    *tl = clip(ul, c->tau_max);
+    *tr = clip(ur, c->tau_max);
+}
+
+static double torque_var(const Core *c, double tau) {
+    double a = c->tol * tau;
+    return c->sigma_tau * c->sigma_tau + a * a;
+}
+
+/* ---- the filter --------------------------------------------------------------------- */
+static void state6(const Core *c, const double *x, double *s) {
+    double wy = 1.5 * c->w[0] - 0.5 * c->w_prev[0], wz = 1.5 * c->w[1] - 0.5 * c->w_prev[1];
+    double th = x[TH];
+    double thd = (wy - x[BY]) / (1.0 + x[SY]);
+    double ald = (wz - x[BZ]) / ((1.0 + x[SZ]) * cos(th));
+    double dz = -c->xi * sin(th) + c->zi * cos(th);
+    s[0] = th;
+    s[1] = thd;
+    s[2] = x[PS];
+    s[3] = (x[V] - thd * dz) / c->r;
+    s[4] = x[AL];
+    s[5] = ald;
+}
+
+/* the IMU sample equation (1) predicts (as the sensor would read it) and its extra variances */
+static void synthetic(const Core *c, const double *x, double ul, double ur, double *smp, double *extra) {
+    double s[6], s1[6], tl, tr;
+    int periods = (int)c->every;
+    state6(c, x, s);
+    delivered(c, s, ul, ur, &tl, &tr);
+    memcpy(s1, s, sizeof s);
+    model_step(c, s1, tl, tr, periods);
+    double t = periods * c->mdt, xi = c->xi, zi = c->zi, r = c->r;
+    double sn0 = sin(s[ITH]), cs0 = cos(s[ITH]), sn1 = sin(s1[ITH]), cs1 = cos(s1[ITH]);
+    double dx0 = xi * cs0 + zi * sn0, dz0 = -xi * sn0 + zi * cs0;
+    double dx1 = xi * cs1 + zi * sn1, dz1 = -xi * sn1 + zi * cs1;
+    double u0 = r * s[IPSD] + s[ITHD] * dz0, w0 = -s[ITHD] * dx0;
+    double u1 = r * s1[IPSD] + s1[ITHD] * dz1, w1 = -s1[ITHD] * dx1;
+    double ald = (s1[IAL] - s[IAL]) / t;
+    double Fx = (u1 - u0) / t - ald * ald * dx1;
+    double Fz = (w1 - w0) / t + c->g;
+    double fx = Fx * cs1 - Fz * sn1, fz = Fx * sn1 + Fz * cs1;
+    double thm = (s1[ITH] - s[ITH]) / t;
+    double mc = c->m12 * cs1;
+    double det = c->m11 * c->m22 - mc * mc;
+    double dthdd = -(c->m11 + c->m12 * cs1) / det, dpsdd = (c->m22 + c->m12 * cs1) / det;
+    double var_tau = torque_var(c, tl) + torque_var(c, tr);
+    double a = 0.5 * dthdd * t, b = r * dpsdd + zi * dthdd;
+    double gv = a * a * var_tau, av = b * b * var_tau;
+    double wz = ald * cos(0.5 * (s[ITH] + s1[ITH]));
+    smp[0] = (1.0 + x[SY]) * thm + x[BY];
+    smp[1] = (1.0 + x[SZ]) * wz + x[BZ];
+    smp[2] = (1.0 + x[SAX]) * fx;
+    smp[3] = (1.0 + x[SAZ]) * fz;
+    extra[0] = extra[1] = gv;
+    extra[2] = extra[3] = av;
+}
+
+/* one strapdown step: x1, F, Q from x and the sample (ω_y, ω_z, f_x, f_z) (see _propagate) */
+static void propagate(const Core *c, const double *x, const double *smp, const double *extra, double *x1,
+                      double *F, double *Q) {
+    double wy = smp[0], wz = smp[1], fx = smp[2], fz = smp[3];
+    double dt = c->dt, r = c->r, xi = c->xi, zi = c->zi;
+    double th = x[TH], v = x[V];
+    double q = 1.0 / (1.0 + x[SY]), qz = 1.0 / (1.0 + x[SZ]), qax = 1.0 / (1.0 + x[SAX]), qaz = 1.0 / (1.0 + x[SAZ]);
+    double thm = (wy - x[BY]) * q;
+    double th1 = th + dt * thm;
+    double thb = 0.5 * (th + th1);
+    double s0 = sin(th), c0 = cos(th), s1 = sin(th1), c1 = cos(th1);
+    double cb = cos(thb), tb = tan(thb);
+    double ad = (wz - x[BZ]) * qz / cb;
+    double dx0 = xi * c0 + zi * s0, dz0 = -xi * s0 + zi * c0;
+    double dx1 = xi * c1 + zi * s1, dz1 = -xi * s1 + zi * c1;
+    double fxt = fx * qax, fzt = fz * qaz;
+    double Fx = c1 * fxt + s1 * fzt, Fz = -s1 * fxt + c1 * fzt;
+    double v1 = v + dt * (Fx + ad * ad * dx1);
+    memcpy(x1, x, NX * sizeof(double));
+    x1[TH] = th1;
+    x1[AL] = x[AL] + dt * ad;
+    x1[V] = v1;
+    x1[PS] = x[PS] + (0.5 * dt * (v + v1) - dx1 + dx0) / r;
+
+    double dth1[NX] = {0}, dad[NX] = {0}, dFx[NX], dv1[NX];
+    dth1[TH] = 1.0;
+    dth1[BY] = -dt * q;
+    dth1[SY] = -dt * thm * q;
+    double ith1[4] = {dt * q, 0.0, 0.0, 0.0};
+    double k = ad * tb * 0.5;
+    for (int j = 0; j < NX; j++) dad[j] = k * ((j == TH) + dth1[j]);
+    dad[BZ] -= qz / cb;
+    dad[SZ] -= ad * qz;
+    double iad[4] = {k * ith1[0], qz / cb, 0.0, 0.0};
+    for (int j = 0; j < NX; j++) dFx[j] = Fz * dth1[j];
+    dFx[SAX] -= c1 * fxt * qax;
+    dFx[SAZ] -= s1 * fzt * qaz;
+    double iFx[4] = {Fz * ith1[0], 0.0, c1 * qax, s1 * qaz};
+    double a2 = 2.0 * ad * dx1, a3 = ad * ad * dz1;
+    for (int j = 0; j < NX; j++) dv1[j] = (j == V) + dt * (dFx[j] + a2 * dad[j] + a3 * dth1[j]);
+    double iv1[4], L[4][4]; /* rows TH, AL, V, PS of the noise map */
+    for (int j = 0; j < 4; j++) iv1[j] = dt * (iFx[j] + a2 * iad[j] + a3 * ith1[j]);
+    memset(F, 0, NX * NX * sizeof(double));
+    for (int i = 0; i < NX; i++) F[i * NX + i] = 1.0;
+    for (int j = 0; j < NX; j++) {
+        F[TH * NX + j] = dth1[j];
+        F[AL * NX + j] = (j == AL) + dt * dad[j];
+        F[V * NX + j] = dv1[j];
+        F[PS * NX + j] = ((j == PS) + (0.5 * dt * ((j == V) + dv1[j]) - dz1 * dth1[j] + dz0 * (j == TH)) / r);
+    }
+    for (int j = 0; j < 4; j++) {
+        L[0][j] = ith1[j];
+        L[1][j] = dt * iad[j];
+        L[2][j] = iv1[j];
+        L[3][j] = (0.5 * dt * iv1[j] - dz1 * ith1[j]) / r;
+    }
+    double var[4] = {c->g_var, c->g_var, c->a_var, c->a_var};
+    if (extra)
+        for (int j = 0; j < 4; j++) var[j] += extra[j];
+    static const int rows[4] = {TH, AL, V, PS};
+    memset(Q, 0, NX * NX * sizeof(double));
+    for (int a = 0; a < 4; a++)
+        for (int b = 0; b < 4; b++) {
+            double s = 0.0;
+            for (int j = 0; j < 4; j++) s += L[a][j] * var[j] * L[b][j];
+            Q[rows[a] * NX + rows[b]] = s;
+        }
+    Q[BY * NX + BY] += c->bias_q;
+    Q[BZ * NX + BZ] += c->bias_q;
+}
+
+/* Pp = F P Fᵀ + Q; F is the identity outside rows TH, AL, V, PS */
+static void cov_predict(const double *F, const double *P, const double *Q, double *Pp) {
+    static const int rows[4] = {TH, AL, V, PS};
+    int full[NX] = {0};
+    double A[NX * NX];
+    for (int a = 0; a < 4; a++) full[rows[a]] = 1;
+    for (int i = 0; i < NX; i++) {
+        if (!full[i]) {
+            memcpy(A + i * NX, P + i * NX, NX * sizeof(double));
+            continue;
+        }
+        for (int j = 0; j < NX; j++) {
+            double s = 0.0;
+            for (int k = 0; k < NX; k++) s += F[i * NX + k] * P[k * NX + j];
+            A[i * NX + j] = s;
+        }
+    }
+    for (int i = 0; i < NX; i++)
+        for (int j = 0; j < NX; j++) {
+            double s;
+            if (!full[j])
+                s = A[i * NX + j];
+            else {
+                s = 0.0;
+                for (int k = 0; k < NX; k++) s += A[i * NX + k] * F[j * NX + k];
+            }
+            Pp[i * NX + j] = s + Q[i * NX + j];
+        }
+}
+
+typedef struct {
+    int dof;
+    double z[2], off[2], R[2], H[2][NX];
+} EncMeas;
+
+/* the encoders' measurement against the prior (x, Pp) and its NIS; dof 0 if no count changed.
+   test: unchanged counts give a row too (the reading, variance Δ²/12), for the IMU outlier test */
+static double encoder_fit(const Core *c, const double *enc, const double *last, double T, const double *x,
+                          const double *w, const double *Pp, int test, EncMeas *em) {
+    double dlt = c->delta, b_r = c->b_r, r = c->r;
+    double th = x[TH];
+    double thd = (w[0] - x[BY]) / (1.0 + x[SY]);
+    double dz = -c->xi * sin(th) + c->zi * cos(th);
+    double wheel = (x[V] - thd * dz) / r - thd;
+    double spin = b_r * (w[1] - x[BZ]) / ((1.0 + x[SZ]) * cos(th));
+    double e = 1.0 + dz / r;
+    double var_q = Pp[V * NX + V] / (r * r) + c->g_var * (e * e + b_r * b_r);
+    em->dof = 0;
+    for (int i = 0; i < 2; i++) {
+        int same = enc[i] == last[i];
+        if (same && !test) continue;
+        double sgn = 2 * i - 1;
+        int n = em->dof++;
+        double cap = dlt * dlt / 12.0;
+        if (same) {
+            em->z[n] = enc[i];
+            em->off[n] = -sgn * b_r * c->alpha0;
+            em->R[n] = cap;
+        } else {
+            int up = enc[i] > last[i];
+            double d = fabs(wheel + sgn * spin) * T;
+            if (d > dlt) d = dlt;
+            if (!up) d = -d;
+            em->z[n] = up ? enc[i] - 0.5 * dlt : enc[i] + 0.5 * dlt;
+            em->off[n] = -sgn * b_r * c->alpha0 - 0.5 * d;
+            double R = d * d / 12.0 + var_q * T * T / 3.0;
+            em->R[n] = R < cap ? R : cap;
+        }
+        memset(em->H[n], 0, sizeof em->H[n]);
+        em->H[n][PS] = em->H[n][C0] = 1.0;
+        em->H[n][TH] = -1.0;
+        em->H[n][AL] = sgn * b_r;
+        em->H[n][H0] = sgn;
+    }
+    if (em->dof == 0) return NAN;
+    double y[2], PHt[NX][2], S[2][2];
+    for (int a = 0; a < em->dof; a++) {
+        double hx = em->off[a];
+        for (int j = 0; j < NX; j++) hx += em->H[a][j] * x[j];
+        y[a] = em->z[a] - hx;
+        for (int i = 0; i < NX; i++) {
+            double s = 0.0;
+            for (int j = 0; j < NX; j++) s += Pp[i * NX + j] * em->H[a][j];
+            PHt[i][a] = s;
+        }
+    }
+    for (int a = 0; a < em->dof; a++)
+        for (int b = 0; b < em->dof; b++) {
+            double s = 0.0;
+            for (int i = 0; i < NX; i++) s += em->H[a][i] * PHt[i][b];
+            S[a][b] = s + (a == b ? em->R[a] : 0.0);
+        }
+    if (em->dof == 1) return y[0] * y[0] / S[0][0];
+    double det = S[0][0] * S[1][1] - S[0][1] * S[1][0];
+    return (y[0] * (S[1][1] * y[0] - S[0][1] * y[1]) + y[1] * (-S[1][0] * y[0] + S[0][0] * y[1])) / det;
+}
+
+/* the Kalman update (Joseph form, as filterpy) of x, P with the encoder measurement */
+static int kalman_update(double *x, double *P, const EncMeas *em) {
+    int m = em->dof;
+    double PHt[NX][2], S[2][2], Si[2][2], K[NX][2], y[2];
+    for (int a = 0; a < m; a++) {
+        double hx = em->off[a];
+        for (int j = 0; j < NX; j++) hx += em->H[a][j] * x[j];
+        y[a] = em->z[a] - hx;
+        for (int i = 0; i < NX; i++) {
+            double s = 0.0;
+            for (int j = 0; j < NX; j++) s += P[i * NX + j] * em->H[a][j];
+            PHt[i][a] = s;
+        }
+    }
+    for (int a = 0; a < m; a++)
+        for (int b = 0; b < m; b++) {
+            double s = 0.0;
+            for (int i = 0; i < NX; i++) s += em->H[a][i] * PHt[i][b];
+            S[a][b] = s + (a == b ? em->R[a] : 0.0);
+        }
+    if (m == 1) {
+        if (!(S[0][0] > 0.0)) return -1;
+        Si[0][0] = 1.0 / S[0][0];
+    } else {
+        double det = S[0][0] * S[1][1] - S[0][1] * S[1][0];
+        if (!(det > 0.0)) return -1;
+        Si[0][0] = S[1][1] / det;
+        Si[1][1] = S[0][0] / det;
+        Si[0][1] = -S[0][1] / det;
+        Si[1][0] = -S[1][0] / det;
+    }
+    for (int i = 0; i < NX; i++)
+        for (int b = 0; b < m; b++) {
+            double s = 0.0;
+            for (int a = 0; a < m; a++) s += PHt[i][a] * Si[a][b];
+            K[i][b] = s;
+        }
+    for (int i = 0; i < NX; i++)
+        for (int a = 0; a < m; a++) x[i] += K[i][a] * y[a];
+    /* P = (I − K H) P (I − K H)ᵀ + K R Kᵀ */
+    double IKH[NX * NX], A[NX * NX];
+    for (int i = 0; i < NX; i++)
+        for (int j = 0; j < NX; j++) {
+            double s = (i == j);
+            for (int a = 0; a < m; a++) s -= K[i][a] * em->H[a][j];
+            IKH[i * NX + j] = s;
+        }
+    for (int i = 0; i < NX; i++)
+        for (int j = 0; j < NX; j++) {
+            double s = 0.0;
+            for (int k = 0; k < NX; k++) s += IKH[i * NX + k] * P[k * NX + j];
+            A[i * NX + j] = s;
+        }
+    for (int i = 0; i < NX; i++)
+        for (int j = 0; j < NX; j++) {
+            double s = 0.0;
+            for (int k = 0; k < NX; k++) s += A[i * NX + k] * IKH[j * NX + k];
+            for (int a = 0; a < m; a++) s += K[i][a] * em->R[a] * K[j][a];
+            P[i * NX + j] = s;
+        }
+    return 0;
+}
+
+static int healthy(const Core *c) {
+    for (int i = 0; i < NX; i++)
+        if (!isfinite(c->x[i]) || !(c->P[i * NX + i] > 0.0)) return 0;
+    for (int i = 0; i < NX * NX; i++)
+        if (!isfinite(c->P[i])) return 0;
+    return 1;
+}
+
+static void restore(Core *c) {
+    memcpy(c->x, c->xg, sizeof c->x);
+    for (int i = 0; i < NX * NX; i++) c->P[i] = 4.0 * c->Pg[i];
+    for (int i = 0; i < NX; i++) c->P[i * NX + i] += 1e-10;
+    memcpy(c->w, c->wg, sizeof c->w);
+    memcpy(c->w_prev, c->wpg, sizeof c->w_prev);
+}
+
+static void keep_good(Core *c) {
+    memcpy(c->xg, c->x, sizeof c->x);
+    memcpy(c->Pg, c->P, sizeof c->P);
+    memcpy(c->wg, c->w, sizeof c->w);
+    memcpy(c->wpg, c->w_prev, sizeof c->w_prev);
+}
+
+/* ---- Python interface ----------------------------------------------------------------- */
+static PyObject *new_core(PyObject *self, PyObject *arg) {
+    Core *c = PyMem_Calloc(1, sizeof(Core));
+    if (!c) return PyErr_NoMemory();
+    if (floats(arg, (double *)c, NCONST, "consts")) {
+        PyMem_Free(c);
+        return NULL;
+    }
+    PyObject *cap = PyCapsule_New(c, "ekf_core", core_free);
+    if (!cap) PyMem_Free(c);
+    return cap;
+}
+
+static PyObject *set_state(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    Core *c;
+    if (nargs != 5 || !(c = get(args[0]))) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "set_state(core, x, P, w, w_prev)");
+        return NULL;
+    }
+    if (floats(args[1], c->x, NX, "x") || floats(args[2], c->P, NX * NX, "P") || floats(args[3], c->w, 2, "w") ||
+        floats(args[4], c->w_prev, 2, "w_prev"))
+        return NULL;
+    keep_good(c);
+    Py_RETURN_NONE;
+}
+
+static PyObject *get_state(PyObject *self, PyObject *arg) {
+    Core *c = get(arg);
+    if (!c) return NULL;
+    return Py_BuildValue("(NNNN)", tuple_of(c->x, NX), tuple_of(c->P, NX * NX), tuple_of(c->w, 2),
+                         tuple_of(c->w_prev, 2));
+}
+
+static PyObject *py_state6(PyObject *self, PyObject *arg) {
+    Core *c = get(arg);
+    if (!c) return NULL;
+    double s[6];
+    state6(c, c->x, s);
+    return tuple_of(s, 6);
+}
+
+static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    Core *c;
+    if (nargs != 7 || !(c = get(args[0]))) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "advance(core, imu, enc, last, T, command, may_reject)");
+        return NULL;
+    }
+    double smp[4], extra[4] = {0, 0, 0, 0}, syn[4], syn_extra[4], enc[2], last[2], cmd[2];
+    int has_imu = args[1] != Py_None, has_enc = args[2] != Py_None && args[3] != Py_None;
+    if (has_imu && floats(args[1], smp, 4, "imu")) return NULL;
+    if (has_enc && (floats(args[2], enc, 2, "enc") || floats(args[3], last, 2, "last"))) return NULL;
+    double T = PyFloat_AsDouble(args[4]);
+    if (T == -1.0 && PyErr_Occurred()) return NULL;
+    if (floats(args[5], cmd, 2, "command")) return NULL;
+    int may_reject = PyObject_IsTrue(args[6]);
+    if (may_reject < 0) return NULL;
+
+    double x1[NX], F[NX * NX], Q[NX * NX], Pp[NX * NX], w1[2];
+    int imu_code = 0, saturated = 0, enc_code = 0, have_syn = 0, ok = 1;
+    double nis = NAN, eps_imu = NAN;
+    EncMeas em;
+    em.dof = 0;
+    if (!has_imu) {
+        synthetic(c, c->x, cmd[0], cmd[1], syn, syn_extra);
+        have_syn = 1;
+        propagate(c, c->x, syn, syn_extra, x1, F, Q);
+        w1[0] = syn[0];
+        w1[1] = syn[1];
+    } else {
+        int any = 0, sat[4];
+        for (int j = 0; j < 4; j++) any |= sat[j] = fabs(smp[j]) >= c->lim[j];
+        if (any) {
+            synthetic(c, c->x, cmd[0], cmd[1], syn, syn_extra);
+            have_syn = 1;
+            for (int j = 0; j < 4; j++)
+                if (sat[j]) {
+                    smp[j] = syn[j];
+                    extra[j] = syn_extra[j];
+                }
+            saturated = 1;
+        }
+        propagate(c, c->x, smp, any ? extra : NULL, x1, F, Q);
+        w1[0] = smp[0];
+        w1[1] = smp[1];
+        imu_code = 1;
+        if (has_enc) {
+            cov_predict(F, c->P, Q, Pp);
+            double eps = encoder_fit(c, enc, last, T, x1, w1, Pp, 1, &em);
+            if (!(eps <= c->imu_gate[em.dof])) {
+                double ax1[NX], aF[NX * NX], aQ[NX * NX], aPp[NX * NX], aw[2];
+                EncMeas aem;
+                if (!have_syn) synthetic(c, c->x, cmd[0], cmd[1], syn, syn_extra);
+                have_syn = 1;
+                propagate(c, c->x, syn, syn_extra, ax1, aF, aQ);
+                aw[0] = syn[0];
+                aw[1] = syn[1];
+                cov_predict(aF, c->P, aQ, aPp);
+                double eps_alt = encoder_fit(c, enc, last, T, ax1, aw, aPp, 1, &aem);
+                if (eps_alt <= c->gate[aem.dof]) {
+                    memcpy(x1, ax1, sizeof x1);
+                    memcpy(Pp, aPp, sizeof Pp);
+                    memcpy(w1, aw, sizeof w1);
+                    eps_imu = eps;
+                    imu_code = 2;
+                }
+            }
+        }
+    }
+    if (!(has_imu && has_enc)) cov_predict(F, c->P, Q, Pp);
+    memcpy(c->x, x1, sizeof x1);
+    memcpy(c->P, Pp, sizeof Pp);
+    c->w_prev[0] = c->w[0];
+    c->w_prev[1] = c->w[1];
+    c->w[0] = w1[0];
+    c->w[1] = w1[1];
+    if (has_enc) nis = encoder_fit(c, enc, last, T, c->x, c->w, c->P, 0, &em);
+    int dof = em.dof;
+    if (has_enc) {
+        if (dof == 0)
+            enc_code = 1;
+        else if (!(nis <= c->gate[dof]) && may_reject)
+            enc_code = 3;
+        else {
+            enc_code = (nis <= c->gate[dof]) ? 2 : 4;
+            if (kalman_update(c->x, c->P, &em)) ok = 0;
+        }
+    }
+    for (int i = 0; i < NX; i++)
+        for (int j = i + 1; j < NX; j++) {
+            double s = 0.5 * (c->P[i * NX + j] + c->P[j * NX + i]);
+            c->P[i * NX + j] = c->P[j * NX + i] = s;
+        }
+    if (ok && healthy(c))
+        keep_good(c);
+    else {
+        restore(c);
+        ok = 0;
+    }
+    return Py_BuildValue("(iiididi)", imu_code, saturated, enc_code, nis, dof, eps_imu, ok);
+}
+
+static PyObject *forward(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    Core *c;
+    if (nargs != 2 || !(c = get(args[0]))) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "forward(core, commands)");
+        return NULL;
+    }
+    PyObject *seq = PySequence_Fast(args[1], "commands");
+    if (!seq) return NULL;
+    double s0[6], s[6], cmd[2], tl, tr;
+    state6(c, c->x, s0);
+    memcpy(s, s0, sizeof s);
+    for (Py_ssize_t i = 0; i < PySequence_Fast_GET_SIZE(seq); i++) {
+        if (floats(PySequence_Fast_GET_ITEM(seq, i), cmd, 2, "command")) {
+            Py_DECREF(seq);
+            return NULL;
+        }
+        delivered(c, s, cmd[0], cmd[1], &tl, &tr);
+        model_step(c, s, tl, tr, 1);
+    }
+    Py_DECREF(seq);
+    int finite = 1;
+    for (int i = 0; i < 6; i++) finite &= isfinite(s[i]) != 0;
+    return Py_BuildValue("(NN)", tuple_of(finite ? s : s0, 6), PyBool_FromLong(finite));
+}
+
+static PyMethodDef methods[] = {
+    {"new", new_core, METH_O, "A filter from its constants."},
+    {"set_state", (PyCFunction)(void (*)(void))set_state, METH_FASTCALL, "Set x, P and the last gyro rates."},
+    {"state", get_state, METH_O, "(x, P, w, w_prev) as tuples."},
+    {"state6", py_state6, METH_O, "The filter's [θ, θ̇, ψ, ψ̇, α, α̇]."},
+    {"advance", (PyCFunction)(void (*)(void))advance, METH_FASTCALL, "One filter step."},
+    {"forward", (PyCFunction)(void (*)(void))forward, METH_FASTCALL, "Predict the state over commands."},
+    {NULL, NULL, 0, NULL}};
+
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_ekf", "Compiled path of the twin's EKF.", -1, methods};
+
+PyMODINIT_FUNC PyInit__ekf(void) { return PyModule_Create(&module); }
