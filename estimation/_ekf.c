@@ -462,7 +462,7 @@ static PyObject *set_state(PyObject *self, PyObject *const *args, Py_ssize_t nar
     if (floats(args[1], c->x, NX, "x") || floats(args[2], c->P, NX * NX, "P") || floats(args[3], c->w, 2, "w") ||
         floats(args[4], c->w_prev, 2, "w_prev"))
         return NULL;
-    keep_good(c);
+    if (healthy(c)) keep_good(c); /* a broken state is never kept as the one to restore */
     Py_RETURN_NONE;
 }
 
