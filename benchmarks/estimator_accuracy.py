@@ -48,7 +48,7 @@ B. One row per injected fault (parameters listed with the table), from θ0 = 0.2
    (on a healthy run that is the release transient in the first 0.2 s) and in the
    window, balanced runs, the samples the fault hit, the filter's counters (IMU samples
    rejected as outliers, encoder samples rejected by the χ² gate, forced encoder
-   re-synchronisations after 40 rejections in a row, the library's
+   re-synchronisations after ``max_rejects_in_row`` rejections in a row, the library's
    ``predict_only_steps`` and ``unchanged_encoder_samples``, resets after numerical
    failure). Then the baselines' θ RMSE and max |θ error| on the same measurements
    beside the EKF's.
@@ -79,6 +79,7 @@ import math
 import os
 import platform
 import sys
+import textwrap
 import time
 import unicodedata
 from dataclasses import dataclass
@@ -93,6 +94,7 @@ from estimation.consistency import monte_carlo  # noqa: E402
 from twin.analytic_loop import Experiment, build_cascade  # noqa: E402
 from twin.bullet_loop import simulate_twin  # noqa: E402
 from twin.controllers.lmi import design_balance_gains  # noqa: E402
+from twin.params import NOMINAL  # noqa: E402
 from twin.sensors import Dropout, LatencyChange, SensorConfig, Spikes, Stuck  # noqa: E402
 
 pc = time.perf_counter
@@ -105,7 +107,7 @@ QUANTITIES = ("theta", "theta_dot", "psi", "psi_dot", "alpha", "alpha_dot")
 Q_LABEL = {"theta": ("θ", "mrad", 1e3), "theta_dot": ("θ̇", "rad/s", 1.0), "psi": ("ψ", "rad", 1.0),
            "psi_dot": ("ψ̇", "rad/s", 1.0), "alpha": ("α", "rad", 1.0), "alpha_dot": ("α̇", "rad/s", 1.0)}
 BASELINES = ("complementary", "kalman2")
-SHORT = {"ekf": "EKF", "complementary": "CF", "kalman2": "K2"}
+MAX_IN_ROW = "max_rejects_in_row"  # replaced by the EKF's own setting in main()
 
 
 @dataclass(frozen=True)
@@ -209,6 +211,11 @@ def mx(v) -> float:
     return float(np.max(v)) if v else math.nan
 
 
+def note(text: str) -> None:
+    """A paragraph of explanation, indented under a section title."""
+    print(textwrap.fill(text, width=114, initial_indent="   ", subsequent_indent="   "))
+
+
 def pad(s: str, w: int) -> str:
     """``s`` left-aligned in ``w`` terminal columns (combining marks such as the dot of θ̇ take none)."""
     return s + " " * max(0, w - sum(not unicodedata.combining(c) for c in s))
@@ -284,8 +291,8 @@ def section_a(runs_by_theta: dict, seeds) -> dict:
                                  f"on {len(errs) - wins}/{len(errs)} seeds (medians: EKF {med(vals['ekf']):.3g}, "
                                  f"{b} {med(vals[b]):.3g} {unit})")
             print(f"   {pad(sym, 10)}{unit:>7}{cells}{reds}")
-    print("   (both baselines take ψ from the same odometry plus their own θ, α from the encoders alone and α̇ from the")
-    print("   raw gyro, so their α and α̇ rows coincide)")
+    note("(both baselines take ψ from the same odometry plus their own θ, α from the encoders alone and α̇ "
+         "from the raw gyro, so their α and α̇ rows coincide)")
     return {"flags": flags}
 
 
@@ -313,11 +320,12 @@ def section_b(design, seeds, reference) -> list[str]:
 
     # B1: the EKF in the loop
     print()
-    print("   B1. EKF in the loop: θ error over the whole run and over the fault window; counts per run, median and max")
-    print("   over the seeds. faulty = samples the fault dropped, froze or spiked (all sensors); rej. IMU / rej. enc =")
-    print("   IMU samples the EKF rejected as outliers / encoder samples its χ² gate rejected; resync = encoder samples")
-    print("   force-accepted after 40 rejections in a row; pred-only, unch. enc = the EKF's predict_only_steps and")
-    print("   unchanged_encoder_samples (most of both, see the no-fault row, are steps where no encoder edge was crossed)")
+    note("B1. EKF in the loop: θ error over the whole run and over the fault window; counts per run, median and "
+         "max over the seeds. faulty = samples the fault dropped, froze or spiked (all sensors); rej. IMU / "
+         "rej. enc = IMU samples the EKF rejected as outliers / encoder samples its χ² gate rejected; resync = "
+         f"encoder samples force-accepted after {MAX_IN_ROW} rejections in a row; pred-only, unch. enc = the EKF's "
+         "predict_only_steps and unchanged_encoder_samples (most of both, see the no-fault row, are steps where no "
+         "encoder edge was crossed)")
     h1 = (f"   {'fault':23}{'θ RMSE run':^14}{'θ RMSE window':^14}{'max |θ err|':^14}{'balanced':>9}"
           f"{'faulty':>7}{'rej. IMU':>10}{'rej. enc':>10}{'resync':>7}{'pred-only':>10}{'unch. enc':>10}{'resets':>7}")
     h2 = (f"   {'':23}{'[mrad]':^14}{'[mrad]':^14}{'[mrad]':^14}{'[runs]':>9}{'':>7}{'[samples]':>10}"
@@ -362,7 +370,7 @@ def section_b(design, seeds, reference) -> list[str]:
             flags.append(f"B, {label}: {len(runs) - n_ok}/{len(runs)} EKF runs fell (at t = "
                          f"{', '.join(f'{x:.2f}' for x in fell_t)} s)")
         if max(resync) > 0:
-            flags.append(f"B, {label}: the EKF's χ² gate rejected 40 encoder samples in a row and forced a "
+            flags.append(f"B, {label}: the EKF's χ² gate rejected {MAX_IN_ROW} encoder samples in a row and forced a "
                          f"re-synchronisation (in {sum(x > 0 for x in resync)}/{len(runs)} runs, up to "
                          f"{times(max(resync))} in a run; encoder samples rejected per run: median "
                          f"{int(np.median(rej_enc))}, max {max(rej_enc)})")
@@ -379,9 +387,9 @@ def section_b(design, seeds, reference) -> list[str]:
 
     # B2: against the baselines on the same data
     print()
-    print("   B2. θ error of the three estimators on the same measurements (baselines offline on the EKF runs' data):")
-    print("   median over the seeds of the RMSE, max over the seeds of max |θ err| in the window; (k/S): seeds on which")
-    print("   the EKF's window RMSE is below both baselines'")
+    note("B2. θ error of the three estimators on the same measurements (baselines offline on the EKF runs' "
+         "data): median over the seeds of the RMSE, max over the seeds of max |θ err| in the window; (k/S): seeds "
+         "on which the EKF's window RMSE is below both baselines'")
     h1 = (f"   {'fault':23}{'θ RMSE run [mrad]':^24}{'θ RMSE window [mrad]':^24}{'':>7}"
           f"{'max |θ err| window [mrad]':^27}")
     h2 = f"   {'':23}" + f"{'EKF':>8}{'CF':>8}{'K2':>8}" * 2 + f"{'':>7}" + f"{'EKF':>9}{'CF':>9}{'K2':>9}"
@@ -534,6 +542,13 @@ def main(argv=None) -> int:
           f"encoders {sc.encoders.counts_per_rev} counts/rev, latency {1e3 * sc.encoders.latency:g} ms")
     print(f"controller: IT2 PDC balance (default LMI design), 200 Hz; seeds 0-{n_seeds - 1}"
           f"{' (--quick)' if args.quick else ''}")
+    global MAX_IN_ROW
+    probe = build_estimator("ekf", sc, 200.0, None, NOMINAL)
+    MAX_IN_ROW = getattr(probe, "max_rejects_in_row", "?")
+    gates = getattr(probe, "gates", {})
+    gate_text = ", ".join(f"{v:.3g} ({k} dof)" for k, v in sorted(gates.items()))
+    print(f"EKF settings: χ² gate on the encoders {gate_text}; after {MAX_IN_ROW} rejections in a row the next "
+          "encoder sample is accepted")
     design = design_balance_gains()
 
     # ---- A (its EKF runs also serve B's reference row and C's EKF row)
