@@ -413,7 +413,7 @@ class EKFEstimator:
             if code_e == 3:
                 self.rejected["encoders"] += 1
                 self.in_row += 1
-                self.predict_only += 1
+                self.predict_only += imu is not None  # a step without IMU was counted already
             else:
                 if code_e == 4:
                     self.events.append((t, f"encoders accepted after {self.in_row} rejections in a row "
@@ -478,6 +478,8 @@ class EKFEstimator:
                 self.predict_only += 1
         elif self._update(em, t, eps):
             self._last_enc, self._last_enc_m = tuple(enc), m
+        elif imu is not None:  # rejected: the step was a prediction only (without IMU, counted already)
+            self.predict_only += 1
         kf.P = 0.5 * (kf.P + kf.P.T)
         if np.isfinite(kf.x).all() and np.isfinite(kf.P).all() and (np.diag(kf.P) > 0).all():
             self._good = (kf.x.copy(), kf.P.copy(), self._w, self._w_prev)
@@ -552,7 +554,6 @@ class EKFEstimator:
             if self.in_row < self.max_rejects_in_row:
                 self.rejected["encoders"] += 1
                 self.in_row += 1
-                self.predict_only += 1
                 return False
             self.events.append((t, f"encoders accepted after {self.in_row} rejections in a row "
                                    f"(NIS {eps:.3g} > gate {gate:.3g}): re-synchronising"))
