@@ -67,9 +67,7 @@ def physics_window(periods: int) -> float:
 
 def estimator_window(kind: str, compiled, sensors, run) -> float:
     """Seconds per control step of one estimator replaying the recorded run."""
-    f = build_estimator(kind, sensors, run.config.control_rate, run.config.motor, NOMINAL)
-    if compiled is False and kind == "ekf":
-        f = ekf_module.EKFEstimator(f.model, f.every, f.d_imu, f.d_enc, compiled=False)
+    f = build_estimator(kind, sensors, run.config.control_rate, run.config.motor, NOMINAL, compiled=compiled)
     meas, cmds = run.measurements, [tuple(c) for c in run.commands[:, :2].tolist()]
     step = f.step
     t0 = pc()

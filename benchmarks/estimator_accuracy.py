@@ -89,7 +89,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench_twin import cpu_model  # noqa: E402
+
 from estimation import build_estimator  # noqa: E402
+from estimation import replay as replay_estimator  # noqa: E402
 from estimation.consistency import monte_carlo  # noqa: E402
 from twin.analytic_loop import Experiment, build_cascade  # noqa: E402
 from twin.bullet_loop import simulate_twin  # noqa: E402
@@ -147,17 +150,6 @@ FAULT_CASES = (
 
 
 # ---- helpers ------------------------------------------------------------------------------
-def cpu_model() -> str:
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
-
-
 def versions() -> str:
     from importlib.metadata import version
 
@@ -181,9 +173,7 @@ def truth6(run) -> np.ndarray:
 def replay(kind: str, run) -> np.ndarray:
     """Estimates (n, 6) of ``kind`` run offline over ``run``'s measurements and commands."""
     f = build_estimator(kind, run.sensor_config, run.config.control_rate, run.config.motor, run.model_params)
-    cmds = run.commands[:, :2]
-    meas = run.measurements
-    return np.array([f.start(meas[0])] + [f.step(m, cmds[i]) for i, m in enumerate(meas[1:])], dtype=float)
+    return replay_estimator(f, run)
 
 
 def errors(run) -> dict[str, np.ndarray]:

@@ -23,12 +23,14 @@ def __getattr__(name: str):
     raise AttributeError(f"module 'estimation' has no attribute {name!r}")
 
 
-def build_estimator(kind: str, sensors, control_rate: float, motor, params, alpha0: float = 0.0):
+def build_estimator(kind: str, sensors, control_rate: float, motor, params, alpha0: float = 0.0,
+                    compiled: bool | None = None):
     """An estimator of ``kind`` (one of :data:`ESTIMATORS`) for these sensors.
 
     ``sensors`` a :class:`twin.sensors.SensorConfig`; ``control_rate`` Hz; ``motor`` the
     motors' specification (or None); ``params`` the robot model the estimator assumes;
-    ``alpha0`` the initial heading (rad).
+    ``alpha0`` the initial heading (rad); ``compiled`` the EKF's implementation (see
+    :class:`estimation.ekf.EKFEstimator`; the baselines have one).
     """
     from estimation.baselines import AngleBiasKalman, ComplementaryFilter
     from estimation.ekf import EKFEstimator
@@ -40,10 +42,22 @@ def build_estimator(kind: str, sensors, control_rate: float, motor, params, alph
     if kind == "ekf":
         every, d_imu, d_enc = sensors.steps(control_rate)
         model = EstimatorModel(params, motor, sensors.imu, sensors.encoders, control_rate)
-        return EKFEstimator(model, every, d_imu, d_enc, alpha0=alpha0)
+        return EKFEstimator(model, every, d_imu, d_enc, alpha0=alpha0, compiled=compiled)
     cls = ComplementaryFilter if kind == "complementary" else AngleBiasKalman
     return cls(control_rate, params.r, params.b, alpha0)
 
 
+def replay(estimator, run, measurements=None):
+    """The estimates (n, 6) [θ, θ̇, ψ, ψ̇, α, α̇] of a fresh ``estimator`` fed a twin run's
+    readings (or ``measurements``) and its commands, exactly as the loop fed them."""
+    import numpy as np
+
+    meas = run.measurements if measurements is None else measurements
+    cmds = run.commands[:, :2]
+    out = [estimator.start(meas[0])]
+    out += [estimator.step(m, cmds[i]) for i, m in enumerate(meas[1:])]
+    return np.array(out, dtype=float)
+
+
 __all__ = ["ESTIMATORS", "AngleBiasKalman", "ComplementaryFilter", "EKFEstimator", "Estimate", "EstimatorModel",
-           "build_estimator"]
+           "build_estimator", "replay"]

@@ -292,6 +292,27 @@ typedef struct {
     double z[2], off[2], R[2], H[2][NX];
 } EncMeas;
 
+/* the innovation y = z − h(x), P Hᵀ and S = H P Hᵀ + R of the rows of em */
+static void innovation(const double *x, const double *P, const EncMeas *em, double *y, double PHt[NX][2],
+                       double S[2][2]) {
+    for (int a = 0; a < em->dof; a++) {
+        double hx = em->off[a];
+        for (int j = 0; j < NX; j++) hx += em->H[a][j] * x[j];
+        y[a] = em->z[a] - hx;
+        for (int i = 0; i < NX; i++) {
+            double s = 0.0;
+            for (int j = 0; j < NX; j++) s += P[i * NX + j] * em->H[a][j];
+            PHt[i][a] = s;
+        }
+    }
+    for (int a = 0; a < em->dof; a++)
+        for (int b = 0; b < em->dof; b++) {
+            double s = 0.0;
+            for (int i = 0; i < NX; i++) s += em->H[a][i] * PHt[i][b];
+            S[a][b] = s + (a == b ? em->R[a] : 0.0);
+        }
+}
+
 /* the encoders' measurement against the prior (x, Pp) and its NIS; dof 0 if no count changed.
    test: unchanged counts give a row too (the reading, variance Δ²/12), for the IMU outlier test */
 static double encoder_fit(const Core *c, const double *enc, const double *last, double T, const double *x,
@@ -333,22 +354,7 @@ static double encoder_fit(const Core *c, const double *enc, const double *last, 
     }
     if (em->dof == 0) return NAN;
     double y[2], PHt[NX][2], S[2][2];
-    for (int a = 0; a < em->dof; a++) {
-        double hx = em->off[a];
-        for (int j = 0; j < NX; j++) hx += em->H[a][j] * x[j];
-        y[a] = em->z[a] - hx;
-        for (int i = 0; i < NX; i++) {
-            double s = 0.0;
-            for (int j = 0; j < NX; j++) s += Pp[i * NX + j] * em->H[a][j];
-            PHt[i][a] = s;
-        }
-    }
-    for (int a = 0; a < em->dof; a++)
-        for (int b = 0; b < em->dof; b++) {
-            double s = 0.0;
-            for (int i = 0; i < NX; i++) s += em->H[a][i] * PHt[i][b];
-            S[a][b] = s + (a == b ? em->R[a] : 0.0);
-        }
+    innovation(x, Pp, em, y, PHt, S);
     if (em->dof == 1) return y[0] * y[0] / S[0][0];
     double det = S[0][0] * S[1][1] - S[0][1] * S[1][0];
     return (y[0] * (S[1][1] * y[0] - S[0][1] * y[1]) + y[1] * (-S[1][0] * y[0] + S[0][0] * y[1])) / det;
@@ -358,22 +364,7 @@ static double encoder_fit(const Core *c, const double *enc, const double *last, 
 static int kalman_update(double *x, double *P, const EncMeas *em) {
     int m = em->dof;
     double PHt[NX][2], S[2][2], Si[2][2], K[NX][2], y[2];
-    for (int a = 0; a < m; a++) {
-        double hx = em->off[a];
-        for (int j = 0; j < NX; j++) hx += em->H[a][j] * x[j];
-        y[a] = em->z[a] - hx;
-        for (int i = 0; i < NX; i++) {
-            double s = 0.0;
-            for (int j = 0; j < NX; j++) s += P[i * NX + j] * em->H[a][j];
-            PHt[i][a] = s;
-        }
-    }
-    for (int a = 0; a < m; a++)
-        for (int b = 0; b < m; b++) {
-            double s = 0.0;
-            for (int i = 0; i < NX; i++) s += em->H[a][i] * PHt[i][b];
-            S[a][b] = s + (a == b ? em->R[a] : 0.0);
-        }
+    innovation(x, P, em, y, PHt, S);
     if (m == 1) {
         if (!(S[0][0] > 0.0)) return -1;
         Si[0][0] = 1.0 / S[0][0];

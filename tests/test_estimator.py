@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 import estimation
-from estimation import build_estimator, ekf
+from estimation import build_estimator, ekf, replay
 from estimation.consistency import monte_carlo
 from estimation.ekf import BY, BZ, C0, H0, N, SAX, SAZ, SY, SZ, TH, EKFEstimator
 from estimation.model import EstimatorModel
@@ -68,12 +68,7 @@ def _ekf(sensors: SensorConfig = SENSORS, compiled=None) -> EKFEstimator:
 
 
 def _replay(run, est, measurements=None) -> np.ndarray:
-    """The estimates (n, 6) of ``est`` fed a run's readings (or ``measurements``) and its commands,
-    exactly as the loop fed them."""
-    meas = run.measurements if measurements is None else measurements
-    out = [est.start(meas[0])]
-    out += [est.step(m, run.commands[i, :2]) for i, m in enumerate(meas[1:])]
-    return np.array(out, dtype=float)
+    return replay(est, run, measurements)
 
 
 def _baseline_theta_rmse(run, kind: str) -> float:

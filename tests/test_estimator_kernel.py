@@ -6,7 +6,7 @@ import os
 import numpy as np
 import pytest
 
-from estimation import build_estimator
+from estimation import build_estimator, replay
 from estimation import ekf as ekf_module
 from twin.analytic_loop import Experiment, build_cascade
 from twin.bullet_loop import simulate_twin
@@ -39,13 +39,9 @@ FAULTS = {
 
 
 def _replay(run, sensors, compiled):
-    f = build_estimator("ekf", sensors, 200.0, run.config.motor, NOMINAL)
-    if not compiled:
-        f = ekf_module.EKFEstimator(f.model, f.every, f.d_imu, f.d_enc, compiled=False)
+    f = build_estimator("ekf", sensors, 200.0, run.config.motor, NOMINAL, compiled=compiled)
     assert f.compiled == compiled
-    cmds = run.commands[:, :2]
-    est = [f.start(run.measurements[0])] + [f.step(m, cmds[i]) for i, m in enumerate(run.measurements[1:])]
-    return np.array(est), f
+    return replay(f, run), f
 
 
 @needs_kernel
