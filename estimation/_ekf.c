@@ -9,12 +9,15 @@
      new(consts)                       -> capsule holding the filter (see Core)
      set_state(core, x, P, w, w_prev)  /  state(core) -> (x, P, w, w_prev) as tuples
      advance(core, imu, enc, last, T, command, may_reject)
-         imu = (ω_y, ω_z, f_x, f_z) or None; enc, last = (e_l, e_r) or None; T the time
-         since the encoder sample ``last`` (s); command = (ul, ur) N·m held over the step.
-         -> (imu_code, saturated, enc_code, nis, dof, eps_imu, healthy)
-            imu_code 0 no sample, 1 used, 2 rejected as an outlier (model's sample used)
+         one step driven by an IMU sample (steps without one, or with one rejected, coast
+         in Python: EKFEstimator._coast).
+         imu = (ω_y, ω_z, f_x, f_z); enc, last = (e_l, e_r) or None; T the time since the
+         encoder sample ``last`` (s); command = (ul, ur) N·m held over the step.
+         -> (saturated, enc_code, nis, dof, healthy)
             enc_code 0 no sample, 1 unchanged counts, 2 used, 3 rejected, 4 used although
             failing the gate (may_reject false); healthy 0 if the state had to be restored
+     imu_outlier(core, imu, enc, last, T, command) -> the encoders' NIS with the sample if
+         it is an outlier, else None
      forward(core, commands) -> ([θ, θ̇, ψ, ψ̇, α, α̇] predicted over the commands, finite)
      state6(core) -> the filter's own [θ, θ̇, ψ, ψ̇, α, α̇]
 
@@ -472,80 +475,90 @@ static PyObject *py_state6(PyObject *self, PyObject *arg) {
     return tuple_of(s, 6);
 }
 
+/* the IMU sample as the filter uses it: an axis at the end of its range replaced by the
+   model's prediction (syn, computed here) with its extra variance; returns 1 if any was */
+static int imu_sample(const Core *c, const double *cmd, double *smp, double *extra, double *syn,
+                      double *syn_extra) {
+    int any = 0, sat[4];
+    for (int j = 0; j < 4; j++) {
+        extra[j] = 0.0;
+        any |= sat[j] = fabs(smp[j]) >= c->lim[j];
+    }
+    if (!any) return 0;
+    synthetic(c, c->x, cmd[0], cmd[1], syn, syn_extra);
+    for (int j = 0; j < 4; j++)
+        if (sat[j]) {
+            smp[j] = syn[j];
+            extra[j] = syn_extra[j];
+        }
+    return 1;
+}
+
+static int parse_step(PyObject *const *args, double *smp, double *enc, double *last, double *T, double *cmd) {
+    if (floats(args[1], smp, 4, "imu") || floats(args[2], enc, 2, "enc") || floats(args[3], last, 2, "last"))
+        return -1;
+    *T = PyFloat_AsDouble(args[4]);
+    if (*T == -1.0 && PyErr_Occurred()) return -1;
+    return floats(args[5], cmd, 2, "command");
+}
+
+/* imu_outlier(core, imu, enc, last, T, command) -> the encoders' NIS with the sample if it
+   is an outlier (fails the IMU gate, while the model's sample passes the normal gate), else None */
+static PyObject *imu_outlier(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    Core *c;
+    if (nargs != 6 || !(c = get(args[0]))) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "imu_outlier(core, imu, enc, last, T, command)");
+        return NULL;
+    }
+    double smp[4], extra[4], syn[4], syn_extra[4], enc[2], last[2], cmd[2], T;
+    if (parse_step(args, smp, enc, last, &T, cmd)) return NULL;
+    int have_syn = imu_sample(c, cmd, smp, extra, syn, syn_extra);
+    double x1[NX], F[NX * NX], Q[NX * NX], Pp[NX * NX];
+    EncMeas em;
+    propagate(c, c->x, smp, have_syn ? extra : NULL, x1, F, Q);
+    cov_predict(F, c->P, Q, Pp);
+    double eps = encoder_fit(c, enc, last, T, x1, smp, Pp, 1, &em);
+    if (eps <= c->imu_gate[em.dof]) Py_RETURN_NONE;
+    if (!have_syn) synthetic(c, c->x, cmd[0], cmd[1], syn, syn_extra);
+    propagate(c, c->x, syn, syn_extra, x1, F, Q);
+    cov_predict(F, c->P, Q, Pp);
+    double eps_alt = encoder_fit(c, enc, last, T, x1, syn, Pp, 1, &em);
+    if (eps_alt <= c->gate[em.dof]) return PyFloat_FromDouble(eps);
+    Py_RETURN_NONE;
+}
+
+/* advance(core, imu, enc, last, T, command, may_reject) -> (saturated, enc_code, nis, dof, ok):
+   one strapdown step with an IMU sample (steps without one are the Python side's) */
 static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
     Core *c;
     if (nargs != 7 || !(c = get(args[0]))) {
         if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "advance(core, imu, enc, last, T, command, may_reject)");
         return NULL;
     }
-    double smp[4], extra[4] = {0, 0, 0, 0}, syn[4], syn_extra[4], enc[2], last[2], cmd[2];
-    int has_imu = args[1] != Py_None, has_enc = args[2] != Py_None && args[3] != Py_None;
-    if (has_imu && floats(args[1], smp, 4, "imu")) return NULL;
+    double smp[4], extra[4], syn[4], syn_extra[4], enc[2], last[2], cmd[2], T = 0.0;
+    int has_enc = args[2] != Py_None && args[3] != Py_None;
+    if (floats(args[1], smp, 4, "imu")) return NULL;
     if (has_enc && (floats(args[2], enc, 2, "enc") || floats(args[3], last, 2, "last"))) return NULL;
-    double T = PyFloat_AsDouble(args[4]);
+    T = PyFloat_AsDouble(args[4]);
     if (T == -1.0 && PyErr_Occurred()) return NULL;
     if (floats(args[5], cmd, 2, "command")) return NULL;
     int may_reject = PyObject_IsTrue(args[6]);
     if (may_reject < 0) return NULL;
 
-    double x1[NX], F[NX * NX], Q[NX * NX], Pp[NX * NX], w1[2];
-    int imu_code = 0, saturated = 0, enc_code = 0, have_syn = 0, ok = 1;
-    double nis = NAN, eps_imu = NAN;
+    double x1[NX], F[NX * NX], Q[NX * NX], Pp[NX * NX];
+    int enc_code = 0, ok = 1;
+    double nis = NAN;
     EncMeas em;
     em.dof = 0;
-    if (!has_imu) {
-        synthetic(c, c->x, cmd[0], cmd[1], syn, syn_extra);
-        have_syn = 1;
-        propagate(c, c->x, syn, syn_extra, x1, F, Q);
-        w1[0] = syn[0];
-        w1[1] = syn[1];
-    } else {
-        int any = 0, sat[4];
-        for (int j = 0; j < 4; j++) any |= sat[j] = fabs(smp[j]) >= c->lim[j];
-        if (any) {
-            synthetic(c, c->x, cmd[0], cmd[1], syn, syn_extra);
-            have_syn = 1;
-            for (int j = 0; j < 4; j++)
-                if (sat[j]) {
-                    smp[j] = syn[j];
-                    extra[j] = syn_extra[j];
-                }
-            saturated = 1;
-        }
-        propagate(c, c->x, smp, any ? extra : NULL, x1, F, Q);
-        w1[0] = smp[0];
-        w1[1] = smp[1];
-        imu_code = 1;
-        if (has_enc) {
-            cov_predict(F, c->P, Q, Pp);
-            double eps = encoder_fit(c, enc, last, T, x1, w1, Pp, 1, &em);
-            if (!(eps <= c->imu_gate[em.dof])) {
-                double ax1[NX], aF[NX * NX], aQ[NX * NX], aPp[NX * NX], aw[2];
-                EncMeas aem;
-                if (!have_syn) synthetic(c, c->x, cmd[0], cmd[1], syn, syn_extra);
-                have_syn = 1;
-                propagate(c, c->x, syn, syn_extra, ax1, aF, aQ);
-                aw[0] = syn[0];
-                aw[1] = syn[1];
-                cov_predict(aF, c->P, aQ, aPp);
-                double eps_alt = encoder_fit(c, enc, last, T, ax1, aw, aPp, 1, &aem);
-                if (eps_alt <= c->gate[aem.dof]) {
-                    memcpy(x1, ax1, sizeof x1);
-                    memcpy(Pp, aPp, sizeof Pp);
-                    memcpy(w1, aw, sizeof w1);
-                    eps_imu = eps;
-                    imu_code = 2;
-                }
-            }
-        }
-    }
-    if (!(has_imu && has_enc)) cov_predict(F, c->P, Q, Pp);
+    int saturated = imu_sample(c, cmd, smp, extra, syn, syn_extra);
+    propagate(c, c->x, smp, saturated ? extra : NULL, x1, F, Q);
+    cov_predict(F, c->P, Q, Pp);
     memcpy(c->x, x1, sizeof x1);
     memcpy(c->P, Pp, sizeof Pp);
     c->w_prev[0] = c->w[0];
     c->w_prev[1] = c->w[1];
-    c->w[0] = w1[0];
-    c->w[1] = w1[1];
+    c->w[0] = smp[0];
+    c->w[1] = smp[1];
     if (has_enc) nis = encoder_fit(c, enc, last, T, c->x, c->w, c->P, 0, &em);
     int dof = em.dof;
     if (has_enc) {
@@ -569,7 +582,7 @@ static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs
         restore(c);
         ok = 0;
     }
-    return Py_BuildValue("(iiididi)", imu_code, saturated, enc_code, nis, dof, eps_imu, ok);
+    return Py_BuildValue("(iidii)", saturated, enc_code, nis, dof, ok);
 }
 
 static PyObject *forward(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
@@ -602,7 +615,8 @@ static PyMethodDef methods[] = {
     {"set_state", (PyCFunction)(void (*)(void))set_state, METH_FASTCALL, "Set x, P and the last gyro rates."},
     {"state", get_state, METH_O, "(x, P, w, w_prev) as tuples."},
     {"state6", py_state6, METH_O, "The filter's [θ, θ̇, ψ, ψ̇, α, α̇]."},
-    {"advance", (PyCFunction)(void (*)(void))advance, METH_FASTCALL, "One filter step."},
+    {"advance", (PyCFunction)(void (*)(void))advance, METH_FASTCALL, "One filter step with an IMU sample."},
+    {"imu_outlier", (PyCFunction)(void (*)(void))imu_outlier, METH_FASTCALL, "The IMU outlier test."},
     {"forward", (PyCFunction)(void (*)(void))forward, METH_FASTCALL, "Predict the state over commands."},
     {NULL, NULL, 0, NULL}};
 

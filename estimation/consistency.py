@@ -14,6 +14,7 @@ import math
 
 import numpy as np
 from scipy.stats import chi2
+from scipy.stats import t as t_dist
 
 from twin.errors import TwinError
 
@@ -75,6 +76,16 @@ def monte_carlo(runs, start: float = 0.0, confidence: float = 0.95) -> dict:
     fraction of rows, among those with an encoder update in some run, whose summed NIS
     lies inside its bounds (``nis_inside``) and the overall NIS per degree of freedom
     (``nis_per_dof``, 1 for a consistent filter).
+
+    Why also ``nees_run_means`` and ``nees_mean_interval``: a run's NEES is strongly
+    correlated in time (nearly unobservable states such as the scale factors keep their
+    drawn errors for the whole run), so the fraction of rows inside the bounds is close to
+    all-or-nothing for a batch and swings from batch to batch for one and the same filter.
+    The runs are independent, though: each run's time-averaged NEES (``nees_run_means``,
+    (N,)) has mean ``dim`` for a consistent filter, and ``nees_mean_interval`` is the
+    Student-t interval (at ``confidence``) of their mean, which holds whatever the
+    correlation in time. ``nees_mean`` inside ``nees_bounds`` is the χ² test of the
+    average (conservative for a time average, whose spread is at most one row's).
     """
     if len(runs) < 2:
         raise TwinError(f"a Monte Carlo consistency test needs at least 2 runs, got {len(runs)}")
@@ -89,11 +100,14 @@ def monte_carlo(runs, start: float = 0.0, confidence: float = 0.95) -> dict:
     a = 0.5 * (1.0 - confidence)
     lo, hi = chi2.ppf([a, 1.0 - a], N * dim) / N
     mean = E.mean(axis=0)
+    per_run = E.mean(axis=1)
+    half = t_dist.ppf(1.0 - a, N - 1) * per_run.std(ddof=1) / math.sqrt(N)
     nis = np.array([np.nan_to_num(r.filter_log["nis"][:n]) for r in runs])[:, keep].sum(axis=0)
     dof = np.array([r.filter_log["nis_dof"][:n] for r in runs])[:, keep].sum(axis=0)
     used = dof > 0
     nlo, nhi = chi2.ppf(a, dof[used]), chi2.ppf(1.0 - a, dof[used])
     return {"runs": N, "dim": dim, "rows": int(E.shape[1]), "nees": mean, "nees_bounds": (float(lo), float(hi)),
             "nees_inside": float(np.mean((mean >= lo) & (mean <= hi))), "nees_mean": float(E.mean()),
+            "nees_run_means": per_run, "nees_mean_interval": (float(per_run.mean() - half), float(per_run.mean() + half)),
             "nis_inside": float(np.mean((nis[used] >= nlo) & (nis[used] <= nhi))),
             "nis_per_dof": float(nis[used].sum() / dof[used].sum()) if used.any() else math.nan}

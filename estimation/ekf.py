@@ -9,6 +9,14 @@ needed for that, so a mismatched plant, a payload, a slope or a push does not bi
 estimate. Equation (1) with the commands serves where there is no IMU sample: through
 dropouts, to test a suspicious IMU sample, and to predict across the sensors' latency.
 
+Coasting (no IMU sample, a stale one, or one rejected as an outlier): equation (1)
+predicts the sample from the state, so the prediction's Jacobian must include how that
+sample depends on the state, or the covariance stays at its strapdown size while the
+error grows with the pendulum's instability (a 0.2 s dropout once left θ 40–60 mrad off
+at σ 0.7 mrad). The sample also depends on θ̇, which is no state of the strapdown filter
+but comes from the gyro's last two samples; while coasting these join the state (16 in
+all) and the encoders correct them too. See :meth:`EKFEstimator._coast`.
+
 Why an EKF and not a UKF: over one 5 ms period the prediction is nearly linear (the
 nonlinear terms are sines of θ, which moves by milliradians per period) and the encoder
 measurement is linear. A UKF would push 25 sigma points through the same equations for
@@ -55,7 +63,12 @@ filter, not the encoders, is then the likely culprit. An IMU sample is tested ag
 both wheels (unchanged ones as "inside the current count", variance Δ²/12) at the much
 stricter 1 − 1e-9: when it fails, the step is repeated with the sample equation (1)
 predicts from the commands; if the encoders then pass, the IMU sample was the outlier
-and is replaced. Rejections are counted per sensor. Limitation: an accelerometer spike
+and is replaced. A triad (gyro or accelerometer) whose three values repeat the previous
+sample exactly is stale (stuck), not measured: its noise spans several ADC steps, so
+that happens by chance with probability < 4e-4. Encoder counts that moved further than a
+wheel can turn (:data:`MAX_RIM_SPEED` at the rim), or beyond a 32-bit counter, are faults
+and never reach the gate (see :meth:`EKFEstimator._screen_encoders`).
+Rejections are counted per sensor. Limitation: an accelerometer spike
 moves v, which the encoders only see in the following samples, so a full-scale
 accelerometer spike is not caught at the sample (benchmarks/estimator_accuracy.py
 reports what it costs).
@@ -91,6 +104,7 @@ STATE_UNITS = ("rad", "rad", "m/s", "rad", "rad/s", "rad/s", "rad", "1", "rad", 
 N = len(STATE_NAMES)
 TH, PS, V, AL, BY, BZ, C0, SY, H0, SZ, SAX, SAZ = range(N)
 GROUPS = ("gyro", "accel", "encoders")
+MAX_RIM_SPEED = 20.0  # m/s: encoder counts implying a faster wheel (relative to the body) are a fault
 
 try:  # the optional compiled path (setup.py); TWIN_PURE_PYTHON=1 turns it off
     from estimation import _ekf as _kernel
@@ -205,6 +219,18 @@ class EKFEstimator:
         # the largest readings the ADC can give (a sample there may be clipped)
         self._limits = (g.lsb * ((1 << (g.bits - 1)) - 1),) * 2 + (a.lsb * ((1 << (a.bits - 1)) - 1),) * 2
         self._last_enc = None
+        # a stale (repeated) triad is told from a real one where the white noise per sample
+        # spans ≥ 4 ADC steps: three axes then repeat by chance with probability < 4e-4
+        self._stale_check = tuple(t.white_sigma(self.dt) >= 4.0 * t.lsb for t in (model.imu.gyro, model.imu.accel))
+        self._last_imu = None
+        self._stale_in_row = 0
+        self.stale = 0
+        self._aug = None  # the coasting covariance of (x, ω, ω₋₁), see _coast
+        self._implausible = 0
+        # a wheel's counts cannot move faster than this relative to the body, nor leave a
+        # 32-bit counter's range: anything else is a fault (see _screen_encoders)
+        self._max_wheel_rate = MAX_RIM_SPEED / self.r
+        self._enc_range = float(2 ** 31) * self.delta
         self.events: list[tuple[float, str]] = []
         self.resets = 0
         if compiled and _kernel is None:
@@ -249,18 +275,20 @@ class EKFEstimator:
             self.kf.x, self.kf.P = np.array(x), np.array(P).reshape(N, N)
             self._w, self._w_prev = w, wp
 
-    def rates(self, x=None) -> tuple[float, float]:
+    def rates(self, x=None, w=None, w_prev=None) -> tuple[float, float]:
         """(θ̇, α̇) in rad/s at the filter's time: the gyro's mean rates over the last two
-        periods extrapolated linearly to the end of the last one."""
+        periods (``w``, ``w_prev``; default the filter's) extrapolated linearly to the end of
+        the last one."""
         x = self.kf.x if x is None else x
-        (wy, wz), (wy0, wz0) = self._w, self._w_prev
+        (wy, wz), (wy0, wz0) = (self._w if w is None else w), (self._w_prev if w_prev is None else w_prev)
         wy, wz = 1.5 * wy - 0.5 * wy0, 1.5 * wz - 0.5 * wz0
         return (wy - x[BY]) / (1.0 + x[SY]), (wz - x[BZ]) / ((1.0 + x[SZ]) * math.cos(x[TH]))
 
-    def state6(self, x=None) -> np.ndarray:
-        """[θ, θ̇, ψ, ψ̇, α, α̇] at the filter's time (or of state ``x``)."""
+    def state6(self, x=None, w=None, w_prev=None) -> np.ndarray:
+        """[θ, θ̇, ψ, ψ̇, α, α̇] at the filter's time (or of state ``x`` and gyro history ``w``,
+        ``w_prev``)."""
         x = self.kf.x if x is None else x
-        thd, ald = self.rates(x)
+        thd, ald = self.rates(x, w, w_prev)
         th = x[TH]
         dz = -self.xi * math.sin(th) + self.zi * math.cos(th)
         return np.array([th, thd, x[PS], (x[V] - thd * dz) / self.r, x[AL], ald])
@@ -292,6 +320,7 @@ class EKFEstimator:
         return {"accepted": dict(self.accepted), "rejected": dict(self.rejected),
                 "rejected_total": self.rejected_total, "predict_only_steps": self.predict_only,
                 "unchanged_encoder_samples": self.unchanged_encoders, "saturated_imu_samples": self.saturated,
+                "stale_imu_samples": self.stale,
                 "resets": self.resets, "events": [f"t = {t:.3f} s: {why}" for t, why in self.events]}
 
     def start(self, meas) -> Estimate:
@@ -334,7 +363,8 @@ class EKFEstimator:
         self._good = (x.copy(), P.copy(), self._w, self._w_prev)
         if self._core is not None:
             _kernel.set_state(self._core, x, P.ravel(), self._w, self._w_prev)
-        return Estimate(*self.state6())
+        self._last_estimate = tuple(self.state6())
+        return Estimate(*self._last_estimate)
 
     def step(self, meas, command) -> Estimate:
         """Advance to the next control instant.
@@ -350,24 +380,16 @@ class EKFEstimator:
         m = k - self.lag
         if m >= self.every and m % self.every == 0 and m > self.m:
             t = meas.t - self.lag * self.model.dt
-            if self._core is not None:
-                self._advance_compiled(m, t)
-            else:
-                try:
-                    self._advance(m, t)
-                except (np.linalg.LinAlgError, FloatingPointError, ValueError, ZeroDivisionError) as err:
-                    self._restore(t, f"numerical failure in the filter ({err}); restored the last good estimate")
+            try:
+                self._advance(m, t)
+            except (np.linalg.LinAlgError, FloatingPointError, ValueError, ZeroDivisionError, OverflowError) as err:
+                self._restore(t, f"numerical failure in the filter ({err}); restored the last good estimate")
             for j in range(self.m - self.every, m - self.every):  # samples no step will need again
                 self._commands.pop(j, None)
                 self._imu.pop(j, None)
                 self._enc.pop(j, None)
             self.m = m
-        if self._core is not None:
-            s, finite = _kernel.forward(self._core, [self._commands.get(j, (0.0, 0.0)) for j in range(self.m, k)])
-            if not finite:
-                self.events.append((k * self.model.dt, "forward prediction non-finite; handing out the filter's own state"))
-            return Estimate(*s)
-        return Estimate(*self._forward(self.state6(), self.m, k))
+        return self._estimate(k)
 
     # ---- internals ---------------------------------------------------------------------
     def _store(self, meas, k: int) -> None:
@@ -376,44 +398,190 @@ class EKFEstimator:
             if v is not None and not ok(v):
                 self.events.append((meas.t, f"non-finite {n} reading ignored"))
         if ok(meas.gyro) and ok(meas.accel):
-            self._imu[k - self.d_imu] = (meas.gyro, meas.accel)
+            sample = (tuple(meas.gyro), tuple(meas.accel))
+            last = self._last_imu
+            # with the noise several ADC steps wide, a triad repeating all three values is
+            # stale (stuck), not a measurement: coast as without the sample
+            stale = last is not None and any(c and now == before for c, now, before in
+                                             zip(self._stale_check, sample, last))
+            if stale:
+                self.rejected["gyro"] += 1
+                self.rejected["accel"] += 1
+                self.stale += 1
+                if self._stale_in_row == 0:
+                    self.events.append((meas.t, "IMU sample repeats the previous one: stale, treated as missing"))
+                self._stale_in_row += 1
+            else:
+                self._imu[k - self.d_imu] = (meas.gyro, meas.accel)
+                self._stale_in_row = 0
+            self._last_imu = sample
         elif ok(meas.gyro) or ok(meas.accel):
             self.events.append((meas.t, "an IMU sample without its gyro or accelerometer half was dropped"))
         if ok(meas.encoders):
-            self._enc[k - self.d_enc] = meas.encoders
+            if max(abs(meas.encoders[0]), abs(meas.encoders[1])) <= self._enc_range:
+                self._enc[k - self.d_enc] = meas.encoders
+            else:
+                self.events.append((meas.t, f"encoder reading {tuple(meas.encoders)} ignored: beyond a 32-bit "
+                                            f"counter's range (±{self._enc_range:.4g} rad)"))
 
-    def _advance_compiled(self, m: int, t: float) -> None:
-        """:meth:`_advance` in the compiled kernel; the counts and events kept here."""
-        imu, enc = self._imu.get(m), self._enc.get(m)
-        command = self._commands.get(m - self.every, (0.0, 0.0))
-        sample = None if imu is None else (imu[0][1], imu[0][2], imu[1][0], imu[1][2])
-        if enc is not None and self._last_enc is None:
-            self._last_enc, self._last_enc_m = tuple(enc), m
-        T = (m - self._last_enc_m) * self.model.dt
-        code_i, sat, code_e, nis, dof, eps_imu, ok = _kernel.advance(
-            self._core, sample, enc, self._last_enc if enc is not None else None, T, command,
-            self.in_row < self.max_rejects_in_row)
-        if imu is None:
-            self.predict_only += 1
+    def _estimate(self, k: int) -> Estimate:
+        """The filter's state predicted forward to control step ``k``; never non-finite."""
+        if self._core is not None:
+            s, finite = _kernel.forward(self._core, [self._commands.get(j, (0.0, 0.0)) for j in range(self.m, k)])
         else:
-            self.saturated += sat
-            group = self.accepted if code_i == 1 else self.rejected
-            group["gyro"] += 1
-            group["accel"] += 1
-            if code_i == 2:
+            s, finite = self._forward(self.state6(), self.m, k)
+        if not finite:
+            self.events.append((k * self.model.dt, "forward prediction non-finite; handing out the filter's own state"))
+        if not all(map(math.isfinite, s)):
+            self.events.append((k * self.model.dt, "the filter's own state gives a non-finite estimate; handing out "
+                                                   "the last finite one"))
+            s = self._last_estimate
+        self._last_estimate = tuple(s)
+        return Estimate(*s)
+
+    def _advance(self, m: int, t: float) -> None:
+        """Predict from the filter's time to t_m and update with the encoders there."""
+        imu = self._imu.get(m)
+        command = self._commands.get(m - self.every, (0.0, 0.0))
+        enc = self._screen_encoders(self._enc.get(m), m, t)
+        eps_imu = None
+        if imu is not None and enc is not None:
+            eps_imu = self._imu_outlier(imu, enc, m, command)
+        if imu is None or eps_imu is not None:
+            if eps_imu is not None:
+                self.rejected["gyro"] += 1
+                self.rejected["accel"] += 1
                 self.events.append((t, f"IMU sample rejected as an outlier (encoder NIS {eps_imu:.3g} with it)"))
+            self._coast(m, t, imu is not None, enc, command)
+            return
+        self._aug = None
+        self.accepted["gyro"] += 1
+        self.accepted["accel"] += 1
+        if self._core is not None:
+            self._strapdown_compiled(m, t, imu, enc, command)
+        else:
+            self._strapdown(m, t, imu, enc, command)
+
+    def _screen_encoders(self, enc, m: int, t: float):
+        """``enc``, or None if its counts moved further since the last sample used than a wheel
+        can turn relative to the body (:data:`MAX_RIM_SPEED` at the rim, plus two counts).
+        Such a jump is a fault of the encoders, not motion, so it never reaches the χ² gate
+        and is never forced in. After ``max_rejects_in_row`` in a row the counts are taken to
+        have jumped for good (a counter reset): their zeros c, h are re-based onto the
+        reading, with the filter's uncertainty of the reading as theirs."""
+        if enc is None:
+            return None
+        if self._last_enc is None:
+            self._last_enc, self._last_enc_m = tuple(enc), m
+            return enc
+        last = self._last_enc
+        T = (m - self._last_enc_m) * self.model.dt
+        limit = self._max_wheel_rate * T + 2.0 * self.delta
+        jump = max(abs(enc[0] - last[0]), abs(enc[1] - last[1]))
+        if jump <= limit:
+            self._implausible = 0
+            return enc
+        self.rejected["encoders"] += 1
+        self._implausible += 1
+        if self._implausible == 1:
+            self.events.append((t, f"encoder counts jumped {jump:.4g} rad in {T:.3g} s, more than a wheel can turn "
+                                   f"({limit:.3g} rad): rejected"))
+        if self._implausible >= self.max_rejects_in_row:
+            self._rebase_encoders(enc, m, t)
+        return None
+
+    def _rebase_encoders(self, enc, m: int, t: float) -> None:
+        if self._core is not None:
+            self._sync()
+        x, P = self.kf.x.copy(), self.kf.P.copy()
+        off = np.array([self.b_r * self.alpha0, -self.b_r * self.alpha0])
+        y = np.asarray(enc, dtype=float) - (self.H @ x + off)
+        S = self.H @ P @ self.H.T + np.eye(2) * self.delta ** 2 / 12.0
+        x[C0] += 0.5 * (y[0] + y[1])
+        x[H0] += 0.5 * (y[1] - y[0])
+        for i in (C0, H0):
+            P[i, :] = P[:, i] = 0.0
+        P[C0, C0] = 0.25 * (S[0, 0] + S[1, 1] + 2.0 * S[0, 1])
+        P[H0, H0] = 0.25 * (S[0, 0] + S[1, 1] - 2.0 * S[0, 1])
+        self.kf.x, self.kf.P = x, P
+        if self._aug is not None:
+            self._aug[:N, :N] = P
+            for i in (C0, H0):
+                self._aug[i, N:] = self._aug[N:, i] = 0.0
+        if self._core is not None:
+            _kernel.set_state(self._core, x, P.ravel(), self._w, self._w_prev)
+        self._last_enc, self._last_enc_m = tuple(enc), m
+        self._implausible = 0
+        self.events.append((t, f"encoder counts stayed {self.max_rejects_in_row} samples away from the estimate: "
+                               f"re-based their zeros by ({y[0]:.4g}, {y[1]:.4g}) rad"))
+
+    def _imu_sample(self, x, imu, command, count: bool = False):
+        """(sample, synthetic): the IMU reading as ((ω_y, ω_z, f_x, f_z), extra) for
+        :meth:`_propagate`; an axis at the end of its range says only "at least this much",
+        so the model's prediction (``synthetic``, else None) replaces it."""
+        sample = ((imu[0][1], imu[0][2], imu[1][0], imu[1][2]), None)
+        sat = [abs(v) >= lim for v, lim in zip(sample[0], self._limits)]
+        if not any(sat):
+            return sample, None
+        syn = self._synthetic(x, command)
+        if count:
+            self.saturated += 1
+        return (tuple(sv if k else v for v, sv, k in zip(sample[0], syn[0], sat)),
+                tuple(e if k else 0.0 for e, k in zip(syn[1], sat))), syn
+
+    def _imu_outlier(self, imu, enc, m: int, command):
+        """The encoders' NIS with IMU sample ``imu`` if that marks it as an outlier, else None.
+
+        Outlier: the encoders (every wheel, an unchanged one as "still inside its count")
+        fail the IMU gate (1 − 1e-9) with the sample, and pass the normal gate with the
+        sample equation (1) predicts instead."""
+        if self._core is not None:
+            g, a = imu
+            return _kernel.imu_outlier(self._core, (g[1], g[2], a[0], a[2]), enc, self._last_enc,
+                                       (m - self._last_enc_m) * self.model.dt, command)
+        x, P = self.kf.x, self.kf.P
+        sample, syn = self._imu_sample(x, imu, command)
+        tm, eps = self._encoder_fit(enc, m, self._propagate(x, sample), P, test=True)
+        if eps <= self.imu_gates[len(tm[0])]:
+            return None
+        alt = self._propagate(x, syn if syn is not None else self._synthetic(x, command))
+        tm_alt, eps_alt = self._encoder_fit(enc, m, alt, P, test=True)
+        return eps if eps_alt <= self.gates[len(tm_alt[0])] else None
+
+    def _strapdown(self, m: int, t: float, imu, enc, command) -> None:
+        """One step driven by IMU sample ``imu``, on filterpy (the reference path)."""
+        kf = self.kf
+        sample, _ = self._imu_sample(kf.x, imu, command, count=True)
+        x_next, F, Q, w = self._propagate(kf.x, sample)
+        kf._x_next, kf.F, kf.Q = x_next, F, Q
+        kf.predict()
+        self._w_prev, self._w = self._w, w
+
+        def update(em):
+            z, off, H, R = em
+            kf.update(z, lambda x: H, lambda x: H @ x + off, R=R)
+
+        self._encoder_step(enc, m, t, True, update)
+        self._finish(t)
+
+    def _strapdown_compiled(self, m: int, t: float, imu, enc, command) -> None:
+        """:meth:`_strapdown` in the compiled kernel; the counts and events kept here."""
+        sample = (imu[0][1], imu[0][2], imu[1][0], imu[1][2])
+        T = (m - self._last_enc_m) * self.model.dt
+        sat, code_e, nis, dof, ok = _kernel.advance(self._core, sample, enc, self._last_enc if enc is not None else None,
+                                                    T, command, self.in_row < self.max_rejects_in_row)
+        self.saturated += sat
         if code_e <= 1:
             if code_e == 1:
                 self.unchanged_encoders += 1
                 self._last_enc_m = m
-            if imu is not None:
-                self.predict_only += 1
+            self.predict_only += 1
         else:
             self.last_nis, self.last_dof = nis, dof
             if code_e == 3:
                 self.rejected["encoders"] += 1
                 self.in_row += 1
-                self.predict_only += imu is not None  # a step without IMU was counted already
+                self.predict_only += 1
             else:
                 if code_e == 4:
                     self.events.append((t, f"encoders accepted after {self.in_row} rejections in a row "
@@ -426,60 +594,99 @@ class EKFEstimator:
             self.events.append((t, "the state or covariance became non-finite or lost positivity, or the update "
                                    "failed numerically; restored the last good estimate"))
 
-    def _advance(self, m: int, t: float) -> None:
-        """Predict from the filter's time to t_m and update with the encoders there."""
+    def _coast(self, m: int, t: float, had_imu: bool, enc, command) -> None:
+        """One step without a (trustworthy) IMU sample: equation (1) predicts it from the
+        state and the command.
+
+        The predicted sample depends on the state, and on θ̇, which is no state of the
+        filter but the gyro's last two samples ω, ω₋₁: while coasting these join the state
+        (16 in all, covariance ``_aug``; at the first coasting step ω, ω₋₁ are the readings
+        with the gyro's white noise, uncorrelated). The Jacobian of the step then holds the
+        pendulum's own instability, so the covariance grows as the model's error does and
+        the encoders, which see the wheels, correct θ and θ̇ through the model. The first
+        real IMU sample ends it (ω becomes a reading again). Always the Python path: coasting
+        is rare, and one implementation serves both."""
         kf = self.kf
-        x, P = kf.x, kf.P
-        command = self._commands.get(m - self.every, (0.0, 0.0))
-        imu = self._imu.get(m)
-        enc = self._enc.get(m)
-        syn = None  # the model's sample, computed when needed
-        if imu is None:
+        if self._core is not None:
+            self._sync()
+            self._good = (kf.x.copy(), kf.P.copy(), self._w, self._w_prev)
+        if not had_imu:
             self.predict_only += 1
-            syn = self._synthetic(x, command)
-            pred = self._propagate(x, syn)
-        else:
-            sample = ((imu[0][1], imu[0][2], imu[1][0], imu[1][2]), None)
-            sat = [abs(v) >= lim for v, lim in zip(sample[0], self._limits)]
-            if any(sat):
-                # a reading at the end of its range says only "at least this much": use the
-                # model's prediction for that axis instead
-                syn = self._synthetic(x, command)
-                sample = (tuple(sv if k else v for v, sv, k in zip(sample[0], syn[0], sat)),
-                          tuple(e if k else 0.0 for e, k in zip(syn[1], sat)))
-                self.saturated += 1
-            pred = self._propagate(x, sample)
-            accepted = True
-            if enc is not None:
-                tm, eps = self._encoder_fit(enc, m, pred, P, test=True)
-                if tm is not None and not eps <= self.imu_gates[len(tm[0])]:
-                    alt = self._propagate(x, syn if syn is not None else self._synthetic(x, command))
-                    tm_alt, eps_alt = self._encoder_fit(enc, m, alt, P, test=True)
-                    if eps_alt <= self.gates[len(tm_alt[0])]:
-                        self.events.append((t, f"IMU sample rejected as an outlier (encoder NIS {eps:.3g} with it)"))
-                        pred, accepted = alt, False
-            group = self.accepted if accepted else self.rejected
-            group["gyro"] += 1
-            group["accel"] += 1
-        x_next, F, Q, w = pred
-        kf._x_next, kf.F, kf.Q = x_next, F, Q
-        kf.predict()
-        self._w_prev, self._w = self._w, w
+        Pa = self._aug
+        if Pa is None:
+            Pa = np.zeros((N + 4, N + 4))
+            Pa[:N, :N] = kf.P
+            Pa[N:, N:] = np.eye(4) * self._g_var
+        x, w, wp = kf.x, self._w, self._w_prev
+        syn = self._synthetic(x, command, w, wp)
+        x1, F, Q, w1, L = self._propagate(x, syn, with_L=True)
+        z = np.concatenate([x, w, wp])
+
+        def sample(zz):
+            return np.array(self._synthetic(zz[:N], command, (zz[N], zz[N + 1]), (zz[N + 2], zz[N + 3]))[0])
+
+        D = np.empty((4, N + 4))  # the predicted sample by (x, ω, ω₋₁), central differences
+        for j in range(N + 4):
+            h = 1e-6 * max(1.0, abs(z[j]))
+            zp, zm = z.copy(), z.copy()
+            zp[j] += h
+            zm[j] -= h
+            D[:, j] = (sample(zp) - sample(zm)) / (2.0 * h)
+        J = np.zeros((N + 4, N + 4))
+        J[:N, :N] = F
+        J[:N] += L @ D
+        J[N:N + 2] = D[:2]
+        J[N + 2, N] = J[N + 3, N + 1] = 1.0
+        Pa = J @ Pa @ J.T
+        Pa[:N, :N] += Q
+        Pa[N, N] += syn[1][0]
+        Pa[N + 1, N + 1] += syn[1][1]
+        kf.x, kf.P = x1, Pa[:N, :N].copy()
+        self._w_prev, self._w = self._w, w1
+        self._aug = Pa
+
+        def update(em):
+            zm_, off, H, R = em
+            Ha = np.zeros((len(zm_), N + 4))
+            Ha[:, :N] = H
+            za = np.concatenate([kf.x, self._w, self._w_prev])
+            Pa = self._aug
+            PHt = Pa @ Ha.T
+            S = Ha @ PHt + R
+            K = np.linalg.solve(S, PHt.T).T
+            za = za + K @ (zm_ - (H @ kf.x + off))
+            IKH = np.eye(N + 4) - K @ Ha
+            Pa = IKH @ Pa @ IKH.T + K @ R @ K.T
+            self._aug = 0.5 * (Pa + Pa.T)
+            kf.x, kf.P = za[:N], self._aug[:N, :N].copy()
+            self._w, self._w_prev = (za[N], za[N + 1]), (za[N + 2], za[N + 3])
+
+        self._encoder_step(enc, m, t, had_imu, update)
+        self._finish(t)
+        if self._core is not None:
+            _kernel.set_state(self._core, kf.x, kf.P.ravel(), self._w, self._w_prev)
+
+    def _encoder_step(self, enc, m: int, t: float, had_imu: bool, update) -> None:
+        """The gated encoder update after a prediction, with ``update(measurement)``."""
         em = eps = None
         if enc is not None:
             em, eps = self._encoder_fit(enc, m, None, None)
-        if enc is not None and em is None:
-            # unchanged counts: no edge was crossed (no new information)
-            self.unchanged_encoders += 1
-            self._last_enc_m = m
-            enc = None
+            if em is None:  # unchanged counts: no edge was crossed (no new information)
+                self.unchanged_encoders += 1
+                self._last_enc_m = m
+                enc = None
         if enc is None:
-            if imu is not None:
+            if had_imu:
                 self.predict_only += 1
-        elif self._update(em, t, eps):
+        elif self._gate(em, t, eps):
+            update(em)
+            self.accepted["encoders"] += 1
             self._last_enc, self._last_enc_m = tuple(enc), m
-        elif imu is not None:  # rejected: the step was a prediction only (without IMU, counted already)
+        elif had_imu:  # rejected: the step was a prediction only (without IMU, counted already)
             self.predict_only += 1
+
+    def _finish(self, t: float) -> None:
+        kf = self.kf
         kf.P = 0.5 * (kf.P + kf.P.T)
         if np.isfinite(kf.x).all() and np.isfinite(kf.P).all() and (np.diag(kf.P) > 0).all():
             self._good = (kf.x.copy(), kf.P.copy(), self._w, self._w_prev)
@@ -543,11 +750,9 @@ class EKFEstimator:
         S = H @ Pp @ H.T + R
         return (z, off, H, R), float(y @ np.linalg.solve(S, y))
 
-    def _update(self, em, t: float, eps: float) -> bool:
-        """Gated encoder update with measurement ``em`` whose NIS is ``eps``; True if used."""
-        kf = self.kf
-        z, off, H, R = em
-        dof = len(z)
+    def _gate(self, em, t: float, eps: float) -> bool:
+        """The χ² gate for encoder measurement ``em`` whose NIS is ``eps``: True to use it."""
+        dof = len(em[0])
         self.last_nis, self.last_dof = eps, dof
         gate = self.gates[dof]
         if not eps <= gate:
@@ -558,19 +763,18 @@ class EKFEstimator:
             self.events.append((t, f"encoders accepted after {self.in_row} rejections in a row "
                                    f"(NIS {eps:.3g} > gate {gate:.3g}): re-synchronising"))
         self.in_row = 0
-        kf.update(z, lambda x: H, lambda x: H @ x + off, R=R)
-        self.accepted["encoders"] += 1
         return True
 
-    def _synthetic(self, x, command):
+    def _synthetic(self, x, command, w=None, w_prev=None):
         """The IMU sample equation (1) predicts at the end of the next period, and the
         extra variance (gyro, accelerometer) that the model's torque uncertainty adds."""
-        (wy, wz, fx, fz), (gv, av) = self.model.synthetic_imu(self.state6(x), command, self.every)
+        (wy, wz, fx, fz), (gv, av) = self.model.synthetic_imu(self.state6(x, w, w_prev), command, self.every)
         return (((1.0 + x[SY]) * wy + x[BY], (1.0 + x[SZ]) * wz + x[BZ], (1.0 + x[SAX]) * fx, (1.0 + x[SAZ]) * fz),
                 (gv, gv, av, av))
 
-    def _propagate(self, x, sample):
-        """(x⁺, F, Q, (ω_y, ω_z)): one strapdown step with IMU ``sample``.
+    def _propagate(self, x, sample, with_L: bool = False):
+        """(x⁺, F, Q, (ω_y, ω_z)): one strapdown step with IMU ``sample`` (and the noise
+        map L (12, 4), the derivative of x⁺ by the sample, with ``with_L``).
 
         ``sample`` is ((ω_y, ω_z, f_x, f_z), extra), the means over the period, with
         ``extra`` None for a real sample or the variances (4,) that synthetic values add. F and the noise map are the exact derivatives of the step, built by the
@@ -626,23 +830,29 @@ class EKFEstimator:
         Q = (L * var) @ L.T
         Q[BY, BY] += self._bias_q
         Q[BZ, BZ] += self._bias_q
+        if with_L:
+            return x1, F, Q, (wy, wz), L
         return x1, F, Q, (wy, wz)
 
     def _restore(self, t: float, why: str) -> None:
-        if self._core is not None:
-            raise TwinError("_restore belongs to the pure-Python path; the compiled kernel restores itself")
         x, P, self._w, self._w_prev = self._good
         self.kf.x, self.kf.P = x.copy(), 4.0 * P + np.diag(np.full(N, 1e-10))
+        self._aug = None
+        if self._core is not None:
+            _kernel.set_state(self._core, self.kf.x, self.kf.P.ravel(), self._w, self._w_prev)
         self.resets += 1
         self.events.append((t, why))
 
-    def _forward(self, s6: np.ndarray, m: int, k: int) -> np.ndarray:
-        """The state [θ, θ̇, ψ, ψ̇, α, α̇] at t_m predicted to t_k with the commands in between."""
+    def _forward(self, s6: np.ndarray, m: int, k: int):
+        """(state, finite): [θ, θ̇, ψ, ψ̇, α, α̇] at t_m predicted to t_k with the commands in
+        between; ``s6`` itself if that is not finite."""
         model = self.model
         s = s6
-        for j in range(m, k):
-            s = model.step6(s, self._commands.get(j, (0.0, 0.0)))
+        try:
+            for j in range(m, k):
+                s = model.step6(s, self._commands.get(j, (0.0, 0.0)))
+        except (ValueError, OverflowError, FloatingPointError):
+            return s6, False
         if not np.isfinite(s).all():
-            self.events.append((k * model.dt, "forward prediction non-finite; handing out the filter's own state"))
-            s = s6
-        return s
+            return s6, False
+        return s, True
