@@ -13,11 +13,12 @@
          in Python: EKFEstimator._coast).
          imu = (ω_y, ω_z, f_x, f_z); enc, last = (e_l, e_r) or None; T the time since the
          encoder sample ``last`` (s); command = (ul, ur) N·m held over the step.
-         -> (saturated, enc_code, nis, dof, healthy)
+         -> (imu_code, saturated, enc_code, nis, dof, healthy)
+            imu_code 1 used; 2 an outlier (the encoders fail the IMU gate with it and pass the
+            normal gate with the model's sample): nothing changed, nis is the encoders' NIS
+            with it, and the Python side coasts instead
             enc_code 0 no sample, 1 unchanged counts, 2 used, 3 rejected, 4 used although
             failing the gate (may_reject false); healthy 0 if the state had to be restored
-     imu_outlier(core, imu, enc, last, T, command) -> the encoders' NIS with the sample if
-         it is an outlier, else None
      forward(core, commands) -> ([θ, θ̇, ψ, ψ̇, α, α̇] predicted over the commands, finite)
      state6(core) -> the filter's own [θ, θ̇, ψ, ψ̇, α, α̇]
 
@@ -494,41 +495,10 @@ static int imu_sample(const Core *c, const double *cmd, double *smp, double *ext
     return 1;
 }
 
-static int parse_step(PyObject *const *args, double *smp, double *enc, double *last, double *T, double *cmd) {
-    if (floats(args[1], smp, 4, "imu") || floats(args[2], enc, 2, "enc") || floats(args[3], last, 2, "last"))
-        return -1;
-    *T = PyFloat_AsDouble(args[4]);
-    if (*T == -1.0 && PyErr_Occurred()) return -1;
-    return floats(args[5], cmd, 2, "command");
-}
-
-/* imu_outlier(core, imu, enc, last, T, command) -> the encoders' NIS with the sample if it
-   is an outlier (fails the IMU gate, while the model's sample passes the normal gate), else None */
-static PyObject *imu_outlier(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
-    Core *c;
-    if (nargs != 6 || !(c = get(args[0]))) {
-        if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "imu_outlier(core, imu, enc, last, T, command)");
-        return NULL;
-    }
-    double smp[4], extra[4], syn[4], syn_extra[4], enc[2], last[2], cmd[2], T;
-    if (parse_step(args, smp, enc, last, &T, cmd)) return NULL;
-    int have_syn = imu_sample(c, cmd, smp, extra, syn, syn_extra);
-    double x1[NX], F[NX * NX], Q[NX * NX], Pp[NX * NX];
-    EncMeas em;
-    propagate(c, c->x, smp, have_syn ? extra : NULL, x1, F, Q);
-    cov_predict(F, c->P, Q, Pp);
-    double eps = encoder_fit(c, enc, last, T, x1, smp, Pp, 1, &em);
-    if (eps <= c->imu_gate[em.dof]) Py_RETURN_NONE;
-    if (!have_syn) synthetic(c, c->x, cmd[0], cmd[1], syn, syn_extra);
-    propagate(c, c->x, syn, syn_extra, x1, F, Q);
-    cov_predict(F, c->P, Q, Pp);
-    double eps_alt = encoder_fit(c, enc, last, T, x1, syn, Pp, 1, &em);
-    if (eps_alt <= c->gate[em.dof]) return PyFloat_FromDouble(eps);
-    Py_RETURN_NONE;
-}
-
-/* advance(core, imu, enc, last, T, command, may_reject) -> (saturated, enc_code, nis, dof, ok):
-   one strapdown step with an IMU sample (steps without one are the Python side's) */
+/* advance(core, imu, enc, last, T, command, may_reject) -> (imu_code, saturated, enc_code, nis, dof, ok):
+   one strapdown step with an IMU sample (steps without one are the Python side's); imu_code 2:
+   the sample is an outlier (the encoders fail the IMU gate with it and pass the normal gate with
+   the model's sample), nothing changed, nis = the encoders' NIS with the sample */
 static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
     Core *c;
     if (nargs != 7 || !(c = get(args[0]))) {
@@ -553,6 +523,18 @@ static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs
     int saturated = imu_sample(c, cmd, smp, extra, syn, syn_extra);
     propagate(c, c->x, smp, saturated ? extra : NULL, x1, F, Q);
     cov_predict(F, c->P, Q, Pp);
+    if (has_enc) {
+        double eps = encoder_fit(c, enc, last, T, x1, smp, Pp, 1, &em);
+        if (!(eps <= c->imu_gate[em.dof])) {
+            double ax1[NX], aF[NX * NX], aQ[NX * NX], aPp[NX * NX];
+            if (!saturated) synthetic(c, c->x, cmd[0], cmd[1], syn, syn_extra);
+            propagate(c, c->x, syn, syn_extra, ax1, aF, aQ);
+            cov_predict(aF, c->P, aQ, aPp);
+            if (encoder_fit(c, enc, last, T, ax1, syn, aPp, 1, &em) <= c->gate[em.dof])
+                return Py_BuildValue("(iiidii)", 2, 0, 0, eps, 0, 1);
+        }
+        em.dof = 0;
+    }
     memcpy(c->x, x1, sizeof x1);
     memcpy(c->P, Pp, sizeof Pp);
     c->w_prev[0] = c->w[0];
@@ -582,7 +564,7 @@ static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs
         restore(c);
         ok = 0;
     }
-    return Py_BuildValue("(iidii)", saturated, enc_code, nis, dof, ok);
+    return Py_BuildValue("(iiidii)", 1, saturated, enc_code, nis, dof, ok);
 }
 
 static PyObject *forward(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
@@ -616,7 +598,6 @@ static PyMethodDef methods[] = {
     {"state", get_state, METH_O, "(x, P, w, w_prev) as tuples."},
     {"state6", py_state6, METH_O, "The filter's [θ, θ̇, ψ, ψ̇, α, α̇]."},
     {"advance", (PyCFunction)(void (*)(void))advance, METH_FASTCALL, "One filter step with an IMU sample."},
-    {"imu_outlier", (PyCFunction)(void (*)(void))imu_outlier, METH_FASTCALL, "The IMU outlier test."},
     {"forward", (PyCFunction)(void (*)(void))forward, METH_FASTCALL, "Predict the state over commands."},
     {NULL, NULL, 0, NULL}};
 

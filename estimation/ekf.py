@@ -444,23 +444,22 @@ class EKFEstimator:
         imu = self._imu.get(m)
         command = self._commands.get(m - self.every, (0.0, 0.0))
         enc = self._screen_encoders(self._enc.get(m), m, t)
-        eps_imu = None
-        if imu is not None and enc is not None:
-            eps_imu = self._imu_outlier(imu, enc, m, command)
-        if imu is None or eps_imu is not None:
-            if eps_imu is not None:
-                self.rejected["gyro"] += 1
-                self.rejected["accel"] += 1
-                self.events.append((t, f"IMU sample rejected as an outlier (encoder NIS {eps_imu:.3g} with it)"))
-            self._coast(m, t, imu is not None, enc, command)
-            return
-        self._aug = None
-        self.accepted["gyro"] += 1
-        self.accepted["accel"] += 1
-        if self._core is not None:
-            self._strapdown_compiled(m, t, imu, enc, command)
-        else:
-            self._strapdown(m, t, imu, enc, command)
+        if imu is not None:
+            if self._core is not None:
+                eps_imu = self._strapdown_compiled(m, t, imu, enc, command)
+            else:
+                eps_imu = None if enc is None else self._imu_outlier(imu, enc, m, command)
+                if eps_imu is None:
+                    self._strapdown(m, t, imu, enc, command)
+            if eps_imu is None:
+                self._aug = None
+                self.accepted["gyro"] += 1
+                self.accepted["accel"] += 1
+                return
+            self.rejected["gyro"] += 1
+            self.rejected["accel"] += 1
+            self.events.append((t, f"IMU sample rejected as an outlier (encoder NIS {eps_imu:.3g} with it)"))
+        self._coast(m, t, imu is not None, enc, command)
 
     def _screen_encoders(self, enc, m: int, t: float):
         """``enc``, or None if its counts moved further since the last sample used than a wheel
@@ -535,10 +534,6 @@ class EKFEstimator:
         Outlier: the encoders (every wheel, an unchanged one as "still inside its count")
         fail the IMU gate (1 − 1e-9) with the sample, and pass the normal gate with the
         sample equation (1) predicts instead."""
-        if self._core is not None:
-            g, a = imu
-            return _kernel.imu_outlier(self._core, (g[1], g[2], a[0], a[2]), enc, self._last_enc,
-                                       (m - self._last_enc_m) * self.model.dt, command)
         x, P = self.kf.x, self.kf.P
         sample, syn = self._imu_sample(x, imu, command)
         tm, eps = self._encoder_fit(enc, m, self._propagate(x, sample), P, test=True)
@@ -564,12 +559,17 @@ class EKFEstimator:
         self._encoder_step(enc, m, t, True, update)
         self._finish(t)
 
-    def _strapdown_compiled(self, m: int, t: float, imu, enc, command) -> None:
-        """:meth:`_strapdown` in the compiled kernel; the counts and events kept here."""
+    def _strapdown_compiled(self, m: int, t: float, imu, enc, command):
+        """:meth:`_imu_outlier` and :meth:`_strapdown` in the compiled kernel, the counts and
+        events kept here; returns the encoders' NIS with the sample if it is an outlier (the
+        state then unchanged), else None."""
         sample = (imu[0][1], imu[0][2], imu[1][0], imu[1][2])
         T = (m - self._last_enc_m) * self.model.dt
-        sat, code_e, nis, dof, ok = _kernel.advance(self._core, sample, enc, self._last_enc if enc is not None else None,
-                                                    T, command, self.in_row < self.max_rejects_in_row)
+        code_i, sat, code_e, nis, dof, ok = _kernel.advance(
+            self._core, sample, enc, self._last_enc if enc is not None else None, T, command,
+            self.in_row < self.max_rejects_in_row)
+        if code_i == 2:
+            return nis
         self.saturated += sat
         if code_e <= 1:
             if code_e == 1:
@@ -593,6 +593,7 @@ class EKFEstimator:
             self.resets += 1
             self.events.append((t, "the state or covariance became non-finite or lost positivity, or the update "
                                    "failed numerically; restored the last good estimate"))
+        return None
 
     def _coast(self, m: int, t: float, had_imu: bool, enc, command) -> None:
         """One step without a (trustworthy) IMU sample: equation (1) predicts it from the
