@@ -155,7 +155,8 @@ class TwinRun:
 def simulate_twin(controller: FuzzyCascade, experiment: Experiment, config: TwinConfig | None = None,
                   duration: float | None = None, controller_name: str = "", alpha0: float = 0.0,
                   position=(0.0, 0.0), sensors: SensorConfig | None = SensorConfig(), estimator: str = "ekf",
-                  seed: int = 0, model_params: RobotParams = NOMINAL, log_filter: bool = False) -> TwinRun:
+                  seed: int = 0, model_params: RobotParams = NOMINAL, log_filter: bool = False,
+                  progress=None) -> TwinRun:
     """Run ``controller`` on a new twin built from ``config`` from the experiment's θ0.
 
     Parameters
@@ -170,6 +171,8 @@ def simulate_twin(controller: FuzzyCascade, experiment: Experiment, config: Twin
         The robot the estimator assumes (the controllers' nominal model by default).
     log_filter : bool
         Keep the EKF's own state, covariance and NIS at every step (``filter_log``).
+    progress : callable or None
+        ``progress(steps_done, steps_total)``, called once per simulated second and at the end.
 
     The twin is closed when the run ends, fallen or not.
     """
@@ -187,6 +190,7 @@ def simulate_twin(controller: FuzzyCascade, experiment: Experiment, config: Twin
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise TwinError(f"seed must be a non-negative integer, got {seed!r}")
     n_ctrl = int(round(duration / control_dt))
+    report_every = max(1, int(round(config.control_rate)))
     n_rows = n_ctrl + 1
     truth = np.zeros((n_rows, len(TRUTH_NAMES)))
     est = np.zeros((n_rows, len(ESTIMATE_NAMES)))
@@ -247,11 +251,15 @@ def simulate_twin(controller: FuzzyCascade, experiment: Experiment, config: Twin
             if i == n_ctrl or twin.status != "running":
                 n = i + 1
                 break
+            if progress is not None and i % report_every == 0 and i:
+                progress(i, n_ctrl)
             tr = twin.step(c.ul, c.ur)
             act[i] = twin.actuation
             push[i] = twin.push_force
         status = "ok" if twin.status == "running" else twin.status
         reason = "" if status == "ok" else twin.end_reason
+        if progress is not None:
+            progress(n_ctrl, n_ctrl)
     t = truth[:n, 0].copy()
     if flog is not None:
         for key in ("x", "P", "nis", "nis_dof"):

@@ -56,6 +56,8 @@ def main():
       twin design --decay-rate 3 --out gains.json
       twin analytic 3 --controller both --out runs/exp3
       twin physics 3 --controller both --out runs/exp3-twin
+      twin run paper-exp3 --controller both
+      twin scenarios
       twin surface position --out runs/surfaces
     """
 
@@ -259,6 +261,117 @@ def _paper_experiment(plant, experiment, controller, out, duration, gains_file, 
         if metrics[kind].get("status", "ok") != "ok":
             click.echo(f"  {kind.upper()}: {metrics[kind]['status']}: {metrics[kind]['end_reason']}")
     click.echo(f"wrote {out}/figure.png, metrics.json, design.json, " + ", ".join(f"trajectory_{k}.csv" for k in kinds))
+
+
+@main.command()
+@click.argument("scenario", metavar="SCENARIO|FILE")
+@click.option("--controller", type=click.Choice(["it2", "t1", "both"]), default="both", show_default=True,
+              help="Which controllers to run, on identical conditions.")
+@click.option("--seed", type=click.IntRange(min=0), default=None,
+              help="Seed of the sensor noise and faults (default: the scenario's 'seed').")
+@click.option("--duration", type=float, default=None, help="Simulated time in s (default: the scenario's).")
+@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
+              help="Override a scenario key by its dotted path, validated like the file "
+                   "(repeatable), e.g. --set plant.scale.m_b=1.2.")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Output directory (default: runs/<scenario name>).")
+@click.option("--video/--no-video", default=None, help="Render video.mp4 (default: the scenario's video.enabled).")
+def run(scenario, controller, seed, duration, overrides, out, video):
+    """Run a scenario on the PyBullet twin: trajectory, metrics, figure and video.
+
+    SCENARIO is a built-in name (see 'twin scenarios') or a scenario .toml file. Writes
+    trajectory.csv, metrics.json, figure.png, design.json and video.mp4 into --out.
+    The same scenario and seed give identical metrics.json and trajectory.csv.
+
+    \b
+    Examples:
+      twin run paper-exp3
+      twin run paper-exp1 --controller it2 --seed 7 --no-video
+      twin run push-recovery --set pushes='[{force=[20,0,0], start=3, duration=0.1}]'
+      twin run my-robot.toml --set plant.scale.m_b=1.2 --set sensors.sensing=ideal --out runs/heavy
+    """
+    from twin.scenarios import load_scenario
+    from twin.scenarios.runner import controllers_of, run_scenario
+
+    extra = list(overrides)
+    if seed is not None:
+        extra.append(f"seed={seed}")
+    if duration is not None:
+        extra.append(f"duration={duration!r}")
+    sc = load_scenario(scenario, extra)
+    out = out if out is not None else Path("runs") / sc.name
+    kinds = controllers_of(controller)
+    click.echo(f"{sc.name}: {sc.description}")
+    with _Progress() as bar:
+        result = run_scenario(sc, kinds, out=out, video=video, progress=bar.update)
+    keys = ("status", "settling_time_s", "theta_rms_rad", "oscillation_peak_to_peak_rad", "final_position_error_m",
+            "final_heading_error_rad", "iae_theta", "control_effort", "max_abs_torque_nm", "estimator_theta_rmse_rad",
+            "rejected_measurements")
+    click.echo(f"  {'metric':32}" + "".join(f"{k.upper():>14}" for k in kinds))
+    for k in keys:
+        vals = [result.metrics[c][k] for c in kinds]
+        click.echo(f"  {k:32}" + "".join(f"{_fmt(v):>14}" for v in vals))
+    for c in kinds:
+        if result.metrics[c]["fell"]:
+            click.echo(f"  {c.upper()}: {result.metrics[c]['status']}: {result.metrics[c]['end_reason']}")
+    t = result.timings
+    sim = sum(float(r.t[-1]) for r in result.runs)
+    wall = sum(v for k, v in t.items() if k.startswith("run_"))
+    click.echo(f"  simulated {sim:g} s in {wall:.2f} s (real-time factor {sim / max(wall, 1e-9):.0f})"
+               + (f"; video {result.video.frames} frames in {t['video_s']:.1f} s ({result.video.codec}, "
+                  f"{result.video.renderer})" if result.video is not None else ""))
+    click.echo(f"wrote {out}/: " + ", ".join(Path(f).name for f in result.files))
+
+
+def _fmt(v) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    return str(v)
+
+
+class _Progress:
+    """A progress bar on stderr over the stages of a run (runs, then the video)."""
+
+    def __init__(self):
+        self._bar = None
+        self._stage = None
+        self._done = 0
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        if self._bar is not None:
+            self._bar.__exit__(*exc)
+
+    def update(self, stage: str, done: int, total: int) -> None:
+        if stage != self._stage:
+            if self._bar is not None:
+                self._bar.__exit__(None, None, None)
+            self._bar = click.progressbar(length=max(total, 1), label=f"  {stage:8}", file=sys.stderr,
+                                          show_eta=True, width=30).__enter__()
+            self._stage, self._done = stage, 0
+        self._bar.update(done - self._done)
+        self._done = done
+
+
+@main.command()
+def scenarios():
+    """List the built-in scenarios, a line each (run one with 'twin run NAME').
+
+    \b
+    Examples:
+      twin scenarios
+      twin run slope-payload --controller both
+    """
+    from twin.scenarios import builtin_scenarios
+
+    items = builtin_scenarios()
+    width = max(map(len, items))
+    for name, description in items.items():
+        click.echo(f"{name:{width}}  {description}")
 
 
 @main.command()

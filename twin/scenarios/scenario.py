@@ -1,0 +1,228 @@
+"""A validated scenario and what it builds: the experiment, the twin, the sensors, the design.
+
+Loading (:func:`load_scenario`) parses the TOML file (or a built-in by name), applies the
+``--set KEY=VALUE`` overrides, validates everything against :mod:`twin.scenarios.schema`
+and then builds every object the run needs once, so that an invalid scenario fails
+before anything runs, with a one-line message naming the file, the key and what is
+allowed.
+"""
+from __future__ import annotations
+
+import copy
+import tomllib
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+from twin.errors import TwinError
+from twin.scenarios.schema import ScenarioError, lookup, validate
+
+BUILTIN_PACKAGE = "twin.scenarios.builtin"
+
+
+def builtin_names() -> list[str]:
+    """Names of the built-in scenarios, sorted."""
+    files = resources.files(BUILTIN_PACKAGE).iterdir()
+    return sorted(f.name[:-5] for f in files if f.name.endswith(".toml"))
+
+
+def builtin_scenarios() -> dict[str, str]:
+    """Built-in name → its one-line description."""
+    return {n: load_scenario(n).description for n in builtin_names()}
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A validated scenario: ``data`` is the complete key tree (see :data:`~twin.scenarios.schema.SCHEMA`),
+    ``source`` the file (or ``built-in NAME``) it came from, ``overrides`` the ``--set`` items applied."""
+
+    data: dict
+    source: str
+    overrides: tuple[str, ...] = ()
+
+    @property
+    def name(self) -> str:
+        return self.data["name"]
+
+    @property
+    def description(self) -> str:
+        return self.data["description"]
+
+    @property
+    def duration(self) -> float:
+        return self.data["duration"]
+
+    @property
+    def seed(self) -> int:
+        return self.data["seed"]
+
+    @property
+    def video(self) -> dict:
+        return self.data["video"]
+
+    # ---- what the scenario builds ------------------------------------------------------------
+    def experiment(self):
+        from twin.analytic_loop import Experiment
+
+        d = self.data
+        return Experiment(d["name"], d["description"], theta0=d["initial"]["theta"],
+                          p_d=d["targets"]["position"], alpha_d=d["targets"]["heading"], duration=d["duration"])
+
+    def true_params(self):
+        from twin.params import NOMINAL
+
+        return NOMINAL.perturbed(scale=self.data["plant"]["scale"])
+
+    def twin_config(self):
+        from twin.plant.bullet import TwinConfig
+        from twin.plant.disturbances import Disturbances, Ground, Push
+        from twin.plant.urdf import Payload
+
+        d, p = self.data, self.data["plant"]
+        ground = Ground(**d["ground"])
+        pushes = tuple(Push(tuple(q["force"]), q["start"], q["duration"], tuple(q["point"]), q["frame"])
+                       for q in d["pushes"])
+        payload = Payload(p["payload_mass"], tuple(p["payload_position"])) if p["payload_mass"] > 0 else None
+        dist = Disturbances(pushes=pushes, payload=payload, com_offset=tuple(p["com_offset"]))
+        kwargs = {} if p["motor"] == "dc" else {"motor": None}
+        return TwinConfig(params=self.true_params(), physics_rate=d["rates"]["physics"],
+                          control_rate=d["rates"]["control"], ground=ground, disturbances=dist, **kwargs)
+
+    def sensor_config(self):
+        """The sensors, or None for ideal sensing."""
+        from twin.sensors import Dropout, LatencyChange, SensorConfig, Spikes, Stuck
+        from twin.sensors.specs import DEFAULT_IMU, EncoderSpec, ImuSpec
+
+        s = self.data["sensors"]
+        if s["sensing"] == "ideal":
+            return None
+        faults = []
+        for f in self.data["faults"]:
+            if f["kind"] == "latency":
+                faults.append(LatencyChange(f["sensor"], f["start"], f["latency"]))
+            elif f["kind"] == "spikes":
+                faults.append(Spikes(f["sensor"], f["start"], f["duration"], rate=f["rate"], magnitude=f["magnitude"]))
+            else:
+                faults.append({"dropout": Dropout, "stuck": Stuck}[f["kind"]](f["sensor"], f["start"], f["duration"]))
+        imu = ImuSpec(gyro=DEFAULT_IMU.gyro, accel=DEFAULT_IMU.accel, position=DEFAULT_IMU.position,
+                      rate=s["imu_rate"], latency=s["imu_latency"])
+        return SensorConfig(imu=imu, encoders=EncoderSpec(s["encoder_counts"], s["encoder_latency"]),
+                            faults=tuple(faults))
+
+    def design_options(self) -> dict:
+        return dict(self.data["design"])
+
+    def cascade_options(self) -> dict:
+        c = self.data["controller"]
+        return {"fou": c["fou"], "type_reduction": c["type_reduction"], "psi_error_limit": c["psi_error_limit"]}
+
+    def check(self) -> "Scenario":
+        """Build everything once: errors that involve several keys surface here, named."""
+        d = self.data
+        physics, control = d["rates"]["physics"], d["rates"]["control"]
+        ratio = physics / control
+        if abs(ratio - round(ratio)) > 1e-9 * ratio or round(ratio) < 1:
+            raise self._error(f"rates.control: {control:g} Hz does not divide rates.physics = {physics:g} Hz; allowed: "
+                              f"a control rate whose period is a whole number of physics steps (e.g. "
+                              f"{', '.join(f'{physics / k:g}' for k in (10, 5, 4, 2, 1))} Hz)")
+        for group in ("pushes", "faults"):
+            for i, item in enumerate(d[group]):
+                if item["start"] >= d["duration"]:
+                    raise self._error(f"{group}[{i}].start: {item['start']:g} s is not before the end of the run "
+                                      f"(duration = {d['duration']:g} s); allowed: [0, {d['duration']:g}) s")
+        for where, build in (("plant", self.true_params), ("twin", self.twin_config), ("sensors", self.sensor_config)):
+            try:
+                build()
+            except ScenarioError:
+                raise
+            except TwinError as exc:
+                raise self._error(f"{where}: {exc}") from None
+        sensors = self.sensor_config()
+        if sensors is not None:
+            try:
+                sensors.steps(control)
+            except TwinError as exc:
+                raise self._error(f"sensors: {exc}") from None
+        return self
+
+    def _error(self, message: str) -> ScenarioError:
+        return ScenarioError(f"{self.source}: {message}")
+
+
+def parse_override(item: str) -> tuple[str, object]:
+    """``KEY=VALUE`` → (dotted key, value): VALUE is read as TOML (numbers, true/false, [lists],
+    {inline tables}, "strings"), and as a bare string if it is not TOML."""
+    key, sep, text = item.partition("=")
+    key = key.strip()
+    if not sep or not key:
+        raise ScenarioError(f"--set {item!r}: expected KEY=VALUE with a dotted key, e.g. --set plant.scale.m_b=1.2")
+    try:
+        value = tomllib.loads(f"v = {text.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = text.strip()
+    lookup(key)
+    return key, value
+
+
+def apply_overrides(raw: dict, overrides) -> dict:
+    raw = copy.deepcopy(raw)
+    for item in overrides:
+        key, value = parse_override(item)
+        node = raw
+        parts = key.split(".")
+        for part in parts[:-1]:
+            child = node.setdefault(part, {})
+            if not isinstance(child, dict):
+                raise ScenarioError(f"--set {key}: {part!r} is not a table in the scenario")
+            node = child
+        node[parts[-1]] = value
+    return raw
+
+
+def _read(name_or_path: str) -> tuple[dict, str, str]:
+    """(parsed TOML, source for messages, default name)."""
+    path = Path(name_or_path)
+    if name_or_path in builtin_names():
+        text = resources.files(BUILTIN_PACKAGE).joinpath(f"{name_or_path}.toml").read_text(encoding="utf-8")
+        source, stem = f"built-in scenario {name_or_path}", name_or_path
+    elif path.suffix == ".toml" or path.exists():
+        try:
+            text = path.read_text(encoding="utf-8")
+        except FileNotFoundError:
+            raise ScenarioError(f"{path}: no such scenario file") from None
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ScenarioError(f"{path}: cannot be read ({exc})") from None
+        source, stem = str(path), path.stem
+    else:
+        raise ScenarioError(f"{name_or_path!r} is neither a built-in scenario nor a .toml file; built-ins: "
+                            f"{', '.join(builtin_names())} (see 'twin scenarios')")
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{source}: not valid TOML ({exc})") from None
+    return raw, source, stem
+
+
+def load_scenario(name_or_path: str, overrides=()) -> Scenario:
+    """A built-in scenario by name, or a scenario file, with ``--set`` ``overrides`` applied;
+    validated and checked (:meth:`Scenario.check`)."""
+    raw, source, stem = _read(str(name_or_path))
+    overrides = tuple(overrides)
+    where = source + (f" with --set {' '.join(overrides)}" if overrides else "")
+    try:
+        raw = apply_overrides(raw, overrides)
+        data = validate(raw)
+    except ScenarioError as exc:
+        msg = str(exc)
+        raise ScenarioError(msg if msg.startswith("--set") else f"{where}: {msg}") from None
+    if not data["name"]:
+        data["name"] = stem
+    latency_given = [("latency" in f) for f in raw.get("faults", [])] if isinstance(raw.get("faults"), list) else []
+    scenario = Scenario(data, where, overrides)
+    for i, f in enumerate(data["faults"]):
+        if f["kind"] == "latency" and not latency_given[i]:
+            raise ScenarioError(f"{where}: faults[{i}].latency: missing; a latency fault needs the new latency in s")
+    return scenario.check()
+
+
+__all__ = ["Scenario", "ScenarioError", "builtin_names", "builtin_scenarios", "load_scenario", "parse_override"]

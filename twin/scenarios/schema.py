@@ -1,0 +1,267 @@
+"""The scenario file's schema: every key, its type, unit, default and allowed range.
+
+A scenario is a TOML file (see ``twin/scenarios/builtin/`` and the README's "Writing a
+scenario"). :func:`validate` checks a parsed file against :data:`SCHEMA` and returns it
+complete, with every default filled in; the first problem found is raised as a
+:class:`ScenarioError` naming the file, the dotted key and what is allowed. Checks that
+involve several keys (a control rate that does not divide the physics rate, ...) are in
+:mod:`twin.scenarios.scenario`.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from twin.controllers.cascade import DEFAULT_PSI_ERROR_LIMIT
+from twin.controllers.lmi import DEFAULT_DECAY_RATE, DEFAULT_EPSILON, DEFAULT_RHO
+from twin.controllers.mamdani import DEFAULT_FOU, P_E_RANGE
+from twin.fuzzy.mamdani import TYPE_REDUCERS
+from twin.errors import TwinError
+from twin.params import PARAMETER_DOCS
+
+REQUIRED = object()
+
+
+class ScenarioError(TwinError):
+    """An invalid scenario file or override (the message names the file and the key)."""
+
+
+@dataclass(frozen=True)
+class Key:
+    """One key: ``kind`` is float, int, bool, str, vec3, table (``keys``), tables (a list of
+    tables, ``keys``) or map (str → float, names from ``choices``)."""
+
+    kind: str
+    default: Any = REQUIRED
+    lo: float = -math.inf
+    hi: float = math.inf
+    lo_open: bool = False
+    unit: str = ""
+    choices: tuple = ()
+    doc: str = ""
+    keys: dict = field(default_factory=dict)
+    nullable: bool = False  # absent means None
+
+
+def _f(default=REQUIRED, lo=-math.inf, hi=math.inf, unit="", doc="", lo_open=False, nullable=False):
+    return Key("float", default, lo, hi, lo_open, unit, doc=doc, nullable=nullable)
+
+
+PUSH = {
+    "force": Key("vec3", REQUIRED, -1e4, 1e4, unit="N", doc="force (x forward, y left, z up in the frame)"),
+    "start": _f(REQUIRED, 0.0, 3600.0, "s"),
+    "duration": _f(REQUIRED, 0.0, 10.0, "s", lo_open=True),
+    "point": Key("vec3", (0.0, 0.0, 0.1), -1.0, 1.0, unit="m", doc="point of application, body frame"),
+    "frame": Key("str", "heading", choices=("heading", "world")),
+}
+
+FAULT = {
+    "kind": Key("str", REQUIRED, choices=("dropout", "stuck", "spikes", "latency")),
+    "sensor": Key("str", REQUIRED, choices=("gyro", "accel", "imu", "encoders", "all")),
+    "start": _f(0.0, 0.0, 3600.0, "s", doc="start of the window (dropout, stuck, spikes) or of the new latency"),
+    "duration": _f(math.inf, 0.0, math.inf, "s", lo_open=True, doc="length of the window (inf: to the end)"),
+    "rate": _f(2.0, 0.0, 1e4, "1/s", lo_open=True, doc="spikes: expected outliers per second"),
+    "magnitude": _f(1.0, 0.0, 1e6, "sensor unit", lo_open=True, doc="spikes: offset on every axis"),
+    "latency": _f(0.0, 0.0, 1.0, "s", doc="latency: the new latency"),
+}
+
+SCHEMA: dict[str, Key] = {
+    "name": Key("str", "", doc="short name (default: the file name)"),
+    "description": Key("str", "", doc="one line: what the scenario shows"),
+    "duration": _f(15.0, 0.0, 3600.0, "s", lo_open=True, doc="simulated time"),
+    "seed": Key("int", 0, 0, 2 ** 63 - 1, doc="seed of the sensor noise, faults and sampled disturbances"),
+    "initial": Key("table", keys={
+        "theta": _f(0.48, -0.99, 0.99, "rad", doc="body pitch (inside the fall limit of 1 rad)"),
+        "alpha": _f(0.0, -math.pi, math.pi, "rad", doc="heading"),
+        "x": _f(0.0, -1e4, 1e4, "m"),
+        "y": _f(0.0, -1e4, 1e4, "m"),
+    }),
+    "targets": Key("table", keys={
+        "position": _f(None, -P_E_RANGE, P_E_RANGE, "m", nullable=True,
+                       doc="travel target p_d (Table I's position-error range); absent: no position loop"),
+        "heading": _f(None, -math.pi, math.pi, "rad", nullable=True,
+                      doc="heading target α_d; absent: no direction loop"),
+    }),
+    "controller": Key("table", keys={
+        "fou": _f(DEFAULT_FOU, 0.0, 0.95, "1", doc="IT2 footprint of uncertainty of the Mamdani sets (0: type-1 shaped)"),
+        "type_reduction": Key("str", "bmm", choices=TYPE_REDUCERS, doc="BMM (the paper), Nie–Tan or exact Karnik–Mendel"),
+        "psi_error_limit": _f(DEFAULT_PSI_ERROR_LIMIT, 0.0, 100.0, "rad", lo_open=True, doc="clip of the wheel-angle error"),
+    }),
+    "design": Key("table", keys={
+        "epsilon": _f(DEFAULT_EPSILON, 0.0, 10.0, "1", lo_open=True, doc="radius of the certified initial states (Lemma 2)"),
+        "rho": _f(DEFAULT_RHO, 0.0, 1e3, "N·m", lo_open=True, doc="bound on the total wheel torque (Lemma 2)"),
+        "decay_rate": _f(DEFAULT_DECAY_RATE, 0.0, 100.0, "1/s", doc="guaranteed decay rate"),
+        "max_gain": _f(None, 0.0, 1e6, "", lo_open=True, nullable=True, doc="bound on each gain's norm"),
+    }),
+    "rates": Key("table", keys={
+        "physics": _f(1000.0, 10.0, 100000.0, "Hz"),
+        "control": _f(200.0, 1.0, 100000.0, "Hz", doc="must divide the physics rate"),
+    }),
+    "plant": Key("table", doc="the twin's true plant (the controllers and the estimator keep the nominal model)",
+                 keys={
+        "scale": Key("map", {}, 0.2, 5.0, choices=tuple(PARAMETER_DOCS), unit="×",
+                     doc="Table III parameter → factor of its nominal value"),
+        "motor": Key("str", "dc", choices=("dc", "ideal"), doc="DC motors with PWM drivers, or ideal torque sources"),
+        "payload_mass": _f(0.0, 0.0, 20.0, "kg"),
+        "payload_position": Key("vec3", (0.0, 0.0, 0.1), -0.5, 0.5, unit="m", doc="body frame, from the axle"),
+        "com_offset": Key("vec3", (0.0, 0.0, 0.0), -0.1, 0.1, unit="m"),
+    }),
+    "ground": Key("table", keys={
+        "slope": _f(0.0, -0.35, 0.35, "rad", doc="floor inclination (positive rises ahead)"),
+        "slope_direction": _f(0.0, -math.pi, math.pi, "rad"),
+        "lateral_friction": _f(1.0, 0.0, 10.0, "1", lo_open=True),
+        "rolling_friction": _f(0.0, 0.0, 1.0, "1"),
+        "spinning_friction": _f(0.0, 0.0, 1.0, "1"),
+    }),
+    "pushes": Key("tables", [], keys=PUSH),
+    "sensors": Key("table", keys={
+        "sensing": Key("str", "estimated", choices=("estimated", "ideal"),
+                       doc="the controllers act on the estimator's output, or read the truth (a reference)"),
+        "estimator": Key("str", "ekf", choices=("ekf", "complementary", "kalman2")),
+        "imu_rate": _f(200.0, 0.0, 1e5, "Hz", lo_open=True, doc="must divide the control rate"),
+        "imu_latency": _f(0.005, 0.0, 1.0, "s", doc="a whole number of control periods"),
+        "encoder_counts": Key("int", 1200, 4, 10_000_000, doc="counts per wheel revolution"),
+        "encoder_latency": _f(0.0, 0.0, 1.0, "s"),
+    }),
+    "faults": Key("tables", [], keys=FAULT),
+    "video": Key("table", keys={
+        "enabled": Key("bool", True),
+        "fps": Key("int", 30, 1, 120),
+        "width": Key("int", 640, 64, 3840),
+        "height": Key("int", 480, 48, 2160),
+    }),
+}
+
+
+def _where(path: str) -> str:
+    return path or "the file"
+
+
+def _number(v, key: Key, path: str, integer: bool = False):
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or (integer and not isinstance(v, int)):
+        what = "an integer" if integer else "a number"
+        raise ScenarioError(f"{path}: must be {what}{_range(key)}, got {v!r}")
+    if not integer:
+        v = float(v)
+        if math.isnan(v) or (math.isinf(v) and not (key.hi == math.inf and v > 0)):
+            raise ScenarioError(f"{path}: must be a finite number{_range(key)}, got {v!r}")
+    low_ok = v > key.lo if key.lo_open else v >= key.lo
+    if not (low_ok and v <= key.hi):
+        raise ScenarioError(f"{path}: {v!r} is out of range; allowed{_range(key)}")
+    return v
+
+
+def _range(key: Key) -> str:
+    lo, hi = key.lo, key.hi
+    unit = f" {key.unit}" if key.unit else ""
+    if math.isinf(lo) and math.isinf(hi):
+        return unit and f" in{unit}"
+    left = "(" if key.lo_open or math.isinf(lo) else "["
+    right = ")" if math.isinf(hi) else "]"
+    fmt = (lambda x: f"{x:g}")
+    return f" in {left}{fmt(lo) if not math.isinf(lo) else '-inf'}, {fmt(hi) if not math.isinf(hi) else 'inf'}{right}{unit}"
+
+
+def _value(v, key: Key, path: str):
+    k = key.kind
+    if k == "float":
+        return _number(v, key, path)
+    if k == "int":
+        return _number(v, key, path, integer=True)
+    if k == "bool":
+        if not isinstance(v, bool):
+            raise ScenarioError(f"{path}: must be true or false, got {v!r}")
+        return v
+    if k == "str":
+        if not isinstance(v, str):
+            raise ScenarioError(f"{path}: must be a string{_choices(key)}, got {v!r}")
+        if key.choices and v not in key.choices:
+            raise ScenarioError(f"{path}: {v!r} is not allowed{_choices(key)}")
+        return v
+    if k == "vec3":
+        if not isinstance(v, (list, tuple)) or len(v) != 3:
+            raise ScenarioError(f"{path}: must be a list of 3 numbers{_range(key)}, got {v!r}")
+        return tuple(_number(c, key, f"{path}[{i}]") for i, c in enumerate(v))
+    if k == "table":
+        return _table(v, key.keys, path)
+    if k == "tables":
+        if not isinstance(v, list):
+            raise ScenarioError(f"{path}: must be a list of tables ([[{path}]] entries), got {v!r}")
+        return [_table(item, key.keys, f"{path}[{i}]") for i, item in enumerate(v)]
+    if k == "map":
+        if not isinstance(v, dict):
+            raise ScenarioError(f"{path}: must be a table of name = factor, got {v!r}")
+        out = {}
+        for name, factor in v.items():
+            if name not in key.choices:
+                raise ScenarioError(f"{path}.{name}: unknown parameter; allowed: {', '.join(key.choices)}")
+            out[name] = _number(factor, key, f"{path}.{name}")
+        return out
+    raise AssertionError(k)  # pragma: no cover
+
+
+def _choices(key: Key) -> str:
+    return f" (one of {', '.join(repr(c) for c in key.choices)})" if key.choices else ""
+
+
+def _table(raw, keys: dict[str, Key], path: str) -> dict:
+    if not isinstance(raw, dict):
+        raise ScenarioError(f"{_where(path)}: must be a table, got {raw!r}")
+    for name in raw:
+        if name not in keys:
+            raise ScenarioError(f"{path + '.' if path else ''}{name}: unknown key; allowed here: {', '.join(keys)}")
+    out = {}
+    for name, key in keys.items():
+        p = f"{path}.{name}" if path else name
+        if name in raw:
+            out[name] = _value(raw[name], key, p)
+        elif key.kind == "table":
+            out[name] = _table({}, key.keys, p)
+        elif key.default is REQUIRED:
+            raise ScenarioError(f"{p}: missing; it is required")
+        else:
+            out[name] = key.default
+    return out
+
+
+def validate(raw: dict) -> dict:
+    """The scenario ``raw`` (parsed TOML) with every key checked and every default filled in."""
+    return _table(raw, SCHEMA, "")
+
+
+def lookup(path: str) -> Key:
+    """The :class:`Key` at dotted ``path`` (for ``--set``); a one-line error if there is none."""
+    keys, key = SCHEMA, None
+    parts = path.split(".")
+    for i, part in enumerate(parts):
+        if keys is None or part not in keys:
+            where = ".".join(parts[:i]) or "the top level"
+            allowed = ", ".join(keys) if keys else "none (not a table)"
+            raise ScenarioError(f"--set {path}: unknown key {part!r} in {where}; allowed: {allowed}")
+        key = keys[part]
+        keys = key.keys if key.kind == "table" else (
+            {c: Key("float", lo=key.lo, hi=key.hi, unit=key.unit) for c in key.choices} if key.kind == "map" else None)
+    return key
+
+
+def describe() -> list[tuple[str, str, str, str]]:
+    """(dotted key, type and range, default, doc) for every key, for the README and --help."""
+    rows = []
+
+    def walk(keys, prefix):
+        for name, key in keys.items():
+            p = f"{prefix}{name}"
+            if key.kind == "table":
+                walk(key.keys, p + ".")
+                continue
+            if key.kind == "tables":
+                rows.append((f"[[{p}]]", "list of tables", "[]", key.doc))
+                walk(key.keys, f"{p}[].")
+                continue
+            kind = key.kind + (_range(key) if key.kind in ("float", "int", "vec3", "map") else _choices(key))
+            default = "required" if key.default is REQUIRED else ("absent" if key.default is None else repr(key.default))
+            rows.append((p, kind, default, key.doc))
+
+    walk(SCHEMA, "")
+    return rows
