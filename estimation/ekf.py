@@ -116,7 +116,9 @@ if os.environ.get("TWIN_PURE_PYTHON", "") not in ("", "0"):
 
 def finite_reading(v) -> bool:
     """A sensor reading that arrived (not None) with every value finite."""
-    return v is not None and all(math.isfinite(c) for c in v)
+    # a finite sum proves every value finite (NaN and ±inf propagate); only a sum that
+    # overflowed from huge finite values needs the values one by one
+    return v is not None and (math.isfinite(sum(v)) or all(map(math.isfinite, v)))
 
 
 class Estimate(NamedTuple):
@@ -394,17 +396,18 @@ class EKFEstimator:
     # ---- internals ---------------------------------------------------------------------
     def _store(self, meas, k: int) -> None:
         ok = finite_reading
-        for n, v in (("gyro", meas.gyro), ("accel", meas.accel), ("encoders", meas.encoders)):
-            if v is not None and not ok(v):
+        gyro, accel, enc = meas.gyro, meas.accel, meas.encoders
+        g_ok, a_ok, e_ok = ok(gyro), ok(accel), ok(enc)
+        for n, v, good in (("gyro", gyro, g_ok), ("accel", accel, a_ok), ("encoders", enc, e_ok)):
+            if v is not None and not good:
                 self.events.append((meas.t, f"non-finite {n} reading ignored"))
-        if ok(meas.gyro) and ok(meas.accel):
-            sample = (tuple(meas.gyro), tuple(meas.accel))
+        if g_ok and a_ok:
+            sample = (tuple(gyro), tuple(accel))
             last = self._last_imu
             # with the noise several ADC steps wide, a triad repeating all three values is
             # stale (stuck), not a measurement: coast as without the sample
-            stale = last is not None and any(c and now == before for c, now, before in
-                                             zip(self._stale_check, sample, last))
-            if stale:
+            if last is not None and ((self._stale_check[0] and sample[0] == last[0])
+                                     or (self._stale_check[1] and sample[1] == last[1])):
                 self.rejected["gyro"] += 1
                 self.rejected["accel"] += 1
                 self.stale += 1
@@ -412,16 +415,16 @@ class EKFEstimator:
                     self.events.append((meas.t, "IMU sample repeats the previous one: stale, treated as missing"))
                 self._stale_in_row += 1
             else:
-                self._imu[k - self.d_imu] = (meas.gyro, meas.accel)
+                self._imu[k - self.d_imu] = (gyro, accel)
                 self._stale_in_row = 0
             self._last_imu = sample
-        elif ok(meas.gyro) or ok(meas.accel):
+        elif g_ok or a_ok:
             self.events.append((meas.t, "an IMU sample without its gyro or accelerometer half was dropped"))
-        if ok(meas.encoders):
-            if max(abs(meas.encoders[0]), abs(meas.encoders[1])) <= self._enc_range:
-                self._enc[k - self.d_enc] = meas.encoders
+        if e_ok:
+            if -self._enc_range <= enc[0] <= self._enc_range and -self._enc_range <= enc[1] <= self._enc_range:
+                self._enc[k - self.d_enc] = enc
             else:
-                self.events.append((meas.t, f"encoder reading {tuple(meas.encoders)} ignored: beyond a 32-bit "
+                self.events.append((meas.t, f"encoder reading {tuple(enc)} ignored: beyond a 32-bit "
                                             f"counter's range (±{self._enc_range:.4g} rad)"))
 
     def _estimate(self, k: int) -> Estimate:

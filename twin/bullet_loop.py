@@ -192,11 +192,8 @@ def simulate_twin(controller: FuzzyCascade, experiment: Experiment, config: Twin
     n_ctrl = int(round(duration / control_dt))
     report_every = max(1, int(round(config.control_rate)))
     n_rows = n_ctrl + 1
-    truth = np.zeros((n_rows, len(TRUTH_NAMES)))
-    est = np.zeros((n_rows, len(ESTIMATE_NAMES)))
-    cmds = np.zeros((n_rows, len(COMMAND_NAMES)))
-    act = np.zeros((n_rows, len(ACTUATION_NAMES)))
-    push = np.zeros((n_rows, 3))
+    # rows collected as tuples (cheaper per step than writing numpy rows), stacked at the end
+    truth, est, cmds, act, push = [], [], [], [], []
     p_d, alpha_d = experiment.p_d, experiment.alpha_d
     ideal = sensors is None
     meas_log: list[Measurement] = []
@@ -227,7 +224,7 @@ def simulate_twin(controller: FuzzyCascade, experiment: Experiment, config: Twin
             if twin.status == "diverged":
                 n = i  # the non-finite state is not logged: the log ends with the last finite one
                 break
-            truth[i] = tr
+            truth.append(tr)
             if ideal:
                 state = tr.state6()
             else:
@@ -245,27 +242,34 @@ def simulate_twin(controller: FuzzyCascade, experiment: Experiment, config: Twin
                     flog["nis"][i] = filt.last_nis
                     flog["nis_dof"][i] = filt.last_dof
                     filt.last_nis, filt.last_dof = math.nan, 0
-            est[i] = state
+            est.append(state)
             c = controller(state, p_d, alpha_d)
-            cmds[i] = (c.ul, c.ur, c.u, c.theta_off, c.u_alpha)
+            cmds.append((c.ul, c.ur, c.u, c.theta_off, c.u_alpha))
             if i == n_ctrl or twin.status != "running":
                 n = i + 1
                 break
             if progress is not None and i % report_every == 0 and i:
                 progress(i, n_ctrl)
             tr = twin.step(c.ul, c.ur)
-            act[i] = twin.actuation
-            push[i] = twin.push_force
+            act.append(twin.actuation)
+            push.append(twin.push_force)
         status = "ok" if twin.status == "running" else twin.status
         reason = "" if status == "ok" else twin.end_reason
         if progress is not None:
             progress(n_ctrl, n_ctrl)
-    t = truth[:n, 0].copy()
+    truth = np.array(truth[:n], dtype=float).reshape(n, len(TRUTH_NAMES))
+    est = np.array(est[:n], dtype=float).reshape(n, len(ESTIMATE_NAMES))
+    cmds = np.array(cmds[:n], dtype=float).reshape(n, len(COMMAND_NAMES))
+    # the last row's actuation is zero: nothing was applied after it
+    act = np.array(act[:n] + [(0.0,) * len(ACTUATION_NAMES)] * (n - len(act[:n])), dtype=float).reshape(
+        n, len(ACTUATION_NAMES))
+    push = np.array(push[:n] + [(0.0,) * 3] * (n - len(push[:n])), dtype=float).reshape(n, 3)
+    t = truth[:, 0].copy()
     if flog is not None:
         for key in ("x", "P", "nis", "nis_dof"):
             flog[key] = flog[key][:n]
-    return TwinRun(t, truth[:n], cmds[:n], act[:n], push[:n], status, reason, config, experiment, controller_name,
-                   estimates=est[:n], sensing="ideal" if ideal else estimator, measurements=meas_log[:n],
+    return TwinRun(t, truth, cmds, act, push, status, reason, config, experiment, controller_name,
+                   estimates=est, sensing="ideal" if ideal else estimator, measurements=meas_log[:n],
                    estimator_stats={} if ideal else filt.stats(), sensor_counts={} if ideal else suite.fault_counts(),
                    gyro_bias=None if ideal else bias_log[:n], filter_log=flog, seed=None if ideal else int(seed),
                    sensor_truth={} if ideal else suite.truth(), sensor_config=sensors, model_params=model_params)
