@@ -57,7 +57,6 @@ def run_scenario(scenario: Scenario, controllers=CONTROLLERS, out: Path | None =
     """
     from twin.analytic_loop import build_cascade
     from twin.bullet_loop import simulate_twin
-    from twin.controllers.lmi import design_balance_gains
     from twin.metrics import run_metrics
 
     d = scenario.data
@@ -66,7 +65,7 @@ def run_scenario(scenario: Scenario, controllers=CONTROLLERS, out: Path | None =
     sensors = scenario.sensor_config()
     timings = {}
     t0 = time.perf_counter()
-    design = design_balance_gains(**scenario.design_options())
+    design = scenario.design()
     timings["design_s"] = time.perf_counter() - t0
     runs, metrics = [], {}
     for kind in controllers:

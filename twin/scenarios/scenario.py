@@ -18,6 +18,7 @@ from twin.errors import TwinError
 from twin.scenarios.schema import ScenarioError, lookup, validate
 
 BUILTIN_PACKAGE = "twin.scenarios.builtin"
+_DESIGNS: dict = {}  # design options → the solved design (an LMI solve takes 50 ms to 1 s)
 
 
 def builtin_names() -> list[str]:
@@ -112,6 +113,22 @@ class Scenario:
     def design_options(self) -> dict:
         return dict(self.data["design"])
 
+    def design(self):
+        """The LMI balance design (on the nominal model), solved once per set of options."""
+        key = tuple(sorted(self.data["design"].items()))
+        if key not in _DESIGNS:
+            from twin.controllers.lmi import design_balance_gains
+
+            try:
+                _DESIGNS[key] = design_balance_gains(**self.design_options())
+            except TwinError as exc:
+                msg = str(exc)
+                for flag, name in (("--epsilon", "design.epsilon"), ("--rho", "design.rho"),
+                                   ("--decay-rate", "design.decay_rate"), ("--max-gain", "design.max_gain")):
+                    msg = msg.replace(flag, name)
+                raise self._error(f"design: {msg}") from None
+        return _DESIGNS[key]
+
     def cascade_options(self) -> dict:
         c = self.data["controller"]
         return {"fou": c["fou"], "type_reduction": c["type_reduction"], "psi_error_limit": c["psi_error_limit"]}
@@ -120,6 +137,9 @@ class Scenario:
         """Build everything once: errors that involve several keys surface here, named."""
         d = self.data
         physics, control = d["rates"]["physics"], d["rates"]["control"]
+        if d["duration"] < 1.0 / control - 1e-12:
+            raise self._error(f"duration: {d['duration']:g} s is shorter than one control period; allowed: at least "
+                              f"{1.0 / control:g} s (1 / rates.control) up to 3600 s")
         ratio = physics / control
         if abs(ratio - round(ratio)) > 1e-9 * ratio or round(ratio) < 1:
             raise self._error(f"rates.control: {control:g} Hz does not divide rates.physics = {physics:g} Hz; allowed: "
@@ -143,6 +163,7 @@ class Scenario:
                 sensors.steps(control)
             except TwinError as exc:
                 raise self._error(f"sensors: {exc}") from None
+        self.design()
         return self
 
     def _error(self, message: str) -> ScenarioError:
