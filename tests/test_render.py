@@ -1,0 +1,317 @@
+"""Offscreen MP4 videos of twin runs (twin.render): decoded back with OpenCV and looked at."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+cv2 = pytest.importorskip("cv2")
+
+from twin import analytic_loop as al  # noqa: E402
+from twin.bullet_loop import simulate_twin  # noqa: E402
+from twin.errors import TwinError  # noqa: E402
+from twin.plant.bullet import WHEEL_JOINTS, BulletTwin, GroundTruth, TwinConfig, truth_from_states  # noqa: E402
+from twin.plant.disturbances import Disturbances, Ground, Push  # noqa: E402
+from twin.render import (CODECS, Camera, HudState, Scene, draw_hud, frame_count, frame_times,  # noqa: E402
+                         render_video, resolve_renderer)
+from twin.render.hud import RED, hud_lines  # noqa: E402
+
+SIZE = (320, 240)  # small panels keep the encoder quick
+FPS = 30
+
+
+# ---- runs -------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def run_exp1(design):
+    """Paper experiment 1 (balance from θ0 = 0.48 rad), its first second, IT2, ideal sensing."""
+    exp = al.PAPER_EXPERIMENTS[1]
+    run = simulate_twin(al.build_cascade("it2", design, exp), exp, duration=1.0, controller_name="it2",
+                        sensors=None)
+    assert run.status == "ok" and abs(run.signal("theta")[-1]) < 0.1
+    return run
+
+
+@pytest.fixture(scope="module")
+def run_fell(design):
+    """Type-1 balance only, pushed over by 20 N for 0.1 s: falls after about 0.65 s."""
+    exp = al.Experiment("push", "pushed over", theta0=0.0, duration=1.0)
+    config = TwinConfig(disturbances=Disturbances(pushes=(Push((20.0, 0.0, 0.0), 0.2, 0.1),)))
+    run = simulate_twin(al.build_cascade("t1", design, exp), exp, config, controller_name="t1", sensors=None)
+    assert run.status == "fell" and 0.3 < run.t[-1] < 0.9
+    return run
+
+
+@pytest.fixture(scope="module")
+def egl_loads():
+    try:
+        with Scene(TwinConfig(), (64, 48), "auto") as scene:
+            return scene.renderer == "egl"
+    except TwinError:
+        return False
+
+
+@pytest.fixture(params=["tiny", "egl"])
+def renderer(request, egl_loads):
+    if request.param == "egl" and not egl_loads:
+        pytest.skip("PyBullet's EGL renderer plugin does not load on this machine")
+    return request.param
+
+
+# ---- helpers ----------------------------------------------------------------------------------
+def read_video(path) -> list[np.ndarray]:
+    cap = cv2.VideoCapture(str(path))
+    assert cap.isOpened(), f"OpenCV cannot open {path}"
+    frames = []
+    while True:
+        ok, frame = cap.read()
+        if not ok:
+            break
+        frames.append(frame)
+    cap.release()
+    return frames
+
+
+def orange(bgr: np.ndarray) -> np.ndarray:
+    """Pixels of the robot's body colour (orange; the floor is blue and white, the sky grey)."""
+    hsv = cv2.cvtColor(bgr, cv2.COLOR_BGR2HSV)
+    h, s, v = hsv[..., 0].astype(int), hsv[..., 1].astype(int), hsv[..., 2].astype(int)
+    return (h >= 5) & (h <= 20) & (s >= 120) & (v >= 60)
+
+
+def lean(bgr: np.ndarray) -> float:
+    """How the robot's body leans in the picture: the slope dx/dy (px/px) of its pixels,
+    positive with the top to the right of the bottom."""
+    ys, xs = np.nonzero(orange(bgr))
+    return float(-np.cov(xs, ys)[0, 1] / np.var(ys))
+
+
+def changed(a: np.ndarray, b: np.ndarray) -> float:
+    """Fraction of the pixels that differ clearly (by more than 40 levels in a channel)."""
+    return float((np.abs(a.astype(int) - b.astype(int)).max(axis=2) > 40).mean())
+
+
+def hud_rows(size=SIZE) -> int:
+    """How far down the overlay's box reaches in a panel of ``size``."""
+    img = np.full((size[1], size[0], 3), 255, np.uint8)
+    draw_hud(img, HudState("IT2  paper-exp1", 1.0, 0.1, 0.2, 0.3, 1.0, 1.5, "FELL at 1.00 s", True))
+    return int(np.nonzero((img < 255).any(axis=(1, 2)))[0].max()) + 1
+
+
+def pose_args(run, i: int):
+    tr = run.truth[i]
+    names = GroundTruth._fields
+    return tuple(float(tr[names.index(n)]) for n in ("theta", "alpha", "x", "y", "psi_l", "psi_r", "roll"))
+
+
+# ---- timing -----------------------------------------------------------------------------------
+def test_frame_count_is_real_time_at_fps():
+    assert frame_count(2.0, 30) == 61
+    assert frame_count(0.0, 30) == 1
+    assert frame_count(0.1, 30) == 4  # 0.1 · 30 = 3.0000000000000004: not 5 frames, not 3
+    assert frame_count(0.0999, 30) == 3
+    t = frame_times(1.0, 30)
+    assert len(t) == 31 and t[0] == 0.0 and t[-1] == pytest.approx(1.0) and np.allclose(np.diff(t), 1 / 30)
+
+
+# ---- the scene --------------------------------------------------------------------------------
+def test_scene_poses_the_robot_as_the_twin_does():
+    """The replayed pose reads back, through the twin's own readout, as the logged state; and
+    the twin's state at spawn replays exactly where BulletTwin put the robot (on a slope,
+    with a centre-of-mass offset)."""
+    config = TwinConfig(ground=Ground(slope=0.12, slope_direction=0.7),
+                        disturbances=Disturbances(com_offset=(0.01, -0.005, 0.008)))
+    com_local = (0.01, -0.005, config.params.l + 0.008)
+    with BulletTwin(config, theta0=0.3, alpha0=0.5, position=(0.2, -0.1)) as twin:
+        spawned = twin.client.getBasePositionAndOrientation(twin.robot)
+        t0 = twin.truth
+    assert abs(t0.roll) > 0.01, "the slope rolls the robot: the test covers roll"
+    with Scene(config, (64, 48), "tiny") as scene:
+        c, rob = scene.client, scene.robot
+        for theta, alpha, x, y, pl, pr, roll in ((0.48, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+                                                 (-0.3, 1.2, 0.4, -0.7, 5.0, -2.5, 0.05),
+                                                 (0.05, -2.9, -1.5, 2.0, 40.0, 41.0, -0.1)):
+            scene.pose(theta, alpha, x, y, pl, pr, roll)
+            pose = c.getBasePositionAndOrientation(rob)
+            joints = c.getJointStates(rob, WHEEL_JOINTS)
+            tr, _ = truth_from_states(GroundTruth, pose, ((0.0,) * 3, (0.0,) * 3), joints, alpha, com_local,
+                                      config.params.r, 0.0)
+            got = (tr.theta, tr.alpha, tr.roll, tr.x, tr.y, tr.psi_l, tr.psi_r)
+            assert got == pytest.approx((theta, alpha, roll, x, y, pl, pr), abs=1e-9)
+        scene.pose(t0.theta, t0.alpha, t0.x, t0.y, t0.psi_l, t0.psi_r, t0.roll)
+        mine = c.getBasePositionAndOrientation(rob)
+    assert np.allclose(mine[0], spawned[0], atol=1e-7) and np.allclose(mine[1], spawned[1], atol=1e-7)
+
+
+def test_scene_shows_the_robot_leaning_the_logged_way(renderer, run_exp1):
+    side = Camera(distance=0.5, yaw=0.0, pitch=-5.0)  # at the robot's right side: forward is to the right
+    with Scene(run_exp1.config, SIZE, renderer, side) as scene:
+        assert scene.renderer == renderer
+        start = cv2.cvtColor(scene.render(*pose_args(run_exp1, 0)), cv2.COLOR_RGB2BGR)
+        empty = cv2.cvtColor(scene.render(*pose_args(run_exp1, 0), show_robot=False), cv2.COLOR_RGB2BGR)
+        end = cv2.cvtColor(scene.render(*pose_args(run_exp1, -1)), cv2.COLOR_RGB2BGR)
+    assert start.shape == (SIZE[1], SIZE[0], 3)
+    n_pixels = SIZE[0] * SIZE[1]
+    assert orange(start).sum() > 0.03 * n_pixels and orange(end).sum() > 0.03 * n_pixels
+    assert orange(empty).sum() == 0, "the floor and sky have no orange: the detector sees the robot only"
+    # the robot is where it is projected: in the middle of the picture
+    ys, xs = np.nonzero(orange(start))
+    assert SIZE[0] * 0.25 < xs.mean() < SIZE[0] * 0.75 and SIZE[1] * 0.2 < ys.mean() < SIZE[1] * 0.8
+    # θ0 = 0.48 rad leans forward (to the right); at the end it stands upright
+    assert lean(start) > 0.12 and abs(lean(end)) < 0.04, (lean(start), lean(end))
+    # with the robot gone, what changes is where it stood
+    changed = np.abs(start.astype(int) - empty.astype(int)).max(axis=2) > 30
+    assert changed.sum() > 0.03 * n_pixels
+
+
+def test_renderer_choice(monkeypatch):
+    monkeypatch.setenv("TWIN_RENDERER", "tiny")
+    assert resolve_renderer() == "tiny"
+    with Scene(TwinConfig(), (64, 48)) as scene:
+        assert scene.renderer == "tiny"
+    assert resolve_renderer("EGL") == "egl"
+    monkeypatch.setenv("TWIN_RENDERER", "vulkan")
+    with pytest.raises(TwinError, match="TWIN_RENDERER must be one of auto, egl, tiny, got 'vulkan'"):
+        resolve_renderer()
+    with pytest.raises(TwinError, match="renderer must be one of auto, egl, tiny"):
+        Scene(TwinConfig(), (64, 48), renderer="opengl")
+
+
+def test_without_egl_auto_takes_tiny_and_egl_says_so(monkeypatch):
+    import twin.render.scene as scene_module
+
+    monkeypatch.delenv("TWIN_RENDERER", raising=False)
+    monkeypatch.setattr(scene_module, "_egl_works", False)  # as the child process found on a machine without EGL
+    with Scene(TwinConfig(), (64, 48)) as scene:
+        assert scene.renderer == "tiny"
+    with pytest.raises(TwinError, match="the EGL renderer plugin does not work here .*use renderer 'tiny' or 'auto'"):
+        Scene(TwinConfig(), (64, 48), "egl")
+
+
+# ---- videos -----------------------------------------------------------------------------------
+def test_video_of_one_run(renderer, run_exp1, tmp_path):
+    path = tmp_path / "exp1.mp4"
+    calls = []
+    info = render_video(run_exp1, path, fps=FPS, size=SIZE, renderer=renderer,
+                        progress=lambda done, total: calls.append((done, total)))
+    n = 31  # floor(1.0 s · 30) + 1
+    assert (info.frames, info.size, info.fps, info.panels, info.renderer) == (n, SIZE, 30.0, 1, renderer)
+    assert info.codec in CODECS and info.path == path and info.duration == pytest.approx(n / 30)
+    assert info.seconds > 0 and info.render_seconds > 0 and info.encode_seconds > 0
+    assert calls == [(k, n) for k in range(1, n + 1)]
+    assert [p.name for p in tmp_path.iterdir()] == ["exp1.mp4"], "no partial file left behind"
+
+    frames = read_video(path)
+    assert abs(len(frames) - n) <= 1
+    assert all(f.shape == (SIZE[1], SIZE[0], 3) for f in frames)
+    below = hud_rows()
+    first, last = frames[0][below:], frames[-1][below:]
+    # the robot swings up from 0.48 rad and rolls forward: the pictures differ where it is
+    assert changed(first, last) > 0.015
+    # frames keep changing as it moves: early frames 0.1 s apart differ
+    assert changed(frames[3][below:], frames[6][below:]) > 0.02
+    for f in (first, last):
+        assert orange(f).mean() > 0.03, "the robot is in the picture"
+    assert lean(first) > lean(last) + 0.2, "leaning forward (to the right) at the start"
+
+
+def test_video_side_by_side_holds_the_shorter_run(run_exp1, run_fell, tmp_path):
+    info = render_video([run_exp1, run_fell], tmp_path / "both.mp4", size=SIZE)
+    w, h = SIZE
+    assert info.panels == 2 and info.size == (2 * w, h) and info.frames == 31
+    frames = read_video(info.path)
+    assert abs(len(frames) - 31) <= 1
+    assert all(f.shape == (h, 2 * w, 3) for f in frames)
+    k_held = int(math.ceil(float(run_fell.t[-1]) * FPS)) + 1  # the first frame after the fall
+    # the fallen run's panel stands still once its log has ended; the other goes on
+    below = hud_rows()
+    right = [f[below:, w + 2:] for f in frames]
+    left = [f[below:, :w - 2] for f in frames]
+    assert changed(right[k_held], right[-1]) < 0.002
+    assert np.abs(right[k_held].astype(int) - right[-1].astype(int)).mean() < 1.5
+    assert changed(right[0], right[k_held]) > 0.05
+    assert changed(left[0], left[-1]) > 0.015
+    for f in (frames[0], frames[-1]):  # both robots in their panels
+        assert orange(f[below:, :w]).mean() > 0.03 and orange(f[below:, w:]).mean() > 0.03
+
+
+def test_hud_is_drawn(run_exp1, tmp_path):
+    with_hud = read_video(render_video(run_exp1, tmp_path / "hud.mp4", fps=5, size=SIZE).path)
+    without = read_video(render_video(run_exp1, tmp_path / "plain.mp4", fps=5, size=SIZE, hud=False).path)
+    assert len(with_hud) == len(without) == 6
+    rows = hud_rows()
+    a, b = with_hud[0].astype(int), without[0].astype(int)
+    box_diff = np.abs(a[:rows, :SIZE[0] // 2] - b[:rows, :SIZE[0] // 2]).mean()
+    rest_diff = np.abs(a[rows + 8:] - b[rows + 8:]).mean()
+    assert box_diff > 20 and rest_diff < 2, (box_diff, rest_diff)
+    # white text on the darkened box
+    assert (a[:rows, :SIZE[0] // 2].min(axis=2) > 200).sum() > 100
+
+
+def test_hud_says_what_it_shows():
+    s = HudState("IT2  paper-exp3", 1.234, math.radians(-5.0), 0.4567, 1.0, p_d=1.0, alpha_d=1.5,
+                 ended="FELL at 1.23 s", alarm=True)
+    lines = hud_lines(s)
+    text = [t for t, _ in lines]
+    assert text[0] == "IT2  paper-exp3"
+    assert "1.23 s" in text[1] and "-5.0 deg" in text[2]
+    assert "+0.457 m" in text[3] and "(target 1.00 m)" in text[3]
+    assert "+57.3 deg" in text[4] and "(target 85.9 deg)" in text[4]
+    assert lines[-1] == ("FELL at 1.23 s", RED)
+    quiet = [t for t, _ in hud_lines(HudState("T1", 0.0, -1e-9, -1e-9, -1e-9))]
+    assert len(quiet) == 5 and not any("target" in t or "-0.0" in t for t in quiet)
+    img = np.full((240, 320, 3), 128, np.uint8)
+    draw_hud(img, s)
+    assert (img[:20, :20] != 128).any() and (img[-40:, -40:] == 128).all()
+
+
+def test_rendering_leaves_the_run_alone(run_fell, tmp_path):
+    before = run_fell.truth.copy(), run_fell.t.copy()
+    render_video(run_fell, tmp_path / "fell.mp4", fps=5, size=(64, 48))
+    assert np.array_equal(run_fell.truth, before[0]) and np.array_equal(run_fell.t, before[1])
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(runs=[]), "runs is empty: give a TwinRun or a sequence of at least one"),
+    (dict(runs="run.csv"), "runs must be a TwinRun or a sequence of TwinRun, got str"),
+    (dict(runs=[None]), r"runs\[0\] must be a TwinRun"),
+    (dict(fps=0), r"fps must be a number of frames per second in \[1, 240\], got 0"),
+    (dict(fps=-30), "fps must be a number of frames per second"),
+    (dict(fps=float("nan")), "fps must be a number of frames per second"),
+    (dict(fps=True), "fps must be a number of frames per second"),
+    (dict(size=(0, 0)),
+     r"size must be \(width, height\) in pixels, even integers from 32x24 to 3840x2160, got \(0, 0\)"),
+    (dict(size=(641, 480)), "size must be .*got \\(641, 480\\)"),
+    (dict(size=(100000, 480)), "size must be"),
+    (dict(size=(640.0, 480)), "size must be"),
+    (dict(size="640x480"), "size must be"),
+    (dict(size=(640,)), "size must be"),
+    (dict(path="video.avi"), r"path must end in \.mp4 \(the video is an MP4 file\), got 'video.avi'"),
+    (dict(path=3), "path must be a file path ending in .mp4, got 3"),
+    (dict(labels=["only one", "too many"]), "labels must be a sequence of 1 strings, one per run"),
+    (dict(progress="yes"), "progress must be a callable"),
+    (dict(renderer="vulkan"), "renderer must be one of auto, egl, tiny, got 'vulkan'"),
+    (dict(camera="side"), "camera must be a twin.render.Camera"),
+])
+def test_bad_input_is_a_twin_error(kwargs, message, run_exp1, tmp_path):
+    args = dict(runs=run_exp1, path=tmp_path / "v.mp4", size=(64, 48))
+    args.update(kwargs)
+    with pytest.raises(TwinError, match=message):
+        render_video(args.pop("runs"), args.pop("path"), **args)
+    assert list(tmp_path.iterdir()) == [], "nothing written"
+
+
+def test_bad_paths_are_twin_errors(run_exp1, tmp_path):
+    (tmp_path / "dir.mp4").mkdir()
+    with pytest.raises(TwinError, match="is a directory; give a file name ending in .mp4"):
+        render_video(run_exp1, tmp_path / "dir.mp4", size=(64, 48))
+    (tmp_path / "file").write_text("not a directory")
+    with pytest.raises(TwinError, match="cannot write the video .*file/v.mp4"):
+        render_video(run_exp1, tmp_path / "file" / "v.mp4", size=(64, 48))
+    with pytest.raises(TwinError, match="panels of 3840 px make the video 11520 px wide; at most 7680"):
+        render_video([run_exp1] * 3, tmp_path / "wide.mp4", size=(3840, 480))
+    with pytest.raises(TwinError, match=r"camera distance must be a number in \[0.05, 100\], got -1"):
+        Camera(distance=-1)
+    # a missing directory is made
+    info = render_video(run_exp1, tmp_path / "new" / "dir" / "v.mp4", fps=2, size=(64, 48))
+    assert info.path.is_file() and info.frames == 3

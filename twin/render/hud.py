@@ -1,0 +1,77 @@
+"""The heads-up overlay of a video panel, drawn with OpenCV (Hershey fonts: ASCII only).
+
+Top left, on a darkened box: the panel's label (controller), the simulated time (s),
+the body pitch θ (deg), the travelled distance p = r ψ (m) and the heading α (deg),
+each with the experiment's target where it has one, and, once the run has ended early,
+why (fell / diverged) in red.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+WHITE = (245, 245, 245)  # BGR
+GREY = (190, 190, 190)
+YELLOW = (80, 220, 255)
+RED = (60, 60, 240)
+BOX_DARKEN = 0.45  # the box keeps this fraction of the picture's brightness
+
+
+@dataclass(frozen=True)
+class HudState:
+    """What the overlay shows at one frame (SI units; the overlay prints degrees for angles)."""
+
+    label: str
+    t: float  # s
+    theta: float  # rad
+    distance: float  # m
+    alpha: float  # rad
+    p_d: float | None = None  # m, target distance
+    alpha_d: float | None = None  # rad, target heading
+    ended: str = ""  # "" while the run goes on; else what to say (e.g. "FELL at 1.23 s")
+    alarm: bool = False  # the run ended early (fell, diverged): ``ended`` in red
+
+
+def _num(v: float, decimals: int) -> float:
+    """``v`` rounded, without a negative zero."""
+    return round(v, decimals) + 0.0
+
+
+def hud_lines(s: HudState) -> list[tuple[str, tuple[int, int, int]]]:
+    """The overlay's text lines and their BGR colours."""
+    lines = [(s.label, YELLOW), (f"t       {_num(s.t, 2):6.2f} s", WHITE),
+             (f"pitch   {_num(math.degrees(s.theta), 1):+6.1f} deg", WHITE)]
+    dist = f"dist    {_num(s.distance, 3):+6.3f} m"
+    if s.p_d is not None:
+        dist += f"  (target {s.p_d:.2f} m)"
+    head = f"heading {_num(math.degrees(s.alpha), 1):+6.1f} deg"
+    if s.alpha_d is not None:
+        head += f"  (target {math.degrees(s.alpha_d):.1f} deg)"
+    lines += [(dist, WHITE), (head, WHITE)]
+    if s.ended:
+        lines.append((s.ended, RED if s.alarm else GREY))
+    return lines
+
+
+def draw_hud(img: np.ndarray, s: HudState) -> np.ndarray:
+    """Draw the overlay of ``s`` on the BGR picture ``img`` (in place) and return it."""
+    import cv2
+
+    h, w = img.shape[:2]
+    scale = max(0.25, 0.45 * min(h / 480.0, w / 640.0))
+    thick = 1 if scale < 0.8 else 2
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    lines = hud_lines(s)
+    sizes = [cv2.getTextSize(text, font, scale, thick)[0] for text, _ in lines]
+    step = int(round(max(th for _, th in sizes) * 1.7)) + 1
+    pad = max(3, int(round(6 * scale / 0.45)))
+    x1 = min(w, 2 * pad + max(tw for tw, _ in sizes))
+    y1 = min(h, 2 * pad + step * len(lines))
+    box = img[0:y1, 0:x1]
+    box[:] = (box.astype(np.uint16) * int(BOX_DARKEN * 256) >> 8).astype(np.uint8)
+    for i, (text, colour) in enumerate(lines):
+        y = pad + step * (i + 1) - (step - sizes[i][1]) // 2
+        cv2.putText(img, text, (pad, y), font, scale, colour, thick, cv2.LINE_AA)
+    return img

@@ -1,0 +1,362 @@
+"""One robot on its floor in a PyBullet world of its own, posed from a log and photographed.
+
+The scene is a replay: nothing is ever stepped. Each frame the robot's body is put where
+the twin had it: oriented R = Rz(α) Rx(φ) Ry(θ) from the logged heading, roll and pitch
+(the twin's own decomposition, :func:`twin.plant.bullet.truth_from_states`), its axle
+midpoint at the logged (x, y) and at the height where both wheels stand on the floor
+(:func:`twin.plant.bullet.initial_pose`, as the twin spawns it); the wheel joints at the
+logged wheel angles relative to the body, q_i = ψ_i − θ. The twin's readout of the
+posed robot gives back the logged θ, φ, α, x, y, ψ_l, ψ_r. Then ``getCameraImage``
+takes the picture. The physics of a run is never touched: the scene
+has its own DIRECT ``BulletClient`` (never the global pybullet connection).
+
+Renderers
+    ``"egl"``: PyBullet's EGL renderer plugin (OpenGL; hardware where a GPU driver is
+    present, Mesa's llvmpipe in software otherwise). ``"tiny"``: PyBullet's built-in
+    TinyRenderer (CPU, always there, slower). ``"auto"`` (default) uses EGL where it
+    works and TinyRenderer otherwise. The environment variable ``TWIN_RENDERER``
+    (``auto``, ``egl`` or ``tiny``) sets the default.
+
+    Whether EGL works is found out once per process, in a child process
+    (:func:`egl_available`): where libEGL is missing or cannot initialise, PyBullet's
+    plugin ends the whole process (``exit(1)``) instead of failing the load, so it is
+    loaded here only once a child has loaded it and drawn a picture with it.
+"""
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+
+from twin.errors import TwinError
+from twin.plant.bullet import WHEEL_JOINTS, TwinConfig, initial_pose, quiet_native_output
+from twin.plant.urdf import robot_urdf
+
+RENDERERS = ("auto", "egl", "tiny")
+RENDERER_ENV = "TWIN_RENDERER"
+MIN_SIZE = (32, 24)  # px, smallest frame (width, height)
+MAX_SIZE = (3840, 2160)  # px, largest frame of one panel
+_LIGHT_DIRECTION = (0.6, -1.0, 2.0)  # TinyRenderer only: the EGL plugin has its own light
+_FAR_AWAY = (0.0, 0.0, -1000.0)  # where a hidden robot goes: far below the floor
+
+
+_EGL_PROBE = r"""
+import os, pkgutil, sys
+import numpy, pybullet, pybullet_data
+from pybullet_utils.bullet_client import BulletClient
+c = BulletClient(connection_mode=pybullet.DIRECT)
+loader = pkgutil.get_loader("eglRenderer")
+plugin = c.loadPlugin(loader.get_filename(), "_eglRendererPlugin") if loader is not None else -1
+if plugin < 0:
+    sys.exit(3)
+c.loadURDF(os.path.join(pybullet_data.getDataPath(), "plane.urdf"))
+view = c.computeViewMatrixFromYawPitchRoll((0, 0, 0), 2.0, 0.0, -30.0, 0.0, 2)
+proj = c.computeProjectionMatrixFOV(45.0, 4 / 3, 0.01, 60.0)
+rgba = c.getCameraImage(32, 24, view, proj, renderer=pybullet.ER_BULLET_HARDWARE_OPENGL)[2]
+img = numpy.asarray(rgba, dtype=numpy.uint8).reshape(24, 32, 4)[:, :, :3]
+c.unloadPlugin(plugin)
+c.disconnect()
+print("TWIN_EGL_DRAWS" if img.max() > img.min() else "TWIN_EGL_BLANK")
+"""
+_egl_lock = threading.Lock()
+_egl_works: bool | None = None
+EGL_PROBE_TIMEOUT = 60.0  # s
+
+
+def egl_available() -> bool:
+    """Whether PyBullet's EGL renderer plugin loads and draws here (asked once per process).
+
+    A child Python loads the plugin and renders a small picture of the floor; True if it
+    exits cleanly with a picture that is not blank. Never loads the plugin in this process.
+    """
+    global _egl_works
+    with _egl_lock:
+        if _egl_works is None:
+            try:
+                done = subprocess.run([sys.executable, "-c", _EGL_PROBE], stdin=subprocess.DEVNULL,
+                                      stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                                      timeout=EGL_PROBE_TIMEOUT, check=False)
+                _egl_works = done.returncode == 0 and b"TWIN_EGL_DRAWS" in done.stdout
+            except (OSError, ValueError, subprocess.SubprocessError):
+                _egl_works = False
+        return _egl_works
+
+
+def resolve_renderer(renderer: str | None = None) -> str:
+    """The renderer asked for: ``renderer``, else ``$TWIN_RENDERER``, else ``"auto"``.
+
+    Raises :class:`TwinError` if it is not one of :data:`RENDERERS`.
+    """
+    source = "renderer"
+    if renderer is None:
+        renderer = os.environ.get(RENDERER_ENV, "").strip() or "auto"
+        source = RENDERER_ENV
+    if not isinstance(renderer, str) or renderer.lower() not in RENDERERS:
+        raise TwinError(f"{source} must be one of {', '.join(RENDERERS)}, got {renderer!r}")
+    return renderer.lower()
+
+
+def check_size(size, what: str = "size") -> tuple[int, int]:
+    """``size`` as (width, height) ints, or :class:`TwinError` naming the allowed range."""
+    try:
+        w, h = size
+        ok = all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in (w, h))
+    except (TypeError, ValueError):
+        ok = False
+    if ok:
+        w, h = int(w), int(h)
+        ok = (MIN_SIZE[0] <= w <= MAX_SIZE[0] and MIN_SIZE[1] <= h <= MAX_SIZE[1] and w % 2 == 0 and h % 2 == 0)
+    if not ok:
+        raise TwinError(f"{what} must be (width, height) in pixels, even integers from {MIN_SIZE[0]}x{MIN_SIZE[1]} "
+                        f"to {MAX_SIZE[0]}x{MAX_SIZE[1]}, got {size!r}")
+    return w, h
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A camera that follows the robot.
+
+    Parameters
+    ----------
+    distance : m
+        From the target point to the eye.
+    yaw : deg
+        Azimuth of the view. With ``follow_heading`` it is relative to the robot's
+        heading: 0 looks at the robot's right side with its forward direction to the
+        right of the picture (a side view: pitch reads best); positive swings the eye
+        round towards the robot's front (90: head-on). Without, it is relative to the
+        world (0: the eye on the −y side, world +x to the right of the picture).
+    pitch : deg
+        Elevation of the view, negative looking down.
+    fov : deg
+        Vertical field of view.
+    target_height : m
+        The camera aims this far above the axle midpoint (world vertical), so that the
+        body sits in the middle of the picture.
+    follow_heading : bool
+        Turn with the robot's heading (True) or keep a fixed world direction.
+    """
+
+    distance: float = 0.85
+    yaw: float = 25.0
+    pitch: float = -12.0
+    fov: float = 45.0
+    target_height: float = 0.06
+    follow_heading: bool = True
+
+    def __post_init__(self):
+        for name, lo, hi in (("distance", 0.05, 100.0), ("yaw", -360.0, 360.0), ("pitch", -89.0, 89.0),
+                             ("fov", 5.0, 150.0), ("target_height", -10.0, 10.0)):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and not isinstance(v, bool) and lo <= v <= hi):
+                raise TwinError(f"camera {name} must be a number in [{lo:g}, {hi:g}], got {v!r}")
+        if not isinstance(self.follow_heading, bool):
+            raise TwinError(f"camera follow_heading must be True or False, got {self.follow_heading!r}")
+
+
+def _qmul(a, b):
+    """Quaternion product a ⊗ b, (x, y, z, w)."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return (aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz)
+
+
+def body_quaternion(theta: float, alpha: float, roll: float = 0.0) -> tuple[float, float, float, float]:
+    """(x, y, z, w) of R = Rz(α) Rx(φ) Ry(θ): heading ``alpha``, ``roll``, pitch ``theta`` (rad)."""
+    qz = (0.0, 0.0, math.sin(0.5 * alpha), math.cos(0.5 * alpha))
+    qx = (math.sin(0.5 * roll), 0.0, 0.0, math.cos(0.5 * roll))
+    qy = (0.0, math.sin(0.5 * theta), 0.0, math.cos(0.5 * theta))
+    return _qmul(_qmul(qz, qx), qy)
+
+
+def _quat_matrix(q) -> np.ndarray:
+    x, y, z, w = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+class Scene:
+    """The robot of a :class:`~twin.plant.bullet.TwinConfig` on its floor, for pictures.
+
+    Parameters
+    ----------
+    config : TwinConfig
+        The run's configuration: robot parameters (body and wheel geometry), payload,
+        centre-of-mass offset and the floor's slope.
+    size : (width, height) px
+        Size of the pictures.
+    renderer : {"auto", "egl", "tiny"} or None
+        See the module docstring; None reads ``$TWIN_RENDERER`` (default ``"auto"``).
+        ``"egl"`` raises :class:`TwinError` if the plugin does not work here.
+    camera : Camera, optional
+
+    Attributes
+    ----------
+    renderer : str
+        ``"egl"`` or ``"tiny"``: the renderer in use.
+
+    Use as a context manager, or call :meth:`close`, to free the PyBullet server.
+    """
+
+    def __init__(self, config: TwinConfig, size=(640, 480), renderer: str | None = None,
+                 camera: Camera | None = None):
+        if not isinstance(config, TwinConfig):
+            raise TwinError(f"config must be a TwinConfig, got {type(config).__name__}")
+        camera = Camera() if camera is None else camera
+        if not isinstance(camera, Camera):
+            raise TwinError(f"camera must be a twin.render.Camera, got {camera!r}")
+        self.width, self.height = check_size(size)
+        requested = resolve_renderer(renderer)
+        self.camera = camera
+        self.config = config
+        self.client = None
+        self._plugin = -1
+        with quiet_native_output():
+            import pybullet
+            import pybullet_data
+            from pybullet_utils.bullet_client import BulletClient
+
+            self._pb = pybullet
+            self.client = c = BulletClient(connection_mode=pybullet.DIRECT)
+        try:
+            if requested in ("auto", "egl"):
+                self._plugin = self._load_egl() if egl_available() else -1
+                if self._plugin < 0 and requested == "egl":
+                    raise TwinError("the EGL renderer plugin does not work here (no usable libEGL?); use renderer "
+                                    f"'tiny' or 'auto' (or set {RENDERER_ENV}=tiny)")
+            p, g, d = config.params, config.ground, config.disturbances
+            plane_q = (0.0, 0.0, 0.0, 1.0)
+            if g.slope != 0.0:  # as BulletTwin: the floor rises towards slope_direction
+                axis = (-math.sin(g.slope_direction), math.cos(g.slope_direction), 0.0)
+                h = -0.5 * g.slope
+                plane_q = (axis[0] * math.sin(h), axis[1] * math.sin(h), 0.0, math.cos(h))
+            self.plane = c.loadURDF(os.path.join(pybullet_data.getDataPath(), "plane.urdf"), (0.0, 0.0, 0.0),
+                                    plane_q, useFixedBase=True)
+            fd, path = tempfile.mkstemp(suffix=".urdf", prefix="mtwip-render-")
+            try:
+                with os.fdopen(fd, "w") as f:
+                    f.write(robot_urdf(p, d.payload, d.com_offset))
+                self.robot = c.loadURDF(path, _FAR_AWAY, (0.0, 0.0, 0.0, 1.0), useFixedBase=True)
+            finally:
+                os.unlink(path)
+            # PyBullet's base position is the body's centre of mass (its inertial frame)
+            self._com_local = np.array((d.com_offset[0], d.com_offset[1], p.l + d.com_offset[2]))
+            self._proj = c.computeProjectionMatrixFOV(camera.fov, self.width / self.height, 0.01, 60.0)
+            self.renderer = "egl" if self._plugin >= 0 else "tiny"
+        except BaseException:
+            self.close()
+            raise
+        self._flags = pybullet.ER_NO_SEGMENTATION_MASK
+        self._mode = pybullet.ER_BULLET_HARDWARE_OPENGL if self.renderer == "egl" else pybullet.ER_TINY_RENDERER
+
+    # ---- lifecycle ---------------------------------------------------------------------
+    def _load_egl(self) -> int:
+        import pkgutil
+
+        try:
+            loader = pkgutil.get_loader("eglRenderer")
+            filename = loader.get_filename() if loader is not None else None
+        except Exception:  # pragma: no cover - a broken install
+            filename = None
+        if not filename:
+            return -1
+        with quiet_native_output():
+            try:
+                return int(self.client.loadPlugin(filename, "_eglRendererPlugin"))
+            except Exception:  # pragma: no cover - pybullet raises only on a bad call
+                return -1
+
+    def _unload_plugin(self) -> None:
+        if self._plugin >= 0 and self.client is not None and self.client._client >= 0:
+            with quiet_native_output():
+                self.client.unloadPlugin(self._plugin)
+        self._plugin = -1
+
+    def close(self) -> None:
+        """Unload the EGL plugin and disconnect the PyBullet server (idempotent)."""
+        client = self.client
+        if client is None:
+            return
+        try:
+            self._unload_plugin()
+        finally:
+            if client._client >= 0:
+                with quiet_native_output():
+                    client.disconnect()
+                client._client = -1
+            self.client = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def __del__(self):
+        try:
+            self.close()
+        except Exception:
+            pass
+
+    # ---- posing and pictures ---------------------------------------------------------------
+    def pose(self, theta: float, alpha: float, x: float, y: float, psi_l: float, psi_r: float,
+             roll: float = 0.0):
+        """Put the robot as the twin had it; returns the axle midpoint (m, world).
+
+        ``theta`` pitch (rad, positive leaning forward), ``alpha`` heading (rad), (x, y)
+        axle midpoint (m), ``psi_l``, ``psi_r`` wheel angles from the vertical (rad),
+        ``roll`` (rad) as the twin logs them (:class:`~twin.plant.bullet.GroundTruth`).
+        """
+        c = self._require_open()
+        axle, _ = initial_pose(self.config.params, self.config.ground, theta, alpha, x, y)
+        q = body_quaternion(theta, alpha, roll)
+        com = np.asarray(axle) + _quat_matrix(q) @ self._com_local
+        c.resetBasePositionAndOrientation(self.robot, com.tolist(), q)
+        c.resetJointState(self.robot, WHEEL_JOINTS[0], psi_l - theta, 0.0)
+        c.resetJointState(self.robot, WHEEL_JOINTS[1], psi_r - theta, 0.0)
+        return axle
+
+    def hide_robot(self) -> None:
+        """Move the robot out of sight (far below the floor)."""
+        self._require_open().resetBasePositionAndOrientation(self.robot, _FAR_AWAY, (0.0, 0.0, 0.0, 1.0))
+
+    def view_matrix(self, target, alpha: float = 0.0):
+        """The camera's view matrix aiming at ``target`` (m, world), the robot heading ``alpha`` rad."""
+        cam = self.camera
+        yaw = cam.yaw + (math.degrees(alpha) if cam.follow_heading else 0.0)
+        aim = (float(target[0]), float(target[1]), float(target[2]) + cam.target_height)
+        return self._require_open().computeViewMatrixFromYawPitchRoll(aim, cam.distance, yaw, cam.pitch, 0.0, 2)
+
+    def picture(self, target, alpha: float = 0.0) -> np.ndarray:
+        """RGB picture (height, width, 3) uint8 of the scene as it stands, camera on ``target``."""
+        c = self._require_open()
+        view = self.view_matrix(target, alpha)
+        with quiet_native_output():  # the EGL plugin prints its GL vendor on the first pictures
+            _, _, rgba, _, _ = c.getCameraImage(self.width, self.height, view, self._proj, shadow=1,
+                                                lightDirection=_LIGHT_DIRECTION, renderer=self._mode,
+                                                flags=self._flags)
+        return np.asarray(rgba, dtype=np.uint8).reshape(self.height, self.width, 4)[:, :, :3]
+
+    def render(self, theta: float, alpha: float, x: float, y: float, psi_l: float, psi_r: float,
+               roll: float = 0.0, show_robot: bool = True) -> np.ndarray:
+        """Pose the robot (see :meth:`pose`) and return its RGB picture (height, width, 3) uint8.
+
+        ``show_robot=False`` takes the same picture with the robot out of sight.
+        """
+        axle = self.pose(theta, alpha, x, y, psi_l, psi_r, roll)
+        if not show_robot:
+            self.hide_robot()
+        return self.picture(axle, alpha)
+
+    def _require_open(self):
+        if self.client is None:
+            raise TwinError("the scene is closed; make a new one")
+        return self.client

@@ -1,0 +1,388 @@
+"""MP4 video of logged twin runs, rendered offscreen with PyBullet and encoded with OpenCV.
+
+A replay, decoupled from the simulation: each run's logged ground truth is played back
+in a :class:`~twin.render.scene.Scene` of its own (a separate PyBullet world that is
+never stepped), so rendering can neither change the physics nor its determinism.
+
+Timing
+    Real time: one simulated second is one second of video. At ``fps`` frames per
+    second, frame k shows t_k = k / fps (s from each run's start) for
+    k = 0 … floor(T · fps), T the longest run's duration: ``floor(T · fps) + 1`` frames
+    (61 for a 2 s run at 30 fps). Each run's log (control rate) is interpolated
+    linearly at t_k; a run shorter than T (one that fell early) holds its last frame.
+
+Layout
+    One panel (``size``) per run, side by side from left to right in the order given,
+    each with its own camera following its own robot and its own heads-up overlay
+    (:mod:`twin.render.hud`).
+
+Encoding
+    ``cv2.VideoWriter`` into an MP4 container with the codec ``vp09`` (VP9: plays in
+    browsers), else ``mp4v`` (MPEG-4 part 2) where this OpenCV has no VP9 encoder;
+    :attr:`VideoInfo.codec` says which. The file is written under a temporary name in
+    the same directory and renamed when complete, so a failed render leaves no partial
+    video behind.
+"""
+from __future__ import annotations
+
+import math
+import os
+import queue
+import tempfile
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from twin.errors import TwinError
+from twin.render.hud import HudState, draw_hud
+from twin.render.scene import Camera, Scene, check_size, resolve_renderer
+
+CODECS = ("vp09", "mp4v")  # tried in this order
+MAX_FPS = 240.0
+MAX_WIDTH = 7680  # px, the whole side-by-side frame
+SEPARATOR = (40, 40, 40)  # BGR line between panels
+_TRACK = ("theta", "alpha", "x", "y", "psi_l", "psi_r", "roll", "distance")
+
+
+@dataclass(frozen=True)
+class VideoInfo:
+    """What :func:`render_video` wrote.
+
+    Attributes
+    ----------
+    path : Path
+        The MP4 file.
+    frames : int
+        Frames written.
+    size : (width, height) px
+        Of the whole frame (panels side by side).
+    fps : float
+        Frames per second (real time: 1 s of video = 1 s simulated).
+    codec : str
+        FourCC of the encoder used: ``"vp09"`` or ``"mp4v"``.
+    renderer : str
+        ``"egl"`` or ``"tiny"`` (``"egl+tiny"`` if the panels' scenes differ).
+    panels : int
+        Runs shown side by side.
+    seconds : float
+        Wall time spent in :func:`render_video`, s.
+    render_seconds : float
+        Of which taking the pictures (with the overlay), s.
+    encode_seconds : float
+        Time the encoder spent on the frames, s. It runs in a thread of its own,
+        overlapping the rendering, so ``render_seconds + encode_seconds`` may exceed
+        ``seconds``.
+    """
+
+    path: Path
+    frames: int
+    size: tuple[int, int]
+    fps: float
+    codec: str
+    renderer: str
+    panels: int
+    seconds: float
+    render_seconds: float
+    encode_seconds: float
+
+    @property
+    def duration(self) -> float:
+        """Length of the video, s."""
+        return self.frames / self.fps
+
+
+def frame_count(duration: float, fps: float) -> int:
+    """Frames of a video of runs lasting ``duration`` s at ``fps``: floor(duration · fps) + 1."""
+    return int(math.floor(duration * fps + 1e-9)) + 1
+
+
+def frame_times(duration: float, fps: float) -> np.ndarray:
+    """Times (s from the start) of the frames: k / fps for k = 0 … floor(duration · fps)."""
+    return np.arange(frame_count(duration, fps)) / float(fps)
+
+
+class _Track:
+    """A run's log, sampled at frame times (clamped to the run: its last state is held)."""
+
+    def __init__(self, run, label: str):
+        from twin.bullet_loop import TRUTH_NAMES
+
+        self.t = np.asarray(run.t, dtype=float)
+        self.duration = float(self.t[-1] - self.t[0])
+        self.cols = {name: np.asarray(run.truth[:, TRUTH_NAMES.index(name)], dtype=float) for name in _TRACK}
+        e = run.experiment
+        self.p_d = None if e is None else e.p_d
+        self.alpha_d = None if e is None else e.alpha_d
+        self.label = label
+        self.status = run.status
+
+    def sample(self, times: np.ndarray) -> dict[str, np.ndarray]:
+        tt = self.t[0] + np.minimum(times, self.duration)
+        return {name: np.interp(tt, self.t, col) for name, col in self.cols.items()}
+
+    def ended(self, t: float) -> str:
+        """The overlay's last line at frame time ``t``: empty while the run goes on."""
+        if t < self.duration - 1e-9:
+            return ""
+        if self.status != "ok":
+            return f"{self.status.upper()} at {self.duration:.2f} s"
+        return f"run ended at {self.duration:.2f} s" if t > self.duration + 1e-9 else ""
+
+
+def _check_runs(runs) -> list:
+    from twin.bullet_loop import TRUTH_NAMES, TwinRun
+
+    if isinstance(runs, TwinRun):
+        runs = [runs]
+    elif isinstance(runs, (str, bytes)) or not isinstance(runs, Sequence):
+        raise TwinError(f"runs must be a TwinRun or a sequence of TwinRun, got {type(runs).__name__}")
+    runs = list(runs)
+    if not runs:
+        raise TwinError("runs is empty: give a TwinRun or a sequence of at least one")
+    for i, r in enumerate(runs):
+        if not isinstance(r, TwinRun):
+            raise TwinError(f"runs[{i}] must be a TwinRun (from twin.bullet_loop.simulate_twin), "
+                            f"got {type(r).__name__}")
+        t, truth = np.asarray(r.t, dtype=float), np.asarray(r.truth, dtype=float)
+        n = len(t)
+        if n < 1 or t.ndim != 1 or truth.shape != (n, len(TRUTH_NAMES)):
+            raise TwinError(f"runs[{i}] must log at least one row: t (n,) and truth (n, {len(TRUTH_NAMES)}), "
+                            f"got t {t.shape} and truth {truth.shape}")
+        cols = [TRUTH_NAMES.index(name) for name in _TRACK]
+        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(truth[:, cols])) and np.all(np.diff(t) >= 0)):
+            raise TwinError(f"runs[{i}] must have finite logged states at non-decreasing times t")
+    return runs
+
+
+def _check_fps(fps) -> float:
+    if not (isinstance(fps, (int, float, np.integer, np.floating)) and not isinstance(fps, bool)
+            and math.isfinite(fps) and 1.0 <= fps <= MAX_FPS):
+        raise TwinError(f"fps must be a number of frames per second in [1, {MAX_FPS:g}], got {fps!r}")
+    return float(fps)
+
+
+def _check_path(path) -> Path:
+    try:
+        p = Path(os.fspath(path))
+    except TypeError:
+        raise TwinError(f"path must be a file path ending in .mp4, got {path!r}") from None
+    if p.suffix.lower() != ".mp4":
+        raise TwinError(f"path must end in .mp4 (the video is an MP4 file), got {str(p)!r}")
+    if p.is_dir():
+        raise TwinError(f"path {str(p)!r} is a directory; give a file name ending in .mp4")
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise TwinError(f"cannot write the video {str(p)!r}: cannot make its directory "
+                        f"({exc.strerror or exc})") from None
+    return p
+
+
+def _temp_file(p: Path) -> Path:
+    """An empty file beside ``p`` to write into (proves the directory writable)."""
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{p.stem}.", suffix=".partial.mp4", dir=p.parent)
+    except OSError as exc:
+        raise TwinError(f"cannot write the video {str(p)!r}: {exc.strerror or exc}") from None
+    os.close(fd)
+    return Path(tmp)
+
+
+def _open_writer(path: Path, fps: float, size: tuple[int, int]):
+    """A ``cv2.VideoWriter`` open on ``path`` with the first codec of :data:`CODECS` that works."""
+    import cv2
+
+    from twin.plant.bullet import quiet_native_output
+
+    for fourcc in CODECS:
+        with quiet_native_output():  # FFmpeg logs each codec it cannot open
+            writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), fps, size)
+        if writer.isOpened():
+            return writer, fourcc
+        writer.release()
+    raise TwinError(f"OpenCV cannot write an MP4 video here with any of the codecs {', '.join(CODECS)} "
+                    f"(cv2 {cv2.__version__}); install an opencv-python build with FFmpeg")
+
+
+class _Encoder:
+    """Feeds a ``cv2.VideoWriter`` from a thread of its own, so that encoding (OpenCV's VP9
+    encoder runs on one core and releases the GIL) overlaps the rendering of later frames."""
+
+    def __init__(self, writer, depth: int = 6):
+        self.writer = writer
+        self.busy = 0.0  # s spent in writer.write and writer.release
+        self.error: BaseException | None = None
+        self._queue: queue.Queue = queue.Queue(maxsize=depth)
+        self._thread = threading.Thread(target=self._run, name="twin-video-encoder", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while True:
+            frame = self._queue.get()
+            if frame is None:
+                return
+            if self.error is None:
+                t0 = time.perf_counter()
+                try:
+                    self.writer.write(frame)
+                except BaseException as exc:  # handed to the rendering thread at its next put
+                    self.error = exc
+                self.busy += time.perf_counter() - t0
+
+    def put(self, frame: np.ndarray) -> None:
+        """Queue a BGR frame (not to be changed afterwards); waits while the queue is full."""
+        if self.error is not None:
+            raise self.error
+        self._queue.put(frame)
+
+    def close(self) -> None:
+        """Encode what is queued, then release the writer (also after an error)."""
+        if self._thread.is_alive():
+            self._queue.put(None)
+            self._thread.join()
+        t0 = time.perf_counter()
+        self.writer.release()
+        self.busy += time.perf_counter() - t0
+        if self.error is not None:
+            raise self.error
+
+
+def _default_label(run, i: int) -> str:
+    label = run.controller.upper() if run.controller else f"run {i + 1}"
+    if run.experiment is not None and run.experiment.name:
+        label += f"  {run.experiment.name}"
+    return label
+
+
+def render_video(runs, path, fps: float = 30, size=(640, 480),
+                 progress: Callable[[int, int], object] | None = None, *, renderer: str | None = None,
+                 camera: Camera | None = None, labels: Sequence[str] | None = None, hud: bool = True) -> VideoInfo:
+    """Render logged twin runs into an MP4 video, side by side, in real time.
+
+    Parameters
+    ----------
+    runs : TwinRun or sequence of TwinRun
+        What to show (from :func:`twin.bullet_loop.simulate_twin`), one panel each, left
+        to right.
+    path : str or PathLike
+        The video file; must end in ``.mp4``. Its directory is made if missing; an
+        existing file is replaced once the new video is complete.
+    fps : float
+        Frames per second, in [1, 240]. Frames are taken at k / fps s (see the module
+        docstring): floor(T · fps) + 1 frames for runs lasting T s at most.
+    size : (width, height) px
+        Of each panel: even integers from 32x24 to 3840x2160; the video is
+        (len(runs) · width) x height, at most 7680 px wide.
+    progress : callable, optional
+        Called as ``progress(frames_done, frames_total)`` after each frame is rendered
+        (the encoder trails by a few frames; the call returns once all are written).
+    renderer : {"auto", "egl", "tiny"}, optional
+        PyBullet's EGL plugin or its TinyRenderer; default ``$TWIN_RENDERER`` or
+        ``"auto"`` (EGL where it loads). See :mod:`twin.render.scene`.
+    camera : Camera, optional
+        Where the panels' cameras sit relative to their robots.
+    labels : sequence of str, optional
+        One per run, shown at the top of its overlay; default the controller's label
+        (upper case) and the experiment's name.
+    hud : bool
+        Draw the heads-up overlay (time s, pitch deg, distance m, heading deg, targets).
+
+    Returns
+    -------
+    VideoInfo
+        Frames, size, fps, codec, renderer and the time spent.
+
+    Raises
+    ------
+    TwinError
+        Bad input (no runs, fps or size out of range, a path that is not a writable
+        ``.mp4`` file) or no working MP4 encoder; the message says what is allowed.
+    """
+    t_start = time.perf_counter()
+    runs = _check_runs(runs)
+    fps = _check_fps(fps)
+    w, h = check_size(size)
+    total_w = w * len(runs)
+    if total_w > MAX_WIDTH:
+        raise TwinError(f"{len(runs)} panels of {w} px make the video {total_w} px wide; at most {MAX_WIDTH} px "
+                        f"are allowed: give fewer runs or a smaller size")
+    if labels is None:
+        labels = [_default_label(r, i) for i, r in enumerate(runs)]
+    elif (isinstance(labels, (str, bytes)) or not isinstance(labels, Sequence) or len(labels) != len(runs)
+          or not all(isinstance(s, str) for s in labels)):
+        raise TwinError(f"labels must be a sequence of {len(runs)} strings, one per run, got {labels!r}")
+    if progress is not None and not callable(progress):
+        raise TwinError(f"progress must be a callable progress(frames_done, frames_total) or None, got {progress!r}")
+    if camera is not None and not isinstance(camera, Camera):
+        raise TwinError(f"camera must be a twin.render.Camera, got {camera!r}")
+    renderer = resolve_renderer(renderer)
+    path = _check_path(path)
+
+    import cv2
+
+    tracks = [_Track(r, labels[i]) for i, r in enumerate(runs)]
+    times = frame_times(max(tr.duration for tr in tracks), fps)
+    n = len(times)
+    samples = [tr.sample(times) for tr in tracks]
+    tmp = _temp_file(path)
+    scenes: list[Scene] = []
+    encoder = None
+    t_render = 0.0
+    try:
+        for r in runs:
+            scenes.append(Scene(r.config, (w, h), renderer, camera))
+        writer, codec = _open_writer(tmp, fps, (total_w, h))
+        encoder = _Encoder(writer)
+        held: list[np.ndarray | None] = [None] * len(runs)
+        for k in range(n):
+            t0 = time.perf_counter()
+            tk = float(times[k])
+            panels = []
+            for j, (scene, tr, s) in enumerate(zip(scenes, tracks, samples)):
+                if held[j] is not None:
+                    panels.append(held[j])
+                    continue
+                rgb = scene.render(s["theta"][k], s["alpha"][k], s["x"][k], s["y"][k], s["psi_l"][k], s["psi_r"][k],
+                                   s["roll"][k])
+                panel = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
+                if hud:
+                    draw_hud(panel, HudState(tr.label, min(tk, tr.duration), s["theta"][k], s["distance"][k],
+                                             s["alpha"][k], tr.p_d, tr.alpha_d, tr.ended(tk),
+                                             tr.status != "ok"))
+                if tk > tr.duration + 1e-9:
+                    held[j] = panel  # the run has ended: this panel stays as it is
+                panels.append(panel)
+            if len(panels) == 1:
+                frame = panels[0]
+            else:
+                frame = np.hstack(panels)
+                for j in range(1, len(panels)):
+                    frame[:, j * w - 1:j * w + 1] = SEPARATOR
+            t_render += time.perf_counter() - t0
+            encoder.put(frame)
+            if progress is not None:
+                progress(k + 1, n)
+        enc, encoder = encoder, None
+        enc.close()
+        if tmp.stat().st_size == 0:
+            raise TwinError(f"OpenCV wrote nothing to {str(path)!r} (codec {codec}); the video is missing")
+        os.replace(tmp, path)
+    except BaseException:
+        if encoder is not None:
+            try:
+                encoder.close()
+            except BaseException:
+                pass
+        tmp.unlink(missing_ok=True)
+        raise
+    finally:
+        for scene in scenes:
+            scene.close()
+    used = sorted({s.renderer for s in scenes}, reverse=False)
+    return VideoInfo(path=path, frames=n, size=(total_w, h), fps=fps, codec=codec, renderer="+".join(used),
+                     panels=len(runs), seconds=time.perf_counter() - t_start, render_seconds=t_render,
+                     encode_seconds=enc.busy)
