@@ -370,6 +370,9 @@ def render_video(runs, path, fps: float = 30, size=(640, 480),
         enc.close()
         if tmp.stat().st_size == 0:
             raise TwinError(f"OpenCV wrote nothing to {str(path)!r} (codec {codec}); the video is missing")
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp made it private; the video is an ordinary output file
         os.replace(tmp, path)
     except BaseException:
         if encoder is not None:
