@@ -433,12 +433,12 @@ class EKFEstimator:
             s, finite = _kernel.forward(self._core, [self._commands.get(j, (0.0, 0.0)) for j in range(self.m, k)])
         else:
             s, finite = self._forward(self.state6(), self.m, k)
-        if not finite:
+        if not finite:  # s is then the filter's own state, finite as a rule
             self.events.append((k * self.model.dt, "forward prediction non-finite; handing out the filter's own state"))
-        if not all(map(math.isfinite, s)):
-            self.events.append((k * self.model.dt, "the filter's own state gives a non-finite estimate; handing out "
-                                                   "the last finite one"))
-            s = self._last_estimate
+            if not all(map(math.isfinite, s)):
+                self.events.append((k * self.model.dt, "the filter's own state gives a non-finite estimate; "
+                                                       "handing out the last finite one"))
+                s = self._last_estimate
         self._last_estimate = tuple(s)
         return Estimate(*s)
 
@@ -451,9 +451,12 @@ class EKFEstimator:
             if self._core is not None:
                 eps_imu = self._strapdown_compiled(m, t, imu, enc, command)
             else:
-                eps_imu = None if enc is None else self._imu_outlier(imu, enc, m, command)
+                sample, syn = self._imu_sample(self.kf.x, imu, command)
+                pred = self._propagate(self.kf.x, sample)
+                eps_imu = None if enc is None else self._imu_outlier(pred, syn, enc, m, command)
                 if eps_imu is None:
-                    self._strapdown(m, t, imu, enc, command)
+                    self.saturated += sample[1] is not None
+                    self._strapdown(m, t, pred, enc)
             if eps_imu is None:
                 self._aug = None
                 self.accepted["gyro"] += 1
@@ -517,40 +520,40 @@ class EKFEstimator:
         self.events.append((t, f"encoder counts stayed {self.max_rejects_in_row} samples away from the estimate: "
                                f"re-based their zeros by ({y[0]:.4g}, {y[1]:.4g}) rad"))
 
-    def _imu_sample(self, x, imu, command, count: bool = False):
+    def _imu_sample(self, x, imu, command):
         """(sample, synthetic): the IMU reading as ((ω_y, ω_z, f_x, f_z), extra) for
         :meth:`_propagate`; an axis at the end of its range says only "at least this much",
-        so the model's prediction (``synthetic``, else None) replaces it."""
+        so the model's prediction (``synthetic``, else None) replaces it (``extra`` then
+        holds the variances it adds; None for a sample with no axis replaced)."""
         sample = ((imu[0][1], imu[0][2], imu[1][0], imu[1][2]), None)
         sat = [abs(v) >= lim for v, lim in zip(sample[0], self._limits)]
         if not any(sat):
             return sample, None
         syn = self._synthetic(x, command)
-        if count:
-            self.saturated += 1
         return (tuple(sv if k else v for v, sv, k in zip(sample[0], syn[0], sat)),
                 tuple(e if k else 0.0 for e, k in zip(syn[1], sat))), syn
 
-    def _imu_outlier(self, imu, enc, m: int, command):
-        """The encoders' NIS with IMU sample ``imu`` if that marks it as an outlier, else None.
+    def _imu_outlier(self, pred, syn, enc, m: int, command):
+        """The encoders' NIS with the IMU sample behind ``pred`` (its step, from
+        :meth:`_propagate`; ``syn`` the model's sample if already computed) if that marks the
+        sample as an outlier, else None.
 
         Outlier: the encoders (every wheel, an unchanged one as "still inside its count")
         fail the IMU gate (1 − 1e-9) with the sample, and pass the normal gate with the
         sample equation (1) predicts instead."""
         x, P = self.kf.x, self.kf.P
-        sample, syn = self._imu_sample(x, imu, command)
-        tm, eps = self._encoder_fit(enc, m, self._propagate(x, sample), P, test=True)
+        tm, eps = self._encoder_fit(enc, m, pred, P, test=True)
         if eps <= self.imu_gates[len(tm[0])]:
             return None
         alt = self._propagate(x, syn if syn is not None else self._synthetic(x, command))
         tm_alt, eps_alt = self._encoder_fit(enc, m, alt, P, test=True)
         return eps if eps_alt <= self.gates[len(tm_alt[0])] else None
 
-    def _strapdown(self, m: int, t: float, imu, enc, command) -> None:
-        """One step driven by IMU sample ``imu``, on filterpy (the reference path)."""
+    def _strapdown(self, m: int, t: float, pred, enc) -> None:
+        """One step driven by an IMU sample, its prediction ``pred`` from :meth:`_propagate`,
+        on filterpy (the reference path)."""
         kf = self.kf
-        sample, _ = self._imu_sample(kf.x, imu, command, count=True)
-        x_next, F, Q, w = self._propagate(kf.x, sample)
+        x_next, F, Q, w = pred
         kf._x_next, kf.F, kf.Q = x_next, F, Q
         kf.predict()
         self._w_prev, self._w = self._w, w

@@ -498,19 +498,13 @@ def test_run_metrics_on_a_real_run_by_hand(paper_runs):
 def test_twin_run_writes_a_side_by_side_video_that_decodes(tmp_path):
     """`twin run` with video and both controllers: video.mp4 decodes with OpenCV, 30 fps at real
     time (1 s → 31 frames), two 640×480 panels side by side, and the frames change over time."""
-    import cv2
     import numpy as np
+    from test_render import read_video
 
     out = tmp_path / "out"
     status, stdout, stderr = twin("run", "paper-exp1", "--duration", "1", "--video", "--out", out)
     assert status == 0, stderr
-    cap = cv2.VideoCapture(str(out / "video.mp4"))
-    frames = []
-    while True:
-        ok, frame = cap.read()
-        if not ok:
-            break
-        frames.append(frame)
+    frames = read_video(out / "video.mp4")
     assert len(frames) == 31
     assert frames[0].shape == (480, 1280, 3)
     diff = np.abs(frames[0].astype(int) - frames[-1].astype(int)).mean()
