@@ -57,6 +57,7 @@ def main():
       twin analytic 3 --controller both --out runs/exp3
       twin physics 3 --controller both --out runs/exp3-twin
       twin run paper-exp3 --controller both
+      twin sweep paper-exp3 --samples 50 --workers 2
       twin scenarios
       twin surface position --out runs/surfaces
     """
@@ -276,7 +277,10 @@ def _paper_experiment(plant, experiment, controller, out, duration, gains_file, 
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output directory (default: runs/<scenario name>).")
 @click.option("--video/--no-video", default=None, help="Render video.mp4 (default: the scenario's video.enabled).")
-def run(scenario, controller, seed, duration, overrides, out, video):
+@click.option("--sample", type=click.IntRange(min=0), default=None, metavar="K",
+              help="Replay sample K of 'twin sweep' (the 'sample' column of sweep.csv); --seed is then the "
+                   "sweep's root seed, and --set/--duration must be the sweep's.")
+def run(scenario, controller, seed, duration, overrides, out, video, sample):
     """Run a scenario on the PyBullet twin: trajectory, metrics, figure and video.
 
     SCENARIO is a built-in name (see 'twin scenarios') or a scenario .toml file. Writes
@@ -289,18 +293,20 @@ def run(scenario, controller, seed, duration, overrides, out, video):
       twin run paper-exp1 --controller it2 --seed 7 --no-video
       twin run push-recovery --set pushes='[{force=[20,0,0], start=3, duration=0.1}]'
       twin run my-robot.toml --set plant.scale.m_b=1.2 --set sensors.sensing=ideal --out runs/heavy
+      twin run paper-exp3 --sample 17 --seed 0 --no-video   # replay a sweep's sample 17
     """
-    from twin.scenarios import load_scenario
     from twin.scenarios.runner import controllers_of, run_scenario
 
-    extra = list(overrides)
-    if seed is not None:
-        extra.append(f"seed={seed}")
-    if duration is not None:
-        extra.append(f"duration={duration!r}")
-    sc = load_scenario(scenario, extra)
-    out = out if out is not None else Path("runs") / sc.name
+    sc = _load(scenario, overrides, seed, duration)
+    out = out if out is not None else Path("runs") / (sc.name if sample is None else f"{sc.name}-sample{sample}")
     kinds = controllers_of(controller)
+    if sample is not None:
+        from twin.sweep import sample_scenario
+
+        s = sample_scenario(sc, sc.seed, sample)
+        sc = s.scenario
+        click.echo(f"sample {s.index} of a sweep (root seed {sc.source.rsplit('root seed ', 1)[-1].rstrip(')')}): "
+                   f"level λ = {s.level:g}, draw {s.draw}, seed {s.seed}")
     click.echo(f"{sc.name}: {sc.description}")
     with _Progress() as bar:
         result = run_scenario(sc, kinds, out=out, video=video, progress=bar.update)
@@ -321,6 +327,110 @@ def run(scenario, controller, seed, duration, overrides, out, video):
                + (f"; video {result.video.frames} frames in {t['video_s']:.1f} s ({result.video.codec}, "
                   f"{result.video.renderer})" if result.video is not None else ""))
     click.echo(f"wrote {out}/: " + ", ".join(Path(f).name for f in result.files))
+
+
+def _load(scenario, overrides, seed, duration):
+    """The scenario with ``--set`` items, ``--seed`` and ``--duration`` applied (in that order)."""
+    from twin.scenarios import load_scenario
+
+    extra = list(overrides)
+    if seed is not None:
+        extra.append(f"seed={seed}")
+    if duration is not None:
+        extra.append(f"duration={duration!r}")
+    return load_scenario(scenario, extra)
+
+
+@main.command()
+@click.argument("scenario", metavar="SCENARIO|FILE")
+@click.option("--samples", "draws", type=click.IntRange(1, 100_000), required=True, metavar="N",
+              help="Samples per uncertainty level (sweep.levels); IT2 and type-1 run on each.")
+@click.option("--workers", type=click.IntRange(1, 1024), default=None, metavar="K",
+              help="Worker processes (local) or Ray CPUs (default: every core here, or the Ray cluster's).")
+@click.option("--backend", type=click.Choice(["local", "ray"]), default="local", show_default=True,
+              help="local: spawned worker processes; ray: Ray tasks (pip install 'mtwip-twin[ray]').")
+@click.option("--ray-address", default=None, metavar="ADDRESS",
+              help="Ray cluster to join, as for ray.init(address=...) (default: a local Ray instance).")
+@click.option("--seed", type=click.IntRange(min=0), default=None,
+              help="Root seed of the sweep (default: the scenario's 'seed').")
+@click.option("--duration", type=float, default=None, help="Simulated time per run in s (default: the scenario's).")
+@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
+              help="Override a scenario key (repeatable), e.g. --set sweep.levels=[0,0.2,0.4].")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Sweep directory (default: runs/sweep-<scenario name>); rerun to resume.")
+def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overrides, out):
+    """Monte Carlo sweep: IT2 against type-1 on sampled plants, noise, tilts and pushes.
+
+    The scenario's [sweep] table says what is sampled (see the README). Each sample's
+    seed and sampled values are in sweep.csv, and 'twin run SCENARIO --sample K'
+    replays sample K exactly. Finished samples are kept as they finish: rerun the
+    same command after an interruption and only the rest runs. Writes sweep.csv,
+    summary.md, summary.json, success.png, distributions.png and paired.png.
+
+    \b
+    Examples:
+      twin sweep paper-exp3 --samples 50
+      twin sweep push-recovery --samples 20 --workers 2 --set sweep.push_count=2
+      twin sweep paper-exp2 --samples 100 --backend ray --ray-address auto
+    """
+    from twin.sweep import run_sweep
+
+    if ray_address is not None and backend != "ray":
+        raise TwinError("--ray-address needs --backend ray")
+    sc = _load(scenario, overrides, seed, duration)
+    out = out if out is not None else Path("runs") / f"sweep-{sc.name}"
+    levels = sc.data["sweep"]["levels"]
+    click.echo(f"{sc.name}: {sc.description}")
+    click.echo(f"  {draws} samples × {len(levels)} levels λ = {', '.join(f'{v:g}' for v in levels)}, "
+               f"root seed {sc.seed}, backend {backend}" + (f", {workers} workers" if workers else ""))
+    bar = _SweepBar()
+    try:
+        result = run_sweep(sc, draws, out, scenario_arg=scenario, workers=workers, backend=backend,
+                           address=ray_address, progress=bar.update)
+    except KeyboardInterrupt:
+        bar.close()
+        click.echo(f"interrupted: {bar.done} of {bar.total} samples are stored in {out}; rerun the same command "
+                   "to finish the rest", err=True)
+        sys.exit(130)
+    bar.close()
+    sims = 2 * result.ran
+    click.echo(f"  ran {result.ran} samples ({sims} runs) in {result.wall_s:.1f} s"
+               + (f", {60 * result.ran / result.wall_s:.1f} samples/min" if result.ran and result.wall_s > 0 else "")
+               + (f"; {result.resumed} were already finished" if result.resumed else ""))
+    click.echo(_success_table(result.summary))
+    click.echo(f"wrote {out}/: " + ", ".join(Path(f).name for f in result.files))
+
+
+def _success_table(summary) -> str:
+    lines = [f"  {'level':>7} {'controller':>10} {'n':>5} {'success':>8}  {'95 % CI':>15} {'falls':>6} {'errors':>6}"]
+    for s in summary:
+        lo, hi = s["success_ci"]
+        level = "all" if s["level"] is None else f"{s['level']:g}"
+        lines.append(f"  {level:>7} {s['controller'].upper():>10} {s['n']:5d} {s['success_rate']:8.1%}  "
+                     f"[{lo:5.1%}, {hi:5.1%}] {s['falls']:6d} {s['errors']:6d}")
+    return "\n".join(lines)
+
+
+class _SweepBar:
+    """Samples finished out of those left to run, with the time left, on stderr."""
+
+    def __init__(self):
+        self._bar = None
+        self.done = self.total = 0
+
+    def update(self, done: int, total: int) -> None:
+        if self._bar is None:  # the first call gives the samples already finished
+            self.done, self.total = done, total
+            label = "  samples" + (f" ({done} done before)" if done else "")
+            self._bar = click.progressbar(length=max(total - done, 1), label=label, file=sys.stderr,
+                                          show_eta=True, show_pos=True, width=30).__enter__()
+        self._bar.update(done - self.done)
+        self.done = done
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.__exit__(None, None, None)
+            self._bar = None
 
 
 def _fmt(v) -> str:

@@ -130,6 +130,12 @@ class Scenario:
                 raise self._error(f"design: {msg}") from None
         return _DESIGNS[key]
 
+    def adopt_design(self, design) -> "Scenario":
+        """Use ``design`` (solved elsewhere for these design options) instead of solving it
+        again: a sweep's workers take the design the sweep solved once."""
+        _DESIGNS[tuple(sorted(self.data["design"].items()))] = design
+        return self
+
     def cascade_options(self) -> dict:
         c = self.data["controller"]
         return {"fou": c["fou"], "type_reduction": c["type_reduction"], "psi_error_limit": c["psi_error_limit"]}

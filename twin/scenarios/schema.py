@@ -30,7 +30,8 @@ class ScenarioError(TwinError):
 @dataclass(frozen=True)
 class Key:
     """One key: ``kind`` is float, int, bool, str, vec3, table (``keys``), tables (a list of
-    tables, ``keys``) or map (str → float, names from ``choices``)."""
+    tables, ``keys``), map (str → float, names from ``choices``), floats (a non-empty list of
+    numbers), range (two numbers [low, high], low ≤ high) or names (a list from ``choices``)."""
 
     kind: str
     default: Any = REQUIRED
@@ -125,6 +126,29 @@ SCHEMA: dict[str, Key] = {
         "encoder_latency": _f(0.0, 0.0, 1.0, "s"),
     }),
     "faults": Key("tables", [], keys=FAULT),
+    "sweep": Key("table", doc="what 'twin sweep' samples (one draw per sample, shared by every level)", keys={
+        "levels": Key("floats", (0.0, 0.1, 0.2, 0.3), 0.0, 0.8,
+                      doc="uncertainty levels λ: each perturbed parameter's factor has half-width (uniform) "
+                          "or 2σ (normal) of λ"),
+        "distribution": Key("str", "uniform", choices=("uniform", "normal"),
+                            doc="factor 1 + λ·u, u ~ U(-1, 1); or 1 + λ·z/2, z ~ N(0, 1), clipped to [0.2, 5]"),
+        "parameters": Key("names", tuple(n for n in PARAMETER_DOCS if n not in ("g", "n_xb", "r", "b")),
+                          choices=tuple(n for n in PARAMETER_DOCS if n not in ("g", "n_xb")),
+                          doc="Table III parameters perturbed (on top of plant.scale); the geometry r, b is "
+                              "measured, so it is left out unless named"),
+        "initial_theta": Key("range", None, -0.99, 0.99, unit="rad", nullable=True,
+                             doc="initial pitch drawn uniformly from [low, high]; absent: initial.theta"),
+        "push_count": Key("int", 0, 0, 100, doc="random shoves added to the scenario's pushes"),
+        "push_force": Key("range", (5.0, 15.0), 0.0, 1e4, unit="N",
+                          doc="shove magnitude, uniform; forward or backward with equal odds"),
+        "push_window": Key("range", (1.0, 10.0), 0.0, 3600.0, unit="s", doc="shove start time, uniform"),
+        "push_duration": _f(0.1, 0.0, 10.0, "s", lo_open=True),
+        "push_height": _f(0.12, -1.0, 1.0, "m", doc="point of application above the axle, body frame"),
+        "success_position_tol": _f(0.05, 0.0, 100.0, "m", lo_open=True,
+                                   doc="success: the final position error is within ± this (with a position target)"),
+        "success_heading_tol": _f(0.05, 0.0, math.pi, "rad", lo_open=True,
+                                  doc="success: the final heading error is within ± this (with a heading target)"),
+    }),
     "video": Key("table", keys={
         "enabled": Key("bool", True),
         "fps": Key("int", 30, 1, 120),
@@ -183,6 +207,26 @@ def _value(v, key: Key, path: str):
         if not isinstance(v, (list, tuple)) or len(v) != 3:
             raise ScenarioError(f"{path}: must be a list of 3 numbers{_range(key)}, got {v!r}")
         return tuple(_number(c, key, f"{path}[{i}]") for i, c in enumerate(v))
+    if k == "floats":
+        if not isinstance(v, (list, tuple)) or not v:
+            raise ScenarioError(f"{path}: must be a non-empty list of numbers{_range(key)}, got {v!r}")
+        return tuple(_number(c, key, f"{path}[{i}]") for i, c in enumerate(v))
+    if k == "range":
+        if not isinstance(v, (list, tuple)) or len(v) != 2:
+            raise ScenarioError(f"{path}: must be [low, high]{_range(key)}, got {v!r}")
+        lo, hi = (_number(c, key, f"{path}[{i}]") for i, c in enumerate(v))
+        if lo > hi:
+            raise ScenarioError(f"{path}: low {lo:g} is above high {hi:g}; allowed: [low, high] with low <= high")
+        return (lo, hi)
+    if k == "names":
+        if not isinstance(v, (list, tuple)) or not all(isinstance(c, str) for c in v):
+            raise ScenarioError(f"{path}: must be a list of names{_choices(key)}, got {v!r}")
+        for c in v:
+            if c not in key.choices:
+                raise ScenarioError(f"{path}: {c!r} is not allowed{_choices(key)}")
+        if len(set(v)) != len(v):
+            raise ScenarioError(f"{path}: names repeat in {list(v)!r}; allowed: each at most once")
+        return tuple(v)
     if k == "table":
         return _table(v, key.keys, path)
     if k == "tables":
@@ -259,7 +303,8 @@ def describe() -> list[tuple[str, str, str, str]]:
                 rows.append((f"[[{p}]]", "list of tables", "[]", key.doc))
                 walk(key.keys, f"{p}[].")
                 continue
-            kind = key.kind + (_range(key) if key.kind in ("float", "int", "vec3", "map") else _choices(key))
+            kind = key.kind + (_range(key) if key.kind in ("float", "int", "vec3", "map", "floats", "range")
+                               else _choices(key))
             default = "required" if key.default is REQUIRED else ("absent" if key.default is None else repr(key.default))
             rows.append((p, kind, default, key.doc))
 

@@ -1,0 +1,124 @@
+"""Where a sweep's samples run: local worker processes, or Ray.
+
+Both backends run :func:`twin.sweep.worker.run_sample` on the same :class:`SweepJob` and
+hand each record to ``on_result`` in the parent as soon as it arrives (the parent
+stores it), so results are identical whichever backend ran them, and finishing order
+does not matter. At most ``workers`` samples are in flight, so an interruption loses at
+most those.
+
+A worker that dies (a crash in native code, the OOM killer) breaks only the samples it
+held: they run again, each alone, and a sample that kills its worker ``MAX_CRASHES``
+times is recorded with an error instead of stopping the sweep.
+"""
+from __future__ import annotations
+
+import multiprocessing
+import os
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+
+from twin.errors import TwinError
+from twin.sweep.worker import SweepJob, crash_record, ignore_sigint, run_sample
+
+MAX_CRASHES = 2
+BACKENDS = ("local", "ray")
+
+
+def default_workers() -> int:
+    """One worker per core this process may use."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def run_local(job: SweepJob, indices, workers: int, on_result) -> None:
+    """Run samples ``indices`` in ``workers`` spawned processes (one PyBullet client each per run)."""
+    queue = list(indices)
+    crashes: dict[int, int] = {}
+    suspects: list[int] = []  # samples held by a worker that died: rerun one at a time, to find the culprit
+    ctx = multiprocessing.get_context("spawn")
+    while queue or suspects:
+        alone = bool(suspects)
+        batch, width = ([suspects.pop(0)], 1) if alone else (queue, workers)
+        pool = ProcessPoolExecutor(width, mp_context=ctx, initializer=ignore_sigint)
+        running: dict = {}
+        broken = False
+        try:
+            while (batch or running) and not broken:
+                while batch and len(running) < width:
+                    k = batch.pop(0)
+                    running[pool.submit(run_sample, job, k)] = k
+                finished, _ = wait(running, return_when=FIRST_COMPLETED)
+                for fut in finished:
+                    k = running.pop(fut)
+                    if not isinstance(fut.exception(), BrokenProcessPool):
+                        on_result(fut.result())
+                        continue
+                    broken = True
+                    crashes[k] = crashes.get(k, 0) + alone
+                    if crashes[k] >= MAX_CRASHES:
+                        on_result(crash_record(job, k, f"worker died {MAX_CRASHES} times running this sample"))
+                    else:
+                        suspects.append(k)
+            suspects += running.values()  # held by the dead pool: not yet known to be innocent
+        except BaseException:
+            _terminate(pool)
+            raise
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _terminate(pool: ProcessPoolExecutor) -> None:
+    """Stop the workers now (Ctrl-C): ``shutdown`` alone would wait for their samples."""
+    for p in list((getattr(pool, "_processes", None) or {}).values()):
+        p.terminate()
+
+
+def run_ray(job: SweepJob, indices, workers: int | None, on_result, address: str | None = None) -> None:
+    """Run samples ``indices`` as Ray tasks: on the cluster at ``address`` (``ray.init(address=...)``,
+    e.g. "auto" or "ray://head:10001"), or on a local Ray instance with ``workers`` CPUs.
+    ``workers`` also caps the tasks in flight (default: the cluster's CPUs)."""
+    try:
+        import ray
+    except ImportError:
+        raise TwinError("the ray backend needs Ray: pip install 'mtwip-twin[ray]' (or use --backend local)") from None
+    import logging
+
+    started = not ray.is_initialized()
+    if started:
+        try:
+            if address is None:
+                ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False,
+                         logging_level=logging.WARNING, configure_logging=False)
+            else:
+                ray.init(address=address, log_to_driver=False, logging_level=logging.WARNING, configure_logging=False)
+        except (ConnectionError, ValueError, RuntimeError) as exc:
+            raise TwinError(f"cannot start or reach Ray at {address or 'a local instance'}: "
+                            f"{' '.join(str(exc).split())[:300]}") from None
+    running: dict = {}
+    try:
+        cap = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
+        task = ray.remote(num_cpus=1, max_retries=MAX_CRASHES - 1)(run_sample)
+        job_ref = ray.put(job)
+        queue = list(indices)
+        while queue or running:
+            while queue and len(running) < cap:
+                k = queue.pop(0)
+                running[task.remote(job_ref, k)] = k
+            done, _ = ray.wait(list(running), num_returns=1)
+            for ref in done:
+                k = running.pop(ref)
+                try:
+                    record = ray.get(ref)
+                except ray.exceptions.RayError as exc:  # the worker died MAX_CRASHES times
+                    record = crash_record(job, k, f"Ray task failed {MAX_CRASHES} times running this sample "
+                                                  f"({type(exc).__name__})")
+                on_result(record)
+    except BaseException:
+        for ref in running:  # a cluster outlives this driver: do not leave its tasks running
+            ray.cancel(ref, force=True)
+        raise
+    finally:
+        if started:
+            ray.shutdown()

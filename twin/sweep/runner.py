@@ -1,0 +1,137 @@
+"""Run a Monte Carlo sweep of a scenario and write its report.
+
+Outputs in the sweep directory:
+
+- ``sweep.json``, ``samples.jsonl``: the manifest and the finished samples (see
+  :mod:`twin.sweep.store`); a rerun with the same command resumes from them;
+- ``sweep.csv``: one row per sample and controller (:mod:`twin.sweep.table`);
+- ``summary.md``, ``summary.json``: success rates and metric quantiles with confidence
+  intervals per level and controller, and the paired tests of IT2 against type-1
+  (:mod:`twin.sweep.statistics`);
+- ``success.png``, ``distributions.png``, ``paired.png``: the figures.
+
+The report depends only on the finished samples, never on the backend, the number of
+workers, the finishing order or on interruptions.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from twin.errors import TwinError
+from twin.scenarios.scenario import Scenario
+from twin.sweep.backends import BACKENDS, default_workers, run_local, run_ray
+from twin.sweep.sampling import value_columns
+from twin.sweep.store import SweepStore
+from twin.sweep.table import columns, rows_of, write_sweep_csv
+from twin.sweep.worker import CONTROLLERS, SweepJob
+
+MAX_DRAWS = 100_000
+
+
+@dataclass
+class SweepResult:
+    """A finished sweep: its rows, summary and paired tests, the files written, and what ran now."""
+
+    out: Path
+    manifest: dict
+    rows: list
+    summary: list
+    paired: list
+    files: list = field(default_factory=list)
+    ran: int = 0           # samples run by this call
+    resumed: int = 0       # samples found finished in the directory
+    wall_s: float = 0.0    # time spent running samples in this call
+
+
+def replay_command(manifest: dict, sample: int) -> str:
+    """The ``twin run`` command line that replays ``sample`` of the sweep."""
+    import shlex
+
+    sets = "".join(f" --set {shlex.quote(o)}" for o in manifest["overrides"])
+    return f"twin run {shlex.quote(manifest['scenario_arg'])} --sample {sample} --seed {manifest['root_seed']}{sets}"
+
+
+def run_sweep(scenario: Scenario, draws: int, out: Path, scenario_arg: str | None = None, workers: int | None = None,
+              backend: str = "local", address: str | None = None, progress=None) -> SweepResult:
+    """Run ``draws`` samples at each level of ``scenario``'s ``[sweep]`` (both controllers on each),
+    resuming any finished samples found in ``out``, then write the report.
+
+    ``scenario_arg``: how the user named the scenario (for the replay commands);
+    ``workers``: processes or Ray CPUs (default: the cores here, or the Ray cluster's);
+    ``progress(done, total)``: called as samples finish.
+    """
+    if not (isinstance(draws, int) and 1 <= draws <= MAX_DRAWS):
+        raise TwinError(f"--samples must be an integer from 1 to {MAX_DRAWS} (samples per level), got {draws!r}")
+    if backend not in BACKENDS:
+        raise TwinError(f"--backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
+    if workers is not None and not (isinstance(workers, int) and 1 <= workers <= 1024):
+        raise TwinError(f"--workers must be an integer from 1 to 1024, got {workers!r}")
+    levels = scenario.data["sweep"]["levels"]
+    manifest = {"scenario": scenario.data, "source": scenario.source, "scenario_arg": scenario_arg or scenario.name,
+                "overrides": [o for o in scenario.overrides if not o.startswith("seed=")],
+                "root_seed": scenario.seed, "controllers": list(CONTROLLERS), "draws": draws}
+    job = SweepJob(scenario.data, scenario.source, scenario.overrides, scenario.seed, scenario.design())
+    with SweepStore(out, manifest) as store:
+        total = draws * len(levels)
+        todo = [k for k in range(total) if k not in store.records]
+        resumed = total - len(todo)
+        done = [resumed]
+        if progress is not None:
+            progress(done[0], total)
+
+        def on_result(record):
+            store.append(record)
+            done[0] += 1
+            if progress is not None:
+                progress(done[0], total)
+
+        t0 = time.perf_counter()
+        if todo:
+            if backend == "local":
+                run_local(job, todo, workers or default_workers(), on_result)
+            else:
+                run_ray(job, todo, workers, on_result, address=address)
+        wall = time.perf_counter() - t0
+        records = [store.records[k] for k in range(total)]
+        manifest = store.manifest
+    result = write_report(out, manifest, records, scenario)
+    result.ran, result.resumed, result.wall_s = len(todo), resumed, wall
+    return result
+
+
+def write_report(out: Path, manifest: dict, records, scenario: Scenario) -> SweepResult:
+    """``sweep.csv``, the summary and the figures of the finished ``records``."""
+    from twin import report
+    from twin.sweep import figures, statistics
+
+    out = Path(out)
+    vcols = value_columns(scenario)
+    rows = rows_of(records, vcols)
+    files = [write_sweep_csv(rows, columns(vcols), out / "sweep.csv")]
+    summary = statistics.summarize(rows)
+    paired = statistics.paired_tests(rows)
+    sw = scenario.data["sweep"]
+    n = len(records)
+    notes = [f"Scenario {scenario.name} ({manifest['source']}): {scenario.description}",
+             f"{n} samples ({manifest['draws']} draws × {len(sw['levels'])} levels λ = "
+             f"{', '.join(f'{v:g}' for v in sw['levels'])}), root seed {manifest['root_seed']}; IT2 and type-1 run "
+             "on every sample with the same plant, noise and disturbances.",
+             f"Parameters perturbed ({sw['distribution']}, on top of plant.scale): {', '.join(sw['parameters'])}.",
+             f"Success: no fall, |θ| settled below 0.01 rad, final position error within "
+             f"{sw['success_position_tol']:g} m and heading error within {sw['success_heading_tol']:g} rad "
+             "(where the scenario has those targets).",
+             f"Replay a sample: {replay_command(manifest, 0).replace(' --sample 0 ', ' --sample K ')}"]
+    errors = [r for r in records if r["error"]]
+    if errors:
+        notes.append(f"{len(errors)} samples ended in an error (first: sample {errors[0]['sample']}: "
+                     f"{errors[0]['error']})")
+    text = statistics.summary_markdown(summary, paired, f"Sweep of {scenario.name}", notes)
+    (out / "summary.md").write_text(text, encoding="utf-8")
+    files.append(out / "summary.md")
+    files.append(report.write_json({"notes": notes, **statistics.summary_json(summary, paired)}, out / "summary.json"))
+    files.append(figures.plot_success(summary, out / "success.png"))
+    files.append(figures.plot_distributions(rows, out / "distributions.png"))
+    files.append(figures.plot_paired(rows, out / "paired.png"))
+    return SweepResult(out, manifest, rows, summary, paired, files)

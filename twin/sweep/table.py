@@ -1,0 +1,89 @@
+"""``sweep.csv``: one row per sample and controller, the sampled values and every metric.
+
+Rows are sorted by sample number and then controller (IT2 first), whatever order the
+samples finished in, and floats are written with ``repr`` (exact round trip), so the
+same sweep always gives the same file byte for byte.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+from twin.sweep.worker import CONTROLLERS
+
+ID_COLUMNS = ("sample", "draw", "level", "seed", "controller", "status", "success")
+METRIC_COLUMNS = ("fell", "settling_time_s", "theta_rms_rad", "oscillation_peak_to_peak_rad", "final_theta_rad",
+                  "final_distance_m", "final_heading_rad", "final_position_error_m", "final_heading_error_rad",
+                  "iae_theta", "control_effort", "max_abs_torque_nm", "estimator_theta_rmse_rad",
+                  "rejected_measurements", "duration_s", "end_reason")
+METRIC_UNITS = {"settling_time_s": "s", "theta_rms_rad": "rad", "oscillation_peak_to_peak_rad": "rad",
+                "final_theta_rad": "rad", "final_distance_m": "m", "final_heading_rad": "rad",
+                "final_position_error_m": "m", "final_heading_error_rad": "rad", "iae_theta": "rad·s",
+                "control_effort": "N²·m²·s", "max_abs_torque_nm": "N·m", "estimator_theta_rmse_rad": "rad",
+                "duration_s": "s", "level": "1"}
+
+
+def columns(value_columns) -> list[str]:
+    return [*ID_COLUMNS, *value_columns, *METRIC_COLUMNS, "error"]
+
+
+def rows_of(records, value_columns) -> list[dict]:
+    """Typed rows (see :func:`columns`) from stored sample records, sorted."""
+    rows = []
+    for rec in sorted(records, key=lambda r: r["sample"]):
+        for c in CONTROLLERS:
+            m = rec["runs"].get(c)
+            row = {"sample": rec["sample"], "draw": rec["draw"], "level": rec["level"], "seed": rec["seed"],
+                   "controller": c, "status": m["status"] if m else "error", "success": bool(m and m["success"])}
+            row.update({k: rec["values"].get(k) for k in value_columns})
+            row.update({k: (m or {}).get(k) for k in METRIC_COLUMNS})
+            row["error"] = rec["error"]
+            rows.append(row)
+    return rows
+
+
+def _cell(v) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, float):
+        return repr(v)
+    return str(v)
+
+
+def write_sweep_csv(rows, cols, path: Path) -> Path:
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(cols)
+        for row in rows:
+            w.writerow([_cell(row.get(c)) for c in cols])
+    return path
+
+
+def read_sweep_csv(path: Path) -> list[dict]:
+    """The rows of a ``sweep.csv``, typed back (empty cells → None)."""
+    ints = {"sample", "draw", "seed", "rejected_measurements"}
+    texts = {"controller", "status", "end_reason", "error"}
+    out = []
+    with open(path, newline="", encoding="utf-8") as fh:
+        for raw in csv.DictReader(fh):
+            row = {}
+            for k, v in raw.items():
+                if k in texts:
+                    row[k] = v
+                elif v == "":
+                    row[k] = None
+                elif v in ("true", "false"):
+                    row[k] = v == "true"
+                elif k in ints:
+                    row[k] = int(v)
+                else:
+                    row[k] = float(v)
+            out.append(row)
+    return out
+
+
+def finite_or_none(v):
+    return v if v is None or (isinstance(v, float) and math.isfinite(v)) or not isinstance(v, float) else None

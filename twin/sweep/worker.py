@@ -1,0 +1,73 @@
+"""What a sweep worker runs: one sample, both controllers, on its own PyBullet clients.
+
+:func:`run_sample` is the only function a backend ships to its workers (local
+processes or Ray tasks), so every backend computes the same thing. It depends on
+nothing but its arguments: the :class:`SweepJob` carries the validated scenario and the
+LMI design the sweep solved once (workers do not solve it again, nor import cvxpy).
+"""
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass
+
+CONTROLLERS = ("it2", "t1")
+# Fault injection for the tests: sample numbers whose worker dies (os._exit) every time.
+CRASH_ENV = "TWIN_SWEEP_CRASH_SAMPLES"
+
+
+@dataclass(frozen=True)
+class SweepJob:
+    """The scenario's validated data, source and ``--set`` items, the root seed, and the design."""
+
+    data: dict
+    source: str
+    overrides: tuple
+    root_seed: int
+    design: object
+
+    def scenario(self):
+        from twin.scenarios.scenario import Scenario
+
+        return Scenario(self.data, self.source, self.overrides).adopt_design(self.design)
+
+
+def run_sample(job: SweepJob, index: int) -> dict:
+    """Run sample ``index`` of ``job`` with each controller; the record stored for it.
+
+    A run that falls or diverges is a result (its metrics say so); an exception inside the
+    run is recorded as the sample's ``error`` rather than stopping the sweep.
+    """
+    from twin.sweep.sampling import sample_scenario, success
+
+    if str(index) in os.environ.get(CRASH_ENV, "").split(","):
+        os._exit(70)
+    t0 = time.perf_counter()
+    scenario = job.scenario()
+    sample = sample_scenario(scenario, job.root_seed, index)
+    runs, error = {}, ""
+    try:
+        from twin.scenarios.runner import run_scenario
+
+        result = run_scenario(sample.scenario, CONTROLLERS)
+        runs = {k: {**m, "success": success(m, scenario)} for k, m in result.metrics.items()}
+    except Exception as exc:  # noqa: BLE001 -- a sample that errors is a result, kept with its message
+        runs, error = {}, f"{type(exc).__name__}: {' '.join(str(exc).split())}"
+    return {"sample": index, "draw": sample.draw, "level": sample.level, "seed": sample.seed,
+            "values": sample.values, "runs": runs, "error": error, "wall_s": time.perf_counter() - t0}
+
+
+def crash_record(job: SweepJob, index: int, why: str) -> dict:
+    """The record of a sample whose worker died every time it ran it."""
+    from twin.sweep.sampling import sample_scenario
+
+    sample = sample_scenario(job.scenario(), job.root_seed, index)
+    return {"sample": index, "draw": sample.draw, "level": sample.level, "seed": sample.seed,
+            "values": sample.values, "runs": {}, "error": why, "wall_s": 0.0}
+
+
+def ignore_sigint() -> None:
+    """Worker initializer: Ctrl-C is the parent's to handle (it stops the workers itself)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
