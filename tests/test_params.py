@@ -3,7 +3,7 @@ import math
 import pytest
 
 from twin.errors import TwinError
-from twin.params import NOMINAL, PARAMETER_DOCS, RobotParams
+from twin.params import NOMINAL, PARAMETER_DOCS, RobotParams, clip_inertia_factors
 
 
 def test_table_iii_values_and_units_documented():
@@ -65,5 +65,17 @@ def test_perturbed_true_plant():
 def test_defaulted_n_xb_follows_n_yb_in_a_perturbed_plant():
     assert NOMINAL.perturbed(scale={"n_yb": 2.0}).n_xb == pytest.approx(0.00256)
     assert NOMINAL.replace(n_yb=0.002).n_xb == 0.002
-    explicit = NOMINAL.replace(n_xb=0.003)
-    assert explicit.perturbed(scale={"n_yb": 2.0}).n_xb == 0.003
+    explicit = NOMINAL.replace(n_xb=0.002)
+    assert explicit.perturbed(scale={"n_yb": 2.0}).n_xb == 0.002
+
+
+def test_an_inertia_tensor_no_rigid_body_has_is_refused():
+    """PyBullet would silently zero it; the message names the parameter and the rule."""
+    with pytest.raises(TwinError, match=r"n_zb .* exceeds n_xb \+ n_yb .*triangle inequality"):
+        NOMINAL.perturbed(scale={"n_zb": 2.01})
+    with pytest.raises(TwinError, match=r"n_wa .* exceeds n_wd \+ n_wd"):
+        NOMINAL.replace(n_wa=0.0011)
+    assert NOMINAL.perturbed(scale={"n_zb": 2.0}).n_zb == pytest.approx(0.00256)
+    clipped = clip_inertia_factors({"n_zb": 1.9, "n_yb": 0.5, "n_wa": 9.0}, NOMINAL)
+    assert clipped["n_zb"] == pytest.approx(1.0) and clipped["n_wa"] == pytest.approx(2 * 0.00054 / 0.00014)
+    NOMINAL.perturbed(scale=clipped)  # physical now

@@ -33,6 +33,25 @@ _POSITIVE = ("m_w", "m_b", "n_wa", "n_wd", "n_yb", "n_zb", "n_xb", "r", "b", "l"
 _NON_NEGATIVE = ("d_b", "d_w")
 
 
+def clip_inertia_factors(scale: Mapping[str, float], nominal: "RobotParams") -> dict[str, float]:
+    """``scale`` (parameter → factor of ``nominal``) with the n_zb and n_wa factors lowered where
+    independently drawn factors give a tensor no rigid body has: the body's yaw inertia above
+    n_xb + n_yb, or the wheel's axle inertia above twice its diameter inertia."""
+    scale = dict(scale)
+
+    def value(name):
+        return getattr(nominal, name) * scale.get(name, 1.0)
+
+    n_yb = value("n_yb")
+    # a defaulted n_xb follows n_yb (see RobotParams.perturbed)
+    n_xb = n_yb if nominal._n_xb_default and "n_xb" not in scale else value("n_xb")
+    if value("n_zb") > n_xb + n_yb:
+        scale["n_zb"] = (n_xb + n_yb) / nominal.n_zb
+    if value("n_wa") > 2.0 * value("n_wd"):
+        scale["n_wa"] = 2.0 * value("n_wd") / nominal.n_wa
+    return scale
+
+
 @dataclass(frozen=True)
 class RobotParams:
     """Nominal parameter set of the robot (paper Table III), with derived quantities.
@@ -76,6 +95,15 @@ class RobotParams:
             if f.name in _NON_NEGATIVE and value < 0.0:
                 raise TwinError(f"parameter {f.name} ({meaning}) must be >= 0 {unit}, got {value:g}")
             object.__setattr__(self, f.name, value)
+        # PyBullet silently zeroes an inertia tensor that no rigid body can have
+        for body, axes in (("body", ("n_xb", "n_yb", "n_zb")), ("wheel", ("n_wd", "n_wa", "n_wd"))):
+            for i, name in enumerate(axes[:2] if body == "wheel" else axes):
+                others = [axes[j] for j in range(3) if j != i]
+                total = sum(getattr(self, o) for o in others)
+                if getattr(self, name) > total * (1.0 + 1e-12):
+                    raise TwinError(f"parameter {name} ({PARAMETER_DOCS[name][1]}) = {getattr(self, name):g} kg·m² "
+                                    f"exceeds {' + '.join(others)} = {total:g} kg·m²; allowed: each principal inertia "
+                                    f"of the {body} at most the sum of the other two (triangle inequality)")
 
     # ---- derived quantities (paper-notes, "Derived") -------------------------------
     @property

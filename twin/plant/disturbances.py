@@ -17,7 +17,7 @@ from typing import Mapping
 import numpy as np
 
 from twin.errors import TwinError
-from twin.params import PARAMETER_DOCS, RobotParams
+from twin.params import PARAMETER_DOCS, RobotParams, clip_inertia_factors
 from twin.plant.urdf import Payload
 
 WHEELS = ("left", "right", "both")
@@ -165,7 +165,9 @@ class Disturbances:
 
 def sample_plant(nominal: RobotParams, rng: np.random.Generator,
                  spread: float | Mapping[str, float] = 0.1) -> RobotParams:
-    """A "true plant": each parameter scaled by an independent uniform factor 1 ± spread.
+    """A "true plant": each parameter scaled by an independent uniform factor 1 ± spread
+    (n_zb and n_wa then lowered where needed to keep the inertia tensors physical, see
+    :func:`~twin.params.clip_inertia_factors`).
 
     ``spread`` is one relative half-width for every Table III parameter, or a mapping
     from parameter names to half-widths (unnamed parameters stay nominal). Gravity is
@@ -183,7 +185,8 @@ def sample_plant(nominal: RobotParams, rng: np.random.Generator,
         s = _finite("spread", spread, 0.0, 0.9)
         spreads = {n: s for n in names}
     factors = rng.uniform(-1.0, 1.0, size=len(names))
-    return nominal.perturbed(scale={n: 1.0 + spreads[n] * f for n, f in zip(names, factors)})
+    scale = clip_inertia_factors({n: 1.0 + spreads[n] * f for n, f in zip(names, factors)}, nominal)
+    return nominal.perturbed(scale=scale)
 
 
 def random_pushes(rng: np.random.Generator, count: int, force: tuple[float, float] = (5.0, 15.0),

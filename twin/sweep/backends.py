@@ -47,8 +47,11 @@ def run_local(job: SweepJob, indices, workers: int, on_result) -> None:
         try:
             while (batch or running) and not broken:
                 while batch and len(running) < width:
-                    k = batch.pop(0)
-                    running[pool.submit(run_sample, job, k)] = k
+                    try:
+                        running[pool.submit(run_sample, job, batch[0])] = batch[0]
+                    except BrokenProcessPool:  # a worker died since the last wait: its future will say which
+                        break
+                    batch.pop(0)
                 finished, _ = wait(running, return_when=FIRST_COMPLETED)
                 for fut in finished:
                     k = running.pop(fut)

@@ -122,6 +122,8 @@ def write_report(out: Path, manifest: dict, records, scenario: Scenario) -> Swee
              f"Success: no fall, |θ| settled below 0.01 rad, final position error within "
              f"{sw['success_position_tol']:g} m and heading error within {sw['success_heading_tol']:g} rad "
              "(where the scenario has those targets).",
+             "The levels share their draws (common random numbers: the same noise seed and unit draws at every "
+             "level), so the 'all' rows pool correlated samples; read the per-level rows for inference.",
              f"Replay a sample: {replay_command(manifest, 0).replace(' --sample 0 ', ' --sample K ')}"]
     errors = [r for r in records if r["error"]]
     if errors:

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from twin.errors import TwinError
-from twin.params import PARAMETER_DOCS
+from twin.params import NOMINAL, PARAMETER_DOCS, clip_inertia_factors
 from twin.scenarios.scenario import Scenario
 
 VALUES_STREAM = 1_000_003  # spawn key of the sampled values' stream (sensors spawn 0, 1, 2, …)
@@ -95,6 +95,9 @@ def sample_scenario(scenario: Scenario, root_seed: int, index: int) -> Sample:
         if total != 1.0 or name in base:
             scale[name] = total
         values[f"factor_{name}"] = total
+    scale = clip_inertia_factors(scale, NOMINAL)
+    for name in PERTURBABLE:
+        values[f"factor_{name}"] = scale.get(name, 1.0)
     data["plant"]["scale"] = scale
     if sw["initial_theta"] is not None:
         lo, hi = sw["initial_theta"]

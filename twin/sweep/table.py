@@ -7,7 +7,6 @@ same sweep always gives the same file byte for byte.
 from __future__ import annotations
 
 import csv
-import math
 from pathlib import Path
 
 from twin.sweep.worker import CONTROLLERS
@@ -84,6 +83,3 @@ def read_sweep_csv(path: Path) -> list[dict]:
             out.append(row)
     return out
 
-
-def finite_or_none(v):
-    return v if v is None or (isinstance(v, float) and math.isfinite(v)) or not isinstance(v, float) else None
