@@ -81,11 +81,11 @@ def test_settings_do_not_shift_other_draws():
 
 def test_success_needs_no_fall_settling_and_the_targets():
     sc = load_scenario("paper-exp3", ["sweep.success_position_tol=0.05", "sweep.success_heading_tol=0.1"])
-    good = {"fell": False, "status": "ok", "settling_time_s": 2.0, "final_position_error_m": -0.049,
+    good = {"fell": False, "status": "ok", "settling_time_s": 2.0, "duration_s": 15.0, "final_position_error_m": -0.049,
             "final_heading_error_rad": 0.099}
-    assert success(good, sc)
+    assert success(good, sc) and success({**good, "settling_time_s": 14.0}, sc)
     for change in ({"fell": True, "status": "fell"}, {"settling_time_s": None}, {"final_position_error_m": 0.051},
-                   {"final_heading_error_rad": -0.11}):
+                   {"final_heading_error_rad": -0.11}, {"settling_time_s": 14.01}):
         assert not success({**good, **change}, sc), change
     assert success({**good, "final_position_error_m": None, "final_heading_error_rad": None}, sc)
 

@@ -304,9 +304,9 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample):
         from twin.sweep import sample_scenario
 
         s = sample_scenario(sc, sc.seed, sample)
+        click.echo(f"sample {s.index} of a sweep (root seed {sc.seed}): level λ = {s.level:g}, draw {s.draw}, "
+                   f"seed {s.seed}")
         sc = s.scenario
-        click.echo(f"sample {s.index} of a sweep (root seed {sc.source.rsplit('root seed ', 1)[-1].rstrip(')')}): "
-                   f"level λ = {s.level:g}, draw {s.draw}, seed {s.seed}")
     click.echo(f"{sc.name}: {sc.description}")
     with _Progress() as bar:
         result = run_scenario(sc, kinds, out=out, video=video, progress=bar.update)

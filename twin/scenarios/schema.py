@@ -144,6 +144,8 @@ SCHEMA: dict[str, Key] = {
         "push_window": Key("range", (1.0, 10.0), 0.0, 3600.0, unit="s", doc="shove start time, uniform"),
         "push_duration": _f(0.1, 0.0, 10.0, "s", lo_open=True),
         "push_height": _f(0.12, -1.0, 1.0, "m", doc="point of application above the axle, body frame"),
+        "success_settled_for": _f(1.0, 0.0, 3600.0, "s",
+                                  doc="success: |θ| below 0.01 rad for at least this long at the end of the run"),
         "success_position_tol": _f(0.05, 0.0, 100.0, "m", lo_open=True,
                                    doc="success: the final position error is within ± this (with a position target)"),
         "success_heading_tol": _f(0.05, 0.0, math.pi, "rad", lo_open=True,

@@ -119,7 +119,8 @@ def write_report(out: Path, manifest: dict, records, scenario: Scenario) -> Swee
              f"{', '.join(f'{v:g}' for v in sw['levels'])}), root seed {manifest['root_seed']}; IT2 and type-1 run "
              "on every sample with the same plant, noise and disturbances.",
              f"Parameters perturbed ({sw['distribution']}, on top of plant.scale): {', '.join(sw['parameters'])}.",
-             f"Success: no fall, |θ| settled below 0.01 rad, final position error within "
+             f"Success: no fall, |θ| below 0.01 rad for good over at least the last {sw['success_settled_for']:g} s, "
+             f"final position error within "
              f"{sw['success_position_tol']:g} m and heading error within {sw['success_heading_tol']:g} rad "
              "(where the scenario has those targets).",
              "The levels share their draws (common random numbers: the same noise seed and unit draws at every "

@@ -118,10 +118,13 @@ def sample_scenario(scenario: Scenario, root_seed: int, index: int) -> Sample:
 
 
 def success(metrics: dict, scenario: Scenario) -> bool:
-    """A run succeeds when it did not fall, |θ| settled below 0.01 rad for good, and it ended
-    within ``sweep.success_position_tol`` / ``success_heading_tol`` of its targets."""
+    """A run succeeds when it did not fall, |θ| settled below 0.01 rad for good at least
+    ``sweep.success_settled_for`` s before the end, and it ended within
+    ``sweep.success_position_tol`` / ``success_heading_tol`` of its targets."""
     sw = scenario.data["sweep"]
     if metrics["fell"] or metrics["status"] != "ok" or metrics["settling_time_s"] is None:
+        return False
+    if metrics["settling_time_s"] > metrics["duration_s"] - sw["success_settled_for"] + 1e-9:
         return False
     pe, he = metrics["final_position_error_m"], metrics["final_heading_error_rad"]
     return (pe is None or abs(pe) <= sw["success_position_tol"]) and (
