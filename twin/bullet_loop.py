@@ -126,7 +126,9 @@ class TwinRun:
         """RMS of (estimate − truth) of ``name`` (θ, θ̇, ψ, ψ̇, α or α̇) from ``start`` s on."""
         keep = self.t >= start - 1e-9
         err = self.signal(name + "_est")[keep] - self.signal(name)[keep]
-        return float(np.sqrt(np.mean(err * err))) if err.size else math.nan
+        from twin.metrics import exact_mean
+
+        return math.sqrt(exact_mean(err * err)) if err.size else math.nan
 
     def summary(self) -> dict:
         e = self.experiment

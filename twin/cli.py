@@ -382,7 +382,7 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
     levels = sc.data["sweep"]["levels"]
     click.echo(f"{sc.name}: {sc.description}")
     click.echo(f"  {draws} samples × {len(levels)} levels λ = {', '.join(f'{v:g}' for v in levels)}, "
-               f"root seed {sc.seed}, backend {backend}" + (f", {workers} workers" if workers else ""))
+               f"root seed {sc.seed}, backend {backend}" + (f", {workers} worker{'s' * (workers > 1)}" if workers else ""))
     bar = _SweepBar()
     try:
         result = run_sweep(sc, draws, out, scenario_arg=scenario, workers=workers, backend=backend,

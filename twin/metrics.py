@@ -6,6 +6,12 @@ import math
 import numpy as np
 
 
+def exact_mean(x: np.ndarray) -> float:
+    """The mean of ``x`` with an exactly rounded sum (``math.fsum``). numpy's SIMD sums can depend
+    on where the array sits in memory, which breaks bit-identical replays across processes."""
+    return math.fsum(np.ravel(x).tolist()) / x.size
+
+
 def settling_time(t: np.ndarray, theta: np.ndarray, tol: float = 0.01) -> float:
     """First time (s) after which |θ| stays below ``tol`` rad; inf if it never does."""
     bad = np.nonzero(~(np.abs(theta) < tol))[0]
@@ -18,7 +24,7 @@ def settling_time(t: np.ndarray, theta: np.ndarray, tol: float = 0.01) -> float:
 
 def _integral(t: np.ndarray, y: np.ndarray) -> float:
     """∫ y dt by the trapezoid rule (0 for fewer than two samples)."""
-    return float(np.sum(0.5 * (y[1:] + y[:-1]) * np.diff(t))) if len(t) > 1 else 0.0
+    return math.fsum((0.5 * (y[1:] + y[:-1]) * np.diff(t)).tolist()) if len(t) > 1 else 0.0
 
 
 def run_metrics(run, settle_tol: float = 0.01, tail: float = 5.0) -> dict:
@@ -49,7 +55,7 @@ def run_metrics(run, settle_tol: float = 0.01, tail: float = 5.0) -> dict:
         "end_reason": run.end_reason,
         "duration_s": float(t[-1]),
         "settling_time_s": ts if math.isfinite(ts) else None,
-        "theta_rms_rad": float(np.sqrt(np.mean(theta[after] ** 2))),
+        "theta_rms_rad": math.sqrt(exact_mean(theta[after] ** 2)),
         "oscillation_peak_to_peak_rad": float(np.ptp(theta[last])),
         "final_theta_rad": float(theta[-1]),
         "final_distance_m": float(run.distance[-1]),
