@@ -100,6 +100,17 @@ def plot_success(summary: list[dict], path) -> Path:
     return _save(fig, path)
 
 
+def _metric_figure(rows: list[dict], panel_height: float):
+    """(figure with room for one panel per metric present, the metrics, the sorted levels); without
+    any metric the figure already says so."""
+    metrics = present_metrics(rows)
+    levels = sorted({float(r["level"]) for r in rows})
+    fig = _figure(4.2 * min(3, max(len(metrics), 1)), panel_height * max(1, math.ceil(len(metrics) / 3)))
+    if not metrics:
+        _empty(fig.add_subplot(1, 1, 1), "no run stayed up: no metric to show")
+    return fig, metrics, levels
+
+
 def plot_distributions(rows: list[dict], path) -> Path:
     """Box plots of each metric per level, IT2 and type-1 side by side (runs that stayed up).
 
@@ -117,11 +128,8 @@ def plot_distributions(rows: list[dict], path) -> Path:
     """
     from matplotlib.patches import Patch
 
-    metrics = present_metrics(rows)
-    levels = sorted({float(r["level"]) for r in rows})
-    fig = _figure(4.2 * min(3, max(len(metrics), 1)), 3.4 * max(1, math.ceil(len(metrics) / 3)))
+    fig, metrics, levels = _metric_figure(rows, 3.4)
     if not metrics:
-        _empty(fig.add_subplot(1, 1, 1), "no run stayed up: no metric to show")
         return _save(fig, path)
     for ax, (key, label, unit, _) in zip(_grid(fig, len(metrics)), metrics):
         shown, infinite = [], 0
@@ -174,15 +182,12 @@ def plot_paired(rows: list[dict], path) -> Path:
     """
     from matplotlib import colormaps
 
-    metrics = present_metrics(rows)
-    levels = sorted({float(r["level"]) for r in rows})
+    fig, metrics, levels = _metric_figure(rows, 3.8)
+    if not metrics:
+        return _save(fig, path)
     cmap = colormaps["viridis"]
     colour = {lv: cmap(i / max(len(levels) - 1, 1)) for i, lv in enumerate(levels)}
     pairs = [(a, b) for a, b in _pairs(rows) if stayed_up(a) and stayed_up(b)]
-    fig = _figure(4.2 * min(3, max(len(metrics), 1)), 3.8 * max(1, math.ceil(len(metrics) / 3)))
-    if not metrics:
-        _empty(fig.add_subplot(1, 1, 1), "no run stayed up: no metric to show")
-        return _save(fig, path)
     for ax, (key, label, unit, _) in zip(_grid(fig, len(metrics)), metrics):
         pts = [(float(a["level"]), metric_value(b, key), metric_value(a, key)) for a, b in pairs]
         pts = [p for p in pts if p[1] is not None and p[2] is not None]

@@ -87,17 +87,14 @@ def sample_scenario(scenario: Scenario, root_seed: int, index: int) -> Sample:
 
     data = copy.deepcopy(scenario.data)
     base = data["plant"]["scale"]
-    values: dict = {}
     scale = dict(base)
     for name, step in zip(PERTURBABLE, steps):
         factor = float(np.clip(1.0 + step, *FACTOR_LIMITS)) if name in sw["parameters"] else 1.0
         total = base.get(name, 1.0) * factor
         if total != 1.0 or name in base:
             scale[name] = total
-        values[f"factor_{name}"] = total
     scale = clip_inertia_factors(scale, NOMINAL)
-    for name in PERTURBABLE:
-        values[f"factor_{name}"] = scale.get(name, 1.0)
+    values = {f"factor_{name}": scale.get(name, 1.0) for name in PERTURBABLE}
     data["plant"]["scale"] = scale
     if sw["initial_theta"] is not None:
         lo, hi = sw["initial_theta"]

@@ -16,11 +16,6 @@ METRIC_COLUMNS = ("fell", "settling_time_s", "theta_rms_rad", "oscillation_peak_
                   "final_distance_m", "final_heading_rad", "final_position_error_m", "final_heading_error_rad",
                   "iae_theta", "control_effort", "max_abs_torque_nm", "estimator_theta_rmse_rad",
                   "rejected_measurements", "duration_s", "end_reason")
-METRIC_UNITS = {"settling_time_s": "s", "theta_rms_rad": "rad", "oscillation_peak_to_peak_rad": "rad",
-                "final_theta_rad": "rad", "final_distance_m": "m", "final_heading_rad": "rad",
-                "final_position_error_m": "m", "final_heading_error_rad": "rad", "iae_theta": "rad·s",
-                "control_effort": "N²·m²·s", "max_abs_torque_nm": "N·m", "estimator_theta_rmse_rad": "rad",
-                "duration_s": "s", "level": "1"}
 
 
 def columns(value_columns) -> list[str]:

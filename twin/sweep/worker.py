@@ -53,17 +53,20 @@ def run_sample(job: SweepJob, index: int) -> dict:
         runs = {k: {**m, "success": success(m, scenario)} for k, m in result.metrics.items()}
     except Exception as exc:  # noqa: BLE001 -- a sample that errors is a result, kept with its message
         runs, error = {}, f"{type(exc).__name__}: {' '.join(str(exc).split())}"
-    return {"sample": index, "draw": sample.draw, "level": sample.level, "seed": sample.seed,
-            "values": sample.values, "runs": runs, "error": error, "wall_s": time.perf_counter() - t0}
+    return _record(sample, runs, error, time.perf_counter() - t0)
 
 
 def crash_record(job: SweepJob, index: int, why: str) -> dict:
     """The record of a sample whose worker died every time it ran it."""
     from twin.sweep.sampling import sample_scenario
 
-    sample = sample_scenario(job.scenario(), job.root_seed, index)
-    return {"sample": index, "draw": sample.draw, "level": sample.level, "seed": sample.seed,
-            "values": sample.values, "runs": {}, "error": why, "wall_s": 0.0}
+    return _record(sample_scenario(job.scenario(), job.root_seed, index), {}, why, 0.0)
+
+
+def _record(sample, runs: dict, error: str, wall_s: float) -> dict:
+    """What the store keeps of a sample: who it is, what was sampled, and each controller's metrics."""
+    return {"sample": sample.index, "draw": sample.draw, "level": sample.level, "seed": sample.seed,
+            "values": sample.values, "runs": runs, "error": error, "wall_s": wall_s}
 
 
 def ignore_sigint() -> None:
