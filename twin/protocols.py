@@ -1,0 +1,149 @@
+"""The data that flows around the closed loop, and the two contracts a user's code meets.
+
+One control period of :class:`twin.loop.ClosedLoop`::
+
+    plant (GroundTruth) → sensors (Measurement) → Estimator (Estimate)
+        → Controller (command: ul, ur [, signals]) → actuators → plant
+
+Everything is in SI units. The controllers' state is the 6-vector of the paper,
+
+    estimate = [θ, θ̇, ψ, ψ̇, α, α̇]   (rad, rad/s, rad, rad/s, rad, rad/s)
+
+θ the body's pitch from the vertical (positive leaning forward), ψ = (ψ_l + ψ_r) / 2 the
+mean wheel angle from the vertical (travelled distance p = r ψ), α the heading
+(positive turning left). The command is the two wheel torques (ul, ur) in N·m, positive
+driving the robot forward; the motors may deliver less (see :mod:`twin.actuators`).
+
+A controller or an estimator is any object with the methods of :class:`Controller` or
+:class:`Estimator` (structural typing: no base class to inherit). Built-in ones and
+one's own are named the same way, by :mod:`twin.registry`: a built-in name (``"it2"``,
+``"ekf"``, ...) or an import path ``"package.module:attribute"``. The loop checks the
+contract at every step and stops with a one-line :class:`twin.errors.PluginError` naming
+the object and what was expected.
+"""
+from __future__ import annotations
+
+from typing import Any, NamedTuple, Protocol, Sequence, runtime_checkable
+
+from twin.plant.bullet import GroundTruth
+from twin.sensors.suite import Measurement
+
+ESTIMATE_NAMES = ("theta", "theta_dot", "psi", "psi_dot", "alpha", "alpha_dot")
+ESTIMATE_UNITS = ("rad", "rad/s", "rad", "rad/s", "rad", "rad/s")
+
+
+class Estimate(NamedTuple):
+    """The controllers' state [θ, θ̇, ψ, ψ̇, α, α̇] (rad, rad/s, rad, rad/s, rad, rad/s) at one
+    control instant. Estimators may return any sequence of six floats instead."""
+
+    theta: float
+    theta_dot: float
+    psi: float
+    psi_dot: float
+    alpha: float
+    alpha_dot: float
+
+
+class Targets(NamedTuple):
+    """What the robot is asked to do: ``position`` p_d (m of travel, p = r ψ, from where it
+    started) and ``heading`` α_d (rad); None where that loop is off (balance only)."""
+
+    position: float | None = None
+    heading: float | None = None
+
+
+@runtime_checkable
+class Controller(Protocol):
+    """Turns the estimate into the two wheel torques, once per control period.
+
+    Attributes
+    ----------
+    signals : tuple of str, optional
+        Names of extra signals the call returns after the two torques, logged with the
+        run (for example the fuzzy cascade's ``("u", "theta_off", "u_alpha")``). Absent
+        means none.
+    signal_units : dict of str to str, optional
+        The unit of each extra signal (for CSV headers); absent means "1".
+
+    Methods
+    -------
+    reset(targets)
+        Called once before the first step of a run (and again for every new run or
+        episode). Clear any internal state (integrators, filters, previous inputs).
+    __call__(estimate, targets) -> sequence of float
+        ``estimate`` (6,) as in the module docstring; ``targets`` a :class:`Targets`.
+        Returns ``(ul, ur, *signals)``: the left and right wheel torque commands in N·m
+        followed by one finite value per entry of ``signals``. Anything else (another
+        length, a non-number, NaN or inf) stops the run with a one-line error.
+    """
+
+    def reset(self, targets: Targets) -> None: ...
+
+    def __call__(self, estimate: Sequence[float], targets: Targets) -> Sequence[float]: ...
+
+
+@runtime_checkable
+class Estimator(Protocol):
+    """Turns the sensor readings into the controllers' state, once per control period.
+
+    Methods
+    -------
+    start(measurement) -> sequence of 6 floats
+        The first readings (control step 0, the robot at rest on its wheels, tilted by
+        the initial θ); returns the first estimate [θ, θ̇, ψ, ψ̇, α, α̇].
+    step(measurement, command) -> sequence of 6 floats
+        The readings that arrived at this control instant (a
+        :class:`~twin.sensors.Measurement`: ``t`` s; ``gyro`` (3,) rad/s and ``accel``
+        (3,) m/s² in body axes, x forward, y left along the axle, z up the body;
+        ``encoders`` (2,) rad, each wheel's angle relative to the body since power-up,
+        quantised; a field is None when no new sample arrived, and may be NaN or stale
+        under faults) and ``command`` (ul, ur) in N·m, the torques commanded over the
+        period that just ended. Returns the estimate at this instant. A non-finite
+        value stops the run with a one-line error.
+
+    Optional hooks (the loop calls them only if they exist)
+    -------------------------------------------------------
+    covariance() -> ndarray (6, 6)
+        Covariance of the last estimate, in the units of the estimate squared.
+    stats() -> dict
+        Counts over the run so far, JSON-serialisable; ``"rejected_total"`` (int), if
+        present, is reported as the run's ``rejected_measurements``.
+    diagnostics() -> dict
+        What the last ``start``/``step`` did (for example the EKF's state, covariance and
+        normalised innovation). Asked for after every step when a run logs them; the
+        estimator owns and resets these values itself.
+
+    Attributes
+    ----------
+    reads_truth : bool, optional
+        True only for reference estimators that read ``measurement.truth`` (the ground
+        truth, attached for them alone); a real estimator never sees it.
+    """
+
+    def start(self, measurement: Measurement) -> Sequence[float]: ...
+
+    def step(self, measurement: Measurement, command: Sequence[float]) -> Sequence[float]: ...
+
+
+class StepResult(NamedTuple):
+    """What one control instant of :class:`twin.loop.ClosedLoop` holds.
+
+    ``truth`` the plant's ground truth; ``measurement`` what reached the estimator;
+    ``estimate`` (6,) what the controller is given; ``status`` "running", "fell" or
+    "diverged"; ``reason`` why it ended ("" while running)."""
+
+    truth: GroundTruth
+    measurement: Measurement
+    estimate: tuple
+    status: str
+    reason: str
+
+
+def describe_object(obj: Any) -> str:
+    """A short name for messages: the class's (or function's) qualified name."""
+    target = obj if isinstance(obj, type) or callable(obj) and hasattr(obj, "__qualname__") else type(obj)
+    return f"{getattr(target, '__module__', '?')}.{getattr(target, '__qualname__', repr(target))}"
+
+
+__all__ = ["Controller", "ESTIMATE_NAMES", "ESTIMATE_UNITS", "Estimate", "Estimator", "GroundTruth", "Measurement",
+           "StepResult", "Targets", "describe_object"]
