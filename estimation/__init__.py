@@ -3,48 +3,47 @@
 ``model``       what the estimator knows: equation (1), the motor driver, the sensors' models and noise
 ``ekf``         the extended Kalman filter (filterpy) with gating and latency handling
 ``baselines``   a complementary filter and the two-state angle-plus-bias Kalman filter of hobby robots
+``ideal``       the ground truth passed through (ideal sensing, a reference)
 ``consistency`` NEES, NIS and their χ² bounds
 
-:func:`build_estimator` makes any of them for a twin configuration.
+Each meets :class:`twin.protocols.Estimator`; the kinds and their names are in
+:mod:`twin.registry`, and :func:`build_estimator` makes any of them for a twin configuration.
 """
 from __future__ import annotations
 
 import importlib
 
-ESTIMATORS = ("ekf", "complementary", "kalman2")
 # filterpy and scipy load on first use, so that the command line starts quickly
 _LAZY = {"AngleBiasKalman": "baselines", "ComplementaryFilter": "baselines", "EKFEstimator": "ekf",
-         "Estimate": "ekf", "EstimatorModel": "model"}
+         "Estimate": "ekf", "EstimatorModel": "model", "IdealEstimator": "ideal"}
 
 
 def __getattr__(name: str):
+    if name == "ESTIMATORS":  # the built-in kinds, from the registry
+        from twin.registry import ESTIMATORS
+
+        return tuple(ESTIMATORS)
     if name in _LAZY:
         return getattr(importlib.import_module(f"estimation.{_LAZY[name]}"), name)
     raise AttributeError(f"module 'estimation' has no attribute {name!r}")
 
 
 def build_estimator(kind: str, sensors, control_rate: float, motor, params, alpha0: float = 0.0,
-                    compiled: bool | None = None):
-    """An estimator of ``kind`` (one of :data:`ESTIMATORS`) for these sensors.
+                    compiled: bool | None = None, **options):
+    """An estimator of ``kind`` (a built-in name or ``"package.module:attribute"``, see
+    :mod:`twin.registry`) for these sensors.
 
-    ``sensors`` a :class:`twin.sensors.SensorConfig`; ``control_rate`` Hz; ``motor`` the
-    motors' specification (or None); ``params`` the robot model the estimator assumes;
-    ``alpha0`` the initial heading (rad); ``compiled`` the EKF's implementation (see
-    :class:`estimation.ekf.EKFEstimator`; the baselines have one).
+    ``sensors`` a :class:`twin.sensors.SensorConfig` (None: only ``"ideal"``); ``control_rate`` Hz;
+    ``motor`` the motors' specification (or None); ``params`` the robot model the estimator
+    assumes; ``alpha0`` the initial heading (rad); ``compiled`` the EKF's implementation (see
+    :class:`estimation.ekf.EKFEstimator`); ``options`` the estimator's own parameters.
     """
-    from estimation.baselines import AngleBiasKalman, ComplementaryFilter
-    from estimation.ekf import EKFEstimator
-    from estimation.model import EstimatorModel
-    from twin.errors import TwinError
+    from twin.protocols import Targets
+    from twin.registry import BuildContext, build_estimator as build
 
-    if kind not in ESTIMATORS:
-        raise TwinError(f"estimator must be one of {', '.join(ESTIMATORS)}, got {kind!r}")
-    if kind == "ekf":
-        every, d_imu, d_enc = sensors.steps(control_rate)
-        model = EstimatorModel(params, motor, sensors.imu, sensors.encoders, control_rate)
-        return EKFEstimator(model, every, d_imu, d_enc, alpha0=alpha0, compiled=compiled)
-    cls = ComplementaryFilter if kind == "complementary" else AngleBiasKalman
-    return cls(control_rate, params.r, params.b, alpha0)
+    if compiled is not None:
+        options["compiled"] = compiled
+    return build(kind, options, BuildContext(control_rate, params, motor, sensors, Targets(), alpha0))
 
 
 def replay(estimator, run, measurements=None):

@@ -89,14 +89,13 @@ from __future__ import annotations
 
 import math
 import os
-from typing import NamedTuple
-
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from scipy.stats import chi2
 
 from estimation.model import TORQUE_TOLERANCE, EstimatorModel
 from twin.errors import TwinError
+from twin.protocols import Estimate
 
 STATE_NAMES = ("theta", "psi", "imu_speed", "alpha", "gyro_bias_y", "gyro_bias_z", "encoder_zero", "gyro_scale_y",
                "encoder_heading_zero", "gyro_scale_z", "accel_scale_x", "accel_scale_z")
@@ -119,17 +118,6 @@ def finite_reading(v) -> bool:
     # a finite sum proves every value finite (NaN and ±inf propagate); only a sum that
     # overflowed from huge finite values needs the values one by one
     return v is not None and (math.isfinite(sum(v)) or all(map(math.isfinite, v)))
-
-
-class Estimate(NamedTuple):
-    """The controllers' state [θ, θ̇, ψ, ψ̇, α, α̇] (rad, rad/s) at one control instant."""
-
-    theta: float
-    theta_dot: float
-    psi: float
-    psi_dot: float
-    alpha: float
-    alpha_dot: float
 
 
 class TwinEKF(ExtendedKalmanFilter):
@@ -318,6 +306,18 @@ class EKFEstimator:
         C[5, 5] += w * q_z * q_z
         return 0.5 * (C + C.T)
 
+    def covariance(self) -> np.ndarray:
+        """The :class:`twin.protocols.Estimator` hook: :meth:`covariance6`."""
+        return self.covariance6()
+
+    def diagnostics(self) -> dict:
+        """The :class:`twin.protocols.Estimator` hook, about the last start/step: the filter's
+        state ``x`` (12,) and covariance ``P`` (12, 12) at its own time t_{k − lag}, the
+        encoder update's ``nis`` (NaN where none was tried) with ``nis_dof`` (the number of
+        wheels whose count changed; 0 where none was tried), and ``lag`` (control periods)."""
+        return {"x": self.x.copy(), "P": self.P.copy(), "nis": self.last_nis, "nis_dof": self.last_dof,
+                "lag": self.lag}
+
     def stats(self) -> dict:
         return {"accepted": dict(self.accepted), "rejected": dict(self.rejected),
                 "rejected_total": self.rejected_total, "predict_only_steps": self.predict_only,
@@ -357,6 +357,7 @@ class EKFEstimator:
             P[i, SAX] = P[SAX, i] = -sc * self._a_sf
             P[i, SAZ] = P[SAZ, i] = sc * self._a_sf
         self.kf.x, self.kf.P = x, P
+        self.last_nis, self.last_dof = math.nan, 0
         self._w = self._w_prev = (meas.gyro[1], meas.gyro[2])
         self.k, self.m = 0, 0
         self._store(meas, 0)
@@ -377,6 +378,7 @@ class EKFEstimator:
         if self.k < 0:
             raise TwinError("call start() with the first measurement before step()")
         k = self.k = self.k + 1
+        self.last_nis, self.last_dof = math.nan, 0  # diagnostics() reports this step's update alone
         self._commands[k - 1] = (float(command[0]), float(command[1]))
         self._store(meas, k)
         m = k - self.lag

@@ -13,44 +13,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from twin.controllers.balance import PDCBalanceController
-from twin.controllers.cascade import DEFAULT_PSI_ERROR_LIMIT, FuzzyCascade
+from twin.controllers.cascade import build_cascade
 from twin.controllers.lmi import BalanceDesign, design_balance_gains
-from twin.controllers.mamdani import DEFAULT_FOU, direction_controller, position_controller
 from twin.errors import TwinError
+from twin.experiments import PAPER_EXPERIMENTS, Experiment
 from twin.metrics import settling_time
 from twin.params import NOMINAL, RobotParams
 from twin.plant.analytic import STATE_NAMES, STATE_UNITS, rk4_step
 from twin.timing import steps_per_control
-
-
-@dataclass(frozen=True)
-class Experiment:
-    """Initial state and targets of a run. ``p_d`` in m, ``alpha_d`` in rad (None: loop off)."""
-
-    name: str
-    description: str
-    theta0: float = 0.48  # rad
-    p_d: float | None = None
-    alpha_d: float | None = None
-    duration: float = 15.0  # s
-
-
-PAPER_EXPERIMENTS = {
-    1: Experiment("paper-exp1", "balance only from θ0 = 0.48 rad"),
-    2: Experiment("paper-exp2", "balance + position, p_d = 0.7 m", p_d=0.7),
-    3: Experiment("paper-exp3", "balance + position + direction, p_d = 1 m, α_d = 1.5 rad", p_d=1.0, alpha_d=1.5),
-}
-
-
-def build_cascade(kind: str, design: BalanceDesign, experiment: Experiment, params: RobotParams = NOMINAL,
-                  fou: float = DEFAULT_FOU, type_reduction: str = "bmm",
-                  psi_error_limit: float = DEFAULT_PSI_ERROR_LIMIT) -> FuzzyCascade:
-    """The IT2 (``kind="it2"``) or type-1 (``"t1"``) controllers an experiment needs."""
-    balance = PDCBalanceController(design.gains, kind)
-    position = position_controller(kind, fou, type_reduction) if experiment.p_d is not None else None
-    direction = direction_controller(kind, fou, type_reduction) if experiment.alpha_d is not None else None
-    return FuzzyCascade(balance, position, direction, params.r, psi_error_limit)
 
 
 @dataclass
@@ -110,7 +80,7 @@ class AnalyticRun:
         return out
 
 
-def simulate(controller: FuzzyCascade, experiment: Experiment, params: RobotParams = NOMINAL,
+def simulate(controller, experiment: Experiment, params: RobotParams = NOMINAL,
              duration: float | None = None, physics_dt: float = 0.001, control_dt: float = 0.005,
              x0=None, disturbance=None, controller_name: str = "") -> AnalyticRun:
     """Run ``controller`` on the analytic plant ``params`` (the "true plant").
@@ -130,19 +100,22 @@ def simulate(controller: FuzzyCascade, experiment: Experiment, params: RobotPara
         if x.shape != (8,) or not np.all(np.isfinite(x)):
             raise TwinError(f"x0 must be 8 finite numbers {STATE_NAMES}, got shape {x.shape}")
         x = x.copy()
+    targets = experiment.targets
+    if hasattr(controller, "reset"):
+        controller.reset(targets)
     log = np.empty((n_ctrl + 1, 8))
     cmds = np.zeros((n_ctrl + 1, 5))
     for i in range(n_ctrl + 1):
         log[i] = x
         if not np.all(np.isfinite(x)):
             raise TwinError(f"the analytic simulation diverged at t = {i * control_dt:.3f} s")
-        c = controller(x, experiment.p_d, experiment.alpha_d)
-        cmds[i] = (c.ul, c.ur, c.u, c.theta_off, c.u_alpha)
+        c = tuple(controller(x, targets))  # (ul, ur, *signals); the cascade's signals are u, θ_off, u_α
+        cmds[i, :min(5, len(c))] = c[:5]
         if i == n_ctrl:
             break
         for j in range(k):
             tau = None if disturbance is None else disturbance((i * k + j) * physics_dt)
-            x = rk4_step(x, c.ul, c.ur, params, physics_dt, tau)
+            x = rk4_step(x, c[0], c[1], params, physics_dt, tau)
     t = np.arange(n_ctrl + 1) * control_dt
     return AnalyticRun(t, log, cmds[:, 0], cmds[:, 1], cmds[:, 2], cmds[:, 3], cmds[:, 4], params, experiment,
                        controller_name)
@@ -155,5 +128,5 @@ def run_paper_experiment(number: int, kind: str = "it2", design: BalanceDesign |
         raise TwinError(f"paper experiment must be 1, 2 or 3, got {number!r}")
     exp = PAPER_EXPERIMENTS[number]
     design = design or design_balance_gains(model)
-    ctrl = build_cascade(kind, design, exp, model)
+    ctrl = build_cascade(kind, design, exp.targets, model)
     return simulate(ctrl, exp, plant, controller_name=kind, **kwargs)

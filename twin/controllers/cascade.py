@@ -28,18 +28,20 @@ because Table I normalises p_e by 3 m (0.7 m is 0.23 of the range, so θ_off sta
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import NamedTuple
 
 from twin.controllers.balance import PDCBalanceController
-from twin.controllers.mamdani import ScaledFLS
+from twin.controllers.mamdani import DEFAULT_FOU, ScaledFLS, direction_controller, position_controller
 from twin.errors import TwinError
+from twin.params import NOMINAL, RobotParams
+from twin.protocols import Targets
 
 DEFAULT_PSI_ERROR_LIMIT = 1.0  # rad of wheel rotation (4 cm of travel on the nominal wheel)
 
 
-@dataclass(frozen=True)
-class Command:
-    """One control step's output and intermediate signals (for logging)."""
+class Command(NamedTuple):
+    """One control step's output (ul, ur) and intermediate signals (for logging): a tuple
+    ``(ul, ur, *signals)`` as :class:`twin.protocols.Controller` asks."""
 
     ul: float  # N·m
     ur: float  # N·m
@@ -51,6 +53,10 @@ class Command:
 class FuzzyCascade:
     """Balance, position and direction controllers combined as in the paper's Fig. 4.
 
+    Meets :class:`twin.protocols.Controller`: ``cascade(estimate, targets)`` returns a
+    :class:`Command` (ul, ur, u, θ_off, u_α), whose last three entries are the logged
+    ``signals``.
+
     Parameters
     ----------
     balance : PDCBalanceController
@@ -61,6 +67,9 @@ class FuzzyCascade:
     psi_error_limit : float
         Clip of the PDC's ψ-error channel in rad (see the module docstring).
     """
+
+    signals = ("u", "theta_off", "u_alpha")
+    signal_units = {"u": "N·m", "theta_off": "rad", "u_alpha": "N·m"}
 
     def __init__(self, balance: PDCBalanceController, position: ScaledFLS | None = None,
                  direction: ScaledFLS | None = None, wheel_radius: float = 0.04,
@@ -75,8 +84,12 @@ class FuzzyCascade:
         self.r = float(wheel_radius)
         self.psi_error_limit = float(psi_error_limit)
 
-    def __call__(self, state, p_d: float | None = None, alpha_d: float | None = None) -> Command:
-        """Wheel torques for ``state`` = [θ, θ̇, ψ, ψ̇, α, α̇] and targets p_d (m), α_d (rad)."""
+    def reset(self, targets: Targets = Targets()) -> None:
+        """Nothing to clear: the cascade is memoryless (a static map of the estimate)."""
+
+    def __call__(self, state, targets: Targets = Targets()) -> Command:
+        """Wheel torques for ``state`` = [θ, θ̇, ψ, ψ̇, α, α̇] and ``targets`` p_d (m), α_d (rad)."""
+        p_d, alpha_d = targets
         theta, theta_dot, psi, psi_dot, alpha, alpha_dot = (float(v) for v in state[:6])
         theta_off = 0.0
         psi_e = psi
@@ -91,3 +104,18 @@ class FuzzyCascade:
             u_alpha = self.direction(alpha - alpha_d, alpha_dot)
         u_p = 0.5 * u
         return Command(u_p - u_alpha, u_p + u_alpha, u, theta_off, u_alpha)
+
+
+def build_cascade(kind: str, design, targets: Targets = Targets(), params: RobotParams = NOMINAL,
+                  fou: float = DEFAULT_FOU, type_reduction: str = "bmm",
+                  psi_error_limit: float = DEFAULT_PSI_ERROR_LIMIT) -> FuzzyCascade:
+    """The IT2 (``kind="it2"``) or type-1 (``"t1"``) cascade with the balance gains of
+    ``design`` (a :class:`~twin.controllers.lmi.BalanceDesign`), on the model ``params``.
+
+    The position and direction controllers are built for the loops ``targets`` closes
+    (a target of None leaves that loop off, as the paper's experiments 1 and 2 do).
+    """
+    balance = PDCBalanceController(design.gains, kind)
+    position = position_controller(kind, fou, type_reduction) if targets.position is not None else None
+    direction = direction_controller(kind, fou, type_reduction) if targets.heading is not None else None
+    return FuzzyCascade(balance, position, direction, params.r, psi_error_limit)

@@ -497,6 +497,11 @@ class BulletTwin:
         """Simulated time in s."""
         return self.n_physics * self.physics_dt
 
+    @property
+    def com_local(self) -> tuple[float, float, float]:
+        """The body's centre of mass in the body frame (x forward, y left, z up from the axle), m."""
+        return self._com_local
+
     # ---- stepping ----------------------------------------------------------------------
     def step(self, ul: float, ur: float) -> GroundTruth:
         """Apply the torque commands ``ul``, ``ur`` (N·m) for one control period.

@@ -25,12 +25,11 @@ from pathlib import Path
 from twin.errors import TwinError
 from twin.scenarios.scenario import Scenario
 
-CONTROLLERS = ("it2", "t1")
-
 
 @dataclass
 class ScenarioResult:
-    """What :func:`run_scenario` produced: the runs, their metrics, the files written and timings (s)."""
+    """What :func:`run_scenario` produced: the runs, their metrics, the plugins loaded (their
+    provenance), the files written and timings (s)."""
 
     scenario: Scenario
     runs: list
@@ -38,58 +37,94 @@ class ScenarioResult:
     files: list = field(default_factory=list)
     timings: dict = field(default_factory=dict)
     video: object = None
+    plugins: list = field(default_factory=list)
+    design: object = None
 
 
-def controllers_of(choice: str) -> tuple[str, ...]:
-    if choice == "both":
-        return CONTROLLERS
-    if choice not in CONTROLLERS:
-        raise TwinError(f"controller must be it2, t1 or both, got {choice!r}")
-    return (choice,)
+def controllers_of(choice: str | None, scenario: Scenario | None = None) -> tuple[str, ...]:
+    """The controller kinds of ``--controller CHOICE`` ("both", or a comma-separated list of
+    built-in names and import paths); None: the scenario's ``controller.kinds``."""
+    from twin.registry import parse_controllers
+
+    if choice is None:
+        return scenario.controllers if scenario is not None else ("it2", "t1")
+    return parse_controllers(choice)
 
 
-def run_scenario(scenario: Scenario, controllers=CONTROLLERS, out: Path | None = None, video: bool | None = None,
+def plugins_of(scenario: Scenario, controllers) -> list[dict]:
+    """The provenance (module, file, SHA-256) of every import-path kind a run of ``scenario``
+    with ``controllers`` loads (:func:`twin.registry.provenance`)."""
+    from twin.registry import provenance
+
+    found = [provenance("controller", k) for k in controllers] + [provenance("estimator", scenario.estimator)]
+    return [p for p in found if p is not None]
+
+
+def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, video: bool | None = None,
                  progress=None) -> ScenarioResult:
-    """Run ``scenario`` with each of ``controllers`` ("it2", "t1") on identical conditions.
+    """Run ``scenario`` with each of ``controllers`` (kinds; None: the scenario's
+    ``controller.kinds``) on identical conditions: same true plant, sensor seed,
+    estimator kind, pushes and faults.
 
     ``out``: the run directory (None: write nothing); ``video``: render the MP4 (None: as the
     scenario says); ``progress(stage, done, total)``: called as the runs and the video advance.
+    Nothing is written unless every run finished (a run that falls is a result; a plugin
+    that breaks its contract is an error).
     """
-    from twin.analytic_loop import build_cascade
     from twin.bullet_loop import simulate_twin
     from twin.metrics import run_metrics
 
+    kinds = tuple(controllers) if controllers is not None else scenario.controllers
+    if not kinds:
+        raise TwinError("run_scenario needs at least one controller kind")
     d = scenario.data
     exp = scenario.experiment()
     config = scenario.twin_config()
     sensors = scenario.sensor_config()
     timings = {}
-    t0 = time.perf_counter()
-    design = scenario.design()
-    timings["design_s"] = time.perf_counter() - t0
+    solved = []
+
+    def design():  # solved on first use: only the fuzzy cascades (or a plugin that asks) need it
+        if not solved:
+            t0 = time.perf_counter()
+            solved.append(scenario.design())
+            timings["design_s"] = time.perf_counter() - t0
+        return solved[0]
+
+    context = scenario.build_context(uses_design=False)
+    from dataclasses import replace
+
+    context = replace(context, design=design)
+    plugins = plugins_of(scenario, kinds)
     runs, metrics = [], {}
-    for kind in controllers:
+    for kind in kinds:
+        controller = scenario.build_controller(kind, context)
         cb = None if progress is None else (lambda done, total, k=kind: progress(f"run {k}", done, total))
         t0 = time.perf_counter()
-        run = simulate_twin(build_cascade(kind, design, exp, **scenario.cascade_options()), exp, config,
-                            duration=scenario.duration, controller_name=kind, alpha0=d["initial"]["alpha"],
-                            position=(d["initial"]["x"], d["initial"]["y"]), sensors=sensors,
-                            estimator=d["sensors"]["estimator"], seed=scenario.seed, progress=cb)
+        run = simulate_twin(controller, exp, config, duration=scenario.duration, controller_name=kind,
+                            alpha0=d["initial"]["alpha"], position=(d["initial"]["x"], d["initial"]["y"]),
+                            sensors=sensors, estimator=scenario.build_estimator(context), seed=scenario.seed,
+                            model_params=context.model, progress=cb)
+        run.sensing = scenario.estimator
         timings[f"run_{kind}_s"] = time.perf_counter() - t0
         runs.append(run)
         metrics[kind] = run_metrics(run)
-    result = ScenarioResult(scenario, runs, metrics, timings=timings)
+    result = ScenarioResult(scenario, runs, metrics, timings=timings, plugins=plugins,
+                            design=solved[0] if solved else None)
     if out is None:
         return result
     from twin import report
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    doc = {"scenario": d, "source": scenario.source, "seed": scenario.seed, "runs": metrics}
-    result.files += [report.write_json(doc, out / "metrics.json"), write_trajectories_csv(runs, out / "trajectory.csv"),
-                     report.write_json(design.to_json_dict(), out / "design.json")]
+    doc = {"scenario": scenario.record(), "source": scenario.source, "seed": scenario.seed, "runs": metrics}
+    if plugins:
+        doc["plugins"] = plugins
+    result.files += [report.write_json(doc, out / "metrics.json"), write_trajectories_csv(runs, out / "trajectory.csv")]
+    if solved:
+        result.files.append(report.write_json(solved[0].to_json_dict(), out / "design.json"))
     title = f"{scenario.name}: {scenario.description}\nseed {scenario.seed}, " + (
-        "ideal sensing" if sensors is None else f"{d['sensors']['estimator']} estimator in the loop")
+        "ideal sensing" if sensors is None else f"{scenario.estimator} estimator in the loop")
     result.files.append(report.plot_runs(runs, out / "figure.png", title))
     if video if video is not None else d["video"]["enabled"]:
         from twin.render import render_video
@@ -104,14 +139,23 @@ def run_scenario(scenario: Scenario, controllers=CONTROLLERS, out: Path | None =
 
 
 def write_trajectories_csv(runs, path: Path) -> Path:
-    """Every logged signal of every run, one row per control step, units in the header."""
-    names, units, _ = runs[0].columns()
+    """Every logged signal of every run, one row per control step, units in the header.
+
+    Controllers may log different extra signals: the columns are their union, in the order
+    first met, and a run leaves the columns it does not log empty."""
+    names, units = [], []
+    for run in runs:
+        for n, u in zip(*run.columns()[:2]):
+            if n not in names:
+                names.append(n)
+                units.append(u)
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
         w.writerow(["controller"] + [f"{n} [{u}]" for n, u in zip(names, units)])
         for run in runs:
-            _, _, data = run.columns()
+            own, _, data = run.columns()
+            where = [own.index(n) if n in own else None for n in names]
             for row in data:
-                w.writerow([run.controller] + [repr(float(v)) for v in row])
+                w.writerow([run.controller] + ["" if j is None else repr(float(row[j])) for j in where])
     return path

@@ -9,6 +9,7 @@ involve several keys (a control rate that does not divide the physics rate, ...)
 """
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -43,6 +44,10 @@ class Key:
     doc: str = ""
     keys: dict = field(default_factory=dict)
     nullable: bool = False  # absent means None
+    role: str = ""  # kind, kinds: "controller" or "estimator" (checked by twin.registry)
+    # Keys added after 0.1.0 are left out of a run's record (metrics.json) while at their
+    # default, so that the record of a run that does not use them stays byte-identical.
+    recorded_at_default: bool = True
 
 
 def _f(default=REQUIRED, lo=-math.inf, hi=math.inf, unit="", doc="", lo_open=False, nullable=False):
@@ -85,6 +90,12 @@ SCHEMA: dict[str, Key] = {
                       doc="heading target α_d; absent: no direction loop"),
     }),
     "controller": Key("table", keys={
+        "kinds": Key("kinds", ("it2", "t1"), role="controller", recorded_at_default=False,
+                     doc="the controllers run on identical conditions: built-in names (it2, t1, lqr) or "
+                         "import paths 'package.module:attribute' (runs that module's code)"),
+        "params": Key("params", {}, recorded_at_default=False,
+                      doc="[controller.params.KIND]: keyword arguments for building controller KIND "
+                          "(quote a KIND with dots or a colon)"),
         "fou": _f(DEFAULT_FOU, 0.0, 0.95, "1", doc="IT2 footprint of uncertainty of the Mamdani sets (0: type-1 shaped)"),
         "type_reduction": Key("str", "bmm", choices=TYPE_REDUCERS, doc="BMM (the paper), Nie–Tan or exact Karnik–Mendel"),
         "psi_error_limit": _f(DEFAULT_PSI_ERROR_LIMIT, 0.0, 100.0, "rad", lo_open=True, doc="clip of the wheel-angle error"),
@@ -119,7 +130,11 @@ SCHEMA: dict[str, Key] = {
     "sensors": Key("table", keys={
         "sensing": Key("str", "estimated", choices=("estimated", "ideal"),
                        doc="the controllers act on the estimator's output, or read the truth (a reference)"),
-        "estimator": Key("str", "ekf", choices=("ekf", "complementary", "kalman2")),
+        "estimator": Key("kind", "ekf", role="estimator",
+                         doc="built-in (ekf, complementary, kalman2, ideal) or 'package.module:attribute' "
+                             "(runs that module's code)"),
+        "estimator_params": Key("params", {}, recorded_at_default=False,
+                                doc="keyword arguments for building the estimator"),
         "imu_rate": _f(200.0, 0.0, 1e5, "Hz", lo_open=True, doc="must divide the control rate"),
         "imu_latency": _f(0.005, 0.0, 1.0, "s", doc="a whole number of control periods"),
         "encoder_counts": Key("int", 1200, 4, 10_000_000, doc="counts per wheel revolution"),
@@ -229,6 +244,27 @@ def _value(v, key: Key, path: str):
         if len(set(v)) != len(v):
             raise ScenarioError(f"{path}: names repeat in {list(v)!r}; allowed: each at most once")
         return tuple(v)
+    if k in ("kind", "kinds"):
+        from twin.registry import check_kind
+
+        items = [v] if k == "kind" else v
+        if k == "kinds" and (not isinstance(v, (list, tuple)) or not v):
+            raise ScenarioError(f"{path}: must be a non-empty list of {key.role} kinds, got {v!r}")
+        for i, item in enumerate(items):
+            where = path if k == "kind" else f"{path}[{i}]"
+            if not isinstance(item, str):
+                raise ScenarioError(f"{where}: must be a string naming a {key.role}, got {item!r}")
+            try:
+                check_kind(key.role, item)
+            except TwinError as exc:
+                raise ScenarioError(f"{where}: {exc}") from None
+        if k == "kinds" and len(set(items)) != len(items):
+            raise ScenarioError(f"{path}: a kind is repeated in {list(items)!r}; allowed: each at most once")
+        return v if k == "kind" else tuple(items)
+    if k == "params":
+        if not isinstance(v, dict):
+            raise ScenarioError(f"{path}: must be a table of keyword arguments, got {v!r}")
+        return copy.deepcopy(v)
     if k == "table":
         return _table(v, key.keys, path)
     if k == "tables":
@@ -276,6 +312,30 @@ def validate(raw: dict) -> dict:
     return _table(raw, SCHEMA, "")
 
 
+def record(data: dict, keys: dict[str, Key] | None = None) -> dict:
+    """``data`` as a run records it: keys with ``recorded_at_default=False`` left out while at
+    their default (see :class:`Key`)."""
+    keys = SCHEMA if keys is None else keys
+    out = {}
+    for name, value in data.items():
+        key = keys.get(name)
+        if key is None:
+            out[name] = value
+        elif not key.recorded_at_default and _same(value, key.default):
+            continue
+        elif key.kind == "table" and isinstance(value, dict):
+            out[name] = record(value, key.keys)
+        else:
+            out[name] = value
+    return out
+
+
+def _same(value, default) -> bool:
+    if isinstance(default, tuple) and isinstance(value, (list, tuple)):
+        return tuple(value) == default
+    return value == default
+
+
 def lookup(path: str) -> Key:
     """The :class:`Key` at dotted ``path`` (for ``--set``); a one-line error if there is none."""
     keys, key = SCHEMA, None
@@ -286,6 +346,8 @@ def lookup(path: str) -> Key:
             allowed = ", ".join(keys) if keys else "none (not a table)"
             raise ScenarioError(f"--set {path}: unknown key {part!r} in {where}; allowed: {allowed}")
         key = keys[part]
+        if key.kind == "params":  # free keyword arguments: anything below is the plugin's to check
+            return key
         keys = key.keys if key.kind == "table" else (
             {c: Key("float", lo=key.lo, hi=key.hi, unit=key.unit) for c in key.choices} if key.kind == "map" else None)
     return key
@@ -307,6 +369,10 @@ def describe() -> list[tuple[str, str, str, str]]:
                 continue
             kind = key.kind + (_range(key) if key.kind in ("float", "int", "vec3", "map", "floats", "range")
                                else _choices(key))
+            if key.kind in ("kind", "kinds"):
+                kind = f"{key.role} kind" + ("s (list)" if key.kind == "kinds" else "")
+            elif key.kind == "params":
+                kind = "table (any keys)"
             default = "required" if key.default is REQUIRED else ("absent" if key.default is None else repr(key.default))
             rows.append((p, kind, default, key.doc))
 

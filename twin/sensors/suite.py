@@ -83,6 +83,7 @@ class Measurement(NamedTuple):
     gyro: tuple | None  # rad/s, body axes (x forward, y along the axle to the left, z up the body)
     accel: tuple | None  # m/s², specific force, body axes
     encoders: tuple | None  # rad, (left, right) wheel angle relative to the body since power-up
+    truth: object = None  # the GroundTruth at t, attached only for estimators with reads_truth = True
 
 
 class _Channel:

@@ -1,0 +1,265 @@
+"""The steppable closed loop on the PyBullet twin: plant → sensors → estimator → controller → actuators.
+
+:class:`ClosedLoop` is the one loop every consumer drives: :func:`twin.bullet_loop.simulate_twin`
+(and through it the scenario runner and the sweeps), the Gymnasium environment and a
+user's own script or test.
+
+One control period (T = 1 / control_rate, a whole number of physics steps)::
+
+    loop.reset(seed)          # instant 0: truth, readings, estimator.start → estimate
+    while loop.status == "running":
+        u = loop.command()    # the controller on the current estimate: (ul, ur, *signals)
+        loop.step(u)          # apply (ul, ur) N·m for T; instant k+1: truth, readings, estimate
+
+``step(command)`` takes any (ul, ur) in N·m (the torques a reinforcement-learning agent
+chooses, say); without one it asks the controller. At every instant the loop exposes
+:attr:`truth` (:class:`~twin.plant.bullet.GroundTruth`), :attr:`measurement` (what
+reached the estimator), :attr:`estimate` (6,) and, after a step, :attr:`actuation` and
+:attr:`push_force` (what the motors and pushes did over the period).
+
+Sensing. With a :class:`~twin.sensors.SensorConfig` the IMU and encoders are simulated
+with their noise and faults, drawn from ``numpy.random.default_rng(SeedSequence(seed))``
+and nothing else; with ``sensors=None`` nothing is measured and each measurement
+carries only its time. An estimator that declares ``reads_truth = True`` (the ``ideal``
+reference) also gets the ground truth in ``measurement.truth``; no other does.
+
+Contracts. The controller's output and the estimator's are checked at every step; a
+wrong length, a non-number or a non-finite value stops the run with a one-line
+:class:`~twin.errors.PluginError` naming the object.
+"""
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import numpy as np
+
+from twin.errors import PluginError, TwinError
+from twin.plant.bullet import BulletTwin, TwinConfig
+from twin.protocols import StepResult, Targets, describe_object
+from twin.sensors import Measurement, SensorConfig, SensorSuite, imu_kinematics
+
+_IDLE = "idle"
+
+
+class ClosedLoop:
+    """The twin with sensors, an estimator and (optionally) a controller, one control period per step.
+
+    Parameters
+    ----------
+    config : TwinConfig
+        The true plant, rates, motors, floor and disturbances.
+    estimator : Estimator
+        Meets :class:`twin.protocols.Estimator`; reused by every :meth:`reset` (its
+        ``start`` begins a new run).
+    controller : Controller or None
+        Meets :class:`twin.protocols.Controller`; None: every :meth:`step` needs a command.
+    sensors : SensorConfig or None
+        The IMU, encoders and faults; None: nothing is measured (use the ``ideal`` estimator).
+    targets : Targets
+        p_d (m) and α_d (rad) handed to the controller; None where that loop is off.
+    theta0, alpha0 : float
+        Initial pitch and heading, rad.
+    position : (float, float)
+        Initial axle midpoint (x, y) in m.
+    """
+
+    def __init__(self, config: TwinConfig | None, estimator, controller=None, sensors: SensorConfig | None = None,
+                 targets: Targets = Targets(), theta0: float = 0.0, alpha0: float = 0.0, position=(0.0, 0.0)):
+        self.config = config if config is not None else TwinConfig()
+        if sensors is not None and not isinstance(sensors, SensorConfig):
+            raise TwinError(f"sensors must be a SensorConfig or None (nothing measured), got {sensors!r}")
+        if sensors is not None:
+            sensors.steps(self.config.control_rate)  # rates and latencies fit the control period: check first
+        if not isinstance(targets, Targets):
+            raise TwinError(f"targets must be a twin.protocols.Targets(position, heading), got {targets!r}")
+        from twin.registry import check_protocol
+
+        check_protocol("estimator", describe_object(estimator), estimator)
+        if controller is not None:
+            check_protocol("controller", describe_object(controller), controller)
+        self.estimator = estimator
+        self.controller = controller
+        self.sensors = sensors
+        self.targets = targets
+        self.theta0, self.alpha0, self.position = float(theta0), float(alpha0), tuple(position)
+        self.control_dt = 1.0 / self.config.control_rate
+        self.signals = tuple(getattr(controller, "signals", ())) if controller is not None else ()
+        self._n_out = 2 + len(self.signals)
+        self._attach_truth = bool(getattr(estimator, "reads_truth", False))
+        self.twin: BulletTwin | None = None
+        self.suite: SensorSuite | None = None
+        self.k = 0
+        self.truth = self.measurement = self.estimate = None
+        self.true_gyro_bias = None
+        self.seed: int | None = None
+        self._command = None
+
+    # ---- life cycle ---------------------------------------------------------------------------
+    def reset(self, seed: int = 0) -> StepResult:
+        """Build a new twin at the initial state and take the readings of instant 0.
+
+        ``seed`` (int ≥ 0) seeds the sensors' noise and faults. The estimator's ``start``
+        and the controller's ``reset`` are called; returns instant 0.
+        """
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise TwinError(f"seed must be a non-negative integer, got {seed!r}")
+        self.close()
+        self.seed = int(seed)
+        self.twin = twin = BulletTwin(self.config, theta0=self.theta0, alpha0=self.alpha0, position=self.position)
+        self.k = 0
+        self._command = None
+        tr = self.truth = twin.truth
+        if self.sensors is not None:
+            cfg = self.config
+            self.suite = suite = SensorSuite(self.sensors, cfg.control_rate,
+                                             np.random.default_rng(np.random.SeedSequence(self.seed)))
+            com = twin.com_local
+            imu_pos = self.sensors.imu.position
+            self._lever = (imu_pos[0] - com[0], imu_pos[1] - com[1], imu_pos[2] - com[2])
+            self._imu_dt = suite.every * self.control_dt
+            pose, vel = self._last_imu = twin.kinematics  # the body at rest before t = 0
+            self._imu = imu_kinematics(pose, vel, pose, vel, self._imu_dt, self._lever, cfg.params.g)
+            suite.start(*self._imu, tr.psi_l - tr.theta, tr.psi_r - tr.theta)
+        else:
+            self.suite = None
+        self.measurement = self._read(tr)
+        self.estimate = self._check_estimate(self.estimator.start(self.measurement), "start")
+        if self.controller is not None:
+            self.controller.reset(self.targets)
+        return self.result()
+
+    def close(self) -> None:
+        """Disconnect the twin's PyBullet client (safe to call twice)."""
+        if self.twin is not None:
+            self.twin.close()
+            self.twin = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    # ---- one control period -------------------------------------------------------------------
+    def command(self) -> tuple:
+        """The controller's output on the current estimate, ``(ul, ur, *signals)`` (N·m, then
+        the controller's extra signals); computed once per instant."""
+        if self._command is None:
+            if self.controller is None:
+                raise TwinError("this loop has no controller: give step() the command (ul, ur) in N·m")
+            self._command = self._check_command(self.controller(self.estimate, self.targets))
+        return self._command
+
+    def step(self, command: Sequence[float] | None = None) -> StepResult:
+        """Apply ``command`` (ul, ur) in N·m (default: :meth:`command`) for one control period,
+        then read the sensors and run the estimator at the next instant."""
+        twin = self._require_running()
+        if command is None:
+            command = self.command()
+        elif command is not self._command:
+            command = self._check_command(command, external=True)
+        ul, ur = command[0], command[1]
+        tr = self.truth = twin.step(ul, ur)
+        self.k += 1
+        self._command = None
+        if twin.status == "diverged":  # a non-finite state: nothing more is read from it
+            return self.result()
+        self.measurement = self._read(tr)
+        self.estimate = self._check_estimate(self.estimator.step(self.measurement, (ul, ur)), "step")
+        return self.result()
+
+    def _read(self, tr) -> Measurement:
+        suite = self.suite
+        if suite is None:
+            self.true_gyro_bias = None
+            return Measurement(tr.t, None, None, None, tr if self._attach_truth else None)
+        k = self.k
+        if k % suite.every == 0:
+            if k > 0:
+                kin = self.twin.kinematics
+                self._imu = imu_kinematics(*kin, *self._last_imu, self._imu_dt, self._lever, self.config.params.g)
+                self._last_imu = kin
+            self.true_gyro_bias = suite.gyro.bias
+        else:
+            self.true_gyro_bias = None
+        meas = suite.read(k, *self._imu, tr.psi_l - tr.theta, tr.psi_r - tr.theta)
+        return meas._replace(truth=tr) if self._attach_truth else meas
+
+    # ---- contracts ----------------------------------------------------------------------------
+    def _check_estimate(self, est, where: str):
+        try:
+            ok = len(est) == 6 and math.isfinite(sum(est))
+        except TypeError:
+            ok = False
+        if not ok:
+            raise PluginError(f"estimator {describe_object(self.estimator)}: {where}() returned {_short(est)} at "
+                              f"t = {self.k * self.control_dt:.3f} s; expected 6 finite numbers "
+                              f"[θ, θ̇, ψ, ψ̇, α, α̇] (rad, rad/s)")
+        return est
+
+    def _check_command(self, out, external: bool = False):
+        n = 2 if external else self._n_out
+        try:
+            ok = len(out) == n and math.isfinite(sum(out))
+        except TypeError:
+            ok = False
+        if not ok:
+            who = "step(command)" if external else f"controller {describe_object(self.controller)}"
+            names = ", ".join(("ul", "ur") + (() if external else self.signals))
+            raise PluginError(f"{who} returned {_short(out)} at t = {self.k * self.control_dt:.3f} s; expected "
+                              f"{n} finite numbers ({names}; torques in N·m)")
+        return out
+
+    def _require_running(self) -> BulletTwin:
+        if self.twin is None:
+            raise TwinError("call reset(seed) before step()")
+        if self.twin.status != "running":
+            raise TwinError(f"the run has ended ({self.twin.status}: {self.twin.end_reason}); call reset(seed)")
+        return self.twin
+
+    # ---- what the loop exposes ----------------------------------------------------------------
+    @property
+    def status(self) -> str:
+        """"running", "fell" or "diverged" (``"idle"`` before the first reset)."""
+        return self.twin.status if self.twin is not None else _IDLE
+
+    @property
+    def end_reason(self) -> str:
+        return "" if self.twin is None or self.twin.status == "running" else self.twin.end_reason
+
+    @property
+    def t(self) -> float:
+        """Time of the current instant, s."""
+        return self.k * self.control_dt
+
+    @property
+    def actuation(self):
+        """What the motors did over the last period (:class:`~twin.plant.bullet.Actuation`)."""
+        return self.twin.actuation
+
+    @property
+    def push_force(self) -> tuple:
+        """Mean push force over the last period, N, world frame."""
+        return self.twin.push_force
+
+    def result(self) -> StepResult:
+        return StepResult(self.truth, self.measurement, self.estimate, self.status, self.end_reason)
+
+    def estimator_stats(self) -> dict:
+        """The estimator's ``stats()`` hook, or {} without one."""
+        hook = getattr(self.estimator, "stats", None)
+        return dict(hook()) if callable(hook) else {}
+
+    def diagnostics(self) -> dict | None:
+        """The estimator's ``diagnostics()`` hook for the last step, or None without one."""
+        hook = getattr(self.estimator, "diagnostics", None)
+        return hook() if callable(hook) else None
+
+
+def _short(v) -> str:
+    text = repr(v)
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+__all__ = ["ClosedLoop"]

@@ -1,0 +1,321 @@
+"""The one registry of controller and estimator kinds: built-in names and import paths.
+
+A *kind* is either a built-in name (:data:`CONTROLLERS`, :data:`ESTIMATORS`) or an import
+path ``"package.module:attribute"`` naming a user's class or factory function. Every
+place that accepts a kind (the Python API, scenario files, ``twin run --controller``,
+``twin sweep``, the Gymnasium environment) resolves it here, so the kind strings live
+here alone.
+
+Building one (:func:`build_controller`, :func:`build_estimator`): a built-in's factory,
+or the imported attribute, is called with the parameters as keyword arguments (a
+scenario's ``[controller.params.KIND]`` or ``[sensors.estimator_params]`` table), plus
+``context=`` (a :class:`BuildContext`: control rate, model, motor, sensors, targets,
+initial heading, balance design) if its signature has a parameter named ``context``.
+The result must meet :class:`twin.protocols.Controller` or
+:class:`twin.protocols.Estimator`; anything that goes wrong is one
+:class:`~twin.errors.PluginError` line naming the kind and what was expected.
+
+An import path runs that module's code, with the user's rights, exactly as
+``python -c "import package.module"`` would. :func:`provenance` records the module, its
+file and the file's SHA-256 so a result can be traced to the code that produced it.
+"""
+from __future__ import annotations
+
+import hashlib
+import importlib
+import inspect
+import re
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from twin.errors import PluginError, TwinError
+from twin.protocols import Targets
+
+_IMPORT_PATH = re.compile(r"^[A-Za-z_][\w]*(\.[A-Za-z_][\w]*)*:[A-Za-z_][\w]*(\.[A-Za-z_][\w]*)*$")
+
+
+@dataclass(frozen=True)
+class Kind:
+    """A built-in kind: its display ``label``, a one-line ``description`` and the ``factory``
+    called as ``factory(context, **params)``."""
+
+    name: str
+    label: str
+    description: str
+    factory: Callable = field(repr=False)
+
+
+@dataclass(frozen=True)
+class BuildContext:
+    """What a factory may use to build a controller or an estimator for one run.
+
+    ``control_rate`` Hz; ``model`` the :class:`~twin.params.RobotParams` the controllers and
+    the estimator assume (the nominal model, not the twin's true plant); ``motor`` the
+    motors' :class:`~twin.actuators.DCMotorParams` (None: ideal torque sources);
+    ``sensors`` the :class:`~twin.sensors.SensorConfig` (None: ideal sensing);
+    ``targets`` the run's :class:`~twin.protocols.Targets`; ``alpha0`` the initial heading
+    in rad; ``design`` a zero-argument callable returning the LMI balance design
+    (:class:`~twin.controllers.lmi.BalanceDesign`, solved on first use); ``options`` the
+    scenario's fuzzy-cascade options (``fou``, ``type_reduction``, ``psi_error_limit``).
+    """
+
+    control_rate: float = 200.0
+    model: Any = None
+    motor: Any = None
+    sensors: Any = None
+    targets: Targets = Targets()
+    alpha0: float = 0.0
+    design: Callable | None = field(default=None, repr=False)
+    options: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        if self.model is None:
+            from twin.params import NOMINAL
+
+            object.__setattr__(self, "model", NOMINAL)
+
+    def balance_design(self):
+        if self.design is None:
+            from twin.controllers.lmi import design_balance_gains
+
+            design = design_balance_gains(self.model)
+            object.__setattr__(self, "design", lambda: design)
+        return self.design()
+
+
+# ---- built-in controllers --------------------------------------------------------------------
+def _cascade(kind: str):
+    def build(ctx: BuildContext, fou=None, type_reduction=None, psi_error_limit=None):
+        from twin.controllers.cascade import build_cascade
+
+        o = dict(ctx.options)
+        for name, value in (("fou", fou), ("type_reduction", type_reduction), ("psi_error_limit", psi_error_limit)):
+            if value is not None:
+                o[name] = value
+        return build_cascade(kind, ctx.balance_design(), ctx.targets, ctx.model, **o)
+    return build
+
+
+def _lqr(ctx: BuildContext, **params):
+    from twin.controllers.lqr import LQRController
+
+    params.setdefault("psi_error_limit", ctx.options.get("psi_error_limit", _default_psi_limit()))
+    return LQRController(params=ctx.model, **params)
+
+
+def _default_psi_limit() -> float:
+    from twin.controllers.cascade import DEFAULT_PSI_ERROR_LIMIT
+
+    return DEFAULT_PSI_ERROR_LIMIT
+
+
+CONTROLLERS: dict[str, Kind] = {
+    "it2": Kind("it2", "IT2", "the paper's IT2 fuzzy cascade: IT2 PDC balance (LMI gains), IT2 Mamdani position "
+                "and direction controllers, BMM type reduction", _cascade("it2")),
+    "t1": Kind("t1", "type-1", "the type-1 fuzzy cascade of the same structure and gains", _cascade("t1")),
+    "lqr": Kind("lqr", "LQR", "LQR on the linearised nominal model (TS rule 1), Bryson's rule; LQR heading loop",
+                _lqr),
+}
+
+
+# ---- built-in estimators ---------------------------------------------------------------------
+def _needs_sensors(kind: str, ctx: BuildContext):
+    if ctx.sensors is None:
+        raise PluginError(f"estimator {kind!r} needs sensors, but sensing is ideal; use estimator 'ideal' or "
+                          "give a SensorConfig")
+    return ctx.sensors
+
+
+def _ekf(ctx: BuildContext, compiled=None, **params):
+    from estimation.ekf import EKFEstimator
+    from estimation.model import EstimatorModel
+
+    sensors = _needs_sensors("ekf", ctx)
+    every, d_imu, d_enc = sensors.steps(ctx.control_rate)
+    model = EstimatorModel(ctx.model, ctx.motor, sensors.imu, sensors.encoders, ctx.control_rate)
+    return EKFEstimator(model, every, d_imu, d_enc, alpha0=ctx.alpha0, compiled=compiled, **params)
+
+
+def _baseline(kind: str):
+    def build(ctx: BuildContext, **params):
+        from estimation.baselines import AngleBiasKalman, ComplementaryFilter
+
+        _needs_sensors(kind, ctx)
+        cls = ComplementaryFilter if kind == "complementary" else AngleBiasKalman
+        return cls(ctx.control_rate, ctx.model.r, ctx.model.b, ctx.alpha0, **params)
+    return build
+
+
+def _ideal(ctx: BuildContext):
+    from estimation.ideal import IdealEstimator
+
+    return IdealEstimator()
+
+
+ESTIMATORS: dict[str, Kind] = {
+    "ekf": Kind("ekf", "EKF", "the strapdown extended Kalman filter (IMU-driven, encoder-corrected, gated)", _ekf),
+    "complementary": Kind("complementary", "complementary", "complementary filter (a = 0.98) with odometry",
+                          _baseline("complementary")),
+    "kalman2": Kind("kalman2", "kalman2", "two-state angle-and-bias Kalman filter (TKJ Electronics) with odometry",
+                    _baseline("kalman2")),
+    "ideal": Kind("ideal", "ideal", "the ground truth passed through (a reference, not an estimator)", _ideal),
+}
+
+_ROLES = {"controller": CONTROLLERS, "estimator": ESTIMATORS}
+_METHODS = {"controller": ("reset", "__call__"), "estimator": ("start", "step")}
+_SIGNATURES = {"controller": "reset(targets) and __call__(estimate, targets)",
+               "estimator": "start(measurement) and step(measurement, command)"}
+
+
+def is_import_path(kind: str) -> bool:
+    """True for ``"package.module:attribute"``."""
+    return isinstance(kind, str) and bool(_IMPORT_PATH.match(kind))
+
+
+def check_kind(role: str, kind) -> str:
+    """``kind`` if it is a built-in name or a well-formed import path; else a one-line error."""
+    table = _ROLES[role]
+    if isinstance(kind, str) and (kind in table or is_import_path(kind)):
+        return kind
+    raise PluginError(f"{role} {kind!r} is neither a built-in ({', '.join(table)}) nor an import path "
+                      "'package.module:attribute'")
+
+
+def label(kind: str) -> str:
+    """The display name: the built-in's label, or the attribute of an import path."""
+    for table in _ROLES.values():
+        if kind in table:
+            return table[kind].label
+    return kind.rsplit(":", 1)[-1] if is_import_path(kind) else kind
+
+
+def resolve(role: str, kind: str) -> tuple[Callable, bool]:
+    """(factory, is_plugin): the built-in's factory, or the imported attribute."""
+    kind = check_kind(role, kind)
+    table = _ROLES[role]
+    if kind in table:
+        return table[kind].factory, False
+    module_name, attr = kind.split(":", 1)
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        where = "" if exc.name == module_name else f" (it imports {exc.name!r}, which is missing)"
+        raise PluginError(f"{role} {kind!r}: no module named {module_name!r}{where}; the module must be importable "
+                          f"(on sys.path or installed)") from None
+    except Exception as exc:  # noqa: BLE001 -- a plugin's import error is the user's, reported in one line
+        raise PluginError(f"{role} {kind!r}: importing {module_name!r} failed: {type(exc).__name__}: "
+                          f"{' '.join(str(exc).split())}") from None
+    obj = module
+    for part in attr.split("."):
+        if not hasattr(obj, part):
+            raise PluginError(f"{role} {kind!r}: module {module_name!r} has no attribute {attr!r}")
+        obj = getattr(obj, part)
+    if not callable(obj):
+        raise PluginError(f"{role} {kind!r}: {attr!r} is a {type(obj).__name__}, not a class or factory function; "
+                          f"expected a class (or function) returning an object with {_SIGNATURES[role]}")
+    return obj, True
+
+
+def _accepts_context(factory) -> bool:
+    try:
+        return "context" in inspect.signature(factory).parameters
+    except (TypeError, ValueError):
+        return False
+
+
+def _build(role: str, kind: str, params: dict | None, context: BuildContext | None):
+    factory, plugin = resolve(role, kind)
+    params = dict(params or {})
+    context = context if context is not None else BuildContext()
+    try:
+        if not plugin:
+            obj = factory(context, **params)
+        else:
+            obj = factory(**params, context=context) if _accepts_context(factory) else factory(**params)
+    except PluginError:
+        raise
+    except TypeError as exc:
+        allowed = _parameters(factory, plugin)
+        raise PluginError(f"{role} {kind!r}: cannot be built with parameters {params!r} ({exc}); "
+                          f"allowed parameters: {allowed or 'none'}") from None
+    except TwinError as exc:
+        raise PluginError(f"{role} {kind!r}: {exc}") from None
+    except Exception as exc:  # noqa: BLE001 -- the plugin's own failure, in one line
+        raise PluginError(f"{role} {kind!r}: building it raised {type(exc).__name__}: "
+                          f"{' '.join(str(exc).split())}") from None
+    check_protocol(role, kind, obj)
+    return obj
+
+
+def _parameters(factory, plugin: bool) -> str:
+    try:
+        sig = inspect.signature(factory)
+    except (TypeError, ValueError):
+        return "?"
+    names = [p for p in sig.parameters if p not in ("self", "context", "ctx") and not p.startswith("_")]
+    kinds = {p.name: p.kind for p in sig.parameters.values()}
+    return ", ".join(n for n in names if kinds[n] not in (inspect.Parameter.VAR_POSITIONAL,
+                                                           inspect.Parameter.VAR_KEYWORD))
+
+
+def check_protocol(role: str, kind: str, obj) -> None:
+    """A one-line PluginError unless ``obj`` has the protocol's methods."""
+    missing = [m for m in _METHODS[role] if not callable(getattr(obj, m, None))]
+    if missing:
+        from twin.protocols import describe_object
+
+        raise PluginError(f"{role} {kind!r}: {describe_object(obj)} has no {' or '.join(f'{m}()' for m in missing)}; "
+                          f"a {role} needs {_SIGNATURES[role]} (see twin.protocols.{role.capitalize()})")
+    if role == "controller":
+        signals = getattr(obj, "signals", ())
+        if not (isinstance(signals, (tuple, list)) and all(isinstance(s, str) and s for s in signals)):
+            raise PluginError(f"{role} {kind!r}: 'signals' must be a tuple of names of extra logged signals, "
+                              f"got {signals!r}")
+
+
+def build_controller(kind: str, params: dict | None = None, context: BuildContext | None = None):
+    """A controller of ``kind`` (built-in name or import path) meeting the Controller protocol."""
+    return _build("controller", kind, params, context)
+
+
+def build_estimator(kind: str, params: dict | None = None, context: BuildContext | None = None):
+    """An estimator of ``kind`` (built-in name or import path) meeting the Estimator protocol."""
+    return _build("estimator", kind, params, context)
+
+
+def provenance(role: str, kind: str) -> dict | None:
+    """For an import path: ``{"role", "kind", "module", "file", "sha256"}`` of the module
+    that defines it (its source file's SHA-256); None for a built-in."""
+    if not is_import_path(kind):
+        return None
+    resolve(role, kind)
+    module_name = kind.split(":", 1)[0]
+    module = sys.modules[module_name]
+    file = getattr(module, "__file__", None)
+    digest = None
+    if file:
+        try:
+            digest = hashlib.sha256(Path(file).read_bytes()).hexdigest()
+        except OSError:
+            digest = None
+    return {"role": role, "kind": kind, "module": module_name, "file": str(file) if file else None, "sha256": digest}
+
+
+def parse_controllers(choice: str) -> tuple[str, ...]:
+    """``"both"`` (it2 and t1), or a comma-separated list of kinds; each checked, none repeated."""
+    if choice == "both":
+        return ("it2", "t1")
+    items = tuple(s.strip() for s in str(choice).split(",") if s.strip())
+    if not items:
+        raise PluginError("--controller needs at least one kind: it2, t1, lqr, both, or package.module:attribute")
+    for kind in items:
+        check_kind("controller", kind)
+    if len(set(items)) != len(items):
+        raise PluginError(f"--controller {choice!r}: a kind is repeated; list each once")
+    return items
+
+
+__all__ = ["BuildContext", "CONTROLLERS", "ESTIMATORS", "Kind", "build_controller", "build_estimator",
+           "check_kind", "check_protocol", "is_import_path", "label", "parse_controllers", "provenance", "resolve"]
