@@ -44,7 +44,8 @@ from bench_twin import cpu_model, pybullet_version  # noqa: E402
 
 from estimation import build_estimator  # noqa: E402
 from estimation import ekf as ekf_module  # noqa: E402
-from twin.analytic_loop import Experiment, build_cascade  # noqa: E402
+from twin.controllers.cascade import build_cascade  # noqa: E402
+from twin.experiments import Experiment  # noqa: E402
 from twin.bullet_loop import simulate_twin  # noqa: E402
 from twin.controllers.lmi import design_balance_gains  # noqa: E402
 from twin.params import NOMINAL  # noqa: E402
@@ -105,7 +106,7 @@ def main(argv=None) -> int:
     sensors = SensorConfig()
     design = design_balance_gains()
     exp = Experiment("bench", "IT2 balance from 0.2 rad", theta0=0.2, duration=duration)
-    run = simulate_twin(build_cascade("it2", design, exp), exp, sensors=sensors, seed=0)
+    run = simulate_twin(build_cascade("it2", design, exp.targets), exp, sensors=sensors, seed=0)
     if run.status != "ok":
         raise SystemExit(f"the recorded run did not balance ({run.status}); nothing to measure")
     variants = [("physics (BulletTwin.step, 1 control period)", lambda: physics_window(200))]

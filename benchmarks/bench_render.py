@@ -51,12 +51,13 @@ pc = time.perf_counter
 
 
 def make_run(duration: float):
-    from twin import analytic_loop as al
+    from twin.controllers.cascade import build_cascade
+    from twin.experiments import PAPER_EXPERIMENTS
     from twin.bullet_loop import simulate_twin
     from twin.controllers.lmi import design_balance_gains
 
-    exp = al.PAPER_EXPERIMENTS[3]
-    run = simulate_twin(al.build_cascade("it2", design_balance_gains(), exp), exp, duration=duration,
+    exp = PAPER_EXPERIMENTS[3]
+    run = simulate_twin(build_cascade("it2", design_balance_gains(), exp.targets), exp, duration=duration,
                         controller_name="it2", sensors=None)
     assert run.status == "ok", run.end_reason
     return run

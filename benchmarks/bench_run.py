@@ -38,7 +38,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="short smoke run")
     args = ap.parse_args(argv)
-    from twin.analytic_loop import build_cascade
+    from twin.controllers.cascade import build_cascade
     from twin.bullet_loop import simulate_twin
     from twin.controllers.lmi import design_balance_gains
     from twin.scenarios import load_scenario
@@ -55,7 +55,7 @@ def main(argv=None) -> int:
     loop, physics, full = [], [], []
     n_window = int(config.control_rate)  # 1 s per window
     for r in range(rounds + 1):  # round 0 warms up
-        ctrl = build_cascade("it2", design, exp, **sc.cascade_options())
+        ctrl = build_cascade("it2", design, exp.targets, **sc.cascade_options())
         gc.collect()
         t0 = pc()
         run = simulate_twin(ctrl, exp, config, duration=sc.duration, controller_name="it2", sensors=sensors,

@@ -350,7 +350,8 @@ def call_breakdown(config: TwinConfig, n_periods: int, periods_per_twin: int) ->
 
 # ---- closed loop --------------------------------------------------------------------------
 def closed_loop(runs: int):
-    from twin.analytic_loop import Experiment, build_cascade
+    from twin.controllers.cascade import build_cascade
+from twin.experiments import Experiment
     from twin.bullet_loop import simulate_twin
     from twin.controllers.lmi import design_balance_gains
 
@@ -358,7 +359,7 @@ def closed_loop(runs: int):
     exp = Experiment("bench", "", theta0=0.2, duration=10.0)
     out = []
     for _ in range(runs + 1):  # the first one is the cold run
-        controller = build_cascade("it2", design, exp)
+        controller = build_cascade("it2", design, exp.targets)
         gc.collect()
         t0 = pc()
         run = simulate_twin(controller, exp, sensors=None)  # the twin and the controller alone (ideal sensing)

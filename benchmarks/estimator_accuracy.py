@@ -94,7 +94,8 @@ from bench_twin import cpu_model  # noqa: E402
 from estimation import build_estimator  # noqa: E402
 from estimation import replay as replay_estimator  # noqa: E402
 from estimation.consistency import monte_carlo  # noqa: E402
-from twin.analytic_loop import Experiment, build_cascade  # noqa: E402
+from twin.controllers.cascade import build_cascade  # noqa: E402
+from twin.experiments import Experiment  # noqa: E402
 from twin.bullet_loop import simulate_twin  # noqa: E402
 from twin.controllers.lmi import design_balance_gains  # noqa: E402
 from twin.params import NOMINAL  # noqa: E402
@@ -163,7 +164,7 @@ def versions() -> str:
 
 
 def controller(design, exp):
-    return build_cascade("it2", design, exp)
+    return build_cascade("it2", design, exp.targets)
 
 
 def truth6(run) -> np.ndarray:

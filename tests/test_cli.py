@@ -35,8 +35,8 @@ def test_design_writes_json(tmp_path):
     (["analytic", "7"], "'7' is not one of '1', '2', '3'"),
     (["analytic"], "Missing argument 'EXPERIMENT'. Choose from: 1, 2, 3"),
     (["surface", "speed"], "'speed' is not one of 'position', 'direction'"),
-    (["physics", "2", "--duration", "0"], "--duration must be in (0, 3600] s"),
-    (["physics", "4"], "'4' is not one of '1', '2', '3'"),
+    (["analytic", "2", "--duration", "0"], "--duration must be in (0, 3600] s"),
+    (["physics", "2", "--duration", "3"], "'twin physics' gave way to 'twin run paper-exp2'"),
     (["design", "--nope"], "No such option '--nope'"),
     (["fly"], "No such command 'fly'"),
 ])
@@ -84,16 +84,18 @@ def test_surface_export(tmp_path):
     assert (tmp_path / "direction_it2.png").stat().st_size > 0
 
 
-def test_physics_run_writes_outputs_and_nothing_else_on_stdout(tmp_path):
-    """The PyBullet twin from the command line: outputs written; PyBullet's own chatter suppressed."""
+def test_twin_run_on_the_nominal_plant_writes_outputs_and_no_native_chatter(tmp_path):
+    """What 'twin physics 1' did, through the one pipeline: outputs written; PyBullet's own
+    chatter suppressed (stderr holds only the progress bars)."""
     out = tmp_path / "exp1"
-    r = twin("physics", "1", "--controller", "it2", "--duration", "3", "--out", str(out))
+    r = twin("run", "paper-exp1", "--controller", "it2", "--duration", "3", "--set", "plant.scale={}",
+             "--no-video", "--out", str(out))
     assert r.returncode == 0, r.stderr
-    assert r.stderr == "" and "argv" not in r.stdout and r.stdout.startswith("paper-exp1")
+    assert "argv" not in r.stdout + r.stderr and r.stdout.startswith("paper-exp1")
     m = json.loads((out / "metrics.json").read_text())
-    it2 = m["controllers"]["it2"]
+    it2 = m["runs"]["it2"]
     assert it2["status"] == "ok" and it2["settling_time_s"] < 3.0
-    header = (out / "trajectory_it2.csv").read_text().splitlines()[0]
+    header = (out / "trajectory.csv").read_text().splitlines()[0]
     for column in ("theta [rad]", "torque_l [N·m]", "duty_r [1]", "saturated_l [bool]", "push_fx [N]", "x [m]"):
         assert column in header
-    assert len((out / "trajectory_it2.csv").read_text().splitlines()) == 1 + 601
+    assert len((out / "trajectory.csv").read_text().splitlines()) == 1 + 601

@@ -2,7 +2,9 @@
 import numpy as np
 import pytest
 
-from twin.analytic_loop import PAPER_EXPERIMENTS, Experiment, build_cascade, run_paper_experiment, simulate
+from twin.analytic_loop import run_paper_experiment, simulate
+from twin.controllers.cascade import build_cascade
+from twin.experiments import PAPER_EXPERIMENTS, Experiment
 from twin.errors import TwinError
 from twin.params import NOMINAL
 
@@ -45,7 +47,7 @@ def test_exp3_position_and_direction(design, kind):
 @pytest.mark.parametrize("p_d, alpha_d", [(-0.5, -1.0), (0.3, 0.4)])
 def test_sign_conventions_reach_any_target(design, p_d, alpha_d):
     exp = Experiment("custom", "", theta0=-0.2, p_d=p_d, alpha_d=alpha_d, duration=15.0)
-    run = simulate(build_cascade("it2", design, exp), exp)
+    run = simulate(build_cascade("it2", design, exp.targets), exp)
     assert abs(run.distance[-1] - p_d) < 0.01
     assert abs(run.signal("alpha")[-1] - alpha_d) < 0.01
 
@@ -60,12 +62,12 @@ def test_balances_a_mismatched_true_plant(design):
 def test_control_period_must_be_whole_number_of_physics_steps(design):
     exp = PAPER_EXPERIMENTS[1]
     with pytest.raises(TwinError, match="whole number of physics steps"):
-        simulate(build_cascade("it2", design, exp), exp, physics_dt=0.001, control_dt=0.0025)
+        simulate(build_cascade("it2", design, exp.targets), exp, physics_dt=0.001, control_dt=0.0025)
 
 
 def test_constant_disturbance_shifts_but_does_not_topple(design):
     exp = PAPER_EXPERIMENTS[1]
-    run = simulate(build_cascade("it2", design, exp), exp, disturbance=lambda t: (0.0, 0.05, 0.0), duration=6)
+    run = simulate(build_cascade("it2", design, exp.targets), exp, disturbance=lambda t: (0.0, 0.05, 0.0), duration=6)
     assert np.all(np.abs(run.signal("theta")[run.t > 3]) < 0.2)
     assert np.all(np.isfinite(run.x))
 
@@ -87,10 +89,10 @@ def test_position_fls_drives_towards_the_target_on_its_own(design):
     """With the ψ channel off, the FLS alone must move the robot towards p_d (and a
     sign-flipped FLS away from it): this catches a wrong θ_off sign convention."""
     exp = PAPER_EXPERIMENTS[2]
-    alone = simulate(build_cascade("it2", design, exp, psi_error_limit=1e-9), exp)
+    alone = simulate(build_cascade("it2", design, exp.targets, psi_error_limit=1e-9), exp)
     assert 0.2 < alone.distance[-1] < 0.7
     assert np.all(np.diff(alone.distance[alone.t > 2]) > -1e-4)  # steadily towards the target
-    flipped = build_cascade("it2", design, exp, psi_error_limit=1e-9)
+    flipped = build_cascade("it2", design, exp.targets, psi_error_limit=1e-9)
     flipped.position = _Negated(flipped.position)
     assert simulate(flipped, exp).distance[-1] < -0.2
 
@@ -99,7 +101,7 @@ def test_position_fls_shortens_the_approach(design):
     exp = PAPER_EXPERIMENTS[2]
     times = {}
     for mode in ("fls", "zero", "flipped"):
-        c = build_cascade("it2", design, exp)
+        c = build_cascade("it2", design, exp.targets)
         if mode == "zero":
             c.position = lambda a, b: 0.0
         elif mode == "flipped":
@@ -110,7 +112,7 @@ def test_position_fls_shortens_the_approach(design):
 
 def test_bad_simulation_inputs(design):
     exp = PAPER_EXPERIMENTS[1]
-    ctrl = build_cascade("it2", design, exp)
+    ctrl = build_cascade("it2", design, exp.targets)
     with pytest.raises(TwinError, match="x0 must be 8 finite numbers"):
         simulate(ctrl, exp, x0=[0.1, 0.0])
     with pytest.raises(TwinError, match="duration must be at least one control period"):

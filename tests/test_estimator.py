@@ -22,7 +22,8 @@ from estimation import build_estimator, ekf, replay
 from estimation.consistency import monte_carlo
 from estimation.ekf import BY, BZ, C0, H0, N, SAX, SAZ, SY, SZ, TH, EKFEstimator
 from estimation.model import EstimatorModel
-from twin.analytic_loop import Experiment, build_cascade
+from twin.controllers.cascade import build_cascade
+from twin.experiments import Experiment
 from twin.bullet_loop import simulate_twin
 from twin.errors import TwinError
 from twin.params import NOMINAL
@@ -55,7 +56,7 @@ def twin_run(design):
         if key not in cache:
             e = _experiment(theta0, duration)
             cfg = SensorConfig(faults=tuple(faults)) if sensors else None
-            cache[key] = simulate_twin(build_cascade("it2", design, e), e, sensors=cfg, seed=seed, log_filter=True)
+            cache[key] = simulate_twin(build_cascade("it2", design, e.targets), e, sensors=cfg, seed=seed, log_filter=True)
         return cache[key]
 
     return get
@@ -195,7 +196,7 @@ MC_START = 0.5  # s: the first half second holds the start-up transient of the e
 def mc_runs(design):
     """20 runs from θ0 = 0.05 rad, 3 s, seeds 0–19, default sensors, filter logged."""
     e = _experiment(0.05, 3.0)
-    ctrl = build_cascade("it2", design, e)
+    ctrl = build_cascade("it2", design, e.targets)
     return [simulate_twin(ctrl, e, sensors=SENSORS, seed=s, log_filter=True) for s in MC_SEEDS]
 
 
@@ -273,7 +274,7 @@ def test_monte_carlo_test_fails_for_a_mistuned_filter(design, monkeypatch):
 
     monkeypatch.setattr(estimation, "build_estimator", build)
     e = _experiment(0.05, 3.0)
-    ctrl = build_cascade("it2", design, e)
+    ctrl = build_cascade("it2", design, e.targets)
     runs = [simulate_twin(ctrl, e, sensors=SENSORS, seed=s, log_filter=True) for s in MC_SEEDS]
     m, tol, passed = _consistency(runs)
     assert passed == [False, False, False], (m["nees_inside"], m["nis_inside"], m["nis_per_dof"], tol)
@@ -564,7 +565,7 @@ def test_same_seed_same_everything_different_seed_different_readings(twin_run, d
     reproduces the loop's estimates bit for bit; seed 1 gives other readings and other estimates."""
     a = twin_run(0.48, 6.0, 0)
     e = _experiment(0.48, 6.0)
-    b = simulate_twin(build_cascade("it2", design, e), e, sensors=SENSORS, seed=0, log_filter=True)
+    b = simulate_twin(build_cascade("it2", design, e.targets), e, sensors=SENSORS, seed=0, log_filter=True)
     for u, v in ((a.estimates, b.estimates), (a.commands, b.commands), (a.truth, b.truth)):
         assert u.tobytes() == v.tobytes()
     for key in ("x", "P", "nis", "nis_dof"):

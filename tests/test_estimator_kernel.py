@@ -8,7 +8,8 @@ import pytest
 
 from estimation import build_estimator, replay
 from estimation import ekf as ekf_module
-from twin.analytic_loop import Experiment, build_cascade
+from twin.controllers.cascade import build_cascade
+from twin.experiments import Experiment
 from twin.bullet_loop import simulate_twin
 from twin.controllers.lmi import design_balance_gains
 from twin.params import NOMINAL
@@ -50,7 +51,7 @@ def _replay(run, sensors, compiled):
 def test_kernel_follows_python_path(design, case, theta0):
     sensors = SensorConfig(faults=FAULTS[case])
     exp = Experiment("k", "k", theta0=theta0, duration=2.5)
-    run = simulate_twin(build_cascade("it2", design, exp), exp, sensors=sensors, seed=3)
+    run = simulate_twin(build_cascade("it2", design, exp.targets), exp, sensors=sensors, seed=3)
     a, fa = _replay(run, sensors, True)
     b, fb = _replay(run, sensors, False)
     sa, sb = fa.stats(), fb.stats()
@@ -72,7 +73,7 @@ def test_kernel_restores_from_non_finite_state(design):
     state comes back (finite) and the reset is logged."""
     sensors = SensorConfig()
     exp = Experiment("k", "k", theta0=0.1, duration=0.5)
-    run = simulate_twin(build_cascade("it2", design, exp), exp, sensors=sensors, seed=0)
+    run = simulate_twin(build_cascade("it2", design, exp.targets), exp, sensors=sensors, seed=0)
     f = build_estimator("ekf", sensors, 200.0, run.config.motor, NOMINAL)
     cmds = run.commands[:, :2]
     f.start(run.measurements[0])

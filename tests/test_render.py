@@ -8,7 +8,8 @@ import pytest
 
 cv2 = pytest.importorskip("cv2")
 
-from twin import analytic_loop as al  # noqa: E402
+from twin.controllers.cascade import build_cascade  # noqa: E402
+from twin.experiments import PAPER_EXPERIMENTS, Experiment  # noqa: E402
 from twin.bullet_loop import simulate_twin  # noqa: E402
 from twin.errors import TwinError  # noqa: E402
 from twin.plant.bullet import WHEEL_JOINTS, BulletTwin, GroundTruth, TwinConfig, truth_from_states  # noqa: E402
@@ -25,8 +26,8 @@ FPS = 30
 @pytest.fixture(scope="module")
 def run_exp1(design):
     """Paper experiment 1 (balance from θ0 = 0.48 rad), its first second, IT2, ideal sensing."""
-    exp = al.PAPER_EXPERIMENTS[1]
-    run = simulate_twin(al.build_cascade("it2", design, exp), exp, duration=1.0, controller_name="it2",
+    exp = PAPER_EXPERIMENTS[1]
+    run = simulate_twin(build_cascade("it2", design, exp.targets), exp, duration=1.0, controller_name="it2",
                         sensors=None)
     assert run.status == "ok" and abs(run.signal("theta")[-1]) < 0.1
     return run
@@ -35,9 +36,9 @@ def run_exp1(design):
 @pytest.fixture(scope="module")
 def run_fell(design):
     """Type-1 balance only, pushed over by 20 N for 0.1 s: falls after about 0.65 s."""
-    exp = al.Experiment("push", "pushed over", theta0=0.0, duration=1.0)
+    exp = Experiment("push", "pushed over", theta0=0.0, duration=1.0)
     config = TwinConfig(disturbances=Disturbances(pushes=(Push((20.0, 0.0, 0.0), 0.2, 0.1),)))
-    run = simulate_twin(al.build_cascade("t1", design, exp), exp, config, controller_name="t1", sensors=None)
+    run = simulate_twin(build_cascade("t1", design, exp.targets), exp, config, controller_name="t1", sensors=None)
     assert run.status == "fell" and 0.3 < run.t[-1] < 0.9
     return run
 

@@ -7,7 +7,9 @@ import pybullet
 import pytest
 
 from twin.actuators import DCMotorParams
-from twin.analytic_loop import PAPER_EXPERIMENTS, Experiment, build_cascade, simulate
+from twin.analytic_loop import simulate
+from twin.controllers.cascade import build_cascade
+from twin.experiments import PAPER_EXPERIMENTS, Experiment
 from twin.bullet_loop import TRUTH_NAMES
 from twin.bullet_loop import simulate_twin as _simulate_twin
 from twin.controllers.lmi import design_balance_gains
@@ -29,7 +31,7 @@ M_TOTAL = NOMINAL.m_b + 2 * NOMINAL.m_w
 
 @pytest.fixture(scope="module")
 def balance(design):
-    return build_cascade("it2", design, BALANCE_02)
+    return build_cascade("it2", design, BALANCE_02.targets)
 
 
 def _rms(a, b):
@@ -61,7 +63,7 @@ def test_resistances_act_as_in_equation_1(change):
     """With ten times d_w or d_b the twin still follows equation (1), although the change
     itself moves θ by 0.02–0.09 rad RMS: the resistances are implemented, with the right signs."""
     plant = NOMINAL.replace(**change)
-    ctrl = build_cascade("it2", design_balance_gains(plant), BALANCE_02)
+    ctrl = build_cascade("it2", design_balance_gains(plant), BALANCE_02.targets)
     a = simulate(ctrl, BALANCE_02, plant)
     a_nominal = simulate(ctrl, BALANCE_02, NOMINAL)
     r = simulate_twin(ctrl, BALANCE_02, TwinConfig(params=plant, motor=None))
@@ -74,7 +76,7 @@ def test_resistances_act_as_in_equation_1(change):
 def test_turning_follows_the_analytic_model(design):
     """Paper experiment 3 for 8 s: heading, pitch and planar position agree with equation (1)."""
     e = PAPER_EXPERIMENTS[3]
-    ctrl = build_cascade("it2", design, e)
+    ctrl = build_cascade("it2", design, e.targets)
     a = simulate(ctrl, e, duration=8.0)
     r = simulate_twin(ctrl, e, TwinConfig(motor=None), duration=8.0)
     assert r.status == "ok"
@@ -121,7 +123,7 @@ def test_rolling_without_slip_and_slipping_on_ice(design):
     still accelerates hard from θ0 = 0.48 rad, the wheels slip. (Later, μ = 0.01 would hold: the
     gentle approach to the target needs less than 0.1 N of traction.)"""
     e = PAPER_EXPERIMENTS[2]
-    ctrl = build_cascade("it2", design, e)
+    ctrl = build_cascade("it2", design, e.targets)
     dry = simulate_twin(ctrl, e, duration=5.0)
     assert np.max(np.abs(dry.signal("x") - dry.signal("distance"))) < 1e-3
     ice = simulate_twin(ctrl, e, TwinConfig(disturbances=Disturbances(
@@ -145,7 +147,7 @@ def test_friction_change_reaches_one_wheel_at_its_time():
 def test_heading_is_unwrapped_past_pi(design):
     """Turning to α_d = 4 rad: the heading goes past π without a jump and arrives."""
     e = Experiment("spin", "", theta0=0.0, alpha_d=4.0, duration=12.0)
-    r = simulate_twin(build_cascade("it2", design, e), e)
+    r = simulate_twin(build_cascade("it2", design, e.targets), e)
     alpha = r.signal("alpha")
     assert r.status == "ok"
     assert np.max(np.abs(np.diff(alpha))) < 0.05
@@ -404,7 +406,7 @@ def test_readout_on_a_side_slope():
 def test_rates_are_the_derivatives_of_the_angles(design):
     """θ̇, α̇, ψ̇_l, ψ̇_r against central differences of θ, α, ψ_l, ψ_r, while turning on a side slope."""
     e = Experiment("turn", "", theta0=0.2, alpha_d=1.0, duration=4.0)
-    r = simulate_twin(build_cascade("it2", design, e), e,
+    r = simulate_twin(build_cascade("it2", design, e.targets), e,
                       TwinConfig(motor=None, ground=Ground(slope=0.1, slope_direction=math.pi / 2)))
     assert r.status == "ok" and np.max(np.abs(r.signal("roll"))) > 0.05
     dt = r.t[1] - r.t[0]
@@ -418,7 +420,7 @@ def test_rates_are_the_derivatives_of_the_angles(design):
 def test_left_and_right_wheels_are_not_swapped(design):
     """Turning left (α > 0) the right wheel travels further: ψ_r − ψ_l = 2bα/r on a level floor."""
     e = PAPER_EXPERIMENTS[3]
-    r = simulate_twin(build_cascade("it2", design, e), e, TwinConfig(motor=None), duration=8.0)
+    r = simulate_twin(build_cascade("it2", design, e.targets), e, TwinConfig(motor=None), duration=8.0)
     rolled = r.signal("psi_r") - r.signal("psi_l")
     assert r.signal("alpha")[-1] > 1.0
     assert np.max(np.abs(rolled - 2 * NOMINAL.b * r.signal("alpha") / NOMINAL.r)) < 0.01 * np.max(rolled)

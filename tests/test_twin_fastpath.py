@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from twin.actuators import DCMotorParams, MotorDriver
-from twin.analytic_loop import Experiment, build_cascade
+from twin.controllers.cascade import build_cascade
+from twin.experiments import Experiment
 from twin.bullet_loop import simulate_twin as _simulate_twin
 from twin.plant import bullet
 from twin.plant.bullet import GroundTruth, TwinConfig, truth_from_states
@@ -88,7 +89,7 @@ def test_closed_loop_trajectory_is_identical(design, monkeypatch):
     from twin.plant.disturbances import Disturbances, Push
 
     e = Experiment("fast", "", theta0=0.3, p_d=0.3, alpha_d=0.5, duration=3.0)
-    ctrl = build_cascade("it2", design, e)
+    ctrl = build_cascade("it2", design, e.targets)
     cfg = TwinConfig(disturbances=Disturbances(pushes=(Push((6.0, 1.0, 0.0), 1.0, 0.1),)))
     fast = simulate_twin(ctrl, e, cfg)
     monkeypatch.setattr(bullet, "_fastpath", None)

@@ -11,7 +11,6 @@ from pathlib import Path
 
 import click
 
-from estimation import ESTIMATORS as ESTIMATOR_KINDS
 from twin.errors import TwinError
 
 EXPERIMENT_CHOICES = ("1", "2", "3", "paper-exp1", "paper-exp2", "paper-exp3")
@@ -55,8 +54,8 @@ def main():
     Examples:
       twin design --decay-rate 3 --out gains.json
       twin analytic 3 --controller both --out runs/exp3
-      twin physics 3 --controller both --out runs/exp3-twin
-      twin run paper-exp3 --controller both
+      twin run paper-exp3
+      twin run paper-exp1 --controller it2,t1,lqr --set plant.scale={}
       twin sweep paper-exp3 --samples 50 --workers 2
       twin scenarios
       twin surface position --out runs/surfaces
@@ -182,67 +181,33 @@ def analytic(experiment, controller, out, duration, gains_file, epsilon, rho, de
                       (epsilon, rho, decay_rate, max_gain))
 
 
-@main.command()
-@_experiment_options("runs/physics")
-@click.option("--ideal-motor", is_flag=True, help="Ideal torque sources instead of the default DC motors.")
-@click.option("--estimator", type=click.Choice(ESTIMATOR_KINDS), default="ekf", show_default=True,
-              help="What turns the IMU and encoder readings into the controllers' state.")
-@click.option("--ideal-sensing", is_flag=True, help="The controllers read the ground truth (a reference run).")
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
-              help="Seed of the sensors' noise and faults.")
-def physics(experiment, controller, out, duration, ideal_motor, estimator, ideal_sensing, seed, gains_file, epsilon,
-            rho, decay_rate, max_gain):
-    """Run a paper experiment on the PyBullet twin: figure, metrics, trajectories.
-
-    The robot of urdf/ on a floor, 1 kHz physics, DC motors with 10-bit PWM (or
-    --ideal-motor), an MPU-6050-class IMU and 1200-count encoders with their noise, and
-    the controllers at 200 Hz acting on the estimator's output (or, with --ideal-sensing,
-    on the ground truth). EXPERIMENT is 1, 2 or 3 as for 'twin analytic'. Writes
-    figure.png, metrics.json, trajectory_<controller>.csv and design.json into --out.
-
-    \b
-    Examples:
-      twin physics 3 --controller both --out runs/exp3-twin
-      twin physics 1 --estimator complementary --seed 4
-      twin physics 1 --ideal-motor --ideal-sensing --duration 5
-    """
-    _paper_experiment("twin", experiment, controller, out, duration, gains_file,
-                      (epsilon, rho, decay_rate, max_gain), ideal_motor=ideal_motor,
-                      sensing=None if ideal_sensing else (estimator, seed))
+@main.command(hidden=True, context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
+@click.argument("experiment", required=False)
+def physics(experiment):
+    """Replaced by 'twin run paper-expN' (the same closed loop, one pipeline)."""
+    n = experiment[-1] if experiment and experiment[-1] in "123" else "N"
+    raise TwinError(f"'twin physics' gave way to 'twin run paper-exp{n}' (the same pipeline); for its nominal plant "
+                    "add --set plant.scale={}, for ground truth --set sensors.sensing=ideal, for ideal motors "
+                    "--set plant.motor=ideal")
 
 
-def _paper_experiment(plant, experiment, controller, out, duration, gains_file, design_options, ideal_motor=False,
-                      sensing=None):
-    """Run paper experiment N with one or both controllers on a plant and write the outputs."""
+def _paper_experiment(plant, experiment, controller, out, duration, gains_file, design_options):
+    """Run paper experiment N with one or both controllers on the analytic model and write the outputs."""
     from twin import analytic_loop as al
     from twin import report
+    from twin.controllers.cascade import build_cascade
+    from twin.experiments import PAPER_EXPERIMENTS
 
     number = int(experiment[-1])
     if duration is not None and not (math.isfinite(duration) and 0 < duration <= 3600):
         raise TwinError(f"--duration must be in (0, 3600] s, got {duration:g}")
     d = _load_design(gains_file, *design_options)
-    exp = al.PAPER_EXPERIMENTS[number]
+    exp = PAPER_EXPERIMENTS[number]
     kinds = ["it2", "t1"] if controller == "both" else [controller]
-    if plant == "twin":
-        from twin.bullet_loop import simulate_twin
-        from twin.plant.bullet import TwinConfig
+    description = "analytic model, nominal"
 
-        from twin.sensors import SensorConfig
-
-        config = TwinConfig(motor=None) if ideal_motor else TwinConfig()
-        sensors = None if sensing is None else SensorConfig()
-        estimator, seed = ("ekf", 0) if sensing is None else sensing
-        description = ("PyBullet twin, nominal, " + ("ideal actuators" if ideal_motor else "DC motors") + ", "
-                       + ("ground truth" if sensing is None else f"{estimator} estimator, sensor seed {seed}"))
-
-        def run_one(kind):
-            return simulate_twin(al.build_cascade(kind, d, exp), exp, config, duration=duration, controller_name=kind,
-                                 sensors=sensors, estimator=estimator, seed=seed)
-    else:
-        description = "analytic model, nominal"
-
-        def run_one(kind):
-            return al.simulate(al.build_cascade(kind, d, exp), exp, duration=duration, controller_name=kind)
+    def run_one(kind):
+        return al.simulate(build_cascade(kind, d, exp.targets), exp, duration=duration, controller_name=kind)
     runs, metrics = [], {}
     for kind in kinds:
         run = run_one(kind)
@@ -258,16 +223,14 @@ def _paper_experiment(plant, experiment, controller, out, duration, gains_file, 
     click.echo(f"  {'metric':28}" + "".join(f"{k.upper():>12}" for k in kinds))
     for k in keys:
         click.echo(f"  {k:28}" + "".join(f"{metrics[c][k]:12.4g}" for c in kinds))
-    for kind in kinds:
-        if metrics[kind].get("status", "ok") != "ok":
-            click.echo(f"  {kind.upper()}: {metrics[kind]['status']}: {metrics[kind]['end_reason']}")
     click.echo(f"wrote {out}/figure.png, metrics.json, design.json, " + ", ".join(f"trajectory_{k}.csv" for k in kinds))
 
 
 @main.command()
 @click.argument("scenario", metavar="SCENARIO|FILE")
-@click.option("--controller", type=click.Choice(["it2", "t1", "both"]), default="both", show_default=True,
-              help="Which controllers to run, on identical conditions.")
+@click.option("--controller", default=None, metavar="KINDS",
+              help="Controllers to run on identical conditions, comma-separated: it2, t1, lqr, both (= it2,t1) or "
+                   "package.module:attribute (runs that module's code). Default: the scenario's controller.kinds.")
 @click.option("--seed", type=click.IntRange(min=0), default=None,
               help="Seed of the sensor noise and faults (default: the scenario's 'seed').")
 @click.option("--duration", type=float, default=None, help="Simulated time in s (default: the scenario's).")
@@ -295,11 +258,13 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample):
       twin run my-robot.toml --set plant.scale.m_b=1.2 --set sensors.sensing=ideal --out runs/heavy
       twin run paper-exp3 --sample 17 --seed 0 --no-video   # replay a sweep's sample 17
     """
-    from twin.scenarios.runner import controllers_of, run_scenario
+    from twin.registry import label
+    from twin.scenarios.runner import controllers_of, plugins_of, run_scenario
 
     sc = _load(scenario, overrides, seed, duration)
     out = out if out is not None else Path("runs") / (sc.name if sample is None else f"{sc.name}-sample{sample}")
-    kinds = controllers_of(controller)
+    kinds = controllers_of(controller, sc)
+    _check_plugins(sc, kinds)
     if sample is not None:
         from twin.sweep import sample_scenario
 
@@ -308,18 +273,19 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample):
                    f"seed {s.seed}")
         sc = s.scenario
     click.echo(f"{sc.name}: {sc.description}")
+    _echo_plugins(plugins_of(sc, kinds))
     with _Progress() as bar:
         result = run_scenario(sc, kinds, out=out, video=video, progress=bar.update)
     keys = ("status", "settling_time_s", "theta_rms_rad", "oscillation_peak_to_peak_rad", "final_position_error_m",
             "final_heading_error_rad", "iae_theta", "control_effort", "max_abs_torque_nm", "estimator_theta_rmse_rad",
             "rejected_measurements")
-    click.echo(f"  {'metric':32}" + "".join(f"{k.upper():>14}" for k in kinds))
+    click.echo(f"  {'metric':32}" + "".join(f"{label(k)[:13]:>14}" for k in kinds))
     for k in keys:
         vals = [result.metrics[c][k] for c in kinds]
         click.echo(f"  {k:32}" + "".join(f"{_fmt(v):>14}" for v in vals))
     for c in kinds:
         if result.metrics[c]["fell"]:
-            click.echo(f"  {c.upper()}: {result.metrics[c]['status']}: {result.metrics[c]['end_reason']}")
+            click.echo(f"  {label(c)}: {result.metrics[c]['status']}: {result.metrics[c]['end_reason']}")
     t = result.timings
     sim = sum(float(r.t[-1]) for r in result.runs)
     wall = sum(v for k, v in t.items() if k.startswith("run_"))
@@ -327,6 +293,23 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample):
                + (f"; video {result.video.frames} frames in {t['video_s']:.1f} s ({result.video.codec}, "
                   f"{result.video.renderer})" if result.video is not None else ""))
     click.echo(f"wrote {out}/: " + ", ".join(Path(f).name for f in result.files))
+
+
+def _check_plugins(sc, kinds) -> None:
+    """Build every controller and the estimator once before anything runs or is written, so a
+    plugin that cannot be loaded or lacks its methods is one line and exit status 2."""
+    context = sc.build_context(uses_design=False)
+    from dataclasses import replace
+
+    context = replace(context, design=sc.design)
+    for kind in kinds:
+        sc.build_controller(kind, context)
+    sc.build_estimator(context)
+
+
+def _echo_plugins(plugins) -> None:
+    for p in plugins:
+        click.echo(f"  plugin {p['role']} {p['kind']}: {p['file']} (sha256 {(p['sha256'] or '?')[:12]})")
 
 
 def _load(scenario, overrides, seed, duration):
@@ -358,8 +341,13 @@ def _load(scenario, overrides, seed, duration):
               help="Override a scenario key (repeatable), e.g. --set sweep.levels=[0,0.2,0.4].")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Sweep directory (default: runs/sweep-<scenario name>); rerun to resume.")
-def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overrides, out):
-    """Monte Carlo sweep: IT2 against type-1 on sampled plants, noise, tilts and pushes.
+@click.option("--controller", default=None, metavar="KINDS",
+              help="Controllers compared on identical samples, comma-separated: it2, t1, lqr, both (= it2,t1) or "
+                   "package.module:attribute. Default: the scenario's controller.kinds.")
+@click.option("--reference", default=None, metavar="KIND",
+              help="The controller each other one is paired with in the paired statistics (default: the last listed).")
+def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overrides, out, controller, reference):
+    """Monte Carlo sweep: controllers compared on sampled plants, noise, tilts and pushes.
 
     The scenario's [sweep] table says what is sampled (see the README). Each sample's
     seed and sampled values are in sweep.csv, and 'twin run SCENARIO --sample K'
@@ -370,30 +358,36 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
     \b
     Examples:
       twin sweep paper-exp3 --samples 50
+      twin sweep paper-exp3 --samples 50 --controller it2,t1,lqr --reference lqr
       twin sweep push-recovery --samples 20 --workers 2 --set sweep.push_count=2
       twin sweep paper-exp2 --samples 100 --backend ray --ray-address auto
     """
+    from twin.scenarios.runner import controllers_of, plugins_of
     from twin.sweep import run_sweep
+    from twin.sweep.runner import sweep_controllers
 
     if ray_address is not None and backend != "ray":
         raise TwinError("--ray-address needs --backend ray")
     sc = _load(scenario, overrides, seed, duration)
     out = out if out is not None else Path("runs") / f"sweep-{sc.name}"
     levels = sc.data["sweep"]["levels"]
+    kinds, reference = sweep_controllers(sc, controllers_of(controller, sc), reference)
+    _check_plugins(sc, kinds)
     click.echo(f"{sc.name}: {sc.description}")
+    _echo_plugins(plugins_of(sc, kinds))
     click.echo(f"  {draws} samples × {len(levels)} levels λ = {', '.join(f'{v:g}' for v in levels)}, "
                f"root seed {sc.seed}, backend {backend}" + (f", {workers} worker{'s' * (workers > 1)}" if workers else ""))
     bar = _SweepBar()
     try:
         result = run_sweep(sc, draws, out, scenario_arg=scenario, workers=workers, backend=backend,
-                           address=ray_address, progress=bar.update)
+                           address=ray_address, progress=bar.update, controllers=kinds, reference=reference)
     except KeyboardInterrupt:
         bar.close()
         click.echo(f"interrupted: {bar.done} of {bar.total} samples are stored in {out}; rerun the same command "
                    "to finish the rest", err=True)
         sys.exit(130)
     bar.close()
-    sims = 2 * result.ran
+    sims = len(kinds) * result.ran
     click.echo(f"  ran {result.ran} samples ({sims} runs) in {result.wall_s:.1f} s"
                + (f", {60 * result.ran / result.wall_s:.1f} samples/min" if result.ran and result.wall_s > 0 else "")
                + (f"; {result.resumed} were already finished" if result.resumed else ""))
@@ -402,11 +396,13 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
 
 
 def _success_table(summary) -> str:
-    lines = [f"  {'level':>7} {'controller':>10} {'n':>5} {'success':>8}  {'95 % CI':>15} {'falls':>6} {'errors':>6}"]
+    from twin.registry import label
+
+    lines = [f"  {'level':>7} {'controller':>14} {'n':>5} {'success':>8}  {'95 % CI':>15} {'falls':>6} {'errors':>6}"]
     for s in summary:
         lo, hi = s["success_ci"]
         level = "all" if s["level"] is None else f"{s['level']:g}"
-        lines.append(f"  {level:>7} {s['controller'].upper():>10} {s['n']:5d} {s['success_rate']:8.1%}  "
+        lines.append(f"  {level:>7} {label(s['controller'])[:14]:>14} {s['n']:5d} {s['success_rate']:8.1%}  "
                      f"[{lo:5.1%}, {hi:5.1%}] {s['falls']:6d} {s['errors']:6d}")
     return "\n".join(lines)
 

@@ -38,13 +38,14 @@ _IMPORT_PATH = re.compile(r"^[A-Za-z_][\w]*(\.[A-Za-z_][\w]*)*:[A-Za-z_][\w]*(\.
 
 @dataclass(frozen=True)
 class Kind:
-    """A built-in kind: its display ``label``, a one-line ``description`` and the ``factory``
-    called as ``factory(context, **params)``."""
+    """A built-in kind: its display ``label``, a one-line ``description``, the ``factory``
+    called as ``factory(context, **params)``, and whether it uses the LMI balance design."""
 
     name: str
     label: str
     description: str
     factory: Callable = field(repr=False)
+    uses_design: bool = False
 
 
 @dataclass(frozen=True)
@@ -99,22 +100,16 @@ def _cascade(kind: str):
 
 
 def _lqr(ctx: BuildContext, **params):
-    from twin.controllers.lqr import LQRController
+    from twin.controllers.lqr import build_lqr
 
-    params.setdefault("psi_error_limit", ctx.options.get("psi_error_limit", _default_psi_limit()))
-    return LQRController(params=ctx.model, **params)
-
-
-def _default_psi_limit() -> float:
-    from twin.controllers.cascade import DEFAULT_PSI_ERROR_LIMIT
-
-    return DEFAULT_PSI_ERROR_LIMIT
+    return build_lqr(ctx, **params)
 
 
 CONTROLLERS: dict[str, Kind] = {
     "it2": Kind("it2", "IT2", "the paper's IT2 fuzzy cascade: IT2 PDC balance (LMI gains), IT2 Mamdani position "
-                "and direction controllers, BMM type reduction", _cascade("it2")),
-    "t1": Kind("t1", "type-1", "the type-1 fuzzy cascade of the same structure and gains", _cascade("t1")),
+                "and direction controllers, BMM type reduction", _cascade("it2"), uses_design=True),
+    "t1": Kind("t1", "type-1", "the type-1 fuzzy cascade of the same structure and gains", _cascade("t1"),
+               uses_design=True),
     "lqr": Kind("lqr", "LQR", "LQR on the linearised nominal model (TS rule 1), Bryson's rule; LQR heading loop",
                 _lqr),
 }
@@ -169,6 +164,27 @@ _SIGNATURES = {"controller": "reset(targets) and __call__(estimate, targets)",
                "estimator": "start(measurement) and step(measurement, command)"}
 
 
+def uses_design(kind: str) -> bool:
+    """True for a built-in controller that uses the LMI balance design (a plugin asks for it
+    through its context, if it wants it)."""
+    return kind in CONTROLLERS and CONTROLLERS[kind].uses_design
+
+
+def plugin_dirs(kinds) -> tuple[str, ...]:
+    """The directories that hold the modules of the import-path ``kinds`` (for sys.path in workers)."""
+    dirs = []
+    for role, kind in kinds:
+        p = provenance(role, kind)
+        if p is not None and p["file"]:
+            d = Path(p["file"]).parent
+            # a package's module: the directory above the top-level package
+            for _ in range(p["module"].count(".") + (Path(p["file"]).name == "__init__.py")):
+                d = d.parent
+            if str(d) not in dirs:
+                dirs.append(str(d))
+    return tuple(dirs)
+
+
 def is_import_path(kind: str) -> bool:
     """True for ``"package.module:attribute"``."""
     return isinstance(kind, str) and bool(_IMPORT_PATH.match(kind))
@@ -199,7 +215,7 @@ def resolve(role: str, kind: str) -> tuple[Callable, bool]:
         return table[kind].factory, False
     module_name, attr = kind.split(":", 1)
     try:
-        module = importlib.import_module(module_name)
+        module = _import(module_name)
     except ModuleNotFoundError as exc:
         where = "" if exc.name == module_name else f" (it imports {exc.name!r}, which is missing)"
         raise PluginError(f"{role} {kind!r}: no module named {module_name!r}{where}; the module must be importable "
@@ -216,6 +232,25 @@ def resolve(role: str, kind: str) -> tuple[Callable, bool]:
         raise PluginError(f"{role} {kind!r}: {attr!r} is a {type(obj).__name__}, not a class or factory function; "
                           f"expected a class (or function) returning an object with {_SIGNATURES[role]}")
     return obj, True
+
+
+def _import(module_name: str):
+    """Import ``module_name``; if it is not found, look in the current directory too (after
+    everything on sys.path, so it shadows nothing), as ``python -m`` would."""
+    import os
+
+    try:
+        return importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        cwd = os.getcwd()
+        if exc.name != module_name.split(".")[0] or cwd in sys.path:
+            raise
+        sys.path.append(cwd)
+        try:
+            return importlib.import_module(module_name)
+        except ModuleNotFoundError:
+            sys.path.remove(cwd)
+            raise
 
 
 def _accepts_context(factory) -> bool:

@@ -6,8 +6,9 @@ Outputs in the sweep directory:
   :mod:`twin.sweep.store`); a rerun with the same command resumes from them;
 - ``sweep.csv``: one row per sample and controller (:mod:`twin.sweep.table`);
 - ``summary.md``, ``summary.json``: success rates and metric quantiles with confidence
-  intervals per level and controller, and the paired tests of IT2 against type-1
-  (:mod:`twin.sweep.statistics`);
+  intervals per level and controller, and the paired tests of each controller against
+  the reference (by default the last one listed: IT2 against type-1 for the default
+  pair) (:mod:`twin.sweep.statistics`);
 - ``success.png``, ``distributions.png``, ``paired.png``: the figures.
 
 The report depends only on the finished samples, never on the backend, the number of
@@ -25,7 +26,7 @@ from twin.sweep.backends import BACKENDS, default_workers, run_local, run_ray
 from twin.sweep.sampling import value_columns
 from twin.sweep.store import SweepStore
 from twin.sweep.table import columns, rows_of, write_sweep_csv
-from twin.sweep.worker import CONTROLLERS, SweepJob
+from twin.sweep.worker import SweepJob
 
 MAX_DRAWS = 100_000
 
@@ -53,26 +54,79 @@ def replay_command(manifest: dict, sample: int) -> str:
     return f"twin run {shlex.quote(manifest['scenario_arg'])} --sample {sample} --seed {manifest['root_seed']}{sets}"
 
 
+def sweep_controllers(scenario: Scenario, controllers=None, reference: str | None = None) -> tuple[tuple, str]:
+    """(kinds, reference): ``controllers`` (None: the scenario's ``controller.kinds``) checked,
+    and the reference the paired statistics compare each other controller with (default:
+    the last one listed)."""
+    from twin.registry import check_kind
+
+    kinds = tuple(controllers) if controllers is not None else scenario.controllers
+    if not kinds:
+        raise TwinError("a sweep needs at least one controller")
+    for k in kinds:
+        check_kind("controller", k)
+    if len(set(kinds)) != len(kinds):
+        raise TwinError(f"controllers {list(kinds)!r}: a kind is repeated; list each once")
+    reference = kinds[-1] if reference is None else reference
+    if reference not in kinds:
+        raise TwinError(f"--reference {reference!r} is not one of the sweep's controllers ({', '.join(kinds)})")
+    return kinds, reference
+
+
+def preflight(scenario: Scenario, kinds, duration: float = 0.05) -> None:
+    """Build every controller and the estimator and run the plugins among them for ``duration``
+    s here, before anything is written: a plugin that cannot be loaded, lacks its methods
+    or breaks its contract at once is a one-line error rather than N failed samples."""
+    from twin.registry import is_import_path
+    from twin.scenarios.runner import run_scenario
+
+    plugins = [k for k in kinds if is_import_path(k)]
+    if is_import_path(scenario.estimator) and not plugins:
+        plugins = [kinds[0]]
+    if not plugins:
+        return
+    d = scenario.data
+    short = Scenario({**d, "duration": max(duration, 1.0 / d["rates"]["control"])}, scenario.source,
+                     scenario.overrides)
+    run_scenario(short.adopt_design(scenario.design()) if any(_uses_design(k) for k in plugins) else short, plugins)
+
+
+def _uses_design(kind: str) -> bool:
+    from twin.registry import uses_design
+
+    return uses_design(kind)
+
+
 def run_sweep(scenario: Scenario, draws: int, out: Path, scenario_arg: str | None = None, workers: int | None = None,
-              backend: str = "local", address: str | None = None, progress=None) -> SweepResult:
-    """Run ``draws`` samples at each level of ``scenario``'s ``[sweep]`` (both controllers on each),
+              backend: str = "local", address: str | None = None, progress=None, controllers=None,
+              reference: str | None = None) -> SweepResult:
+    """Run ``draws`` samples at each level of ``scenario``'s ``[sweep]`` (every controller on each),
     resuming any finished samples found in ``out``, then write the report.
 
     ``scenario_arg``: how the user named the scenario (for the replay commands);
     ``workers``: processes or Ray CPUs (default: the cores here, or the Ray cluster's);
-    ``progress(done, total)``: called as samples finish.
+    ``progress(done, total)``: called as samples finish; ``controllers``: the kinds compared
+    on identical samples (None: the scenario's ``controller.kinds``); ``reference``: the one
+    the paired statistics compare each other with (default: the last).
     """
+    from twin.registry import plugin_dirs
     if not (isinstance(draws, int) and 1 <= draws <= MAX_DRAWS):
         raise TwinError(f"--samples must be an integer from 1 to {MAX_DRAWS} (samples per level), got {draws!r}")
     if backend not in BACKENDS:
         raise TwinError(f"--backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
     if workers is not None and not (isinstance(workers, int) and 1 <= workers <= 1024):
         raise TwinError(f"--workers must be an integer from 1 to 1024, got {workers!r}")
+    kinds, reference = sweep_controllers(scenario, controllers, reference)
+    preflight(scenario, kinds)
     levels = scenario.data["sweep"]["levels"]
     manifest = {"scenario": scenario.data, "source": scenario.source, "scenario_arg": scenario_arg or scenario.name,
                 "overrides": [o for o in scenario.overrides if not o.startswith("seed=")],
-                "root_seed": scenario.seed, "controllers": list(CONTROLLERS), "draws": draws}
-    job = SweepJob(scenario.data, scenario.source, scenario.overrides, scenario.seed, scenario.design())
+                "root_seed": scenario.seed, "controllers": list(kinds), "draws": draws}
+    if reference != kinds[-1]:
+        manifest["reference"] = reference
+    design = scenario.design() if any(_uses_design(k) for k in kinds) else None
+    paths = plugin_dirs([("controller", k) for k in kinds] + [("estimator", scenario.estimator)])
+    job = SweepJob(scenario.data, scenario.source, scenario.overrides, scenario.seed, design, kinds, paths)
     with SweepStore(out, manifest) as store:
         total = draws * len(levels)
         todo = [k for k in range(total) if k not in store.records]
@@ -104,20 +158,25 @@ def run_sweep(scenario: Scenario, draws: int, out: Path, scenario_arg: str | Non
 def write_report(out: Path, manifest: dict, records, scenario: Scenario) -> SweepResult:
     """``sweep.csv``, the summary and the figures of the finished ``records``."""
     from twin import report
+    from twin.registry import label
     from twin.sweep import figures, statistics
 
     out = Path(out)
     vcols = value_columns(scenario)
-    rows = rows_of(records, vcols)
+    kinds = list(manifest["controllers"])
+    reference = manifest.get("reference", kinds[-1])
+    labels = {k: label(k) for k in kinds}
+    rows = rows_of(records, vcols, controllers=kinds)
     files = [write_sweep_csv(rows, columns(vcols), out / "sweep.csv")]
-    summary = statistics.summarize(rows)
-    paired = statistics.paired_tests(rows)
+    summary = statistics.summarize(rows, controllers=kinds)
+    paired = statistics.paired_tests(rows, controllers=kinds, reference=reference)
     sw = scenario.data["sweep"]
     n = len(records)
     notes = [f"Scenario {scenario.name} ({manifest['source']}): {scenario.description}",
              f"{n} samples ({manifest['draws']} draws × {len(sw['levels'])} levels λ = "
-             f"{', '.join(f'{v:g}' for v in sw['levels'])}), root seed {manifest['root_seed']}; IT2 and type-1 run "
-             "on every sample with the same plant, noise and disturbances.",
+             f"{', '.join(f'{v:g}' for v in sw['levels'])}), root seed {manifest['root_seed']}; "
+             f"{', '.join(labels[k] for k in kinds)} run on every sample with the same plant, noise and "
+             f"disturbances; paired differences are each controller minus {labels[reference]}.",
              f"Parameters perturbed ({sw['distribution']}, on top of plant.scale): {', '.join(sw['parameters'])}.",
              f"Success: no fall, |θ| below 0.01 rad for good over at least the last {sw['success_settled_for']:g} s, "
              f"final position error within "

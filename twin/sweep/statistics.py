@@ -1,14 +1,20 @@
 """Statistics of a Monte Carlo robustness sweep: success rates, metric quantiles, paired tests.
 
-A sweep gives rows, one per (sample, controller), at each uncertainty level λ; the IT2
-("it2") and type-1 ("t1") rows of one sample ran on identical conditions, so they are a
-pair. Everything here is distribution-free or exact where it can be:
+A sweep gives rows, one per (sample, controller), at each uncertainty level λ. Any list of
+controllers may run (built-in names such as "it2", "t1", "lqr", or plugins named by import
+path, "pkg.mod:Class"); the rows of one sample ran on identical conditions, so each
+controller's row is paired with the row of a chosen *reference* controller (by default the
+last of the list: for ``["it2", "t1"]``, IT2 against type-1). Nothing here knows a
+controller by name except :func:`default_label`. Everything here is distribution-free or
+exact where it can be:
 
 * success rates: Wilson score intervals;
 * quantiles (median, 95th percentile) of a metric: order-statistic (binomial) intervals;
-* IT2 against type-1 on success: exact McNemar test (binomial test on discordant pairs);
-* IT2 against type-1 on a metric: median of the paired differences with its
-  order-statistic interval, Wilcoxon signed-rank test and sign test.
+* a controller against the reference on success: exact McNemar test (binomial test on
+  discordant pairs);
+* a controller against the reference on a metric: median of the paired differences
+  ``controller − reference`` with its order-statistic interval, Wilcoxon signed-rank test
+  and sign test.
 
 Metrics are summarised over the runs that stayed up (status neither "fell", "diverged"
 nor "error"). A run that stayed up but never settled has settling time +∞ (a censored
@@ -18,14 +24,79 @@ dropping such runs would flatter the controller that fails to settle more often.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 from scipy import stats
 
-CONTROLLERS = ("it2", "t1")
-CONTROLLER_LABELS = {"it2": "IT2", "t1": "type-1"}
 FELL_STATUSES = ("fell", "diverged")
+#: Display names of the built-in controllers; the one place that knows them (see :func:`default_label`).
+_BUILTIN_LABELS = {"it2": "IT2", "t1": "type-1", "lqr": "LQR"}
+
+
+# ---------------------------------------------------------------------------- controllers
+
+def default_label(name: str) -> str:
+    """The display name of controller ``name``: "IT2", "type-1", "LQR" for the built-in
+    "it2", "t1", "lqr"; for a plugin named by import path ("pkg.mod:MyController") the
+    attribute after the last ":" ("MyController"); otherwise ``name`` itself."""
+    if name in _BUILTIN_LABELS:
+        return _BUILTIN_LABELS[name]
+    if ":" in name:
+        return name.rsplit(":", 1)[1].strip() or name
+    return name
+
+
+def controller_labels(controllers: Sequence[str], labels: Mapping[str, str] | None = None) -> dict[str, str]:
+    """Display names of ``controllers``: ``labels[c]`` where given, else :func:`default_label`.
+
+    Controllers whose labels would coincide are shown by their full names instead, so that
+    no two controllers of a report look alike.
+    """
+    labels = labels or {}
+    out = {c: str(labels[c]) if c in labels else default_label(c) for c in controllers}
+    counts: dict[str, int] = {}
+    for lb in out.values():
+        counts[lb] = counts.get(lb, 0) + 1
+    return {c: c if counts[lb] > 1 else lb for c, lb in out.items()}
+
+
+def resolve_controllers(rows: Sequence[dict], controllers: Sequence[str] | None = None,
+                        reference: str | None = None) -> tuple[list[str], str | None]:
+    """The controllers of a report, in order, and the reference controller.
+
+    Parameters
+    ----------
+    rows : sequence of dict
+        The sweep's rows.
+    controllers : sequence of str, optional
+        The controllers in the order to report them (e.g. the manifest's ``controllers``);
+        rows of other controllers are ignored. None: the controllers of ``rows`` in
+        first-seen order.
+    reference : str, optional
+        The controller every other one is paired with. None: the last of ``controllers``.
+
+    Returns
+    -------
+    tuple
+        ``(controllers, reference)``; ``reference`` is None only without any controller.
+
+    Raises
+    ------
+    ValueError
+        A controller listed twice, or a ``reference`` that is not one of the controllers.
+    """
+    if controllers is None:
+        controllers = list(dict.fromkeys(r["controller"] for r in rows))
+    else:
+        controllers = [str(c) for c in ([controllers] if isinstance(controllers, str) else controllers)]
+        if len(set(controllers)) != len(controllers):
+            raise ValueError(f"controllers listed more than once: {controllers}")
+    if reference is None:
+        reference = controllers[-1] if controllers else None
+    elif reference not in controllers:
+        raise ValueError(f"reference {reference!r} is not one of the controllers {controllers}")
+    return controllers, reference
 
 
 def _abs(v):
@@ -185,13 +256,15 @@ def _levels(rows):
     return sorted({float(r["level"]) for r in rows})
 
 
-def _controller_order(c):
-    return (CONTROLLERS.index(c) if c in CONTROLLERS else len(CONTROLLERS), c)
+def _select(rows, controllers):
+    keep = set(controllers)
+    return [r for r in rows if r["controller"] in keep]
 
 
 # ---------------------------------------------------------------------------- summary
 
-def summarize(rows: Sequence[dict], confidence: float = 0.95) -> list[dict]:
+def summarize(rows: Sequence[dict], confidence: float = 0.95, *,
+              controllers: Sequence[str] | None = None) -> list[dict]:
     """Per (level, controller) success rate and metric quantiles.
 
     Parameters
@@ -200,12 +273,15 @@ def summarize(rows: Sequence[dict], confidence: float = 0.95) -> list[dict]:
         The sweep's rows (see the module docstring).
     confidence : float
         Confidence level of every interval.
+    controllers : sequence of str, optional
+        The controllers to summarise, in this order (rows of others are ignored; one
+        without rows has entries with ``n == 0``). None: those of ``rows``, first-seen order.
 
     Returns
     -------
     list of dict
-        One entry per (level, controller), sorted by level then controller (IT2 first),
-        then one per controller over all levels (``level`` None). Keys: ``level`` (λ,
+        One entry per (level, controller), sorted by level then controller (in the order
+        of ``controllers``), then one per controller over all levels (``level`` None). Keys: ``level`` (λ,
         dimensionless), ``controller``, ``confidence``, ``n`` (runs), ``successes``,
         ``success_rate`` (None if ``n == 0``), ``success_ci`` (Wilson), ``falls`` (status "fell" or
         "diverged"), ``errors`` (status "error"), ``stayed_up``, and ``metrics``: for
@@ -213,6 +289,8 @@ def summarize(rows: Sequence[dict], confidence: float = 0.95) -> list[dict]:
         have the metric), ``n_infinite`` (of them, +∞: never settled), ``median``,
         ``median_ci``, ``p95``, ``p95_ci`` (:func:`quantile_interval`; metric unit).
     """
+    controllers, _ = resolve_controllers(rows, controllers)
+    rows = _select(rows, controllers)
     metrics = present_metrics(rows)
 
     def entry(level, controller, group):
@@ -234,7 +312,6 @@ def summarize(rows: Sequence[dict], confidence: float = 0.95) -> list[dict]:
                                    "p95": p95[0], "p95_ci": p95[1:]}
         return out
 
-    controllers = sorted({r["controller"] for r in rows}, key=_controller_order)
     out = [entry(lv, c, [r for r in rows if float(r["level"]) == lv and r["controller"] == c])
            for lv in _levels(rows) for c in controllers]
     out += [entry(None, c, [r for r in rows if r["controller"] == c]) for c in controllers]
@@ -243,13 +320,16 @@ def summarize(rows: Sequence[dict], confidence: float = 0.95) -> list[dict]:
 
 # ---------------------------------------------------------------------------- paired tests
 
-def _pairs(rows):
-    """``[(it2_row, t1_row)]`` keyed by (level, sample); incomplete pairs are left out."""
-    by_key = {}
+def paired_rows(rows: Sequence[dict], controller: str, reference: str) -> list[tuple[dict, dict]]:
+    """``[(controller_row, reference_row)]`` matched by (level, sample), sorted by them;
+    a sample without both rows is left out."""
+    if controller == reference:
+        raise ValueError(f"a controller is not paired with itself ({controller!r})")
+    by_key: dict = {}
     for r in rows:
-        if r["controller"] in CONTROLLERS:
+        if r["controller"] in (controller, reference):
             by_key.setdefault((float(r["level"]), r["sample"]), {})[r["controller"]] = r
-    return [(d["it2"], d["t1"]) for _, d in sorted(by_key.items()) if len(d) == 2]
+    return [(d[controller], d[reference]) for _, d in sorted(by_key.items()) if len(d) == 2]
 
 
 def _difference(a: float, b: float) -> float:
@@ -258,16 +338,17 @@ def _difference(a: float, b: float) -> float:
 
 
 def paired_metric(d: Sequence[float], confidence: float = 0.95) -> dict:
-    """Tests on paired differences ``d = IT2 − T1`` of one metric.
+    """Tests on paired differences ``d = controller − reference`` of one metric.
 
     Returns a dict with ``n_pairs``; ``median_diff`` and ``median_diff_ci`` (the
     order-statistic interval of the median difference, :func:`quantile_interval`);
-    ``it2_lower``, ``it2_higher``, ``equal`` (counts of ``d < 0``, ``d > 0``, ``d == 0``);
+    ``lower``, ``higher``, ``equal`` (counts of ``d < 0``, ``d > 0``, ``d == 0``: the
+    controller's value below, above or equal to the reference's);
     ``wilcoxon_p``: two-sided Wilcoxon signed-rank p-value with the "wilcox" zero
     convention: zero differences are dropped first, then ``scipy.stats.wilcoxon`` (method
     "auto": exact null distribution for ≤ 50 distinct non-zero differences, otherwise
     exact permutations up to 13 or the tie-corrected normal approximation); ``sign_p``:
-    two-sided exact sign test (binomial test of ``it2_lower`` among the non-zero
+    two-sided exact sign test (binomial test of ``lower`` among the non-zero
     differences). With no non-zero difference (e.g. bit-identical runs, or no pair) both
     p-values are 1.0 and ``no_difference`` is True, so that nothing is tested.
     """
@@ -276,7 +357,7 @@ def paired_metric(d: Sequence[float], confidence: float = 0.95) -> dict:
     lower, higher = int(np.count_nonzero(nz < 0)), int(np.count_nonzero(nz > 0))
     med = quantile_interval(d, 0.5, confidence)
     out = {"n_pairs": len(d), "median_diff": med[0], "median_diff_ci": med[1:],
-           "it2_lower": lower, "it2_higher": higher, "equal": len(d) - len(nz),
+           "lower": lower, "higher": higher, "equal": len(d) - len(nz),
            "wilcoxon_p": 1.0, "sign_p": 1.0, "no_difference": len(nz) == 0}
     if len(nz):
         # ±∞ (one run never settled) → a finite value beyond every other |d|: same ranks,
@@ -289,35 +370,46 @@ def paired_metric(d: Sequence[float], confidence: float = 0.95) -> dict:
     return out
 
 
-def paired_tests(rows: Sequence[dict], confidence: float = 0.95) -> list[dict]:
-    """IT2 against type-1 on the same samples, per level and over all levels.
+def paired_tests(rows: Sequence[dict], confidence: float = 0.95, *,
+                 controllers: Sequence[str] | None = None, reference: str | None = None) -> list[dict]:
+    """Each controller against the reference on the same samples, per level and over all levels.
 
     Parameters
     ----------
     rows : sequence of dict
-        The sweep's rows; the IT2 and type-1 rows with the same (level, sample) are a pair.
+        The sweep's rows; a controller's and the reference's rows with the same (level,
+        sample) are a pair.
     confidence : float
         Confidence level of the intervals.
+    controllers : sequence of str, optional
+        The controllers, in the order of the report (see :func:`resolve_controllers`).
+        None: those of ``rows``, first-seen order.
+    reference : str, optional
+        The controller the others are paired with. None: the last of ``controllers``.
 
     Returns
     -------
     list of dict
-        One entry per level (sorted), then one over all levels (``level`` None). Keys:
-        ``level``; ``n_pairs``; ``success``: ``both``, ``it2_only``, ``t1_only``,
+        For each controller other than the reference (in the order of ``controllers``), one
+        entry per level (sorted), then one over all levels (``level`` None); no entry with
+        fewer than two controllers. Keys: ``controller``, ``reference``, ``level``;
+        ``n_pairs``; ``success``: ``both``, ``only_controller``, ``only_reference``,
         ``neither`` (pair counts) and ``mcnemar_p``, the exact two-sided McNemar p-value
-        (``scipy.stats.binomtest`` of ``it2_only`` among the discordant pairs with p = ½;
-        1.0 without discordant pairs); ``metrics``: for each metric of
-        :func:`present_metrics`, :func:`paired_metric` of the differences over the pairs
-        in which both runs stayed up and have the metric (metric unit).
+        (``scipy.stats.binomtest`` of ``only_controller`` among the discordant pairs with
+        p = ½; 1.0 without discordant pairs); ``metrics``: for each metric of
+        :func:`present_metrics`, :func:`paired_metric` of the differences
+        ``controller − reference`` over the pairs in which both runs stayed up and have the
+        metric (metric unit).
     """
+    controllers, reference = resolve_controllers(rows, controllers, reference)
+    rows = _select(rows, controllers)
     metrics = present_metrics(rows)
-    pairs = _pairs(rows)
 
-    def entry(level, group):
+    def entry(controller, level, group):
         s = [(bool(a.get("success")), bool(b.get("success"))) for a, b in group]
         b_, c_ = s.count((True, False)), s.count((False, True))
-        out = {"level": level, "n_pairs": len(group),
-               "success": {"both": s.count((True, True)), "it2_only": b_, "t1_only": c_,
+        out = {"controller": controller, "reference": reference, "level": level, "n_pairs": len(group),
+               "success": {"both": s.count((True, True)), "only_controller": b_, "only_reference": c_,
                            "neither": s.count((False, False)),
                            "mcnemar_p": float(stats.binomtest(b_, b_ + c_, 0.5).pvalue)
                            if b_ + c_ else 1.0},
@@ -329,9 +421,19 @@ def paired_tests(rows: Sequence[dict], confidence: float = 0.95) -> list[dict]:
             out["metrics"][key] = paired_metric(d, confidence)
         return out
 
-    out = [entry(lv, [p for p in pairs if float(p[0]["level"]) == lv]) for lv in _levels(rows)]
-    out.append(entry(None, pairs))
+    out = []
+    for c in controllers:
+        if c == reference:
+            continue
+        pairs = paired_rows(rows, c, reference)
+        out += [entry(c, lv, [p for p in pairs if float(p[0]["level"]) == lv]) for lv in _levels(rows)]
+        out.append(entry(c, None, pairs))
     return out
+
+
+def comparisons(paired: Sequence[dict]) -> list[tuple[str, str]]:
+    """The (controller, reference) sections of :func:`paired_tests` output, in order."""
+    return list(dict.fromkeys((p["controller"], p["reference"]) for p in paired))
 
 
 # ---------------------------------------------------------------------------- reports
@@ -364,8 +466,14 @@ def _rate(s: dict) -> str:
     return f"{rate} [{lo:.3f}, {hi:.3f}]"
 
 
+def _report_controllers(summary, paired) -> list[str]:
+    """The controllers of a report in its order: the summary's, then any only in ``paired``."""
+    return list(dict.fromkeys([*(s["controller"] for s in summary),
+                               *(c for pair in comparisons(paired) for c in pair)]))
+
+
 def summary_markdown(summary: list[dict], paired: list[dict], title: str,
-                     notes: Sequence[str] = ()) -> str:
+                     notes: Sequence[str] = (), *, labels: Mapping[str, str] | None = None) -> str:
     """The sweep's report in Markdown: success rates, metric quantiles, paired tests.
 
     Parameters
@@ -373,11 +481,14 @@ def summary_markdown(summary: list[dict], paired: list[dict], title: str,
     summary : list of dict
         :func:`summarize` output.
     paired : list of dict
-        :func:`paired_tests` output.
+        :func:`paired_tests` output: one section per (controller, reference).
     title : str
         Level-1 heading.
     notes : sequence of str
         Lines written under the title (e.g. the scenario, the number of samples).
+    labels : mapping of str to str, optional
+        Display names of the controllers (:func:`controller_labels`; default
+        :func:`default_label`).
 
     Returns
     -------
@@ -385,7 +496,8 @@ def summary_markdown(summary: list[dict], paired: list[dict], title: str,
         Markdown text; "—" marks an undefined value or an end no sample can bound.
     """
     pct = f"{100 * (summary[0]['confidence'] if summary else 0.95):g} %"
-    ctl = lambda c: CONTROLLER_LABELS.get(c, c)  # noqa: E731
+    names = controller_labels(_report_controllers(summary, paired), labels)
+    ctl = names.__getitem__
     keys = list(summary[0]["metrics"]) if summary else []
     info = {m[0]: m for m in METRICS}
     out = [f"# {title}", ""]
@@ -415,30 +527,36 @@ def summary_markdown(summary: list[dict], paired: list[dict], title: str,
             line += " ∞: never settled within the run."
         out += ["", line, ""]
 
-    out += ["## IT2 against type-1, paired on the same samples", "", "### Success", ""]
-    out += _table(["λ", "pairs", "both succeed", "only IT2", "only type-1", "neither", "McNemar p"],
-                  [[_level(p["level"]), str(p["n_pairs"]), *(str(p["success"][k]) for k in
-                    ("both", "it2_only", "t1_only", "neither")), _num(p["success"]["mcnemar_p"])]
-                   for p in paired])
-    out += ["", "p: exact two-sided McNemar test (binomial test on the discordant pairs).", ""]
-    if keys:
-        out += ["### Metrics", ""]
-        body = []
-        for p in paired:
-            for key in keys:
-                m, (_, label, unit, _) = p["metrics"][key], info[key]
-                body.append([_level(p["level"]), f"{label} ({unit})", str(m["n_pairs"]),
-                             _with_ci(m["median_diff"], m["median_diff_ci"]),
-                             f"{m['it2_lower']} / {m['it2_higher']} / {m['equal']}",
-                             _num(m["wilcoxon_p"]) + ("" if not m["no_difference"] else
-                                                      " (no pairs)" if not m["n_pairs"] else " (all equal)"),
-                             _num(m["sign_p"])])
-        out += _table(["λ", "metric", "pairs", f"median IT2 − type-1 [{pct} CI]",
-                       "IT2 lower / higher / equal", "Wilcoxon p", "sign p"], body)
-        out += ["", f"Over the pairs in which both runs stayed up. CI: order-statistic interval of "
-                f"the median difference, {pct}. p: two-sided Wilcoxon signed-rank test (zero "
-                "differences dropped) and exact sign test; no test is made without a non-zero "
-                "difference (p = 1).", ""]
+    sections = comparisons(paired)
+    if not sections:
+        out += ["## Paired comparison", "", "Fewer than two controllers: nothing to pair.", ""]
+    for c, ref in sections:
+        a, b = ctl(c), ctl(ref)
+        section = [p for p in paired if (p["controller"], p["reference"]) == (c, ref)]
+        out += [f"## {a} against {b}, paired on the same samples", "", "### Success", ""]
+        out += _table(["λ", "pairs", "both succeed", f"only {a}", f"only {b}", "neither", "McNemar p"],
+                      [[_level(p["level"]), str(p["n_pairs"]), *(str(p["success"][k]) for k in
+                        ("both", "only_controller", "only_reference", "neither")), _num(p["success"]["mcnemar_p"])]
+                       for p in section])
+        out += ["", "p: exact two-sided McNemar test (binomial test on the discordant pairs).", ""]
+        if keys:
+            out += ["### Metrics", ""]
+            body = []
+            for p in section:
+                for key in keys:
+                    m, (_, label, unit, _) = p["metrics"][key], info[key]
+                    body.append([_level(p["level"]), f"{label} ({unit})", str(m["n_pairs"]),
+                                 _with_ci(m["median_diff"], m["median_diff_ci"]),
+                                 f"{m['lower']} / {m['higher']} / {m['equal']}",
+                                 _num(m["wilcoxon_p"]) + ("" if not m["no_difference"] else
+                                                          " (no pairs)" if not m["n_pairs"] else " (all equal)"),
+                                 _num(m["sign_p"])])
+            out += _table(["λ", "metric", "pairs", f"median {a} − {b} [{pct} CI]",
+                           f"{a} lower / higher / equal", "Wilcoxon p", "sign p"], body)
+            out += ["", f"Over the pairs in which both runs stayed up. CI: order-statistic interval of "
+                    f"the median difference, {pct}. p: two-sided Wilcoxon signed-rank test (zero "
+                    "differences dropped) and exact sign test; no test is made without a non-zero "
+                    "difference (p = 1).", ""]
     return "\n".join(out)
 
 
@@ -459,13 +577,21 @@ def _jsonable(x):
     return x
 
 
-def summary_json(summary: list[dict], paired: list[dict]) -> dict:
+def summary_json(summary: list[dict], paired: list[dict], *, labels: Mapping[str, str] | None = None) -> dict:
     """:func:`summarize` and :func:`paired_tests` as a JSON-serialisable dict.
 
     Intervals become two-element lists; undefined values are None; an infinite value
     (e.g. a settling time that never came) is the string "inf" (JSON has no infinity).
-    ``metrics`` lists the key, label and unit (SI) of each summarised metric.
+    ``metrics`` lists the key, label and unit (SI) of each summarised metric;
+    ``controllers`` the controllers in the report's order, ``labels`` their display names
+    (:func:`controller_labels` of ``labels``); ``reference`` the controller the others are
+    paired with (None without pairs); ``comparisons`` the paired sections, as
+    ``{"controller", "reference"}`` (``paired`` holds their entries, each naming both).
     """
     keys = list(summary[0]["metrics"]) if summary else []
+    controllers = _report_controllers(summary, paired)
     return _jsonable({"metrics": [{"key": k, "label": lb, "unit": u} for k, lb, u, _ in METRICS if k in keys],
+                      "controllers": controllers, "labels": controller_labels(controllers, labels),
+                      "reference": paired[0]["reference"] if paired else None,
+                      "comparisons": [{"controller": c, "reference": r} for c, r in comparisons(paired)],
                       "summary": summary, "paired": paired})

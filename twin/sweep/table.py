@@ -1,15 +1,15 @@
 """``sweep.csv``: one row per sample and controller, the sampled values and every metric.
 
-Rows are sorted by sample number and then controller (IT2 first), whatever order the
-samples finished in, and floats are written with ``repr`` (exact round trip), so the
-same sweep always gives the same file byte for byte.
+Rows are sorted by sample number and then controller, in the order of the sweep's
+controller list (the manifest's ``controllers``), whatever order the samples finished in,
+and floats are written with ``repr`` (exact round trip), so the same sweep always gives
+the same file byte for byte.
 """
 from __future__ import annotations
 
 import csv
+from collections.abc import Sequence
 from pathlib import Path
-
-from twin.sweep.worker import CONTROLLERS
 
 ID_COLUMNS = ("sample", "draw", "level", "seed", "controller", "status", "success")
 METRIC_COLUMNS = ("fell", "settling_time_s", "theta_rms_rad", "oscillation_peak_to_peak_rad", "final_theta_rad",
@@ -22,11 +22,27 @@ def columns(value_columns) -> list[str]:
     return [*ID_COLUMNS, *value_columns, *METRIC_COLUMNS, "error"]
 
 
-def rows_of(records, value_columns) -> list[dict]:
-    """Typed rows (see :func:`columns`) from stored sample records, sorted."""
+def record_controllers(records) -> list[str]:
+    """The controllers that ran in ``records``, in first-seen order (samples in order)."""
+    return list(dict.fromkeys(c for rec in sorted(records, key=lambda r: r["sample"]) for c in rec["runs"]))
+
+
+def rows_of(records, value_columns, controllers: Sequence[str] | None = None) -> list[dict]:
+    """Typed rows (see :func:`columns`) from stored sample records, sorted by sample, then
+    controller in the order of ``controllers``.
+
+    Every sample has a row for every controller of ``controllers``: one it has no run of
+    (its worker failed) has status "error". Runs of controllers not listed are left out.
+    ``controllers`` None: :func:`record_controllers` (pass the manifest's list, so that
+    a sweep whose samples all failed still has its rows).
+    """
+    if controllers is None:
+        controllers = record_controllers(records)
+    elif isinstance(controllers, str):
+        controllers = [controllers]
     rows = []
     for rec in sorted(records, key=lambda r: r["sample"]):
-        for c in CONTROLLERS:
+        for c in controllers:
             m = rec["runs"].get(c)
             row = {"sample": rec["sample"], "draw": rec["draw"], "level": rec["level"], "seed": rec["seed"],
                    "controller": c, "status": m["status"] if m else "error", "success": bool(m and m["success"])}

@@ -1,9 +1,11 @@
-"""What a sweep worker runs: one sample, both controllers, on its own PyBullet clients.
+"""What a sweep worker runs: one sample, every controller of the sweep, on its own PyBullet clients.
 
 :func:`run_sample` is the only function a backend ships to its workers (local
 processes or Ray tasks), so every backend computes the same thing. It depends on
-nothing but its arguments: the :class:`SweepJob` carries the validated scenario and the
-LMI design the sweep solved once (workers do not solve it again, nor import cvxpy).
+nothing but its arguments: the :class:`SweepJob` carries the validated scenario, the
+controller kinds, the LMI design the sweep solved once (workers do not solve it again,
+nor import cvxpy) and the directories of the plugins' modules (put on ``sys.path`` in
+the worker, so a spawned process or a Ray worker imports the same files).
 """
 from __future__ import annotations
 
@@ -11,25 +13,34 @@ import os
 import time
 from dataclasses import dataclass
 
-CONTROLLERS = ("it2", "t1")
 # Fault injection for the tests: sample numbers whose worker dies (os._exit) every time.
 CRASH_ENV = "TWIN_SWEEP_CRASH_SAMPLES"
 
 
 @dataclass(frozen=True)
 class SweepJob:
-    """The scenario's validated data, source and ``--set`` items, the root seed, and the design."""
+    """The scenario's validated data, source and ``--set`` items, the root seed, the design
+    (None: not needed by the kinds, or solved where a plugin asks), the controller kinds in
+    order and the plugins' module directories."""
 
     data: dict
     source: str
     overrides: tuple
     root_seed: int
     design: object
+    controllers: tuple = ("it2", "t1")
+    plugin_paths: tuple = ()
 
     def scenario(self):
+        import sys
+
         from twin.scenarios.scenario import Scenario
 
-        return Scenario(self.data, self.source, self.overrides).adopt_design(self.design)
+        for path in reversed(self.plugin_paths):
+            if path not in sys.path:
+                sys.path.insert(0, path)
+        sc = Scenario(self.data, self.source, self.overrides)
+        return sc.adopt_design(self.design) if self.design is not None else sc
 
 
 def run_sample(job: SweepJob, index: int) -> dict:
@@ -49,7 +60,7 @@ def run_sample(job: SweepJob, index: int) -> dict:
     try:
         from twin.scenarios.runner import run_scenario
 
-        result = run_scenario(sample.scenario, CONTROLLERS)
+        result = run_scenario(sample.scenario, job.controllers)
         runs = {k: {**m, "success": success(m, scenario)} for k, m in result.metrics.items()}
     except Exception as exc:  # noqa: BLE001 -- a sample that errors is a result, kept with its message
         runs, error = {}, f"{type(exc).__name__}: {' '.join(str(exc).split())}"
