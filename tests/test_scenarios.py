@@ -147,7 +147,8 @@ INVALID_OVERRIDES = {
     "push-after-shortened-run": (["pushes=[{force=[20,0,0], start=3, duration=0.1}]", "duration=1"],
                                  ["pushes[0].start: 3 s is not before the end of the run (duration = 1 s)"]),
     "bad-string-choice": (["sensors.estimator=magic"],
-                          ["sensors.estimator: 'magic' is not allowed", "'ekf', 'complementary', 'kalman2'"]),
+                          ["sensors.estimator: estimator 'magic' is neither a built-in (ekf, complementary, kalman2, "
+                           "ideal) nor an import path 'package.module:attribute'"]),
 }
 
 

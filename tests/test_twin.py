@@ -182,7 +182,7 @@ def test_motor_paths_agree_as_inductance_vanishes(balance, compensation):
         for inductance in (0.0, 1e-7)]
     zero, tiny = runs
     assert zero.status == tiny.status and zero.t.shape == tiny.t.shape
-    assert zero.summary()["saturated_fraction"] > 0.5
+    assert np.mean(zero.actuation[:-1, 4:6] > 0) > 0.5  # the share of periods the drivers saturated
     assert np.max(np.abs(zero.signal("psi_dot"))) > 5.0
     assert np.max(np.abs(zero.signal("theta") - tiny.signal("theta"))) < 1e-4
     torque = zero.signal("torque_l")

@@ -302,7 +302,8 @@ def check_protocol(role: str, kind: str, obj) -> None:
         from twin.protocols import describe_object
 
         raise PluginError(f"{role} {kind!r}: {describe_object(obj)} has no {' or '.join(f'{m}()' for m in missing)}; "
-                          f"a {role} needs {_SIGNATURES[role]} (see twin.protocols.{role.capitalize()})")
+                          f"{'an' if role[0] in 'aeiou' else 'a'} {role} needs {_SIGNATURES[role]} "
+                          f"(see twin.protocols.{role.capitalize()})")
     if role == "controller":
         signals = getattr(obj, "signals", ())
         if not (isinstance(signals, (tuple, list)) and all(isinstance(s, str) and s for s in signals)):

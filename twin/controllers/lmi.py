@@ -396,7 +396,8 @@ def _explain_decay(A, B, decay_rate, solver, why) -> None:
         else:
             lo = mid
     certified = False
-    for _ in range(8):  # report only a value that the full design really certifies
+    for _ in range(8):  # report only a value that the full design really certifies, as printed
+        lo = float(f"{lo * (1 - 2e-4):.4g}")  # 4 significant digits, rounded down
         if lo > 1e-3 and not isinstance(_certified_solution(A, B, lo, solver), str):
             certified = True
             break
