@@ -261,7 +261,7 @@ def plot_paired(rows: list[dict], path, *, controllers: Sequence[str] | None = N
                 _log_if_wide(ax, v, "y")
                 ax.legend(fontsize=7, loc="upper left")
             else:
-                _empty(ax, "no pair with both runs up")
+                _empty(ax, "no pair with both values finite" if pts else "no pair with both runs up")
             dropped = len(pts) - len(finite)
             title = label if len(others) == 1 else f"{a_name} against {r_name}: {label}"
             ax.set_title(title + (f" (pairs with ∞, not shown: {dropped})" if dropped else ""), fontsize=9)

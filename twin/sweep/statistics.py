@@ -5,8 +5,8 @@ controllers may run (built-in names such as "it2", "t1", "lqr", or plugins named
 path, "pkg.mod:Class"); the rows of one sample ran on identical conditions, so each
 controller's row is paired with the row of a chosen *reference* controller (by default the
 last of the list: for ``["it2", "t1"]``, IT2 against type-1). Nothing here knows a
-controller by name except :func:`default_label`. Everything here is distribution-free or
-exact where it can be:
+controller by name: display names come from the registry (:func:`default_label`).
+Everything here is distribution-free or exact where it can be:
 
 * success rates: Wilson score intervals;
 * quantiles (median, 95th percentile) of a metric: order-statistic (binomial) intervals;
@@ -30,21 +30,18 @@ import numpy as np
 from scipy import stats
 
 FELL_STATUSES = ("fell", "diverged")
-#: Display names of the built-in controllers; the one place that knows them (see :func:`default_label`).
-_BUILTIN_LABELS = {"it2": "IT2", "t1": "type-1", "lqr": "LQR"}
 
 
 # ---------------------------------------------------------------------------- controllers
 
 def default_label(name: str) -> str:
-    """The display name of controller ``name``: "IT2", "type-1", "LQR" for the built-in
-    "it2", "t1", "lqr"; for a plugin named by import path ("pkg.mod:MyController") the
-    attribute after the last ":" ("MyController"); otherwise ``name`` itself."""
-    if name in _BUILTIN_LABELS:
-        return _BUILTIN_LABELS[name]
-    if ":" in name:
-        return name.rsplit(":", 1)[1].strip() or name
-    return name
+    """The display name of controller ``name``, as :func:`twin.registry.label` gives it (the
+    registry alone knows the built-in kinds): "IT2", "type-1", "LQR" for the built-in "it2",
+    "t1", "lqr"; for a plugin named by import path ("pkg.mod:MyController") the attribute
+    after the ":" ("MyController"); otherwise ``name`` itself."""
+    from twin.registry import label  # imported when needed: the statistics themselves need no simulator
+
+    return label(name) or name
 
 
 def controller_labels(controllers: Sequence[str], labels: Mapping[str, str] | None = None) -> dict[str, str]:
