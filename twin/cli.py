@@ -398,11 +398,12 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
 def _success_table(summary) -> str:
     from twin.registry import label
 
-    lines = [f"  {'level':>7} {'controller':>14} {'n':>5} {'success':>8}  {'95 % CI':>15} {'falls':>6} {'errors':>6}"]
+    width = max([10] + [len(label(s["controller"])) for s in summary])
+    lines = [f"  {'level':>7} {'controller':>{width}} {'n':>5} {'success':>8}  {'95 % CI':>15} {'falls':>6} {'errors':>6}"]
     for s in summary:
         lo, hi = s["success_ci"]
         level = "all" if s["level"] is None else f"{s['level']:g}"
-        lines.append(f"  {level:>7} {label(s['controller'])[:14]:>14} {s['n']:5d} {s['success_rate']:8.1%}  "
+        lines.append(f"  {level:>7} {label(s['controller']):>{width}} {s['n']:5d} {s['success_rate']:8.1%}  "
                      f"[{lo:5.1%}, {hi:5.1%}] {s['falls']:6d} {s['errors']:6d}")
     return "\n".join(lines)
 

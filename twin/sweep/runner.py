@@ -189,11 +189,13 @@ def write_report(out: Path, manifest: dict, records, scenario: Scenario) -> Swee
     if errors:
         notes.append(f"{len(errors)} samples ended in an error (first: sample {errors[0]['sample']}: "
                      f"{errors[0]['error']})")
-    text = statistics.summary_markdown(summary, paired, f"Sweep of {scenario.name}", notes)
+    text = statistics.summary_markdown(summary, paired, f"Sweep of {scenario.name}", notes, labels=labels)
     (out / "summary.md").write_text(text, encoding="utf-8")
     files.append(out / "summary.md")
-    files.append(report.write_json({"notes": notes, **statistics.summary_json(summary, paired)}, out / "summary.json"))
-    files.append(figures.plot_success(summary, out / "success.png"))
-    files.append(figures.plot_distributions(rows, out / "distributions.png"))
-    files.append(figures.plot_paired(rows, out / "paired.png"))
+    files.append(report.write_json({"notes": notes, **statistics.summary_json(summary, paired, labels=labels)},
+                                   out / "summary.json"))
+    files.append(figures.plot_success(summary, out / "success.png", controllers=kinds, labels=labels))
+    files.append(figures.plot_distributions(rows, out / "distributions.png", controllers=kinds, labels=labels))
+    files.append(figures.plot_paired(rows, out / "paired.png", controllers=kinds, reference=reference,
+                                     labels=labels))
     return SweepResult(out, manifest, rows, summary, paired, files)
