@@ -232,8 +232,8 @@ class EKFEstimator:
             self._core = _kernel.new((
                 self.dt, self.r, self.xi, self.zi, self.b_r, self.alpha0, self.delta, self._g_var, self._a_var,
                 self._bias_q, 0.0, self.gates[1], self.gates[2], 0.0, self.imu_gates[1], self.imu_gates[2],
-                *self._limits, m.dt, m.m11, m.m12, m.m22, m._plant.n_bla, m._plant.d_b, m._plant.d_w, m._plant.g_b,
-                m._plant.yaw_damping, m._plant.m33, m.g, float(motor is not None), float(m.compensates),
+                *self._limits, m.dt, m.m11, m.m12, m.m22, m.plant.n_bla, m.plant.d_b, m.plant.d_w, m.plant.g_b,
+                m.plant.yaw_damping, m.plant.m33, m.g, float(motor is not None), float(m.compensates),
                 m.tau_max, m.i_tau, m.sigma_tau, m.c_e, TORQUE_TOLERANCE, float(self.every)))
 
     # ---- public -----------------------------------------------------------------------

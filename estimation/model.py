@@ -25,7 +25,7 @@ import numpy as np
 
 from twin.actuators.dc_motor import DCMotorParams
 from twin.params import NOMINAL, RobotParams
-from twin.plant.analytic import _NO_TAU, _rhs
+from twin.plant.analytic import NO_TAU, rhs
 from twin.sensors.specs import DEFAULT_ENCODERS, DEFAULT_IMU, EncoderSpec, ImuSpec
 
 TORQUE_TOLERANCE = 0.05  # 1σ of the delivered torque relative to the command (±10 % at 2σ)
@@ -55,7 +55,7 @@ class EstimatorModel:
         self.c_e = 0.0 if motor is None else motor.electrical_damping
         self.m11, self.m12, self.m22 = p.m11, p.m12, p.m22
         # equation (1) with the back-EMF slope added to the body–wheel damping
-        self._plant = p.replace(d_b=p.d_b + self.c_e)
+        self.plant = p.replace(d_b=p.d_b + self.c_e)
         self.b_r = p.b / p.r
         self.r, self.g = p.r, p.g
         self.xi, self.zi = imu.position[0], imu.position[2]
@@ -88,7 +88,7 @@ class EstimatorModel:
     # ---- dynamics ----------------------------------------------------------------------
     def f(self, t: float, s, u) -> np.ndarray:
         """ṡ (6,) for state ``s`` (6,) and motor torques τ_0 ``u`` = (τ_l, τ_r) in N·m."""
-        return np.array(_rhs(s, u[0], u[1], self._plant, _NO_TAU)[:6])
+        return np.array(rhs(s, u[0], u[1], self.plant, NO_TAU)[:6])
 
     def step(self, s, tl: float, tr: float, periods: int = 1) -> np.ndarray:
         """State after ``periods`` control periods (classical RK4 per period), τ_0 = (tl, tr) held."""

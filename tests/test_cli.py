@@ -73,7 +73,7 @@ def test_analytic_run_writes_outputs(tmp_path):
     m = json.loads((out / "metrics.json").read_text())
     assert abs(m["controllers"]["it2"]["final_position_error_m"]) < 0.01
     header = (out / "trajectory_it2.csv").read_text().splitlines()[0]
-    assert "theta [rad]" in header and "ul [N·m]" in header
+    assert "theta [rad]" in header and "ul_cmd [N·m]" in header and "torque_l [N·m]" in header  # the twin's columns
 
 
 def test_surface_export(tmp_path):

@@ -15,7 +15,7 @@ from twin.controllers.lqr import LQRController, build_lqr, lqr_design, sampled_c
 from twin.controllers.mamdani import DEFAULT_U_ALPHA_MAX
 from twin.errors import TwinError
 from twin.params import NOMINAL
-from twin.plant.analytic import _rhs, rk4_step
+from twin.plant.analytic import rhs, rk4_step
 from twin.plant.ts_model import ts_matrices
 from twin.protocols import Controller, Targets
 
@@ -117,8 +117,8 @@ def test_yaw_model_is_equation_1_linearised_at_rest():
     # α̈ as a function of α̇ and of u_α (ul = −u_α, ur = +u_α), by central differences
     xp, xm = x.copy(), x.copy()
     xp[5], xm[5] = h, -h
-    d_alpha_dot = (_rhs(xp, 0.0, 0.0, NOMINAL, (0, 0, 0))[5] - _rhs(xm, 0.0, 0.0, NOMINAL, (0, 0, 0))[5]) / (2 * h)
-    d_u_alpha = (_rhs(x, -h, h, NOMINAL, (0, 0, 0))[5] - _rhs(x, h, -h, NOMINAL, (0, 0, 0))[5]) / (2 * h)
+    d_alpha_dot = (rhs(xp, 0.0, 0.0, NOMINAL, (0, 0, 0))[5] - rhs(xm, 0.0, 0.0, NOMINAL, (0, 0, 0))[5]) / (2 * h)
+    d_u_alpha = (rhs(x, -h, h, NOMINAL, (0, 0, 0))[5] - rhs(x, h, -h, NOMINAL, (0, 0, 0))[5]) / (2 * h)
     assert A[1, 1] == pytest.approx(d_alpha_dot, rel=1e-6)
     assert B[1, 0] == pytest.approx(d_u_alpha, rel=1e-6)
     assert A[0, 1] == 1.0 and A[0, 0] == A[1, 0] == B[0, 0] == 0.0

@@ -1,10 +1,38 @@
 """mtwip-twin: a digital twin of a mobile two-wheeled inverted pendulum under IT2 fuzzy control.
 
-Data flow: plant (``twin.plant``) -> sensors -> estimator (``estimation``) ->
-controllers (``twin.controllers``, built on ``twin.fuzzy``) -> actuators -> plant.
+Data flow: plant (``twin.plant``) -> sensors (``twin.sensors``) -> estimator (``estimation``)
+-> controllers (``twin.controllers``, built on ``twin.fuzzy``) -> actuators -> plant, one
+control period per :meth:`ClosedLoop.step`; the contracts between them are in
+``twin.protocols`` and the kinds (built-in names or import paths) in ``twin.registry``.
+
+The Python API, loaded on first use::
+
+    from twin import load_scenario, run_scenario
+    result = run_scenario(load_scenario("paper-exp3"), ["it2", "lqr"])
+    result.metrics["lqr"]["settling_time_s"]
 """
-from twin.errors import InfeasibleDesign, TwinError
+from __future__ import annotations
+
+import importlib
+
+from twin.errors import InfeasibleDesign, PluginError, TwinError
 from twin.params import NOMINAL, RobotParams
 
 __version__ = "0.1.0"
-__all__ = ["NOMINAL", "RobotParams", "TwinError", "InfeasibleDesign", "__version__"]
+
+_LAZY = {
+    "ClosedLoop": "twin.loop", "Run": "twin.runs", "Targets": "twin.protocols", "Controller": "twin.protocols",
+    "Estimator": "twin.protocols", "Experiment": "twin.experiments", "PAPER_EXPERIMENTS": "twin.experiments",
+    "simulate_twin": "twin.bullet_loop", "load_scenario": "twin.scenarios", "run_scenario": "twin.scenarios.runner",
+    "build_controller": "twin.registry", "build_estimator": "twin.registry", "BuildContext": "twin.registry",
+    "TwinConfig": "twin.plant.bullet", "SensorConfig": "twin.sensors",
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'twin' has no attribute {name!r}")
+
+
+__all__ = ["NOMINAL", "RobotParams", "TwinError", "InfeasibleDesign", "PluginError", "__version__", *_LAZY]

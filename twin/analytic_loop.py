@@ -9,7 +9,6 @@ see the true state here (the estimator comes with the sensor models).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -17,76 +16,22 @@ from twin.controllers.cascade import build_cascade
 from twin.controllers.lmi import BalanceDesign, design_balance_gains
 from twin.errors import TwinError
 from twin.experiments import PAPER_EXPERIMENTS, Experiment
-from twin.metrics import settling_time
 from twin.params import NOMINAL, RobotParams
-from twin.plant.analytic import STATE_NAMES, STATE_UNITS, rk4_step
+from twin.plant.analytic import STATE_NAMES, rk4_step, wheel_angles
+from twin.runs import COMMAND_UNITS, Run
 from twin.timing import steps_per_control
-
-
-@dataclass
-class AnalyticRun:
-    """A trajectory: ``t`` (n,) s; ``x`` (n, 8) state (see ``STATE_NAMES``); commands (n,)."""
-
-    t: np.ndarray
-    x: np.ndarray
-    ul: np.ndarray
-    ur: np.ndarray
-    u: np.ndarray
-    theta_off: np.ndarray
-    u_alpha: np.ndarray
-    params: RobotParams = field(repr=False)
-    experiment: Experiment | None = None
-    controller: str = ""
-
-    def signal(self, name: str) -> np.ndarray:
-        return self.x[:, STATE_NAMES.index(name)]
-
-    @property
-    def distance(self) -> np.ndarray:
-        """Travelled distance p = r ψ in m."""
-        return self.params.r * self.signal("psi")
-
-    @property
-    def total_torque(self) -> np.ndarray:
-        """ul + ur in N·m, as applied."""
-        return self.ul + self.ur
-
-    def columns(self) -> tuple[list[str], list[str], np.ndarray]:
-        """(names, units, data (n, k)) of everything logged, for CSV files."""
-        names = ["t", *STATE_NAMES, "ul", "ur", "u_balance", "theta_off", "u_alpha"]
-        units = ["s", *STATE_UNITS, "N·m", "N·m", "N·m", "rad", "N·m"]
-        data = np.column_stack([self.t, self.x, self.ul, self.ur, self.u, self.theta_off, self.u_alpha])
-        return names, units, data
-
-    def settling_time(self, tol: float = 0.01) -> float:
-        """First time (s) after which |θ| stays below ``tol`` rad; inf if it never does."""
-        return settling_time(self.t, self.signal("theta"), tol)
-
-    def summary(self) -> dict:
-        e = self.experiment
-        out = {
-            "controller": self.controller,
-            "settling_time_s": self.settling_time(),
-            "final_theta_rad": float(self.x[-1, 0]),
-            "max_abs_u_nm": float(np.max(np.abs(self.u))),
-            "max_abs_wheel_torque_nm": float(max(np.max(np.abs(self.ul)), np.max(np.abs(self.ur)))),
-            "final_distance_m": float(self.distance[-1]),
-            "final_heading_rad": float(self.signal("alpha")[-1]),
-        }
-        if e is not None and e.p_d is not None:
-            out["final_position_error_m"] = float(self.distance[-1] - e.p_d)
-        if e is not None and e.alpha_d is not None:
-            out["final_heading_error_rad"] = float(self.signal("alpha")[-1] - e.alpha_d)
-        return out
 
 
 def simulate(controller, experiment: Experiment, params: RobotParams = NOMINAL,
              duration: float | None = None, physics_dt: float = 0.001, control_dt: float = 0.005,
-             x0=None, disturbance=None, controller_name: str = "") -> AnalyticRun:
-    """Run ``controller`` on the analytic plant ``params`` (the "true plant").
+             x0=None, disturbance=None, controller_name: str = "") -> Run:
+    """Run ``controller`` (a :class:`twin.protocols.Controller`) on the analytic plant ``params``
+    (the "true plant"), reading the true state; returns a :class:`twin.runs.Run` like the twin's.
 
     ``disturbance(t) -> (τ1, τ2, τ3)`` in N·m, optional. ``x0`` (8,) overrides the
-    experiment's initial state [θ0, 0, …]. Logged at the control rate.
+    experiment's initial state [θ0, 0, …]. Logged at the control rate: the truth columns
+    from the state (ψ_l, ψ_r by rolling without slip, roll 0), the estimates equal to the
+    truth, the commands as delivered (ideal torque sources: duties 0, never saturated).
     """
     k = steps_per_control(physics_dt, control_dt)
     duration = experiment.duration if duration is None else float(duration)
@@ -104,25 +49,46 @@ def simulate(controller, experiment: Experiment, params: RobotParams = NOMINAL,
     if hasattr(controller, "reset"):
         controller.reset(targets)
     log = np.empty((n_ctrl + 1, 8))
-    cmds = np.zeros((n_ctrl + 1, 5))
+    names = ("ul_cmd", "ur_cmd") + tuple(getattr(controller, "signals", ()))
+    cmds = np.zeros((n_ctrl + 1, len(names)))
     for i in range(n_ctrl + 1):
         log[i] = x
         if not np.all(np.isfinite(x)):
             raise TwinError(f"the analytic simulation diverged at t = {i * control_dt:.3f} s")
-        c = tuple(controller(x, targets))  # (ul, ur, *signals); the cascade's signals are u, θ_off, u_α
-        cmds[i, :min(5, len(c))] = c[:5]
+        c = tuple(controller(x[:6], targets))  # (ul, ur, *signals)
+        if len(c) != len(names) or not np.all(np.isfinite(c)):
+            raise TwinError(f"the controller returned {c!r}; expected {len(names)} finite numbers ({', '.join(names)})")
+        cmds[i] = c
         if i == n_ctrl:
             break
         for j in range(k):
             tau = None if disturbance is None else disturbance((i * k + j) * physics_dt)
             x = rk4_step(x, c[0], c[1], params, physics_dt, tau)
-    t = np.arange(n_ctrl + 1) * control_dt
-    return AnalyticRun(t, log, cmds[:, 0], cmds[:, 1], cmds[:, 2], cmds[:, 3], cmds[:, 4], params, experiment,
-                       controller_name)
+    return _as_run(log, cmds, names, control_dt, params, experiment, controller_name, controller)
+
+
+def _as_run(log: np.ndarray, cmds: np.ndarray, names: tuple, control_dt: float, params: RobotParams,
+            experiment: Experiment, controller_name: str, controller) -> Run:
+    """The analytic trajectory as a :class:`~twin.runs.Run` (columns of the twin's)."""
+    n = len(log)
+    t = np.arange(n) * control_dt
+    col = {name: log[:, i] for i, name in enumerate(STATE_NAMES)}
+    psi_l, psi_r = wheel_angles(log.T, params)
+    turn = params.b / params.r * col["alpha_dot"]
+    zeros = np.zeros(n)
+    truth = np.column_stack([t, col["theta"], col["theta_dot"], psi_l, psi_r, col["psi"], col["psi_dot"], col["alpha"],
+                             col["alpha_dot"], params.r * col["psi"], col["x"], col["y"], zeros,
+                             col["psi_dot"] - turn, col["psi_dot"] + turn])
+    delivered = np.vstack([cmds[:-1, :2], np.zeros((1, 2))])  # the last command is never applied
+    actuation = np.column_stack([zeros, zeros, delivered, zeros, zeros])
+    units = {**COMMAND_UNITS, **getattr(controller, "signal_units", {})}
+    return Run(t, truth, cmds, actuation, np.zeros((n, 3)), "ok", "", None, experiment, controller_name,
+               estimates=truth[:, [1, 2, 5, 6, 7, 8]].copy(), sensing="ideal", model_params=params,
+               command_names=names, command_units=tuple(units.get(k, "1") for k in names), plant="analytic")
 
 
 def run_paper_experiment(number: int, kind: str = "it2", design: BalanceDesign | None = None,
-                         plant: RobotParams = NOMINAL, model: RobotParams = NOMINAL, **kwargs) -> AnalyticRun:
+                         plant: RobotParams = NOMINAL, model: RobotParams = NOMINAL, **kwargs) -> Run:
     """Paper experiment 1, 2 or 3 with the ``kind`` controllers designed on ``model``."""
     if number not in PAPER_EXPERIMENTS:
         raise TwinError(f"paper experiment must be 1, 2 or 3, got {number!r}")

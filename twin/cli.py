@@ -58,6 +58,7 @@ def main():
       twin run paper-exp1 --controller it2,t1,lqr --set plant.scale={}
       twin sweep paper-exp3 --samples 50 --workers 2
       twin scenarios
+      twin kinds
       twin surface position --out runs/surfaces
     """
 
@@ -177,8 +178,7 @@ def analytic(experiment, controller, out, duration, gains_file, epsilon, rho, de
       twin analytic 3 --controller both --out runs/exp3
       twin analytic 1 --controller t1 --duration 5
     """
-    _paper_experiment("analytic", experiment, controller, out, duration, gains_file,
-                      (epsilon, rho, decay_rate, max_gain))
+    _paper_experiment(experiment, controller, out, duration, gains_file, (epsilon, rho, decay_rate, max_gain))
 
 
 @main.command(hidden=True, context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
@@ -191,12 +191,13 @@ def physics(experiment):
                     "--set plant.motor=ideal")
 
 
-def _paper_experiment(plant, experiment, controller, out, duration, gains_file, design_options):
+def _paper_experiment(experiment, controller, out, duration, gains_file, design_options):
     """Run paper experiment N with one or both controllers on the analytic model and write the outputs."""
-    from twin import analytic_loop as al
     from twin import report
+    from twin.analytic_loop import simulate
     from twin.controllers.cascade import build_cascade
     from twin.experiments import PAPER_EXPERIMENTS
+    from twin.metrics import run_metrics
 
     number = int(experiment[-1])
     if duration is not None and not (math.isfinite(duration) and 0 < duration <= 3600):
@@ -205,24 +206,22 @@ def _paper_experiment(plant, experiment, controller, out, duration, gains_file, 
     exp = PAPER_EXPERIMENTS[number]
     kinds = ["it2", "t1"] if controller == "both" else [controller]
     description = "analytic model, nominal"
-
-    def run_one(kind):
-        return al.simulate(build_cascade(kind, d, exp.targets), exp, duration=duration, controller_name=kind)
     runs, metrics = [], {}
     for kind in kinds:
-        run = run_one(kind)
+        run = simulate(build_cascade(kind, d, exp.targets), exp, duration=duration, controller_name=kind)
         runs.append(run)
-        metrics[kind] = run.summary()
+        metrics[kind] = run_metrics(run)
         report.write_trajectory_csv(run, out / f"trajectory_{kind}.csv")
     report.write_json({"experiment": exp.name, "description": exp.description, "plant": description,
                        "controllers": metrics}, out / "metrics.json")
     report.write_json(d.to_json_dict(), out / "design.json")
     report.plot_runs(runs, out / "figure.png", f"{exp.name}: {exp.description}\n{description}")
     click.echo(f"{exp.name}: {exp.description} ({description})")
-    keys = [k for k, v in metrics[kinds[0]].items() if isinstance(v, (int, float)) and not isinstance(v, bool)]
+    keys = ("settling_time_s", "theta_rms_rad", "final_theta_rad", "final_position_error_m", "final_heading_error_rad",
+            "iae_theta", "control_effort", "max_abs_torque_nm")
     click.echo(f"  {'metric':28}" + "".join(f"{k.upper():>12}" for k in kinds))
     for k in keys:
-        click.echo(f"  {k:28}" + "".join(f"{metrics[c][k]:12.4g}" for c in kinds))
+        click.echo(f"  {k:28}" + "".join(f"{_fmt(metrics[c][k]):>12}" for c in kinds))
     click.echo(f"wrote {out}/figure.png, metrics.json, design.json, " + ", ".join(f"trajectory_{k}.csv" for k in kinds))
 
 
@@ -479,6 +478,27 @@ def scenarios():
     width = max(map(len, items))
     for name, description in items.items():
         click.echo(f"{name:{width}}  {description}")
+
+
+@main.command()
+def kinds():
+    """List the built-in controller and estimator kinds (any 'package.module:attribute' works too).
+
+    \b
+    Examples:
+      twin kinds
+      twin run paper-exp2 --controller it2,lqr
+    """
+    from twin.registry import CONTROLLERS, ESTIMATORS
+
+    for title, table in (("controllers (--controller, controller.kinds)", CONTROLLERS),
+                         ("estimators (sensors.estimator)", ESTIMATORS)):
+        click.echo(title)
+        width = max(map(len, table))
+        for name, kind in table.items():
+            click.echo(f"  {name:{width}}  {kind.description}")
+    click.echo("your own: package.module:attribute, a class or factory (see the README, 'Use your own controller "
+               "and estimator')")
 
 
 @main.command()

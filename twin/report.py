@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from twin.analytic_loop import AnalyticRun
+from twin.runs import Run
 
 _COLOURS = {"it2": "tab:blue", "t1": "tab:orange"}
 
@@ -25,7 +25,7 @@ def _pyplot():
 def plot_runs(runs: list, path: Path, title: str = "") -> Path:
     """The paper's Figs. 6–8 panels (θ, torque, dψ/dt, distance, α) with runs overlaid.
 
-    ``runs``: :class:`~twin.analytic_loop.AnalyticRun` or :class:`~twin.bullet_loop.TwinRun`.
+    ``runs``: :class:`~twin.runs.Run` (from the twin or the analytic model).
     """
     plt = _pyplot()
     panels = [
@@ -61,7 +61,7 @@ def _save(plt, fig, path: Path) -> Path:
     return path
 
 
-def write_trajectory_csv(run: AnalyticRun, path: Path) -> Path:
+def write_trajectory_csv(run: Run, path: Path) -> Path:
     """Every logged signal, one row per control step, with units in the header."""
     names, units, data = run.columns()
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from twin.errors import TwinError
-from twin.fuzzy.mamdani import MamdaniFLS, _require_finite
+from twin.fuzzy.mamdani import MamdaniFLS, require_finite
 from twin.fuzzy.sets import LINGUISTIC_7, uniform_partition
 
 # Table II: rows = first input (p_e or α_e), columns = second input (θ̇ or α̇_e), NB..PB.
@@ -80,7 +80,7 @@ class ScaledFLS:
     def evaluate(self, x1, x2) -> np.ndarray:
         """Vectorised evaluation in physical units (arrays broadcast together)."""
         try:
-            _require_finite(x1, x2)
+            require_finite(x1, x2)
             a = np.clip(np.asarray(x1, dtype=float) / self.input_ranges[0], -1.0, 1.0)
             b = np.clip(np.asarray(x2, dtype=float) / self.input_ranges[1], -1.0, 1.0)
             return self.output_range * self.fls.evaluate(a, b)

@@ -98,7 +98,7 @@ class MamdaniFLS:
 
     def evaluate(self, x1, x2) -> np.ndarray:
         """Crisp outputs for arrays of normalised inputs (broadcast together)."""
-        _require_finite(x1, x2)
+        require_finite(x1, x2)
         try:
             a, b = np.broadcast_arrays(np.asarray(x1, dtype=float), np.asarray(x2, dtype=float))
         except ValueError:
@@ -126,7 +126,7 @@ class MamdaniFLS:
 
     def interval(self, x1, x2) -> tuple[np.ndarray, np.ndarray]:
         """The exact KM type-reduced interval [y_l, y_r] (whatever the configured reducer)."""
-        _require_finite(x1, x2)
+        require_finite(x1, x2)
         return tr.karnik_mendel(*self.firing(x1, x2), self.y)
 
     # -- scalar fast path -------------------------------------------------------
@@ -184,7 +184,7 @@ def _min_firing_sums(a_run, i0: int, b_run, j0: int, Y) -> tuple[float, float]:
     return s, w
 
 
-def _require_finite(*arrays) -> None:
+def require_finite(*arrays) -> None:
     for a in arrays:
         arr = np.asarray(a, dtype=float)
         if not np.all(np.isfinite(arr)):

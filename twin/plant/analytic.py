@@ -25,7 +25,7 @@ from twin.params import RobotParams
 STATE_NAMES = ("theta", "theta_dot", "psi", "psi_dot", "alpha", "alpha_dot", "x", "y")
 STATE_UNITS = ("rad", "rad/s", "rad", "rad/s", "rad", "rad/s", "m", "m")
 THETA, THETA_DOT, PSI, PSI_DOT, ALPHA, ALPHA_DOT, X, Y = range(8)
-_NO_TAU = (0.0, 0.0, 0.0)
+NO_TAU = (0.0, 0.0, 0.0)  # N·m: no external torques τ1..τ3
 
 
 def dynamics(t: float, x, u, params: RobotParams, tau=None) -> np.ndarray:
@@ -51,10 +51,12 @@ def dynamics(t: float, x, u, params: RobotParams, tau=None) -> np.ndarray:
 
     Use with scipy: ``solve_ivp(lambda t, x: dynamics(t, x, u, p), (0, T), x0)``.
     """
-    return np.array(_rhs(x, u[0], u[1], params, _NO_TAU if tau is None else tau))
+    return np.array(rhs(x, u[0], u[1], params, NO_TAU if tau is None else tau))
 
 
-def _rhs(x, ul: float, ur: float, p: RobotParams, tau) -> tuple:
+def rhs(x, ul: float, ur: float, p: RobotParams, tau) -> tuple:
+    """dx/dt of the first six states [θ, θ̇, ψ, ψ̇, α, α̇] (and the planar x, y rates) as a tuple:
+    equation (1) with wheel torques ``ul``, ``ur`` (N·m) and external torques ``tau`` (τ1..τ3)."""
     theta, theta_d, _psi, psi_d, alpha, alpha_d = x[0], x[1], x[2], x[3], x[4], x[5]
     s, c = math.sin(theta), math.cos(theta)
     m11, m12, m22, n_bla = p.m11, p.m12, p.m22, p.n_bla
@@ -84,17 +86,17 @@ def balance_dynamics(t: float, x, u: float, params: RobotParams, tau=None) -> np
     ``tau`` = [τ1, τ2] in N·m. Returns shape (4,).
     """
     full = (x[0], x[1], x[2], x[3], 0.0, 0.0)
-    d = _rhs(full, 0.5 * u, 0.5 * u, params, (0.0, 0.0, 0.0) if tau is None else (tau[0], tau[1], 0.0))
+    d = rhs(full, 0.5 * u, 0.5 * u, params, (0.0, 0.0, 0.0) if tau is None else (tau[0], tau[1], 0.0))
     return np.array(d[:4])
 
 
 def rk4_step(x: np.ndarray, ul: float, ur: float, params: RobotParams, dt: float, tau=None) -> np.ndarray:
     """One classical Runge–Kutta step of length ``dt`` (s) with inputs held constant."""
-    tau = _NO_TAU if tau is None else tau
-    k1 = np.array(_rhs(x, ul, ur, params, tau))
-    k2 = np.array(_rhs(x + 0.5 * dt * k1, ul, ur, params, tau))
-    k3 = np.array(_rhs(x + 0.5 * dt * k2, ul, ur, params, tau))
-    k4 = np.array(_rhs(x + dt * k3, ul, ur, params, tau))
+    tau = NO_TAU if tau is None else tau
+    k1 = np.array(rhs(x, ul, ur, params, tau))
+    k2 = np.array(rhs(x + 0.5 * dt * k1, ul, ur, params, tau))
+    k3 = np.array(rhs(x + 0.5 * dt * k2, ul, ur, params, tau))
+    k4 = np.array(rhs(x + dt * k3, ul, ur, params, tau))
     return x + (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
 
 

@@ -67,6 +67,7 @@ from twin.errors import TwinError
 from twin.params import NOMINAL, RobotParams
 from twin.plant.disturbances import Disturbances, Ground
 from twin.plant.urdf import BODY_DEPTH, body_height, robot_urdf
+from twin.rotations import cross, dot, quat_from_matrix, unit
 from twin.timing import steps_per_control
 
 WHEEL_JOINTS = (0, 1)  # left, right: the order of the joints in the URDF
@@ -240,36 +241,6 @@ def _is_number(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
-def _quat_from_matrix(R) -> tuple[float, float, float, float]:
-    """(x, y, z, w) of a rotation matrix given as rows."""
-    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = R
-    tr = m00 + m11 + m22
-    if tr > 0:
-        s = 2.0 * math.sqrt(tr + 1.0)
-        return ((m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s, 0.25 * s)
-    if m00 > m11 and m00 > m22:
-        s = 2.0 * math.sqrt(1.0 + m00 - m11 - m22)
-        return (0.25 * s, (m01 + m10) / s, (m02 + m20) / s, (m21 - m12) / s)
-    if m11 > m22:
-        s = 2.0 * math.sqrt(1.0 + m11 - m00 - m22)
-        return ((m01 + m10) / s, 0.25 * s, (m12 + m21) / s, (m02 - m20) / s)
-    s = 2.0 * math.sqrt(1.0 + m22 - m00 - m11)
-    return ((m02 + m20) / s, (m12 + m21) / s, 0.25 * s, (m10 - m01) / s)
-
-
-def _unit(v):
-    n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-    return (v[0] / n, v[1] / n, v[2] / n)
-
-
-def _cross(a, b):
-    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-
-
-def _dot(a, b):
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
 def initial_pose(params: RobotParams, ground: Ground, theta0: float, alpha0: float, x0: float, y0: float):
     """Axle-midpoint position and orientation quaternion with both wheels on the floor.
 
@@ -279,12 +250,12 @@ def initial_pose(params: RobotParams, ground: Ground, theta0: float, alpha0: flo
     """
     n = ground.normal()
     a_h = (-math.sin(alpha0), math.cos(alpha0), 0.0)
-    k = _dot(a_h, n)
-    a = _unit((a_h[0] - k * n[0], a_h[1] - k * n[1], a_h[2] - k * n[2]))
+    k = dot(a_h, n)
+    a = unit((a_h[0] - k * n[0], a_h[1] - k * n[1], a_h[2] - k * n[2]))
     up = (0.0, 0.0, 1.0)
-    k = _dot(up, a)
-    z_u = _unit((up[0] - k * a[0], up[1] - k * a[1], up[2] - k * a[2]))
-    x_u = _cross(a, z_u)
+    k = dot(up, a)
+    z_u = unit((up[0] - k * a[0], up[1] - k * a[1], up[2] - k * a[2]))
+    x_u = cross(a, z_u)
     c, s = math.cos(theta0), math.sin(theta0)
     x_b = tuple(c * xu - s * zu for xu, zu in zip(x_u, z_u))
     z_b = tuple(c * zu + s * xu for xu, zu in zip(x_u, z_u))
@@ -292,7 +263,7 @@ def initial_pose(params: RobotParams, ground: Ground, theta0: float, alpha0: flo
     # the wheels touch the floor r from the axle against the normal
     cx, cy = x0 - params.r * n[0], y0 - params.r * n[1]
     pos = (x0, y0, ground.height(cx, cy) + params.r * n[2])
-    return pos, _quat_from_matrix(R)
+    return pos, quat_from_matrix(R)
 
 
 def _touch_angle(params: RobotParams) -> float:

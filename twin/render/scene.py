@@ -37,6 +37,7 @@ import numpy as np
 from twin.errors import TwinError
 from twin.plant.bullet import WHEEL_JOINTS, TwinConfig, initial_pose, quiet_native_output
 from twin.plant.urdf import robot_urdf
+from twin.rotations import body_quaternion, matrix_rows
 
 RENDERERS = ("auto", "egl", "tiny")
 RENDERER_ENV = "TWIN_RENDERER"
@@ -158,29 +159,6 @@ class Camera:
                 raise TwinError(f"camera {name} must be a number in [{lo:g}, {hi:g}], got {v!r}")
         if not isinstance(self.follow_heading, bool):
             raise TwinError(f"camera follow_heading must be True or False, got {self.follow_heading!r}")
-
-
-def _qmul(a, b):
-    """Quaternion product a ⊗ b, (x, y, z, w)."""
-    ax, ay, az, aw = a
-    bx, by, bz, bw = b
-    return (aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz)
-
-
-def body_quaternion(theta: float, alpha: float, roll: float = 0.0) -> tuple[float, float, float, float]:
-    """(x, y, z, w) of R = Rz(α) Rx(φ) Ry(θ): heading ``alpha``, ``roll``, pitch ``theta`` (rad)."""
-    qz = (0.0, 0.0, math.sin(0.5 * alpha), math.cos(0.5 * alpha))
-    qx = (math.sin(0.5 * roll), 0.0, 0.0, math.cos(0.5 * roll))
-    qy = (0.0, math.sin(0.5 * theta), 0.0, math.cos(0.5 * theta))
-    return _qmul(_qmul(qz, qx), qy)
-
-
-def _quat_matrix(q) -> np.ndarray:
-    x, y, z, w = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
 
 
 class Scene:
@@ -318,7 +296,7 @@ class Scene:
         c = self._require_open()
         axle, _ = initial_pose(self.config.params, self.config.ground, theta, alpha, x, y)
         q = body_quaternion(theta, alpha, roll)
-        com = np.asarray(axle) + _quat_matrix(q) @ self._com_local
+        com = np.asarray(axle) + np.array(matrix_rows(q)) @ self._com_local
         c.resetBasePositionAndOrientation(self.robot, com.tolist(), q)
         c.resetJointState(self.robot, WHEEL_JOINTS[0], psi_l - theta, 0.0)
         c.resetJointState(self.robot, WHEEL_JOINTS[1], psi_r - theta, 0.0)

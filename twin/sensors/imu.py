@@ -19,17 +19,12 @@ from __future__ import annotations
 
 import math
 
-
-def _rows(q):
-    x, y, z, w = q
-    return ((1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)),
-            (2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)),
-            (2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)))
+from twin.rotations import matrix_rows
 
 
 def _point_velocity(pose, vel, lever):
     """World velocity of the body point at ``lever`` (m, body frame, from the centre of mass)."""
-    R = _rows(pose[1])
+    R = matrix_rows(pose[1])
     rx = R[0][0] * lever[0] + R[0][1] * lever[1] + R[0][2] * lever[2]
     ry = R[1][0] * lever[0] + R[1][1] * lever[1] + R[1][2] * lever[2]
     rz = R[2][0] * lever[0] + R[2][1] * lever[1] + R[2][2] * lever[2]

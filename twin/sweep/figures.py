@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from twin.sweep.statistics import (_select, controller_labels, metric_value, paired_rows, present_metrics,
+from twin.sweep.statistics import (select_controllers, controller_labels, metric_value, paired_rows, present_metrics,
                                    resolve_controllers, stayed_up)
 
 DPI = 110
@@ -91,7 +91,7 @@ def plot_success(summary: list[dict], path, *, controllers: Sequence[str] | None
     """
     controllers, _ = resolve_controllers(summary, controllers)
     colours, names = controller_colours(controllers), controller_labels(controllers, labels)
-    per_level = [s for s in _select(summary, controllers) if s["level"] is not None and s["n"] > 0]
+    per_level = [s for s in select_controllers(summary, controllers) if s["level"] is not None and s["n"] > 0]
     levels = sorted({s["level"] for s in per_level})
     span = (levels[-1] - levels[0]) if len(levels) > 1 else 1.0
     fig = _figure(6.0, 4.0)
@@ -155,7 +155,7 @@ def plot_distributions(rows: list[dict], path, *, controllers: Sequence[str] | N
 
     controllers, _ = resolve_controllers(rows, controllers)
     colours, names = controller_colours(controllers), controller_labels(controllers, labels)
-    rows = _select(rows, controllers)
+    rows = select_controllers(rows, controllers)
     fig, metrics, levels = _metric_figure(rows, 3.4)
     if not metrics:
         return _save(fig, path)
@@ -229,7 +229,7 @@ def plot_paired(rows: list[dict], path, *, controllers: Sequence[str] | None = N
     controllers, reference = resolve_controllers(rows, controllers, reference)
     names = controller_labels(controllers, labels)
     others = [c for c in controllers if c != reference]
-    rows = _select(rows, controllers)
+    rows = select_controllers(rows, controllers)
     fig, metrics, levels = _metric_figure(rows, 3.8, len(others))
     if not metrics:
         return _save(fig, path)

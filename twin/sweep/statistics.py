@@ -253,7 +253,8 @@ def _levels(rows):
     return sorted({float(r["level"]) for r in rows})
 
 
-def _select(rows, controllers):
+def select_controllers(rows, controllers):
+    """The rows (or summary entries) of ``controllers``."""
     keep = set(controllers)
     return [r for r in rows if r["controller"] in keep]
 
@@ -287,7 +288,7 @@ def summarize(rows: Sequence[dict], confidence: float = 0.95, *,
         ``median_ci``, ``p95``, ``p95_ci`` (:func:`quantile_interval`; metric unit).
     """
     controllers, _ = resolve_controllers(rows, controllers)
-    rows = _select(rows, controllers)
+    rows = select_controllers(rows, controllers)
     metrics = present_metrics(rows)
 
     def entry(level, controller, group):
@@ -399,7 +400,7 @@ def paired_tests(rows: Sequence[dict], confidence: float = 0.95, *,
         metric (metric unit).
     """
     controllers, reference = resolve_controllers(rows, controllers, reference)
-    rows = _select(rows, controllers)
+    rows = select_controllers(rows, controllers)
     metrics = present_metrics(rows)
 
     def entry(controller, level, group):
