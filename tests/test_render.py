@@ -17,6 +17,7 @@ from twin.plant.disturbances import Disturbances, Ground, Push  # noqa: E402
 from twin.render import (CODECS, Camera, HudState, Scene, draw_hud, frame_count, frame_times,  # noqa: E402
                          render_video, resolve_renderer)
 from twin.render.hud import RED, hud_lines  # noqa: E402
+from twin.render.scene import egl_available  # noqa: E402
 
 SIZE = (320, 240)  # small panels keep the encoder quick
 FPS = 30
@@ -316,3 +317,29 @@ def test_bad_paths_are_twin_errors(run_exp1, tmp_path):
     # a missing directory is made
     info = render_video(run_exp1, tmp_path / "new" / "dir" / "v.mp4", fps=2, size=(64, 48))
     assert info.path.is_file() and info.frames == 3
+
+
+def test_closing_one_egl_scene_leaves_the_others_working(tmp_path):
+    """PyBullet's EGL plugin tears down process-wide state when one client unloads it or
+    disconnects: another EGL scene then crashed (SIGSEGV) on its next picture. A closed EGL
+    scene is now parked until the last one closes. In a child process, so a crash fails the
+    test instead of killing the run."""
+    import subprocess
+    import sys
+
+    if not egl_available():
+        pytest.skip("the EGL renderer plugin does not work here")
+    script = tmp_path / "egl.py"
+    script.write_text(
+        "from twin.plant.bullet import TwinConfig\n"
+        "from twin.render import scene\n"
+        "a = scene.Scene(TwinConfig(), (160, 120), 'egl'); a.render(0.1, 0, 0, 0, 0, 0)\n"
+        "b = scene.Scene(TwinConfig(), (160, 120), 'egl'); b.render(0.1, 0, 0, 0, 0, 0); b.close()\n"
+        "first = a.render(0.1, 0, 0, 0, 0, 0)\n"
+        "c = scene.Scene(TwinConfig(), (160, 120), 'egl'); a.close()\n"
+        "second = c.render(0.2, 0, 0, 0, 0, 0); c.close()\n"
+        "assert first.std() > 0 and second.std() > 0\n"
+        "assert not scene._EGL_OPEN and not scene._EGL_PARKED\n"
+        "print('ok')\n", encoding="utf-8")
+    r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0 and r.stdout.strip() == "ok", (r.returncode, r.stderr[-2000:])

@@ -93,11 +93,6 @@ ANGLE_LIMIT = 1.0e4  # rad: ψ, α and the encoders (4e2 m of travel at r = 4 cm
 RATE_LIMIT = 100.0  # rad/s: θ̇, ψ̇, α̇ (the DC motors' no-load speed is 35 rad/s)
 PITCH_LIMIT = math.pi  # rad: θ (a run ends past fall_angle ≤ 1.5 rad)
 POSITION_LIMIT = 1.0e3  # m: position errors and targets
-# PyBullet's EGL renderer: once one EGL scene of a process is closed, the others open at
-# that moment crash the process (SIGSEGV) on their next picture, while scenes made
-# afterwards work. Closes by environments are counted here, and an environment's EGL
-# scene older than the last close is rebuilt before it renders again.
-_EGL_CLOSES = [0]
 _SEED_BOUND = 2 ** 63  # episode and root seeds are drawn in [0, 2^63), the scenario schema's seed range
 
 
@@ -209,7 +204,6 @@ class TwinEnv(gymnasium.Env):
         self._episode = None  # (scenario, config, targets) of the running episode
         self._scene = None
         self._scene_key = None
-        self._scene_gen = 0
         self._last_obs = None
         self._last_truth = None
 
@@ -455,19 +449,15 @@ class TwinEnv(gymnasium.Env):
         d = config.disturbances
         key = (config.params, config.ground, d.payload, d.com_offset)  # what the picture depends on
         scene = self._scene
-        # a scene is rebuilt for another robot or floor, and an EGL scene also after another
-        # environment of this process closed an EGL scene (see _EGL_CLOSES)
-        if scene is None or key != self._scene_key or (scene.renderer == "egl" and self._scene_gen != _EGL_CLOSES[0]):
+        if scene is None or key != self._scene_key:  # a scene is rebuilt for another robot or floor
             self._close_scene()
             self._scene = Scene(config, self.render_size, self.renderer)
-            self._scene_key, self._scene_gen = key, _EGL_CLOSES[0]
+            self._scene_key = key
         return self._scene
 
     def _close_scene(self) -> None:
         scene, self._scene = self._scene, None
         if scene is not None:
-            if scene.renderer == "egl":
-                _EGL_CLOSES[0] += 1
             scene.close()
 
     def _draw_hud(self, frame, tr, sc, targets):

@@ -161,6 +161,23 @@ class Camera:
             raise TwinError(f"camera follow_heading must be True or False, got {self.follow_heading!r}")
 
 
+_EGL_OPEN: set = set()  # ids of the open scenes that loaded the EGL plugin
+_EGL_PARKED: list = []  # (client, plugin) of EGL scenes closed while others were open
+
+
+def _release(client, plugin: int) -> None:
+    """Unload ``plugin`` (if ≥ 0) and disconnect ``client`` (if still connected)."""
+    if client._client < 0:
+        return
+    with quiet_native_output():
+        try:
+            if plugin >= 0:
+                client.unloadPlugin(plugin)
+        finally:
+            client.disconnect()
+            client._client = -1
+
+
 class Scene:
     """The robot of a :class:`~twin.plant.bullet.TwinConfig` on its floor, for pictures.
 
@@ -229,6 +246,8 @@ class Scene:
             self._com_local = np.array((d.com_offset[0], d.com_offset[1], p.l + d.com_offset[2]))
             self._proj = c.computeProjectionMatrixFOV(camera.fov, self.width / self.height, 0.01, 60.0)
             self.renderer = "egl" if self._plugin >= 0 else "tiny"
+            if self._plugin >= 0:
+                _EGL_OPEN.add(id(self))
         except BaseException:
             self.close()
             raise
@@ -252,25 +271,29 @@ class Scene:
             except Exception:  # pragma: no cover - pybullet raises only on a bad call
                 return -1
 
-    def _unload_plugin(self) -> None:
-        if self._plugin >= 0 and self.client is not None and self.client._client >= 0:
-            with quiet_native_output():
-                self.client.unloadPlugin(self._plugin)
-        self._plugin = -1
-
     def close(self) -> None:
-        """Unload the EGL plugin and disconnect the PyBullet server (idempotent)."""
+        """Unload the EGL plugin and disconnect the PyBullet server (idempotent).
+
+        PyBullet's EGL plugin tears down process-wide state when a client that loaded it
+        unloads it or disconnects: another EGL scene still open then crashes on its next
+        picture. So an EGL scene closed while others are open is only parked, and the
+        parked clients are released with the last EGL scene."""
         client = self.client
         if client is None:
             return
+        self.client = None
+        if self._plugin >= 0:
+            _EGL_OPEN.discard(id(self))
+            if _EGL_OPEN:
+                _EGL_PARKED.append((client, self._plugin))
+                self._plugin = -1
+                return
+        plugin, self._plugin = self._plugin, -1
         try:
-            self._unload_plugin()
+            _release(client, plugin)
         finally:
-            if client._client >= 0:
-                with quiet_native_output():
-                    client.disconnect()
-                client._client = -1
-            self.client = None
+            while _EGL_PARKED and not _EGL_OPEN:
+                _release(*_EGL_PARKED.pop())
 
     def __enter__(self):
         return self
