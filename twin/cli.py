@@ -158,8 +158,9 @@ def _experiment_options(default_out: str):
                          help="Simulated time in s (default: the experiment's 15 s).")(f)
         f = click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=Path(default_out),
                          show_default=True, help="Output directory.")(f)
-        f = click.option("--controller", type=click.Choice(["it2", "t1", "both"]), default="both",
-                         show_default=True)(f)
+        f = click.option("--controller", default="both", show_default=True, metavar="KINDS",
+                         help="Controllers, comma-separated: it2, t1, lqr, both (= it2,t1) or "
+                              "package.module:attribute.")(f)
         return click.argument("experiment", type=click.Choice(EXPERIMENT_CHOICES), metavar="EXPERIMENT")(f)
     return decorate
 
@@ -195,20 +196,22 @@ def _paper_experiment(experiment, controller, out, duration, gains_file, design_
     """Run paper experiment N with one or both controllers on the analytic model and write the outputs."""
     from twin import report
     from twin.analytic_loop import simulate
-    from twin.controllers.cascade import build_cascade
     from twin.experiments import PAPER_EXPERIMENTS
     from twin.metrics import run_metrics
 
     number = int(experiment[-1])
     if duration is not None and not (math.isfinite(duration) and 0 < duration <= 3600):
         raise TwinError(f"--duration must be in (0, 3600] s, got {duration:g}")
+    from twin.registry import BuildContext, build_controller, label, parse_controllers
+
+    kinds = parse_controllers(controller)
     d = _load_design(gains_file, *design_options)
     exp = PAPER_EXPERIMENTS[number]
-    kinds = ["it2", "t1"] if controller == "both" else [controller]
     description = "analytic model, nominal"
+    context = BuildContext(200.0, targets=exp.targets, design=lambda: d)  # the analytic loop's 5 ms control period
     runs, metrics = [], {}
     for kind in kinds:
-        run = simulate(build_cascade(kind, d, exp.targets), exp, duration=duration, controller_name=kind)
+        run = simulate(build_controller(kind, None, context), exp, duration=duration, controller_name=kind)
         runs.append(run)
         metrics[kind] = run_metrics(run)
         report.write_trajectory_csv(run, out / f"trajectory_{kind}.csv")
@@ -219,7 +222,7 @@ def _paper_experiment(experiment, controller, out, duration, gains_file, design_
     click.echo(f"{exp.name}: {exp.description} ({description})")
     keys = ("settling_time_s", "theta_rms_rad", "final_theta_rad", "final_position_error_m", "final_heading_error_rad",
             "iae_theta", "control_effort", "max_abs_torque_nm")
-    click.echo(f"  {'metric':28}" + "".join(f"{k.upper():>12}" for k in kinds))
+    click.echo(f"  {'metric':28}" + "".join(f"{label(k)[:11]:>12}" for k in kinds))
     for k in keys:
         click.echo(f"  {k:28}" + "".join(f"{_fmt(metrics[c][k]):>12}" for c in kinds))
     click.echo(f"wrote {out}/figure.png, metrics.json, design.json, " + ", ".join(f"trajectory_{k}.csv" for k in kinds))

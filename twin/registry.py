@@ -339,19 +339,26 @@ def provenance(role: str, kind: str) -> dict | None:
     return {"role": role, "kind": kind, "module": module_name, "file": str(file) if file else None, "sha256": digest}
 
 
+def check_kinds(role: str, kinds, where: str) -> tuple[str, ...]:
+    """``kinds`` as a tuple: at least one, each checked (:func:`check_kind`), none repeated;
+    ``where`` names the option or key in the one-line error."""
+    kinds = tuple(kinds)
+    if not kinds:
+        raise PluginError(f"{where} needs at least one {role} kind: {', '.join(_ROLES[role])} or "
+                          "package.module:attribute")
+    for kind in kinds:
+        check_kind(role, kind)
+    if len(set(kinds)) != len(kinds):
+        raise PluginError(f"{where} {list(kinds)!r}: a kind is repeated; list each once")
+    return kinds
+
+
 def parse_controllers(choice: str) -> tuple[str, ...]:
     """``"both"`` (it2 and t1), or a comma-separated list of kinds; each checked, none repeated."""
     if choice == "both":
         return ("it2", "t1")
-    items = tuple(s.strip() for s in str(choice).split(",") if s.strip())
-    if not items:
-        raise PluginError("--controller needs at least one kind: it2, t1, lqr, both, or package.module:attribute")
-    for kind in items:
-        check_kind("controller", kind)
-    if len(set(items)) != len(items):
-        raise PluginError(f"--controller {choice!r}: a kind is repeated; list each once")
-    return items
+    return check_kinds("controller", (s.strip() for s in str(choice).split(",") if s.strip()), "--controller")
 
 
 __all__ = ["BuildContext", "CONTROLLERS", "ESTIMATORS", "Kind", "build_controller", "build_estimator",
-           "check_kind", "check_protocol", "is_import_path", "label", "parse_controllers", "provenance", "resolve"]
+           "check_kind", "check_kinds", "check_protocol", "is_import_path", "label", "parse_controllers", "provenance", "resolve"]

@@ -8,9 +8,11 @@ from pathlib import Path
 
 import numpy as np
 
+from twin.registry import label as kind_label
 from twin.runs import Run
 
-_COLOURS = {"it2": "tab:blue", "t1": "tab:orange"}
+_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:gray",
+            "tab:olive", "tab:cyan")  # matplotlib's tab10, in the order the runs are given
 
 
 def _pyplot():
@@ -37,8 +39,8 @@ def plot_runs(runs: list, path: Path, title: str = "") -> Path:
     ]
     fig, axes = plt.subplots(len(panels), 1, figsize=(8, 10), sharex=True)
     for ax, (label, get) in zip(axes, panels):
-        for r in runs:
-            ax.plot(r.t, get(r), color=_COLOURS.get(r.controller), lw=1.2, label=r.controller.upper() or None)
+        for i, r in enumerate(runs):
+            ax.plot(r.t, get(r), color=_COLOURS[i % len(_COLOURS)], lw=1.2, label=kind_label(r.controller) or None)
         ax.set_ylabel(label, fontsize=8)
         ax.grid(alpha=0.3)
     exp = runs[0].experiment

@@ -58,15 +58,9 @@ def sweep_controllers(scenario: Scenario, controllers=None, reference: str | Non
     """(kinds, reference): ``controllers`` (None: the scenario's ``controller.kinds``) checked,
     and the reference the paired statistics compare each other controller with (default:
     the last one listed)."""
-    from twin.registry import check_kind
+    from twin.registry import check_kinds
 
-    kinds = tuple(controllers) if controllers is not None else scenario.controllers
-    if not kinds:
-        raise TwinError("a sweep needs at least one controller")
-    for k in kinds:
-        check_kind("controller", k)
-    if len(set(kinds)) != len(kinds):
-        raise TwinError(f"controllers {list(kinds)!r}: a kind is repeated; list each once")
+    kinds = check_kinds("controller", controllers if controllers is not None else scenario.controllers, "controllers")
     reference = kinds[-1] if reference is None else reference
     if reference not in kinds:
         raise TwinError(f"--reference {reference!r} is not one of the sweep's controllers ({', '.join(kinds)})")
