@@ -51,7 +51,17 @@ class _TiltBaseline:
     def accel_angle(accel) -> float:
         return math.atan2(-accel[0], accel[2])
 
+    def _new_run(self) -> None:
+        """The state of one run, as before the first start() (start() calls it for a second run)."""
+        self.k = -1
+        self.theta0 = 0.0
+        self._gyro = (0.0, 0.0, 0.0)
+        self._enc = (0.0, 0.0)
+        self._psi_hist = []
+
     def start(self, meas) -> Estimate:
+        if self.k >= 0:  # a second run with the same filter: forget the first
+            self._new_run()
         if meas.accel is None:
             raise TwinError(f"the {self.name} estimator needs an accelerometer reading at start")
         self.theta0 = self.accel_angle(meas.accel)
@@ -101,6 +111,10 @@ class ComplementaryFilter(_TiltBaseline):
         self.a = float(a)
         self.theta = 0.0
 
+    def _new_run(self) -> None:
+        super()._new_run()
+        self.theta = 0.0
+
     def _init_angle(self, theta: float) -> None:
         self.theta = theta
 
@@ -121,6 +135,10 @@ class AngleBiasKalman(_TiltBaseline):
                  q_angle: float = 0.001, q_bias: float = 0.003, r_measure: float = 0.03):
         super().__init__(control_rate, wheel_radius, half_track, alpha0)
         self.Q_angle, self.Q_bias, self.R_measure = float(q_angle), float(q_bias), float(r_measure)
+        self._new_run()
+
+    def _new_run(self) -> None:
+        super()._new_run()
         self.angle = 0.0  # degrees
         self.bias = 0.0  # degrees per second
         self.rate = 0.0

@@ -164,7 +164,6 @@ class EKFEstimator:
         if not (0.0 < gate_probability < 0.5):
             raise TwinError(f"gate_probability must be in (0, 0.5), got {gate_probability!r}")
         self.model = model
-        self.kf = TwinEKF()
         self.every, self.d_imu, self.d_enc = int(imu_every), int(imu_latency), int(encoder_latency)
         self.lag = max(self.d_imu, self.d_enc)
         self.dt = self.every * model.dt
@@ -192,6 +191,34 @@ class EKFEstimator:
             self.H[i, H0] = sgn
         self.gates = {k: float(chi2.ppf(1.0 - gate_probability, k)) for k in (1, 2)}
         self.imu_gates = {k: float(chi2.ppf(1.0 - 1e-9, k)) for k in (1, 2)}
+        g, a = model.imu.gyro, model.imu.accel
+        # the largest readings the ADC can give (a sample there may be clipped)
+        self._limits = (g.lsb * ((1 << (g.bits - 1)) - 1),) * 2 + (a.lsb * ((1 << (a.bits - 1)) - 1),) * 2
+        # a stale (repeated) triad is told from a real one where the white noise per sample
+        # spans ≥ 4 ADC steps: three axes then repeat by chance with probability < 4e-4
+        self._stale_check = tuple(t.white_sigma(self.dt) >= 4.0 * t.lsb for t in (model.imu.gyro, model.imu.accel))
+        # a wheel's counts cannot move faster than this relative to the body, nor leave a
+        # 32-bit counter's range: anything else is a fault (see _screen_encoders)
+        self._max_wheel_rate = MAX_RIM_SPEED / self.r
+        self._enc_range = float(2 ** 31) * self.delta
+        if compiled and _kernel is None:
+            raise TwinError("the compiled EKF kernel is not built here (estimation._ekf); use compiled=None or False")
+        self._core_args = None
+        if _kernel is not None and compiled is not False:
+            m = model
+            motor = m.motor
+            self._core_args = (
+                self.dt, self.r, self.xi, self.zi, self.b_r, self.alpha0, self.delta, self._g_var, self._a_var,
+                self._bias_q, 0.0, self.gates[1], self.gates[2], 0.0, self.imu_gates[1], self.imu_gates[2],
+                *self._limits, m.dt, m.m11, m.m12, m.m22, m.plant.n_bla, m.plant.d_b, m.plant.d_w, m.plant.g_b,
+                m.plant.yaw_damping, m.plant.m33, m.g, float(motor is not None), float(m.compensates),
+                m.tau_max, m.i_tau, m.sigma_tau, m.c_e, TORQUE_TOLERANCE, float(self.every))
+        self._new_run()
+
+    def _new_run(self) -> None:
+        """The state of one run, as before the first start(); start() calls it again when the
+        filter is reused for another run, so that nothing of the previous one is kept."""
+        self.kf = TwinEKF()
         self.last_dof = 0
         self.k = -1
         self.m = 0
@@ -205,36 +232,15 @@ class EKFEstimator:
         self.predict_only = 0
         self.unchanged_encoders = 0
         self.saturated = 0
-        g, a = model.imu.gyro, model.imu.accel
-        # the largest readings the ADC can give (a sample there may be clipped)
-        self._limits = (g.lsb * ((1 << (g.bits - 1)) - 1),) * 2 + (a.lsb * ((1 << (a.bits - 1)) - 1),) * 2
         self._last_enc = None
-        # a stale (repeated) triad is told from a real one where the white noise per sample
-        # spans ≥ 4 ADC steps: three axes then repeat by chance with probability < 4e-4
-        self._stale_check = tuple(t.white_sigma(self.dt) >= 4.0 * t.lsb for t in (model.imu.gyro, model.imu.accel))
         self._last_imu = None
         self._stale_in_row = 0
         self.stale = 0
         self._aug = None  # the coasting covariance of (x, ω, ω₋₁), see _coast
         self._implausible = 0
-        # a wheel's counts cannot move faster than this relative to the body, nor leave a
-        # 32-bit counter's range: anything else is a fault (see _screen_encoders)
-        self._max_wheel_rate = MAX_RIM_SPEED / self.r
-        self._enc_range = float(2 ** 31) * self.delta
         self.events: list[tuple[float, str]] = []
         self.resets = 0
-        if compiled and _kernel is None:
-            raise TwinError("the compiled EKF kernel is not built here (estimation._ekf); use compiled=None or False")
-        self._core = None
-        if _kernel is not None and compiled is not False:
-            m = model
-            motor = m.motor
-            self._core = _kernel.new((
-                self.dt, self.r, self.xi, self.zi, self.b_r, self.alpha0, self.delta, self._g_var, self._a_var,
-                self._bias_q, 0.0, self.gates[1], self.gates[2], 0.0, self.imu_gates[1], self.imu_gates[2],
-                *self._limits, m.dt, m.m11, m.m12, m.m22, m.plant.n_bla, m.plant.d_b, m.plant.d_w, m.plant.g_b,
-                m.plant.yaw_damping, m.plant.m33, m.g, float(motor is not None), float(m.compensates),
-                m.tau_max, m.i_tau, m.sigma_tau, m.c_e, TORQUE_TOLERANCE, float(self.every)))
+        self._core = None if self._core_args is None else _kernel.new(self._core_args)
 
     # ---- public -----------------------------------------------------------------------
     @property
@@ -332,6 +338,8 @@ class EKFEstimator:
         angles start at 0); the encoders' zero c = θ, exactly as uncertain as θ; gyro
         biases 0 with the turn-on σ of the specification.
         """
+        if self.k >= 0:  # a second run with the same filter: forget the first
+            self._new_run()
         ok = finite_reading
         if not ok(meas.accel) or not ok(meas.gyro):
             raise TwinError("the estimator needs a gyro and an accelerometer reading at start")
