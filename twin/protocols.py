@@ -90,7 +90,9 @@ class Estimator(Protocol):
     -------
     start(measurement) -> sequence of 6 floats
         The first readings (control step 0, the robot at rest on its wheels, tilted by
-        the initial θ); returns the first estimate [θ, θ̇, ψ, ψ̇, α, α̇].
+        the initial θ); returns the first estimate [θ, θ̇, ψ, ψ̇, α, α̇]. It begins a
+        run: an estimator reused by :meth:`twin.loop.ClosedLoop.reset` must forget any
+        previous run here (the built-in ones do).
     step(measurement, command) -> sequence of 6 floats
         The readings that arrived at this control instant (a
         :class:`~twin.sensors.Measurement`: ``t`` s; ``gyro`` (3,) rad/s and ``accel``
