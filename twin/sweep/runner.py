@@ -51,7 +51,11 @@ def replay_command(manifest: dict, sample: int) -> str:
     import shlex
 
     sets = "".join(f" --set {shlex.quote(o)}" for o in manifest["overrides"])
-    return f"twin run {shlex.quote(manifest['scenario_arg'])} --sample {sample} --seed {manifest['root_seed']}{sets}"
+    kinds = list(manifest.get("controllers", ()))
+    own = list(manifest["scenario"].get("controller", {}).get("kinds", ()))
+    ctl = f" --controller {shlex.quote(','.join(kinds))}" if kinds and kinds != own else ""
+    return (f"twin run {shlex.quote(manifest['scenario_arg'])} --sample {sample} --seed {manifest['root_seed']}"
+            f"{sets}{ctl}")
 
 
 def sweep_controllers(scenario: Scenario, controllers=None, reference: str | None = None) -> tuple[tuple, str]:
