@@ -192,7 +192,7 @@ def test_plugins_give_identical_metrics_through_api_toml_run_and_sweep(plugin_di
     from twin.metrics import run_metrics
 
     sc = load_scenario("paper-exp3", SHORT)
-    ctx = sc.build_context(uses_design=False)
+    ctx = sc.build_context()
     run = simulate_twin(my_plugins.StateFeedback(), sc.experiment(), sc.twin_config(), controller_name=CTRL,
                         sensors=sc.sensor_config(), estimator=my_plugins.TiltFilter(ctx), seed=sc.seed)
     run.sensing = EST

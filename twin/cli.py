@@ -300,10 +300,7 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample):
 def _check_plugins(sc, kinds) -> None:
     """Build every controller and the estimator once before anything runs or is written, so a
     plugin that cannot be loaded or lacks its methods is one line and exit status 2."""
-    context = sc.build_context(uses_design=False)
-    from dataclasses import replace
-
-    context = replace(context, design=sc.design)
+    context = sc.build_context()  # the design is solved only if a controller asks for it
     for kind in kinds:
         sc.build_controller(kind, context)
     sc.build_estimator(context)

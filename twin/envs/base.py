@@ -182,7 +182,7 @@ class TwinEnv(gymnasium.Env):
             raise TwinError(f"{sc.source}: obs='readings' needs simulated sensors, but sensors.sensing is 'ideal'; "
                             "use obs='estimate' or 'truth', or --set sensors.sensing=estimated")
         self.estimator_kind = check_kind("estimator", estimator) if estimator is not None else sc.estimator
-        self._context = sc.build_context(uses_design=False)
+        self._context = sc.build_context()
         self._next_estimator = self._build_estimator(sc, self._context)  # fails here, not at the first reset
         self.max_torque = self._torque_bound(max_torque)
         self.metadata = {**type(self).metadata, "render_fps": _fps(self.control_rate)}
@@ -364,7 +364,7 @@ class TwinEnv(gymnasium.Env):
             sample = sample_scenario(self.scenario, root, index)
             sc, run_seed = sample.scenario, sample.seed
             config, sensors, exp = sc.twin_config(), sc.sensor_config(), sc.experiment()
-            context = sc.build_context(uses_design=False)
+            context = sc.build_context()
             estimator = self._build_estimator(sc, context)
             info.update(root_seed=root, sample=index, level=sample.level, sample_values=dict(sample.values))
             replay = f"--sample {index} --seed {root}"

@@ -91,10 +91,7 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
             timings["design_s"] = time.perf_counter() - t0
         return solved[0]
 
-    context = scenario.build_context(uses_design=False)
-    from dataclasses import replace
-
-    context = replace(context, design=design)
+    context = scenario.build_context(design)
     plugins = plugins_of(scenario, kinds)
     runs, metrics = [], {}
     for kind in kinds:

@@ -79,16 +79,17 @@ class Scenario:
         return record(self.data)
 
     # ---- what the scenario builds ------------------------------------------------------------
-    def build_context(self, uses_design: bool = True):
-        """The :class:`twin.registry.BuildContext` of this scenario's runs (nominal model,
-        its motors, sensors, targets, heading, design and cascade options)."""
+    def build_context(self, design=None):
+        """The :class:`twin.registry.BuildContext` of this scenario's runs: nominal model, its
+        motors, sensors, targets, heading, cascade options, and ``design`` (a zero-argument
+        callable; default :meth:`design`, which solves the LMIs only when a controller asks)."""
         from twin.params import NOMINAL
         from twin.registry import BuildContext
 
         d = self.data
         config = self.twin_config()
         return BuildContext(config.control_rate, NOMINAL, config.motor, self.sensor_config(),
-                            self.experiment().targets, d["initial"]["alpha"], self.design if uses_design else None,
+                            self.experiment().targets, d["initial"]["alpha"], design or self.design,
                             self.cascade_options())
 
     def build_controller(self, kind: str, context=None):
