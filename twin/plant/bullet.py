@@ -236,6 +236,21 @@ def _connect():
         return BulletClient(connection_mode=pybullet.DIRECT), pybullet
 
 
+# pybullet_utils' BulletClient keeps its server id in ``_client`` and offers no public way to
+# read it or to say it is closed (its __del__ disconnects again unless it is −1): the two
+# functions below are the only places that touch it.
+def client_id(client) -> int:
+    """The physics server id of a ``BulletClient`` (−1 once disconnected)."""
+    return client._client
+
+
+def disconnect(client) -> None:
+    """Disconnect a ``BulletClient`` once (idempotent)."""
+    if client._client >= 0:
+        client.disconnect()
+        client._client = -1
+
+
 def _is_number(v) -> bool:
     """A finite real number (not a bool)."""
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
@@ -417,7 +432,7 @@ class BulletTwin:
         # the hot path calls pybullet's functions with this client's id: BulletClient
         # builds a new functools.partial on every attribute access
         self._pb = pybullet
-        self._cid = c._client
+        self._cid = client_id(c)
         self._hot = (self.robot, self._cid, pybullet.applyExternalTorque, pybullet.setJointMotorControlArray,
                      pybullet.stepSimulation, pybullet.getBasePositionAndOrientation, pybullet.getBaseVelocity,
                      pybullet.getJointStates, self.k)
@@ -445,9 +460,8 @@ class BulletTwin:
     def close(self) -> None:
         """Disconnect the physics server (idempotent); a running twin ends as "closed"."""
         client = getattr(self, "client", None)
-        if client is not None and client._client >= 0:
-            client.disconnect()
-            client._client = -1
+        if client is not None:
+            disconnect(client)
         if getattr(self, "status", None) == "running":
             self.status, self.end_reason = "closed", "the twin was closed"
 

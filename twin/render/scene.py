@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from twin.errors import TwinError
-from twin.plant.bullet import WHEEL_JOINTS, TwinConfig, initial_pose, quiet_native_output
+from twin.plant.bullet import WHEEL_JOINTS, TwinConfig, client_id, disconnect, initial_pose, quiet_native_output
 from twin.plant.urdf import robot_urdf
 from twin.rotations import body_quaternion, matrix_rows
 
@@ -167,15 +167,14 @@ _EGL_PARKED: list = []  # (client, plugin) of EGL scenes closed while others wer
 
 def _release(client, plugin: int) -> None:
     """Unload ``plugin`` (if ≥ 0) and disconnect ``client`` (if still connected)."""
-    if client._client < 0:
+    if client_id(client) < 0:
         return
     with quiet_native_output():
         try:
             if plugin >= 0:
                 client.unloadPlugin(plugin)
         finally:
-            client.disconnect()
-            client._client = -1
+            disconnect(client)
 
 
 class Scene:
