@@ -256,6 +256,8 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample):
     Examples:
       twin run paper-exp3
       twin run paper-exp1 --controller it2 --seed 7 --no-video
+      twin run paper-exp3 --controller it2,t1,lqr
+      twin run paper-exp3 --controller my_plugins:StateFeedback,it2   # your own, from ./my_plugins.py
       twin run push-recovery --set pushes='[{force=[20,0,0], start=3, duration=0.1}]'
       twin run my-robot.toml --set plant.scale.m_b=1.2 --set sensors.sensing=ideal --out runs/heavy
       twin run paper-exp3 --sample 17 --seed 0 --no-video   # replay a sweep's sample 17
