@@ -51,7 +51,9 @@ def plot_runs(runs: list, path: Path, title: str = "") -> Path:
             axes[4].axhline(exp.alpha_d, color="k", ls="--", lw=0.8, label="target")
     axes[0].legend(loc="upper right", fontsize=8)
     axes[-1].set_xlabel("time [s]")
-    fig.suptitle(title, fontsize=10)
+    import textwrap
+
+    fig.suptitle("\n".join(textwrap.fill(line, 95) for line in title.splitlines()), fontsize=10)
     return _save(plt, fig, path)
 
 
