@@ -93,8 +93,10 @@ def simulate_twin(controller, experiment: Experiment, config: TwinConfig | None 
     n = n_rows
     with loop:
         loop.reset(seed)
+        twin = loop.twin  # read directly below: this loop runs once per control period
+        command, step = loop.command, loop.step
         for i in range(n_rows):
-            if loop.status == "diverged":
+            if twin.status == "diverged":
                 n = i  # the non-finite state is not logged: the log ends with the last finite one
                 break
             truth.append(loop.truth)
@@ -105,16 +107,16 @@ def simulate_twin(controller, experiment: Experiment, config: TwinConfig | None 
             if diag is not None:
                 diag.append(loop.diagnostics())
             est.append(loop.estimate)
-            c = loop.command()
+            c = command()
             cmds.append(c)
-            if i == n_ctrl or loop.status != "running":
+            if i == n_ctrl or twin.status != "running":
                 n = i + 1
                 break
             if progress is not None and i % report_every == 0 and i:
                 progress(i, n_ctrl)
-            loop.step(c)
-            act.append(loop.actuation)
-            push.append(loop.push_force)
+            step(c)
+            act.append(twin.actuation)
+            push.append(twin.push_force)
         status = "ok" if loop.status == "running" else loop.status
         reason = "" if status == "ok" else loop.end_reason
         stats = {} if ideal else loop.estimator_stats()

@@ -29,7 +29,7 @@ wrong length, a non-number or a non-finite value stops the run with a one-line
 """
 from __future__ import annotations
 
-import math
+from math import isfinite
 from typing import Sequence
 
 import numpy as np
@@ -119,12 +119,14 @@ class ClosedLoop:
             self._lever = (imu_pos[0] - com[0], imu_pos[1] - com[1], imu_pos[2] - com[2])
             self._imu_dt = suite.every * self.control_dt
             pose, vel = self._last_imu = twin.kinematics  # the body at rest before t = 0
-            self._imu = imu_kinematics(pose, vel, pose, vel, self._imu_dt, self._lever, cfg.params.g)
+            self._g = cfg.params.g
+            self._imu = imu_kinematics(pose, vel, pose, vel, self._imu_dt, self._lever, self._g)
             suite.start(*self._imu, tr.psi_l - tr.theta, tr.psi_r - tr.theta)
         else:
             self.suite = None
         self.measurement = self._read(tr)
-        self.estimate = self._check_estimate(self.estimator.start(self.measurement), "start")
+        est = self.estimator.start(self.measurement)
+        self.estimate = self._check_estimate(est, "start")
         if self.controller is not None:
             self.controller.reset(self.targets)
         return self.result()
@@ -145,16 +147,27 @@ class ClosedLoop:
     def command(self) -> tuple:
         """The controller's output on the current estimate, ``(ul, ur, *signals)`` (N·m, then
         the controller's extra signals); computed once per instant."""
-        if self._command is None:
+        out = self._command
+        if out is None:
             if self.controller is None:
                 raise TwinError("this loop has no controller: give step() the command (ul, ur) in N·m")
-            self._command = self._check_command(self.controller(self.estimate, self.targets))
-        return self._command
+            out = self.controller(self.estimate, self.targets)
+            try:
+                ok = len(out) == self._n_out and isfinite(sum(out))
+            except TypeError:
+                ok = False
+            if not ok:
+                self._check_command(out)  # raises, naming the controller and what was expected
+            self._command = out
+        return out
 
     def step(self, command: Sequence[float] | None = None) -> StepResult:
         """Apply ``command`` (ul, ur) in N·m (default: :meth:`command`) for one control period,
         then read the sensors and run the estimator at the next instant."""
-        twin = self._require_running()
+        # the hot path of every run: plain attribute access, checks inline
+        twin = self.twin
+        if twin is None or twin.status != "running":
+            self._require_running()
         if command is None:
             command = self.command()
         elif command is not self._command:
@@ -163,11 +176,19 @@ class ClosedLoop:
         tr = self.truth = twin.step(ul, ur)
         self.k += 1
         self._command = None
-        if twin.status == "diverged":  # a non-finite state: nothing more is read from it
+        status = twin.status
+        if status == "diverged":  # a non-finite state: nothing more is read from it
             return self.result()
-        self.measurement = self._read(tr)
-        self.estimate = self._check_estimate(self.estimator.step(self.measurement, (ul, ur)), "step")
-        return self.result()
+        meas = self.measurement = self._read(tr)
+        est = self.estimator.step(meas, (ul, ur))
+        try:
+            ok = len(est) == 6 and isfinite(sum(est))
+        except TypeError:
+            ok = False
+        if not ok:
+            self._check_estimate(est, "step")  # raises, naming the estimator
+        self.estimate = est
+        return StepResult(tr, meas, est, status, "" if status == "running" else twin.end_reason)
 
     def _read(self, tr) -> Measurement:
         suite = self.suite
@@ -178,7 +199,7 @@ class ClosedLoop:
         if k % suite.every == 0:
             if k > 0:
                 kin = self.twin.kinematics
-                self._imu = imu_kinematics(*kin, *self._last_imu, self._imu_dt, self._lever, self.config.params.g)
+                self._imu = imu_kinematics(*kin, *self._last_imu, self._imu_dt, self._lever, self._g)
                 self._last_imu = kin
             self.true_gyro_bias = suite.gyro.bias
         else:
@@ -189,7 +210,7 @@ class ClosedLoop:
     # ---- contracts ----------------------------------------------------------------------------
     def _check_estimate(self, est, where: str):
         try:
-            ok = len(est) == 6 and math.isfinite(sum(est))
+            ok = len(est) == 6 and (isfinite(sum(est)) or all(map(isfinite, est)))
         except TypeError:
             ok = False
         if not ok:
@@ -201,7 +222,7 @@ class ClosedLoop:
     def _check_command(self, out, external: bool = False):
         n = 2 if external else self._n_out
         try:
-            ok = len(out) == n and math.isfinite(sum(out))
+            ok = len(out) == n and (isfinite(sum(out)) or all(map(isfinite, out)))
         except TypeError:
             ok = False
         if not ok:
