@@ -10,7 +10,7 @@ import scipy.integrate
 import scipy.linalg
 
 from twin.controllers.cascade import DEFAULT_PSI_ERROR_LIMIT
-from twin.controllers.lmi import _DEFAULT_SCALING, DEFAULT_RHO
+from twin.controllers.lmi import DEFAULT_SCALING, DEFAULT_RHO
 from twin.controllers.lqr import LQRController, build_lqr, lqr_design, sampled_cost, yaw_model
 from twin.controllers.mamdani import DEFAULT_U_ALPHA_MAX
 from twin.errors import TwinError
@@ -142,7 +142,7 @@ def test_yaw_gain_solves_its_riccati_equation_and_stabilises(ctrl):
 
 
 def test_weights_follow_brysons_rule_with_the_lmi_designs_scales(ctrl):
-    np.testing.assert_array_equal(ctrl.balance_design.Q, np.diag(1.0 / np.asarray(_DEFAULT_SCALING) ** 2))
+    np.testing.assert_array_equal(ctrl.balance_design.Q, np.diag(1.0 / np.asarray(DEFAULT_SCALING) ** 2))
     np.testing.assert_array_equal(ctrl.balance_design.R, [[1.0 / DEFAULT_RHO**2]])
     np.testing.assert_array_equal(ctrl.yaw_design.Q, np.diag([1.0, 1.0]))  # 1 rad, 1 rad/s (Table I)
     np.testing.assert_array_equal(ctrl.yaw_design.R, [[1.0 / DEFAULT_U_ALPHA_MAX**2]])

@@ -64,6 +64,38 @@ BAD = textwrap.dedent('''
         def __call__(self, estimate, targets):
             return (self.k, self.k)
 
+    class Raises:
+        def reset(self, targets):
+            pass
+        def __call__(self, estimate, targets):
+            raise RuntimeError("boom in controller")
+
+    class Clash:
+        signals = ("theta", "extra")
+        def reset(self, targets):
+            pass
+        def __call__(self, estimate, targets):
+            return (0.0, 0.0, 1.0, 2.0)
+
+    class LateNaN:
+        """Fine for 0.5 s (past the sweep's preflight), then a NaN torque."""
+        def reset(self, targets):
+            self.calls = 0
+        def __call__(self, estimate, targets):
+            self.calls += 1
+            return (0.0, math.nan) if self.calls > 100 else (0.0, 0.0)
+
+    class BufferEstimator:
+        """Returns the same list object every step, updated in place (as array-based filters do)."""
+        reads_truth = True
+        def start(self, m):
+            self.out = [0.0] * 6
+            return self.step(m, None)
+        def step(self, m, command):
+            tr = m.truth
+            self.out[:] = [tr.theta, tr.theta_dot, tr.psi, tr.psi_dot, tr.alpha, tr.alpha_dot]
+            return self.out
+
     not_callable = 3
 ''')
 
@@ -254,6 +286,14 @@ def test_plugins_give_identical_metrics_through_api_toml_run_and_sweep(plugin_di
     (["--controller", "it2", "--set", "sensors.estimator='bad_plugins:NaNEstimator'"],
      "NaNEstimator: step() returned (nan, nan"),
     (["--controller", "bad_plugins:Gain"], "cannot be built with parameters {}"),
+    (["--controller", "bad_plugins:Raises"], "__call__() raised RuntimeError: boom in controller at t = 0.000 s"),
+    (["--controller", "bad_plugins:Clash"], "signal names 'theta' repeat each other or a logged column"),
+    (["--controller", "lqr", "--set", "controller.params.lqr.gain=3"],
+     "controller.params.lqr: controller 'lqr': unknown parameter 'gain'; allowed: psi_error_limit"),
+    (["--controller", "it2", "--set", "controller.params.it2=3"],
+     "controller.params.it2: must be a table of keyword arguments"),
+    (["--controller", "it2", "--set", "controller.params.it3={fou=0.1}"],
+     "controller.params.it3: controller 'it3' is neither a built-in"),
 ])
 @pytest.mark.parametrize("command", ["run", "sweep"])
 def test_bad_plugins_are_one_line_exit_2_and_write_nothing(plugin_dir, tmp_path, monkeypatch, command, args,
@@ -301,3 +341,47 @@ def test_a_reset_loop_reuses_its_estimator_as_if_new(kind):
     with ClosedLoop(None, build_estimator(kind, None, ctx), controller, sensors, Targets(), theta0=0.3) as loop:
         fresh = episode(loop, 9)
     assert again == fresh
+
+
+def test_a_plugin_that_breaks_later_in_a_sweep_keeps_the_others_results_and_exits_2(plugin_dir, tmp_path,
+                                                                                     monkeypatch):
+    """Past the 0.05 s preflight: the broken controller's runs are errors, the reference's
+    runs of the same samples stand, and the sweep says so in one line with exit status 2."""
+    monkeypatch.chdir(plugin_dir)
+    out = tmp_path / "sweep"
+    r = CliRunner().invoke(main, ["sweep", "paper-exp1", "--samples", "1", "--workers", "1", "--duration", "1",
+                                  "--set", "sweep.levels=[0.0]", "--set", "initial.theta=0.0",
+                                  "--controller", "bad_plugins:LateNaN,it2",
+                                  "--out", str(out)])
+    assert r.exit_code == 2, (r.stdout, r.stderr)
+    errors = [line for line in r.stderr.splitlines() if line.startswith("error: ")]
+    assert len(errors) == 1 and "1 run ended with a plugin error (first: sample 0, controller" in errors[0]
+    record = json.loads((out / "samples.jsonl").read_text().splitlines()[0])
+    assert set(record["runs"]) == {"it2"} and record["runs"]["it2"]["status"] == "ok"
+    assert record["errors"]["bad_plugins:LateNaN"].startswith("PluginError: controller bad_plugins.LateNaN returned")
+    rows = (out / "sweep.csv").read_text().splitlines()
+    assert rows[1].split(",")[4:6] == ["bad_plugins:LateNaN", "error"] and rows[2].split(",")[4:6] == ["it2", "ok"]
+
+
+def test_an_estimate_returned_in_a_reused_buffer_is_logged_as_it_was(plugin_dir):
+    """The loop keeps a copy: a filter that updates one list in place does not rewrite the log."""
+    import bad_plugins
+
+    from twin.bullet_loop import simulate_twin
+
+    exp = Experiment("e", "", theta0=0.3, duration=0.5)
+    run = simulate_twin(build_controller("lqr"), exp, sensors=None, estimator=bad_plugins.BufferEstimator())
+    assert run.signal("theta_est")[0] == pytest.approx(0.3, abs=1e-6)
+    assert list(run.signal("theta_est")) == list(run.signal("theta"))
+
+
+def test_ideal_sensing_refuses_an_estimator_it_would_not_run(plugin_dir):
+    import my_plugins
+
+    from twin.bullet_loop import simulate_twin
+
+    exp = Experiment("e", "", theta0=0.1, duration=0.1)
+    with pytest.raises(TwinError, match="sensors=None is ideal sensing .* would not run"):
+        simulate_twin(build_controller("lqr"), exp, sensors=None, estimator=my_plugins.TiltFilter(BuildContext()))
+    with pytest.raises(TwinError, match="estimator 'kalman2' would not run"):
+        simulate_twin(build_controller("lqr"), exp, sensors=None, estimator="kalman2")

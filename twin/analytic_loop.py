@@ -14,10 +14,11 @@ import numpy as np
 
 from twin.controllers.cascade import build_cascade
 from twin.controllers.lmi import BalanceDesign, design_balance_gains
-from twin.errors import TwinError
+from twin.errors import PluginError, TwinError
 from twin.experiments import PAPER_EXPERIMENTS, Experiment
 from twin.params import NOMINAL, RobotParams
 from twin.plant.analytic import STATE_NAMES, rk4_step, wheel_angles
+from twin.protocols import describe_object
 from twin.runs import COMMAND_UNITS, Run
 from twin.timing import steps_per_control
 
@@ -55,9 +56,14 @@ def simulate(controller, experiment: Experiment, params: RobotParams = NOMINAL,
         log[i] = x
         if not np.all(np.isfinite(x)):
             raise TwinError(f"the analytic simulation diverged at t = {i * control_dt:.3f} s")
-        c = tuple(controller(x[:6], targets))  # (ul, ur, *signals)
-        if len(c) != len(names) or not np.all(np.isfinite(c)):
-            raise TwinError(f"the controller returned {c!r}; expected {len(names)} finite numbers ({', '.join(names)})")
+        try:
+            c = tuple(float(v) for v in controller(x[:6], targets))  # (ul, ur, *signals)
+        except Exception as exc:  # noqa: BLE001 -- the controller's failure, in one line
+            raise PluginError(f"controller {describe_object(controller)}: __call__() failed at t = {i * control_dt:.3f} "
+                              f"s: {type(exc).__name__}: {' '.join(str(exc).split())}") from None
+        if len(c) != len(names) or not all(map(math.isfinite, c)):
+            raise PluginError(f"controller {describe_object(controller)} returned {c!r} at t = {i * control_dt:.3f} s; "
+                              f"expected {len(names)} finite numbers ({', '.join(names)}; torques in N·m)")
         cmds[i] = c
         if i == n_ctrl:
             break

@@ -74,6 +74,10 @@ def simulate_twin(controller, experiment: Experiment, config: TwinConfig | None 
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise TwinError(f"seed must be a non-negative integer, got {seed!r}")
     ideal = sensors is None
+    if ideal and not (estimator in ("ekf", "ideal") if isinstance(estimator, str)
+                      else getattr(estimator, "reads_truth", False)):
+        raise TwinError(f"sensors=None is ideal sensing (the 'ideal' estimator reads the truth), so estimator "
+                        f"{estimator!r} would not run; give sensors=SensorConfig(...) to use it")
     if isinstance(estimator, str) or ideal:
         kind = "ideal" if ideal else estimator
         context = BuildContext(config.control_rate, model_params, config.motor, sensors, experiment.targets, alpha0)

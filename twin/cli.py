@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import sys
 from pathlib import Path
 
@@ -202,21 +203,27 @@ def _paper_experiment(experiment, controller, out, duration, gains_file, design_
     number = int(experiment[-1])
     if duration is not None and not (math.isfinite(duration) and 0 < duration <= 3600):
         raise TwinError(f"--duration must be in (0, 3600] s, got {duration:g}")
-    from twin.registry import BuildContext, build_controller, label, parse_controllers
+    from twin.registry import BuildContext, build_controller, label, parse_controllers, provenance
 
     kinds = parse_controllers(controller)
     d = _load_design(gains_file, *design_options)
     exp = PAPER_EXPERIMENTS[number]
     description = "analytic model, nominal"
     context = BuildContext(200.0, targets=exp.targets, design=lambda: d)  # the analytic loop's 5 ms control period
+    plugins = [p for p in (provenance("controller", k) for k in kinds) if p is not None]
+    _echo_plugins(plugins)
     runs, metrics = [], {}
-    for kind in kinds:
+    for kind in kinds:  # every run first: nothing is written unless all of them finish
         run = simulate(build_controller(kind, None, context), exp, duration=duration, controller_name=kind)
         runs.append(run)
         metrics[kind] = run_metrics(run)
-        report.write_trajectory_csv(run, out / f"trajectory_{kind}.csv")
-    report.write_json({"experiment": exp.name, "description": exp.description, "plant": description,
-                       "controllers": metrics}, out / "metrics.json")
+    names = {k: f"trajectory_{re.sub(r'[^A-Za-z0-9_-]+', '_', k)}.csv" for k in kinds}
+    for kind, run in zip(kinds, runs):
+        report.write_trajectory_csv(run, out / names[kind])
+    doc = {"experiment": exp.name, "description": exp.description, "plant": description, "controllers": metrics}
+    if plugins:
+        doc["plugins"] = plugins
+    report.write_json(doc, out / "metrics.json")
     report.write_json(d.to_json_dict(), out / "design.json")
     report.plot_runs(runs, out / "figure.png", f"{exp.name}: {exp.description}\n{description}")
     click.echo(f"{exp.name}: {exp.description} ({description})")
@@ -225,7 +232,7 @@ def _paper_experiment(experiment, controller, out, duration, gains_file, design_
     click.echo(f"  {'metric':28}" + "".join(f"{label(k)[:11]:>12}" for k in kinds))
     for k in keys:
         click.echo(f"  {k:28}" + "".join(f"{_fmt(metrics[c][k]):>12}" for c in kinds))
-    click.echo(f"wrote {out}/figure.png, metrics.json, design.json, " + ", ".join(f"trajectory_{k}.csv" for k in kinds))
+    click.echo(f"wrote {out}/figure.png, metrics.json, design.json, " + ", ".join(names[k] for k in kinds))
 
 
 @main.command()
@@ -394,6 +401,12 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
                + (f"; {result.resumed} were already finished" if result.resumed else ""))
     click.echo(_success_table(result.summary))
     click.echo(f"wrote {out}/: " + ", ".join(Path(f).name for f in result.files))
+    broken = [r for r in result.rows if str(r.get("error") or "").startswith("PluginError")]
+    if broken:  # a plugin broke its contract past the preflight: not a result, though the rest is kept
+        first = broken[0]
+        raise TwinError(f"{len(broken)} run{'s' * (len(broken) > 1)} ended with a plugin error (first: sample "
+                        f"{first['sample']}, {first['error'][len('PluginError: '):]}); the other runs are stored "
+                        f"in {out}")
 
 
 def _success_table(summary) -> str:

@@ -125,10 +125,17 @@ class ClosedLoop:
         else:
             self.suite = None
         self.measurement = self._read(tr)
-        est = self.estimator.start(self.measurement)
-        self.estimate = self._check_estimate(est, "start")
+        try:
+            est = self.estimator.start(self.measurement)
+        except Exception as exc:  # noqa: BLE001 -- the plugin's failure, in one line
+            raise self._raised("estimator", self.estimator, "start()", exc) from None
+        est = self._check_estimate(est, "start")
+        self.estimate = est if isinstance(est, tuple) else tuple(float(v) for v in est)
         if self.controller is not None:
-            self.controller.reset(self.targets)
+            try:
+                self.controller.reset(self.targets)
+            except Exception as exc:  # noqa: BLE001
+                raise self._raised("controller", self.controller, "reset()", exc) from None
         return self.result()
 
     def close(self) -> None:
@@ -151,13 +158,18 @@ class ClosedLoop:
         if out is None:
             if self.controller is None:
                 raise TwinError("this loop has no controller: give step() the command (ul, ur) in N·m")
-            out = self.controller(self.estimate, self.targets)
+            try:
+                out = self.controller(self.estimate, self.targets)
+            except Exception as exc:  # noqa: BLE001 -- the plugin's failure, in one line
+                raise self._raised("controller", self.controller, "__call__()", exc) from None
             try:
                 ok = len(out) == self._n_out and isfinite(sum(out))
             except TypeError:
                 ok = False
             if not ok:
-                self._check_command(out)  # raises, naming the controller and what was expected
+                out = self._check_command(out)  # raises, naming the controller and what was expected
+            if not isinstance(out, tuple):  # a buffer the plugin reuses: keep a copy
+                out = tuple(float(v) for v in out)
             self._command = out
         return out
 
@@ -180,13 +192,18 @@ class ClosedLoop:
         if status == "diverged":  # a non-finite state: nothing more is read from it
             return self.result()
         meas = self.measurement = self._read(tr)
-        est = self.estimator.step(meas, (ul, ur))
+        try:
+            est = self.estimator.step(meas, (ul, ur))
+        except Exception as exc:  # noqa: BLE001 -- the plugin's failure, in one line
+            raise self._raised("estimator", self.estimator, "step()", exc) from None
         try:
             ok = len(est) == 6 and isfinite(sum(est))
         except TypeError:
             ok = False
         if not ok:
-            self._check_estimate(est, "step")  # raises, naming the estimator
+            est = self._check_estimate(est, "step")  # raises, naming the estimator
+        if not isinstance(est, tuple):  # a buffer the plugin reuses: keep a copy
+            est = tuple(float(v) for v in est)
         self.estimate = est
         return StepResult(tr, meas, est, status, "" if status == "running" else twin.end_reason)
 
@@ -222,7 +239,8 @@ class ClosedLoop:
     def _check_command(self, out, external: bool = False):
         n = 2 if external else self._n_out
         try:
-            ok = len(out) == n and (isfinite(sum(out)) or all(map(isfinite, out)))
+            ok = (len(out) == n or external and len(out) == self._n_out) and (isfinite(sum(out)) or
+                                                                              all(map(isfinite, out)))
         except TypeError:
             ok = False
         if not ok:
@@ -231,6 +249,12 @@ class ClosedLoop:
             raise PluginError(f"{who} returned {_short(out)} at t = {self.k * self.control_dt:.3f} s; expected "
                               f"{n} finite numbers ({names}; torques in N·m)")
         return out
+
+    def _raised(self, role: str, obj, method: str, exc: Exception) -> PluginError:
+        if isinstance(exc, PluginError):
+            return exc
+        return PluginError(f"{role} {describe_object(obj)}: {method} raised {type(exc).__name__}: "
+                           f"{' '.join(str(exc).split())} at t = {self.k * self.control_dt:.3f} s")
 
     def _require_running(self) -> BulletTwin:
         if self.twin is None:
@@ -272,6 +296,12 @@ class ClosedLoop:
         hook = getattr(self.estimator, "stats", None)
         return dict(hook()) if callable(hook) else {}
 
+    def covariance(self):
+        """The estimator's ``covariance()`` hook: the (6, 6) covariance of :attr:`estimate` in
+        its units squared, or None without one."""
+        hook = getattr(self.estimator, "covariance", None)
+        return hook() if callable(hook) else None
+
     def diagnostics(self) -> dict | None:
         """The estimator's ``diagnostics()`` hook for the last step, or None without one."""
         hook = getattr(self.estimator, "diagnostics", None)
@@ -279,7 +309,7 @@ class ClosedLoop:
 
 
 def _short(v) -> str:
-    text = repr(v)
+    text = " ".join(repr(v).split())  # one line, whatever the object's repr
     return text if len(text) <= 80 else text[:77] + "..."
 
 

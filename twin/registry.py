@@ -46,6 +46,7 @@ class Kind:
     description: str
     factory: Callable = field(repr=False)
     uses_design: bool = False
+    parameters: tuple = ()  # the keyword parameters a scenario may give it
 
 
 @dataclass(frozen=True)
@@ -90,11 +91,17 @@ class BuildContext:
 def _cascade(kind: str):
     def build(ctx: BuildContext, fou=None, type_reduction=None, psi_error_limit=None):
         from twin.controllers.cascade import build_cascade
+        from twin.fuzzy.mamdani import TYPE_REDUCERS
 
         o = dict(ctx.options)
         for name, value in (("fou", fou), ("type_reduction", type_reduction), ("psi_error_limit", psi_error_limit)):
             if value is not None:
                 o[name] = value
+        # checked here, not only where used: a loop that a run leaves off must not hide a bad value
+        if not (isinstance(o.get("fou", 0.25), (int, float)) and 0.0 <= o.get("fou", 0.25) <= 0.95):
+            raise TwinError(f"fou must be a number in [0, 0.95], got {o['fou']!r}")
+        if o.get("type_reduction", "bmm") not in TYPE_REDUCERS:
+            raise TwinError(f"type_reduction must be one of {', '.join(TYPE_REDUCERS)}, got {o['type_reduction']!r}")
         return build_cascade(kind, ctx.balance_design(), ctx.targets, ctx.model, **o)
     return build
 
@@ -107,11 +114,13 @@ def _lqr(ctx: BuildContext, **params):
 
 CONTROLLERS: dict[str, Kind] = {
     "it2": Kind("it2", "IT2", "the paper's IT2 fuzzy cascade: IT2 PDC balance (LMI gains), IT2 Mamdani position "
-                "and direction controllers, BMM type reduction", _cascade("it2"), uses_design=True),
+                "and direction controllers, BMM type reduction", _cascade("it2"), uses_design=True,
+                parameters=("fou", "type_reduction", "psi_error_limit")),
     "t1": Kind("t1", "type-1", "the type-1 fuzzy cascade of the same structure and gains", _cascade("t1"),
-               uses_design=True),
+               uses_design=True, parameters=("fou", "type_reduction", "psi_error_limit")),
     "lqr": Kind("lqr", "LQR", "LQR on the linearised nominal model (TS rule 1), Bryson's rule; LQR heading loop",
-                _lqr),
+                _lqr, parameters=("psi_error_limit", "state_scales", "input_scale", "yaw_state_scales",
+                                  "yaw_input_scale", "control_period")),
 }
 
 
@@ -150,11 +159,12 @@ def _ideal(ctx: BuildContext):
 
 
 ESTIMATORS: dict[str, Kind] = {
-    "ekf": Kind("ekf", "EKF", "the strapdown extended Kalman filter (IMU-driven, encoder-corrected, gated)", _ekf),
+    "ekf": Kind("ekf", "EKF", "the strapdown extended Kalman filter (IMU-driven, encoder-corrected, gated)", _ekf,
+                parameters=("compiled", "gate_probability", "max_rejects_in_row")),
     "complementary": Kind("complementary", "complementary", "complementary filter (a = 0.98) with odometry",
-                          _baseline("complementary")),
+                          _baseline("complementary"), parameters=("a",)),
     "kalman2": Kind("kalman2", "kalman2", "two-state angle-and-bias Kalman filter (TKJ Electronics) with odometry",
-                    _baseline("kalman2")),
+                    _baseline("kalman2"), parameters=("q_angle", "q_bias", "r_measure")),
     "ideal": Kind("ideal", "ideal", "the ground truth passed through (a reference, not an estimator)", _ideal),
 }
 
@@ -262,8 +272,16 @@ def _accepts_context(factory) -> bool:
 
 def _build(role: str, kind: str, params: dict | None, context: BuildContext | None):
     factory, plugin = resolve(role, kind)
+    if params is not None and not isinstance(params, dict):
+        raise PluginError(f"{role} {kind!r}: parameters must be a table of keyword arguments, got {params!r}")
     params = dict(params or {})
     context = context if context is not None else BuildContext()
+    if not plugin:
+        allowed = _ROLES[role][kind].parameters
+        unknown = [p for p in params if p not in allowed]
+        if unknown:
+            raise PluginError(f"{role} {kind!r}: unknown parameter{'s' * (len(unknown) > 1)} "
+                              f"{', '.join(map(repr, unknown))}; allowed: {', '.join(allowed) or 'none'}")
     try:
         if not plugin:
             obj = factory(context, **params)
@@ -272,9 +290,9 @@ def _build(role: str, kind: str, params: dict | None, context: BuildContext | No
     except PluginError:
         raise
     except TypeError as exc:
-        allowed = _parameters(factory, plugin)
-        raise PluginError(f"{role} {kind!r}: cannot be built with parameters {params!r} ({exc}); "
-                          f"allowed parameters: {allowed or 'none'}") from None
+        allowed = _ROLES[role][kind].parameters if not plugin else _parameters(factory)
+        raise PluginError(f"{role} {kind!r}: cannot be built with parameters {params!r} "
+                          f"({' '.join(str(exc).split())}); allowed parameters: {', '.join(allowed) or 'none'}") from None
     except TwinError as exc:
         raise PluginError(f"{role} {kind!r}: {exc}") from None
     except Exception as exc:  # noqa: BLE001 -- the plugin's own failure, in one line
@@ -284,15 +302,14 @@ def _build(role: str, kind: str, params: dict | None, context: BuildContext | No
     return obj
 
 
-def _parameters(factory, plugin: bool) -> str:
+def _parameters(factory) -> tuple[str, ...]:
+    """The keyword parameters of a plugin's class or factory (``context`` left out)."""
     try:
         sig = inspect.signature(factory)
     except (TypeError, ValueError):
-        return "?"
-    names = [p for p in sig.parameters if p not in ("self", "context", "ctx") and not p.startswith("_")]
-    kinds = {p.name: p.kind for p in sig.parameters.values()}
-    return ", ".join(n for n in names if kinds[n] not in (inspect.Parameter.VAR_POSITIONAL,
-                                                           inspect.Parameter.VAR_KEYWORD))
+        return ()
+    skip = (inspect.Parameter.VAR_POSITIONAL, inspect.Parameter.VAR_KEYWORD)
+    return tuple(n for n, p in sig.parameters.items() if n not in ("self", "context") and p.kind not in skip)
 
 
 def check_protocol(role: str, kind: str, obj) -> None:
@@ -306,9 +323,16 @@ def check_protocol(role: str, kind: str, obj) -> None:
                           f"(see twin.protocols.{role.capitalize()})")
     if role == "controller":
         signals = getattr(obj, "signals", ())
-        if not (isinstance(signals, (tuple, list)) and all(isinstance(s, str) and s for s in signals)):
-            raise PluginError(f"{role} {kind!r}: 'signals' must be a tuple of names of extra logged signals, "
-                              f"got {signals!r}")
+        if not (isinstance(signals, (tuple, list)) and all(isinstance(s, str) and s.isidentifier() for s in signals)):
+            raise PluginError(f"{role} {kind!r}: 'signals' must be a tuple of names (identifiers) of extra logged "
+                              f"signals, got {signals!r}")
+        from twin.runs import ACTUATION_NAMES, ESTIMATE_NAMES, PUSH_NAMES, TRUTH_NAMES
+
+        taken = set(TRUTH_NAMES + ESTIMATE_NAMES + ACTUATION_NAMES + PUSH_NAMES + ("ul_cmd", "ur_cmd"))
+        clash = sorted({s for s in signals if s in taken or list(signals).count(s) > 1})
+        if clash:
+            raise PluginError(f"{role} {kind!r}: signal names {', '.join(map(repr, clash))} repeat each other or a "
+                              "logged column (truth, estimate, command, actuation, push); choose other names")
 
 
 def build_controller(kind: str, params: dict | None = None, context: BuildContext | None = None):

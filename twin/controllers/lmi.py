@@ -66,7 +66,7 @@ _MAX_DECAY = 100.0  # 1/s
 _MAX_GAIN = 1e9
 
 # Typical magnitudes of [θ, θ̇, ψ, ψ̇] during a recovery (rad, rad/s, rad, rad/s).
-_DEFAULT_SCALING = np.array([1.0, 10.0, 10.0, 50.0])
+DEFAULT_SCALING = np.array([1.0, 10.0, 10.0, 50.0])
 _SOLVER_OPTIONS = {
     "CLARABEL": {},
     "SCS": {"eps_abs": 1e-9, "eps_rel": 1e-9, "max_iters": 100000, "acceleration_lookback": 0},
@@ -372,7 +372,7 @@ def _slowest_vertex_pole(A, B, gains) -> float:
 def _certified_solution(A, B, decay_rate, solver):
     """Solve for ε = 1 and check the certificate; on failure rescale by the solution's own
     spread and try once more. Returns (Q̃, Ñ, Ỹ, T, solver) or a string saying why not."""
-    T = _DEFAULT_SCALING
+    T = DEFAULT_SCALING
     for attempt in range(2):
         status, Q, N, Y, _, used = _solve(A, B, decay_rate, solver, T)
         if Q is None:
@@ -391,7 +391,7 @@ def _explain_decay(A, B, decay_rate, solver, why) -> None:
     lo, hi = 0.0, min(decay_rate, _MAX_DECAY)
     for _ in range(12):  # quick yes/no solves: near the limit a full solve can take seconds
         mid = 0.5 * (lo + hi)
-        if _solve(A, B, mid, solver, _DEFAULT_SCALING, feasibility_only=True)[1] is None:
+        if _solve(A, B, mid, solver, DEFAULT_SCALING, feasibility_only=True)[1] is None:
             hi = mid
         else:
             lo = mid

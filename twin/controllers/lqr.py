@@ -39,7 +39,7 @@ Q = diag(1 / s_i²), R = 1 / ρ², "a state (input) of its typical size costs 1"
 scales are not tuned here, in either direction, against the fuzzy controllers; they are
 the numbers the fuzzy design already committed to:
 
-* balance states s = [1 rad, 10 rad/s, 10 rad, 50 rad/s], ``_DEFAULT_SCALING`` of
+* balance states s = [1 rad, 10 rad/s, 10 rad, 50 rad/s], ``DEFAULT_SCALING`` of
   :mod:`twin.controllers.lmi`, the typical magnitudes of [θ, θ̇, ψ, ψ̇] during a recovery
   that the LMI design normalises its state by;
 * balance input ρ = ``DEFAULT_RHO`` = 2 N·m on u = ul + ur, the input bound of the LMI
@@ -88,7 +88,7 @@ import numpy as np
 import scipy.linalg
 
 from twin.controllers.cascade import DEFAULT_PSI_ERROR_LIMIT
-from twin.controllers.lmi import _DEFAULT_SCALING, DEFAULT_RHO
+from twin.controllers.lmi import DEFAULT_SCALING, DEFAULT_RHO
 from twin.controllers.mamdani import ALPHA_DOT_E_RANGE, ALPHA_E_RANGE, DEFAULT_U_ALPHA_MAX
 from twin.errors import TwinError
 from twin.params import NOMINAL, RobotParams
@@ -96,7 +96,7 @@ from twin.plant.ts_model import ts_matrices
 
 DEFAULT_CONTROL_PERIOD = 0.005  # s: the twin's 200 Hz control rate
 # Bryson scales (see the module docstring)
-BALANCE_STATE_SCALES = tuple(float(v) for v in _DEFAULT_SCALING)  # rad, rad/s, rad, rad/s
+BALANCE_STATE_SCALES = tuple(float(v) for v in DEFAULT_SCALING)  # rad, rad/s, rad, rad/s
 BALANCE_INPUT_SCALE = float(DEFAULT_RHO)  # N·m on u = ul + ur
 YAW_STATE_SCALES = (float(ALPHA_E_RANGE), float(ALPHA_DOT_E_RANGE))  # rad, rad/s
 YAW_INPUT_SCALE = float(DEFAULT_U_ALPHA_MAX)  # N·m per wheel

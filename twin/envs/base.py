@@ -395,7 +395,10 @@ class TwinEnv(gymnasium.Env):
         if loop is None:
             raise TwinError("call reset() before step()")
         t = self.max_torque
-        ul, ur = float(action[0]), float(action[1])
+        try:
+            ul, ur = (float(v) for v in np.asarray(action, dtype=float).reshape(2))
+        except (TypeError, ValueError):
+            raise TwinError(f"action must be the two wheel torques (ul, ur) in N·m, got {action!r}") from None
         ul = t if ul > t else (-t if ul < -t else ul)  # NaN passes through: the loop rejects it in one line
         ur = t if ur > t else (-t if ur < -t else ur)
         loop.step((ul, ur))

@@ -74,9 +74,13 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
     from twin.bullet_loop import simulate_twin
     from twin.metrics import run_metrics
 
-    kinds = tuple(controllers) if controllers is not None else scenario.controllers
-    if not kinds:
-        raise TwinError("run_scenario needs at least one controller kind")
+    from twin.registry import check_kinds, parse_controllers
+
+    if isinstance(controllers, str):
+        kinds = parse_controllers(controllers)
+    else:
+        kinds = check_kinds("controller", controllers if controllers is not None else scenario.controllers,
+                            "controllers")
     d = scenario.data
     exp = scenario.experiment()
     config = scenario.twin_config()

@@ -96,24 +96,28 @@ class Scenario:
         """Controller ``kind`` with its ``[controller.params.KIND]``; a one-line error naming the key."""
         from twin.registry import build_controller
 
+        params = self.data["controller"]["params"].get(kind)
         try:
-            return build_controller(kind, self.data["controller"]["params"].get(kind), context or self.build_context())
+            return build_controller(kind, params, context or self.build_context())
         except TwinError as exc:
             if isinstance(exc, ScenarioError):
                 raise
-            raise self._error(f"controller.kinds: {exc}") from None
+            where = f"controller.params.{kind}" if params else "controller"
+            raise self._error(f"{where}: {exc}") from None
 
     def build_estimator(self, context=None):
         """The scenario's estimator with ``sensors.estimator_params``; a one-line error naming the key."""
         from twin.registry import build_estimator
 
+        # with ideal sensing the estimator is the truth: the other estimator's parameters do not apply
+        params = None if self.estimator == "ideal" else self.data["sensors"]["estimator_params"]
         try:
-            return build_estimator(self.estimator, self.data["sensors"]["estimator_params"],
-                                   context or self.build_context())
+            return build_estimator(self.estimator, params, context or self.build_context())
         except TwinError as exc:
             if isinstance(exc, ScenarioError):
                 raise
-            raise self._error(f"sensors.estimator: {exc}") from None
+            where = "sensors.estimator_params" if params else "sensors.estimator"
+            raise self._error(f"{where}: {exc}") from None
 
     def experiment(self):
         from twin.experiments import Experiment

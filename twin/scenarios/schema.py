@@ -93,7 +93,7 @@ SCHEMA: dict[str, Key] = {
         "kinds": Key("kinds", ("it2", "t1"), role="controller", recorded_at_default=False,
                      doc="the controllers run on identical conditions: built-in names (it2, t1, lqr) or "
                          "import paths 'package.module:attribute' (runs that module's code)"),
-        "params": Key("params", {}, recorded_at_default=False,
+        "params": Key("params", {}, recorded_at_default=False, role="controller",
                       doc="[controller.params.KIND]: keyword arguments for building controller KIND "
                           "(quote a KIND with dots or a colon)"),
         "fou": _f(DEFAULT_FOU, 0.0, 0.95, "1", doc="IT2 footprint of uncertainty of the Mamdani sets (0: type-1 shaped)"),
@@ -264,6 +264,17 @@ def _value(v, key: Key, path: str):
     if k == "params":
         if not isinstance(v, dict):
             raise ScenarioError(f"{path}: must be a table of keyword arguments, got {v!r}")
+        if key.role:  # one table of keyword arguments per kind: [controller.params.KIND]
+            from twin.registry import check_kind
+
+            for kind, table in v.items():
+                try:
+                    check_kind(key.role, kind)
+                except TwinError as exc:
+                    raise ScenarioError(f"{path}.{kind}: {exc}") from None
+                if not isinstance(table, dict):
+                    raise ScenarioError(f"{path}.{kind}: must be a table of keyword arguments for {key.role} "
+                                        f"{kind!r}, got {table!r}")
         return copy.deepcopy(v)
     if k == "table":
         return _table(v, key.keys, path)

@@ -120,8 +120,6 @@ def run_sweep(scenario: Scenario, draws: int, out: Path, scenario_arg: str | Non
     manifest = {"scenario": scenario.data, "source": scenario.source, "scenario_arg": scenario_arg or scenario.name,
                 "overrides": [o for o in scenario.overrides if not o.startswith("seed=")],
                 "root_seed": scenario.seed, "controllers": list(kinds), "draws": draws}
-    if reference != kinds[-1]:
-        manifest["reference"] = reference
     design = scenario.design() if any(_uses_design(k) for k in kinds) else None
     paths = plugin_dirs([("controller", k) for k in kinds] + [("estimator", scenario.estimator)])
     job = SweepJob(scenario.data, scenario.source, scenario.overrides, scenario.seed, design, kinds, paths)
@@ -148,13 +146,15 @@ def run_sweep(scenario: Scenario, draws: int, out: Path, scenario_arg: str | Non
         wall = time.perf_counter() - t0
         records = [store.records[k] for k in range(total)]
         manifest = store.manifest
-    result = write_report(out, manifest, records, scenario)
+    result = write_report(out, manifest, records, scenario, reference)
     result.ran, result.resumed, result.wall_s = len(todo), resumed, wall
     return result
 
 
-def write_report(out: Path, manifest: dict, records, scenario: Scenario) -> SweepResult:
-    """``sweep.csv``, the summary and the figures of the finished ``records``."""
+def write_report(out: Path, manifest: dict, records, scenario: Scenario, reference: str | None = None) -> SweepResult:
+    """``sweep.csv``, the summary and the figures of the finished ``records``; the paired
+    statistics compare each controller with ``reference`` (default: the last; it is not part
+    of the manifest, so a finished sweep can be reported against another reference)."""
     from twin import report
     from twin.registry import label
     from twin.sweep import figures, statistics
@@ -162,7 +162,7 @@ def write_report(out: Path, manifest: dict, records, scenario: Scenario) -> Swee
     out = Path(out)
     vcols = value_columns(scenario)
     kinds = list(manifest["controllers"])
-    reference = manifest.get("reference", kinds[-1])
+    reference = kinds[-1] if reference is None else reference
     labels = {k: label(k) for k in kinds}
     rows = rows_of(records, vcols, controllers=kinds)
     files = [write_sweep_csv(rows, columns(vcols), out / "sweep.csv")]

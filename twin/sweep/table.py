@@ -48,7 +48,8 @@ def rows_of(records, value_columns, controllers: Sequence[str] | None = None) ->
                    "controller": c, "status": m["status"] if m else "error", "success": bool(m and m["success"])}
             row.update({k: rec["values"].get(k) for k in value_columns})
             row.update({k: (m or {}).get(k) for k in METRIC_COLUMNS})
-            row["error"] = rec["error"]
+            # a controller's own error (the others ran), or the whole sample's (none ran)
+            row["error"] = (rec.get("errors") or {}).get(c, "" if m else rec["error"])
             rows.append(row)
     return rows
 

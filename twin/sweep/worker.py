@@ -46,9 +46,11 @@ class SweepJob:
 def run_sample(job: SweepJob, index: int) -> dict:
     """Run sample ``index`` of ``job`` with each controller; the record stored for it.
 
-    A run that falls or diverges is a result (its metrics say so); an exception inside the
-    run is recorded as the sample's ``error`` rather than stopping the sweep.
+    A run that falls or diverges is a result (its metrics say so). An exception inside a
+    controller's run (a plugin that breaks its contract, say) is recorded against that
+    controller alone, in ``errors``, so the others' results on the sample stand.
     """
+    from twin.scenarios.runner import run_scenario
     from twin.sweep.sampling import sample_scenario, success
 
     if str(index) in os.environ.get(CRASH_ENV, "").split(","):
@@ -56,15 +58,18 @@ def run_sample(job: SweepJob, index: int) -> dict:
     t0 = time.perf_counter()
     scenario = job.scenario()
     sample = sample_scenario(scenario, job.root_seed, index)
-    runs, error = {}, ""
-    try:
-        from twin.scenarios.runner import run_scenario
-
-        result = run_scenario(sample.scenario, job.controllers)
-        runs = {k: {**m, "success": success(m, scenario)} for k, m in result.metrics.items()}
-    except Exception as exc:  # noqa: BLE001 -- a sample that errors is a result, kept with its message
-        runs, error = {}, f"{type(exc).__name__}: {' '.join(str(exc).split())}"
-    return _record(sample, runs, error, time.perf_counter() - t0)
+    runs, errors = {}, {}
+    for kind in job.controllers:
+        try:
+            metrics = run_scenario(sample.scenario, (kind,)).metrics[kind]
+            runs[kind] = {**metrics, "success": success(metrics, scenario)}
+        except Exception as exc:  # noqa: BLE001 -- a run that errors is a result, kept with its message
+            errors[kind] = f"{type(exc).__name__}: {' '.join(str(exc).split())}"
+    error = "; ".join(f"{k}: {m}" for k, m in errors.items())
+    record = _record(sample, runs, error, time.perf_counter() - t0)
+    if errors:
+        record["errors"] = errors
+    return record
 
 
 def crash_record(job: SweepJob, index: int, why: str) -> dict:
