@@ -409,6 +409,92 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
                         f"in {out}")
 
 
+@main.command()
+@click.argument("targets", nargs=-1, metavar="SCENARIO|FILE|DIR...")
+@click.option("--controller", default=None, metavar="KINDS",
+              help="Controllers to check, comma-separated (default: each scenario's controller.kinds).")
+@click.option("--seeds", type=click.IntRange(1, 10_000), default=1, show_default=True, metavar="N",
+              help="Seeds per scenario and controller: the scenario's seed, seed + 1, ...")
+@click.option("--workers", type=click.IntRange(1, 1024), default=None, metavar="K",
+              help="Worker processes (default: every core here).")
+@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help="Override a key in every scenario.")
+@click.option("--junit", type=click.Path(dir_okay=False, path_type=Path), default=None, metavar="FILE",
+              help="Also write the verdicts as JUnit XML, for CI systems.")
+def check(targets, controller, seeds, workers, overrides, junit):
+    """Check scenarios against their [expect] bounds: exit 0 if all hold, 1 if any fails.
+
+    Runs every scenario, controller and seed (in parallel on local cores) and prints each
+    bound with the measured value. A directory contributes its .toml files that have an
+    [expect] table. Exit status 2 on a user error (a bad file, key or kind).
+
+    \b
+    Examples:
+      twin check paper-exp1 paper-exp2 paper-exp3
+      twin check scenarios/ --controller my_filters:Tuned,it2 --seeds 20 --junit check.xml
+    """
+    from twin.check import collect, run_checks, write_junit
+    from twin.registry import label
+    from twin.sweep.backends import default_workers
+
+    kinds = None
+    if controller is not None:
+        from twin.registry import parse_controllers
+
+        kinds = parse_controllers(controller)
+    scenarios, skipped = collect(targets, overrides)
+    for f in skipped:
+        click.echo(f"  skipped {f}: no [expect] table")
+    if not scenarios:
+        raise TwinError("no scenario with an [expect] table to check")
+    bar = _SweepBar("runs")
+    result = run_checks(scenarios, kinds, seeds, workers or default_workers(), progress=bar.update)
+    bar.close()
+    rows = []
+    for case in result.cases:
+        for bound in dict.fromkeys(v.bound for v in case.verdicts):
+            vs = [v for v in case.verdicts if v.bound == bound]
+            bad = [v for v in vs if v in case.failures]
+            shown = bad[0] if bad else vs[-1] if bound.stat or bound.metric == "pass_rate" else _worst(vs)
+            n = len(case.seeds)
+            n_bad = len([v for v in vs if not v.holds])
+            where = "" if n == 1 or bound.stat or bound.metric == "pass_rate" else (
+                f" ({n_bad}/{n} seeds fail)" if n_bad else f" (worst of {n} seeds)")
+            rows.append((case.scenario, label(case.controller), str(bound), shown.measured_text() + where,
+                         "FAIL" if bad else "ok"))
+        for seed, error in case.errors.items():
+            rows.append((case.scenario, label(case.controller), f"run with seed {seed}", error[:60], "ERROR"))
+    widths = [max(len(r[i]) for r in rows + [("scenario", "controller", "bound", "measured", "result")])
+              for i in range(5)]
+    head = ("scenario", "controller", "bound", "measured", "result")
+    click.echo("  " + "  ".join(h.ljust(w) for h, w in zip(head, widths)))
+    for r in rows:
+        click.echo("  " + "  ".join(c.ljust(w) for c, w in zip(r, widths)))
+    n_bad = sum(not c.passed for c in result.cases)
+    click.echo(f"  {len(result.cases)} checks ({result.runs} runs) in {result.wall_s:.1f} s: "
+               + ("all bounds hold" if not n_bad else f"{n_bad} failed"))
+    if junit is not None:
+        click.echo(f"wrote {write_junit(result, junit)}")
+    for case in result.cases:
+        for v in case.failures:
+            seed = f" seed {v.seed}" if v.seed is not None else f" over {len(case.seeds)} seeds"
+            click.echo(f"FAIL {case.scenario} {case.controller}{seed}: {v.bound.key} = {v.measured_text()} "
+                       f"{v.bound.unit}, bound {v.bound}", err=True)
+        for seed, error in case.errors.items():
+            click.echo(f"FAIL {case.scenario} {case.controller} seed {seed}: {error}", err=True)
+    return 0 if result.passed else 1
+
+
+def _worst(verdicts):
+    """The verdict whose measured value is nearest to breaking (or past) its bound."""
+    b = verdicts[0].bound
+    if isinstance(b.value, bool):
+        return verdicts[-1]
+    vals = [v for v in verdicts if v.measured is not None]
+    if len(vals) < len(verdicts):
+        return next(v for v in verdicts if v.measured is None)
+    return (max if b.op in ("<=", "<") else min)(vals, key=lambda v: float(v.measured))
+
+
 def _success_table(summary) -> str:
     from twin.registry import label
 
@@ -423,16 +509,17 @@ def _success_table(summary) -> str:
 
 
 class _SweepBar:
-    """Samples finished out of those left to run, with the time left, on stderr."""
+    """Samples (or runs) finished out of those left to run, with the time left, on stderr."""
 
-    def __init__(self):
+    def __init__(self, what: str = "samples"):
         self._bar = None
+        self.what = what
         self.done = self.total = 0
 
     def update(self, done: int, total: int) -> None:
         if self._bar is None:  # the first call gives the samples already finished
             self.done, self.total = done, total
-            label = "  samples" + (f" ({done} done before)" if done else "")
+            label = f"  {self.what}" + (f" ({done} done before)" if done else "")
             self._bar = click.progressbar(length=max(total - done, 1), label=label, file=sys.stderr,
                                           show_eta=True, show_pos=True, width=30).__enter__()
         self._bar.update(done - self.done)

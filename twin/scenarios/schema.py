@@ -48,6 +48,7 @@ class Key:
     # Keys added after 0.1.0 are left out of a run's record (metrics.json) while at their
     # default, so that the record of a run that does not use them stays byte-identical.
     recorded_at_default: bool = True
+    recorded: bool = True  # False: never part of a run's record (what checks the run, not what it ran)
 
 
 def _f(default=REQUIRED, lo=-math.inf, hi=math.inf, unit="", doc="", lo_open=False, nullable=False):
@@ -166,6 +167,10 @@ SCHEMA: dict[str, Key] = {
         "success_heading_tol": _f(0.05, 0.0, math.pi, "rad", lo_open=True,
                                   doc="success: the final heading error is within ± this (with a heading target)"),
     }),
+    "expect": Key("expect", {}, recorded_at_default=False, recorded=False,
+                  doc="bounds on the run's metrics that 'twin check' verifies, e.g. fell = false, "
+                      "settling_time_s = \"<= 9\"; [expect.KIND] for one controller, [expect.seeds] over seeds "
+                      "(see the README, 'twin check')"),
     "video": Key("table", keys={
         "enabled": Key("bool", True),
         "fps": Key("int", 30, 1, 120),
@@ -261,6 +266,14 @@ def _value(v, key: Key, path: str):
         if k == "kinds" and len(set(items)) != len(items):
             raise ScenarioError(f"{path}: a kind is repeated in {list(items)!r}; allowed: each at most once")
         return v if k == "kind" else tuple(items)
+    if k == "expect":
+        from twin.expectations import parse_expect
+
+        try:
+            parse_expect(v, path)
+        except TwinError as exc:
+            raise ScenarioError(str(exc)) from None
+        return copy.deepcopy(v)
     if k == "params":
         if not isinstance(v, dict):
             raise ScenarioError(f"{path}: must be a table of keyword arguments, got {v!r}")
@@ -332,7 +345,7 @@ def record(data: dict, keys: dict[str, Key] | None = None) -> dict:
         key = keys.get(name)
         if key is None:
             out[name] = value
-        elif not key.recorded_at_default and _same(value, key.default):
+        elif not key.recorded or not key.recorded_at_default and _same(value, key.default):
             continue
         elif key.kind == "table" and isinstance(value, dict):
             out[name] = record(value, key.keys)
@@ -357,7 +370,7 @@ def lookup(path: str) -> Key:
             allowed = ", ".join(keys) if keys else "none (not a table)"
             raise ScenarioError(f"--set {path}: unknown key {part!r} in {where}; allowed: {allowed}")
         key = keys[part]
-        if key.kind == "params":  # free keyword arguments: anything below is the plugin's to check
+        if key.kind in ("params", "expect"):  # free-form below: checked as a whole when the file is validated
             return key
         keys = key.keys if key.kind == "table" else (
             {c: Key("float", lo=key.lo, hi=key.hi, unit=key.unit) for c in key.choices} if key.kind == "map" else None)
@@ -384,6 +397,8 @@ def describe() -> list[tuple[str, str, str, str]]:
                 kind = f"{key.role} kind" + ("s (list)" if key.kind == "kinds" else "")
             elif key.kind == "params":
                 kind = "table (any keys)"
+            elif key.kind == "expect":
+                kind = "table of bounds"
             default = "required" if key.default is REQUIRED else ("absent" if key.default is None else repr(key.default))
             rows.append((p, kind, default, key.doc))
 

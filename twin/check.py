@@ -1,0 +1,206 @@
+"""``twin check``: run scenarios with their ``[expect]`` tables and say pass or fail.
+
+Every (scenario, controller, seed) is one run of :func:`twin.scenarios.runner.run_scenario`,
+on local worker processes when there are several (spawned, like the sweeps'; the LMI
+design is solved once per scenario here and shipped). Seeds are the scenario's ``seed``,
+``seed + 1``, … so that any run replays with ``twin run SCENARIO --seed S``. The verdicts
+come from :mod:`twin.expectations`. Nothing here depends on the number of workers or the
+order in which runs finish.
+"""
+from __future__ import annotations
+
+import multiprocessing
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from twin.errors import TwinError
+from twin.expectations import evaluate, failed, parse_expect
+
+
+@dataclass(frozen=True)
+class CheckTask:
+    """One run: the scenario's validated data, source and overrides, its design (None: not
+    needed), the controller kind, the seed, and the plugins' directories."""
+
+    data: dict
+    source: str
+    overrides: tuple
+    design: object
+    kind: str
+    seed: int
+    plugin_paths: tuple = ()
+
+
+def run_task(task: CheckTask) -> tuple[dict | None, str]:
+    """(metrics, "") of one run, or (None, error message) if the run raised."""
+    import sys
+
+    from twin.scenarios.runner import run_scenario
+    from twin.scenarios.scenario import Scenario
+
+    for path in reversed(task.plugin_paths):
+        if path not in sys.path:
+            sys.path.insert(0, path)
+    sc = Scenario({**task.data, "seed": task.seed}, task.source, task.overrides)
+    if task.design is not None:
+        sc.adopt_design(task.design)
+    try:
+        return run_scenario(sc, (task.kind,)).metrics[task.kind], ""
+    except Exception as exc:  # noqa: BLE001 -- a run that errors fails its check, with its message
+        return None, f"{type(exc).__name__}: {' '.join(str(exc).split())}"
+
+
+@dataclass
+class CaseResult:
+    """One scenario and controller over its seeds: the runs' metrics (seed → dict), errors,
+    the verdicts and which of them fail."""
+
+    scenario: str
+    source: str
+    controller: str
+    seeds: tuple
+    metrics: dict
+    errors: dict
+    verdicts: list
+    failures: list
+
+    @property
+    def passed(self) -> bool:
+        return not self.failures and not self.errors
+
+
+@dataclass
+class CheckResult:
+    cases: list
+    wall_s: float = 0.0
+    runs: int = 0
+    skipped: list = field(default_factory=list)
+
+    @property
+    def passed(self) -> bool:
+        return all(c.passed for c in self.cases)
+
+
+def collect(targets, overrides=()) -> tuple[list, list[str]]:
+    """The scenarios named by ``targets`` (built-in names, .toml files, directories of .toml
+    files), loaded with ``overrides``; files in a directory without an ``[expect]`` table are
+    skipped (and listed), a scenario named on its own must have one."""
+    from twin.scenarios import load_scenario
+    from twin.scenarios.scenario import builtin_names
+
+    scenarios, skipped = [], []
+    if not targets:
+        raise TwinError("twin check needs at least one SCENARIO, FILE or DIR (built-ins: "
+                        f"{', '.join(builtin_names())})")
+    for target in targets:
+        path = Path(target)
+        if path.is_dir():
+            files = sorted(path.glob("*.toml"))
+            if not files:
+                raise TwinError(f"{path}: no .toml scenario files in this directory")
+            for f in files:
+                sc = load_scenario(str(f), overrides)
+                (scenarios if sc.data["expect"] else skipped).append(sc if sc.data["expect"] else str(f))
+            continue
+        sc = load_scenario(str(target), overrides)
+        if not sc.data["expect"]:
+            raise TwinError(f"{sc.source}: no [expect] table, so nothing to check; add bounds such as "
+                            "fell = false (see the README, 'twin check')")
+        scenarios.append(sc)
+    return scenarios, skipped
+
+
+def run_checks(scenarios, controllers=None, seeds: int = 1, workers: int = 1, progress=None) -> CheckResult:
+    """Run every scenario with each controller (None: each scenario's ``controller.kinds``) on
+    ``seeds`` seeds, on ``workers`` processes, and judge the runs by the ``[expect]`` tables."""
+    from twin.registry import check_kinds, plugin_dirs, uses_design
+
+    if not (isinstance(seeds, int) and 1 <= seeds <= 10_000):
+        raise TwinError(f"--seeds must be an integer from 1 to 10000, got {seeds!r}")
+    if not (isinstance(workers, int) and 1 <= workers <= 1024):
+        raise TwinError(f"--workers must be an integer from 1 to 1024, got {workers!r}")
+    plan = []
+    for sc in scenarios:
+        kinds = check_kinds("controller", controllers if controllers is not None else sc.controllers, "controllers")
+        design = sc.design() if any(uses_design(k) for k in kinds) else None
+        paths = plugin_dirs([("controller", k) for k in kinds] + [("estimator", sc.estimator)])
+        for kind in kinds:
+            sc.build_controller(kind)  # a plugin that cannot be built is a user error: before anything runs
+            plan.append((sc, kind, tuple(CheckTask(sc.data, sc.source, sc.overrides, design, kind, sc.seed + i,
+                                                   paths) for i in range(seeds))))
+    tasks = [t for _, _, ts in plan for t in ts]
+    t0 = time.perf_counter()
+    outcomes = iter(_run(tasks, workers, progress))
+    wall = time.perf_counter() - t0
+    cases = []
+    for sc, kind, ts in plan:
+        done = [(t.seed, next(outcomes)) for t in ts]
+        metrics = {seed: m for seed, (m, _) in done if m is not None}
+        errors = {seed: e for seed, (_, e) in done if e}
+        bounds = parse_expect(sc.data["expect"])
+        verdicts = evaluate(bounds, kind, metrics) if metrics else []
+        cases.append(CaseResult(sc.name, sc.source, kind, tuple(t.seed for t in ts), metrics, errors, verdicts,
+                                failed(verdicts, bounds)))
+    return CheckResult(cases, wall, len(tasks))
+
+
+def _run(tasks, workers: int, progress) -> list:
+    """The outcomes of ``tasks``, in their order."""
+    out = []
+    if progress is not None:
+        progress(0, len(tasks))
+    if workers == 1 or len(tasks) == 1:
+        for i, t in enumerate(tasks):
+            out.append(run_task(t))
+            if progress is not None:
+                progress(i + 1, len(tasks))
+        return out
+    from twin.sweep.worker import ignore_sigint
+
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(min(workers, len(tasks)), mp_context=ctx, initializer=ignore_sigint) as pool:
+        for i, r in enumerate(pool.map(run_task, tasks)):
+            out.append(r)
+            if progress is not None:
+                progress(i + 1, len(tasks))
+    return out
+
+
+def write_junit(result: CheckResult, path: Path) -> Path:
+    """JUnit XML: a test suite per scenario, a test case per controller and seed (its per-run
+    bounds) and one per controller over the seeds (the ``[expect.seeds]`` bounds), with the
+    failing bounds, measured values and bounds in each failure."""
+    import xml.etree.ElementTree as ET
+
+    root = ET.Element("testsuites", name="twin check", tests="0", failures="0", time=f"{result.wall_s:.3f}")
+    suites: dict[str, ET.Element] = {}
+    total = fails = 0
+    for case in result.cases:
+        suite = suites.get(case.source)
+        if suite is None:
+            suite = suites[case.source] = ET.SubElement(root, "testsuite", name=case.scenario, tests="0", failures="0")
+        groups = [(seed, f"{case.controller} seed {seed}") for seed in case.seeds]
+        if any(v.seed is None for v in case.verdicts):
+            groups.append((None, f"{case.controller} over {len(case.seeds)} seeds"))
+        for seed, name in groups:
+            tc = ET.SubElement(suite, "testcase", classname=case.scenario, name=name)
+            total += 1
+            suite.set("tests", str(int(suite.get("tests")) + 1))
+            bad = [v for v in case.failures if v.seed == seed]
+            error = case.errors.get(seed) if seed is not None else None
+            if bad or error:
+                fails += 1
+                suite.set("failures", str(int(suite.get("failures")) + 1))
+                text = error or "; ".join(f"{v.bound}: measured {v.measured_text()}" for v in bad)
+                ET.SubElement(tc, "failure", message=text[:500]).text = text
+    root.set("tests", str(total))
+    root.set("failures", str(fails))
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    ET.ElementTree(root).write(path, encoding="utf-8", xml_declaration=True)
+    return path
+
+
+__all__ = ["CaseResult", "CheckResult", "CheckTask", "collect", "run_checks", "run_task", "write_junit"]

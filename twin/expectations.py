@@ -1,0 +1,215 @@
+"""Expectations: bounds on a run's metrics from a scenario's ``[expect]`` table, and their verdicts.
+
+The TOML form reads like the bound it states, one key per bound::
+
+    [expect]                                  # for every controller
+    fell = false
+    settling_time_s = "<= 9"                  # s
+    "|final_position_error_m|" = "<= 0.02"    # m: |x| bounds the magnitude
+    oscillation_peak_to_peak_rad = "<= 0.02"
+
+    [expect.lqr]                              # for one controller kind (quote an import path)
+    settling_time_s = "<= 14"
+
+    [expect.seeds]                            # over the seeds of 'twin check --seeds N'
+    pass_rate = ">= 0.95"                     # fraction of seeds on which every bound above holds
+    "p95(iae_theta)" = "<= 0.8"               # a statistic over the seeds: mean, median, min, max, pNN
+
+Why this form: the key is the quantity (a metric of :func:`twin.metrics.run_metrics`,
+optionally ``|…|`` and a statistic over seeds) and the value is the comparison
+(``<=``, ``<``, ``>=``, ``>``, ``==`` and a number, or true/false for ``fell``), so a
+bound is read exactly as it is written in a report: ``|final_position_error_m| <= 0.02``.
+Quoting is needed only where the key has ``|`` or ``(``.
+
+Meaning. A per-run bound must hold on every seed, unless ``[expect.seeds]`` sets a
+``pass_rate``: then it is the fraction of seeds on which all the per-run bounds of a
+controller hold that must meet it. A metric that is undefined (``settling_time_s`` of
+a run that never settles, a position error without a position target) fails a per-run
+bound, and counts as +∞ in a statistic.
+"""
+from __future__ import annotations
+
+import math
+import operator
+import re
+from dataclasses import dataclass
+
+from twin.errors import TwinError
+
+# the metrics of twin.metrics.run_metrics that a bound may name, with their units
+METRICS = {
+    "fell": "true/false", "settling_time_s": "s", "theta_rms_rad": "rad", "oscillation_peak_to_peak_rad": "rad",
+    "final_theta_rad": "rad", "final_distance_m": "m", "final_heading_rad": "rad", "final_position_error_m": "m",
+    "final_heading_error_rad": "rad", "iae_theta": "rad·s", "control_effort": "N²·m²·s", "max_abs_torque_nm": "N·m",
+    "estimator_theta_rmse_rad": "rad", "rejected_measurements": "1", "duration_s": "s",
+}
+OPS = {"<=": operator.le, "<": operator.lt, ">=": operator.ge, ">": operator.gt, "==": operator.eq}
+ALL = "*"  # the scope of the bounds that apply to every controller
+SEEDS = "seeds"  # the table of bounds over seeds
+_KEY = re.compile(r"^(?:(?P<stat>mean|median|min|max|p\d{1,2})\()?(?P<bar>\|)?(?P<metric>[a-z_]+)(?P<bar2>\|)?"
+                  r"(?P<close>\))?$")
+_VALUE = re.compile(r"^\s*(?P<op><=|>=|==|<|>)\s*(?P<num>[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?)\s*$")
+
+
+class ExpectError(TwinError):
+    """An invalid ``[expect]`` entry (the message names the key and what is allowed)."""
+
+
+@dataclass(frozen=True)
+class Bound:
+    """One bound: ``stat(|metric|) op value`` (``stat`` None: on each run)."""
+
+    key: str
+    metric: str
+    absolute: bool
+    stat: str | None
+    op: str
+    value: float | bool
+
+    def __str__(self) -> str:
+        value = str(self.value).lower() if isinstance(self.value, bool) else f"{self.value:g}"
+        return f"{self.key} {self.op} {value}"
+
+    @property
+    def unit(self) -> str:
+        return "1" if self.metric == "pass_rate" else METRICS[self.metric]
+
+    def measure(self, metrics: dict):
+        """This bound's quantity in one run's metrics (None where undefined)."""
+        v = metrics.get(self.metric)
+        if v is None or isinstance(v, bool):
+            return v
+        v = float(v)
+        return abs(v) if self.absolute else v
+
+    def holds(self, measured) -> bool:
+        if measured is None or (isinstance(measured, float) and math.isnan(measured)):
+            return False
+        if isinstance(self.value, bool):
+            return bool(measured) == self.value
+        return bool(OPS[self.op](float(measured), self.value))
+
+
+def parse_bound(key: str, value, where: str, over_seeds: bool) -> Bound:
+    """One ``key = value`` of an ``[expect]`` table; ``where`` names it in errors."""
+    if over_seeds and key == "pass_rate":
+        stat, metric, absolute = None, "pass_rate", False
+    else:
+        m = _KEY.match(key)
+        if not m or bool(m["bar"]) != bool(m["bar2"]) or bool(m["stat"]) != bool(m["close"]):
+            raise ExpectError(f"{where}: {key!r} is not a bound's quantity; allowed: a metric, |metric|"
+                              + (", stat(metric) with stat mean, median, min, max or pNN, or pass_rate" if over_seeds
+                                 else "") + f" (metrics: {', '.join(METRICS)})")
+        stat, metric, absolute = m["stat"], m["metric"], bool(m["bar"])
+        if metric not in METRICS:
+            raise ExpectError(f"{where}: unknown metric {metric!r}; allowed: {', '.join(METRICS)}")
+        if over_seeds != (stat is not None):
+            raise ExpectError(f"{where}: " + (f"{key!r} needs a statistic over seeds here (mean, median, min, max, "
+                                              f"pNN), e.g. 'p95({key})', or pass_rate" if over_seeds else
+                                              f"a statistic over seeds ({stat}) belongs in [expect.seeds]"))
+        if stat and stat.startswith("p") and not 1 <= int(stat[1:]) <= 99:
+            raise ExpectError(f"{where}: percentile {stat!r} out of range; allowed p1 to p99")
+    if metric == "fell" and stat is None:
+        if not isinstance(value, bool):
+            raise ExpectError(f"{where}: fell takes true or false, got {value!r}")
+        return Bound(key, metric, absolute, stat, "==", value)
+    m = _VALUE.match(value) if isinstance(value, str) else None
+    if not m:
+        raise ExpectError(f"{where}: {value!r} is not a bound; allowed: a string \"<op> number\" with op one of "
+                          f"<=, <, >=, >, == (e.g. \"<= 0.02\", in {METRICS.get(metric, '1')})")
+    number = float(m["num"])
+    if metric == "pass_rate" and not 0.0 <= number <= 1.0:
+        raise ExpectError(f"{where}: a pass rate is a fraction in [0, 1], got {number:g}")
+    return Bound(key, metric, absolute, stat, m["op"], number)
+
+
+def parse_expect(table, path: str = "expect") -> dict[str, tuple[Bound, ...]]:
+    """The ``[expect]`` table as scope → bounds: :data:`ALL` for every controller, a kind for one,
+    :data:`SEEDS` for the statistics over seeds (and ``pass_rate``)."""
+    from twin.registry import check_kind
+
+    if not isinstance(table, dict):
+        raise ExpectError(f"{path}: must be a table of bounds, e.g. fell = false, settling_time_s = \"<= 9\"")
+    out: dict[str, list[Bound]] = {}
+    for key, value in table.items():
+        if isinstance(value, dict):
+            over = key == SEEDS
+            if not over:
+                try:
+                    check_kind("controller", key)
+                except TwinError as exc:
+                    raise ExpectError(f"{path}.{key}: a sub-table is [expect.seeds] or [expect.KIND] for one "
+                                      f"controller; {exc}") from None
+            for k, v in value.items():
+                out.setdefault(key, []).append(parse_bound(k, v, f"{path}.{key}.{k}", over))
+        else:
+            out.setdefault(ALL, []).append(parse_bound(key, value, f"{path}.{key}", False))
+    return {k: tuple(v) for k, v in out.items()}
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """A bound checked on one run (``seed``) or over seeds (``seed`` None)."""
+
+    controller: str
+    seed: int | None
+    bound: Bound
+    measured: object
+    holds: bool
+
+    def measured_text(self) -> str:
+        v = self.measured
+        if v is None:
+            return "undefined"
+        if isinstance(v, bool):
+            return str(v).lower()
+        return f"{v:.4g}"
+
+
+def _stat(name: str, values: list[float]) -> float:
+    xs = sorted(math.inf if v is None else float(v) for v in values)
+    if name == "mean":
+        return math.fsum(xs) / len(xs)
+    if name == "min":
+        return xs[0]
+    if name == "max":
+        return xs[-1]
+    q = 0.5 if name == "median" else int(name[1:]) / 100.0
+    # linear interpolation between order statistics (numpy's default 'linear')
+    pos = q * (len(xs) - 1)
+    lo = math.floor(pos)
+    hi = min(lo + 1, len(xs) - 1)
+    if xs[lo] == xs[hi]:
+        return xs[lo]
+    return xs[lo] + (pos - lo) * (xs[hi] - xs[lo])
+
+
+def evaluate(bounds: dict[str, tuple[Bound, ...]], controller: str, runs: dict[int, dict]) -> list[Verdict]:
+    """The verdicts of ``controller``'s runs (seed → :func:`twin.metrics.run_metrics` dict)."""
+    per_run = bounds.get(ALL, ()) + bounds.get(controller, ())
+    over = bounds.get(SEEDS, ())
+    out = []
+    passed = 0
+    for seed, metrics in sorted(runs.items()):
+        verdicts = [Verdict(controller, seed, b, b.measure(metrics), False) for b in per_run]
+        verdicts = [Verdict(v.controller, v.seed, v.bound, v.measured, v.bound.holds(v.measured)) for v in verdicts]
+        passed += all(v.holds for v in verdicts)
+        out += verdicts
+    for b in over:
+        if b.metric == "pass_rate":
+            value = passed / len(runs)
+        else:
+            values = [b.measure(m) for m in runs.values()]
+            value = _stat(b.stat, [float(v) if isinstance(v, bool) else v for v in values])
+        out.append(Verdict(controller, None, b, value, b.holds(value)))
+    return out
+
+
+def failed(verdicts: list[Verdict], bounds: dict[str, tuple[Bound, ...]]) -> list[Verdict]:
+    """The verdicts that fail the check: with a pass_rate, per-run failures are the rate's to judge."""
+    has_rate = any(b.metric == "pass_rate" for b in bounds.get(SEEDS, ()))
+    return [v for v in verdicts if not v.holds and (v.seed is None or not has_rate)]
+
+
+__all__ = ["ALL", "Bound", "ExpectError", "METRICS", "SEEDS", "Verdict", "evaluate", "failed", "parse_bound",
+           "parse_expect"]
