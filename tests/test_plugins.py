@@ -385,3 +385,15 @@ def test_ideal_sensing_refuses_an_estimator_it_would_not_run(plugin_dir):
         simulate_twin(build_controller("lqr"), exp, sensors=None, estimator=my_plugins.TiltFilter(BuildContext()))
     with pytest.raises(TwinError, match="estimator 'kalman2' would not run"):
         simulate_twin(build_controller("lqr"), exp, sensors=None, estimator="kalman2")
+
+
+def test_a_sweep_in_which_every_run_errors_exits_non_zero(plugin_dir, tmp_path, monkeypatch):
+    monkeypatch.chdir(plugin_dir)
+    out = tmp_path / "sweep"
+    r = CliRunner().invoke(main, ["sweep", "paper-exp1", "--samples", "2", "--workers", "1", "--duration", "1",
+                                  "--set", "sweep.levels=[0.0]", "--set", "initial.theta=0.0",
+                                  "--controller", "bad_plugins:LateNaN", "--out", str(out)])
+    assert r.exit_code == 2, (r.stdout, r.stderr)
+    errors = [line for line in r.stderr.splitlines() if line.startswith("error: ")]
+    assert len(errors) == 1 and "every run of the sweep ended in an error, so nothing was measured" in errors[0]
+    assert len((out / "samples.jsonl").read_text().splitlines()) == 2  # what ran is kept

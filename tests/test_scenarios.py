@@ -163,13 +163,63 @@ def test_invalid_override_is_one_line_and_runs_nothing(tmp_path, case):
     assert not out.exists()
 
 
-def test_duration_option_is_validated_like_the_file(tmp_path):
+def test_duration_option_is_validated_and_named_as_given(tmp_path):
+    """--duration is named as the user gave it (not as a --set item the user never wrote)."""
     out = tmp_path / "out"
-    assert_one_line_error(*twin("run", "paper-exp1", "--no-video", "--duration", "nan", "--out", out),
-                          "duration: must be a finite number in (0, 3600] s, got nan")
-    assert_one_line_error(*twin("run", "paper-exp1", "--no-video", "--duration", "7200", "--out", out),
-                          "duration: 7200.0 is out of range; allowed in (0, 3600] s")
+    for value in ("nan", "7200", "-5", "0"):
+        for command in (["run", "paper-exp1", "--no-video"], ["sweep", "paper-exp1", "--samples", "1"]):
+            status, stdout, stderr = twin(*command, "--duration", value, "--out", out)
+            assert_one_line_error(status, stdout, stderr, f"--duration must be in (0, 3600] s, got {float(value):g}")
+            assert "--set" not in stderr
     assert not out.exists()
+
+
+@pytest.mark.parametrize("items, fragment", [
+    (["controller.fou=0.5"], "controller.fou: 0.5 is out of range; allowed in [0, 0.5)"),
+    (["initial.theta=0.98"], "initial.theta: 0.98 rad does not start on the wheels"),
+    (["faults=[{kind='dropout', sensor='gyro', start=1, duration=0.2, rate=3}]"],
+     "faults[0].rate: a dropout fault has no 'rate'; allowed: duration, kind, sensor, start"),
+    (["faults=[{kind='latency', sensor='imu', start=1, latency=0.01, magnitude=2}]"],
+     "faults[0].magnitude: a latency fault has no 'magnitude'"),
+])
+def test_inputs_the_engine_cannot_honour_are_refused_on_load(tmp_path, items, fragment):
+    out = tmp_path / "out"
+    args = ["run", "paper-exp2", "--no-video", "--out", out]
+    for item in items:
+        args += ["--set", item]
+    assert_one_line_error(*twin(*args), fragment)
+    assert not out.exists()
+
+
+def test_scenarios_name_prints_the_toml_to_copy(tmp_path):
+    status, stdout, stderr = twin("scenarios", "paper-exp2")
+    assert status == 0 and stdout.startswith("# Paper experiment 2") and "[expect]" in stdout
+    copy = tmp_path / "mine.toml"
+    copy.write_text(stdout, encoding="utf-8")
+    assert load_scenario(str(copy)).data["targets"]["position"] == 0.7  # a valid scenario as it stands
+    assert_one_line_error(*twin("scenarios", "nope"), "no built-in scenario 'nope'; built-ins: paper-exp1")
+
+
+def test_a_rerun_removes_the_outputs_it_does_not_write_again(tmp_path):
+    out = tmp_path / "out"
+    (out).mkdir()
+    (out / "video.mp4").write_bytes(b"an old video")
+    (out / "design.json").write_text("{}")
+    status, stdout, stderr = twin("run", "paper-exp1", "--controller", "lqr", "--duration", "0.5", "--no-video",
+                                  "--out", out)
+    assert status == 0, stderr
+    assert not (out / "video.mp4").exists() and not (out / "design.json").exists()  # LQR needs no LMI design
+    assert (out / "metrics.json").exists()
+
+
+def test_the_title_says_which_tables_set_changed(tmp_path):
+    status, stdout, stderr = twin("run", "paper-exp3", "--set", "targets.position=0.5", "--duration", "0.2",
+                                  "--no-video", "--out", tmp_path / "out")
+    assert status == 0, stderr
+    assert stdout.splitlines()[0].endswith("[changed by --set: targets]")
+    status, stdout, stderr = twin("run", "paper-exp3", "--seed", "3", "--duration", "0.2", "--no-video",
+                                  "--out", tmp_path / "out")
+    assert "changed by" not in stdout.splitlines()[0]  # the seed and the duration do not change what it shows
 
 
 def test_infeasible_design_is_one_line_names_the_key_and_writes_nothing(tmp_path):

@@ -283,7 +283,7 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample):
         click.echo(f"sample {s.index} of a sweep (root seed {sc.seed}): level λ = {s.level:g}, draw {s.draw}, "
                    f"seed {s.seed}")
         sc = s.scenario
-    click.echo(f"{sc.name}: {sc.description}")
+    click.echo(_title(sc))
     _echo_plugins(plugins_of(sc, kinds))
     with _Progress() as bar:
         result = run_scenario(sc, kinds, out=out, video=video, progress=bar.update)
@@ -328,8 +328,17 @@ def _load(scenario, overrides, seed, duration):
     if seed is not None:
         extra.append(f"seed={seed}")
     if duration is not None:
+        if not (math.isfinite(duration) and 0 < duration <= 3600):
+            raise TwinError(f"--duration must be in (0, 3600] s, got {duration:g}")
         extra.append(f"duration={duration!r}")
     return load_scenario(scenario, extra)
+
+
+def _title(sc) -> str:
+    """The scenario's name and description, saying which tables --set changed (the
+    description was written for the file as it is)."""
+    changed = sc.changed_keys
+    return f"{sc.name}: {sc.description}" + (f" [changed by --set: {', '.join(changed)}]" if changed else "")
 
 
 @main.command()
@@ -381,7 +390,7 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
     levels = sc.data["sweep"]["levels"]
     kinds, reference = sweep_controllers(sc, controllers_of(controller, sc), reference)
     _check_plugins(sc, kinds)
-    click.echo(f"{sc.name}: {sc.description}")
+    click.echo(_title(sc))
     _echo_plugins(plugins_of(sc, kinds))
     click.echo(f"  {draws} samples × {len(levels)} levels λ = {', '.join(f'{v:g}' for v in levels)}, "
                f"root seed {sc.seed}, backend {backend}" + (f", {workers} worker{'s' * (workers > 1)}" if workers else ""))
@@ -401,6 +410,10 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
                + (f"; {result.resumed} were already finished" if result.resumed else ""))
     click.echo(_success_table(result.summary))
     click.echo(f"wrote {out}/: " + ", ".join(Path(f).name for f in result.files))
+    if result.rows and all(r["status"] == "error" for r in result.rows):
+        first = result.rows[0]
+        raise TwinError(f"every run of the sweep ended in an error, so nothing was measured (first: sample "
+                        f"{first['sample']}, {first['controller']}: {first['error']})")
     broken = [r for r in result.rows if str(r.get("error") or "").startswith("PluginError")]
     if broken:  # a plugin broke its contract past the preflight: not a result, though the rest is kept
         first = broken[0]
@@ -566,16 +579,27 @@ class _Progress:
 
 
 @main.command()
-def scenarios():
-    """List the built-in scenarios, a line each (run one with 'twin run NAME').
+@click.argument("name", required=False)
+def scenarios(name):
+    """List the built-in scenarios, a line each; with NAME, print that one's TOML to copy and edit.
 
     \b
     Examples:
       twin scenarios
+      twin scenarios paper-exp2 > my-exp2.toml
       twin run slope-payload --controller both
     """
     from twin.scenarios import builtin_scenarios
 
+    if name is not None:
+        from importlib import resources
+
+        from twin.scenarios.scenario import BUILTIN_PACKAGE, builtin_names
+
+        if name not in builtin_names():
+            raise TwinError(f"no built-in scenario {name!r}; built-ins: {', '.join(builtin_names())}")
+        click.echo(resources.files(BUILTIN_PACKAGE).joinpath(f"{name}.toml").read_text(encoding="utf-8"), nl=False)
+        return
     items = builtin_scenarios()
     width = max(map(len, items))
     for name, description in items.items():

@@ -98,8 +98,8 @@ def _cascade(kind: str):
             if value is not None:
                 o[name] = value
         # checked here, not only where used: a loop that a run leaves off must not hide a bad value
-        if not (isinstance(o.get("fou", 0.25), (int, float)) and 0.0 <= o.get("fou", 0.25) <= 0.95):
-            raise TwinError(f"fou must be a number in [0, 0.95], got {o['fou']!r}")
+        if not (isinstance(o.get("fou", 0.25), (int, float)) and 0.0 <= o.get("fou", 0.25) < 0.5):
+            raise TwinError(f"fou must be a number in [0, 0.5), got {o['fou']!r}")
         if o.get("type_reduction", "bmm") not in TYPE_REDUCERS:
             raise TwinError(f"type_reduction must be one of {', '.join(TYPE_REDUCERS)}, got {o['type_reduction']!r}")
         return build_cascade(kind, ctx.balance_design(), ctx.targets, ctx.model, **o)

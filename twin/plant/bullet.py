@@ -281,7 +281,7 @@ def initial_pose(params: RobotParams, ground: Ground, theta0: float, alpha0: flo
     return pos, quat_from_matrix(R)
 
 
-def _touch_angle(params: RobotParams) -> float:
+def touch_angle(params: RobotParams) -> float:
     """Smallest pitch (rad) at which the body box can reach a level floor."""
     h = body_height(params)
     corners = [(sx * 0.5 * BODY_DEPTH, params.l + sz * 0.5 * h) for sx in (-1, 1) for sz in (-1, 1)]
@@ -425,7 +425,7 @@ class BulletTwin:
         self._pushes = d.pushes
         self._com_local = (d.com_offset[0], d.com_offset[1], p.l + d.com_offset[2])
         # the body can reach the floor only when tilted this far (pitching on the slope, or rolling)
-        self._contact_check_angle = max(0.0, min(_touch_angle(p) - abs(g.slope) - 0.15, 0.6))
+        self._contact_check_angle = max(0.0, min(touch_angle(p) - abs(g.slope) - 0.15, 0.6))
         # below this |θ| + |φ| (an upper bound of the tilt) a finite state needs no closer look
         self._quiet_angle = min(self._contact_check_angle, config.fall_angle)
 

@@ -124,6 +124,8 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
     result.files += [report.write_json(doc, out / "metrics.json"), write_trajectories_csv(runs, out / "trajectory.csv")]
     if solved:
         result.files.append(report.write_json(solved[0].to_json_dict(), out / "design.json"))
+    else:
+        (out / "design.json").unlink(missing_ok=True)  # an earlier run's, which these runs did not use
     title = f"{scenario.name}: {scenario.description}\nseed {scenario.seed}, " + (
         "ideal sensing" if sensors is None else f"{scenario.estimator} estimator in the loop")
     result.files.append(report.plot_runs(runs, out / "figure.png", title))
@@ -136,6 +138,8 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
         result.video = render_video(runs, out / "video.mp4", fps=v["fps"], size=(v["width"], v["height"]), progress=cb)
         timings["video_s"] = time.perf_counter() - t0
         result.files.append(out / "video.mp4")
+    else:
+        (out / "video.mp4").unlink(missing_ok=True)  # an earlier run's video would not show these runs
     return result
 
 

@@ -63,6 +63,14 @@ class Scenario:
         return self.data["video"]
 
     @property
+    def changed_keys(self) -> tuple[str, ...]:
+        """The top-level tables and keys that ``--set`` items changed (besides the seed and
+        duration), so that a description written for the file can be read with care."""
+        keys = [o.partition("=")[0].strip().split(".")[0] for o in self.overrides]
+        return tuple(dict.fromkeys(k for k in keys if k not in ("seed", "duration", "video", "sweep", "expect",
+                                                              "name", "description")))
+
+    @property
     def controllers(self) -> tuple[str, ...]:
         """The controller kinds the scenario runs (``controller.kinds``)."""
         return tuple(self.data["controller"]["kinds"])
@@ -224,6 +232,14 @@ class Scenario:
                 build()
             except TwinError as exc:
                 raise self._error(f"{where}: {exc}") from None
+        from twin.plant.bullet import touch_angle
+
+        limit = min(touch_angle(self.true_params()), self.twin_config().fall_angle) - 0.01
+        theta0 = d["initial"]["theta"]
+        if abs(theta0) >= limit:
+            raise self._error(f"initial.theta: {theta0:g} rad does not start on the wheels: this robot's body touches "
+                              f"the floor (or passes the fall limit) at {limit + 0.01:.2f} rad; allowed: |θ0| < "
+                              f"{limit:.2f} rad")
         self.design()
         return self
 
@@ -300,6 +316,14 @@ def load_scenario(name_or_path: str, overrides=()) -> Scenario:
     if not data["name"]:
         data["name"] = stem
     latency_given = [("latency" in f) for f in raw.get("faults", [])] if isinstance(raw.get("faults"), list) else []
+    relevant = {"dropout": {"kind", "sensor", "start", "duration"}, "stuck": {"kind", "sensor", "start", "duration"},
+                "spikes": {"kind", "sensor", "start", "duration", "rate", "magnitude"},
+                "latency": {"kind", "sensor", "start", "latency"}}
+    for i, f in enumerate(raw.get("faults", [])):
+        extra = sorted(set(f) - relevant[data["faults"][i]["kind"]])
+        if extra:
+            raise ScenarioError(f"{where}: faults[{i}].{extra[0]}: a {data['faults'][i]['kind']} fault has no "
+                                f"{extra[0]!r}; allowed: {', '.join(sorted(relevant[data['faults'][i]['kind']]))}")
     scenario = Scenario(data, where, overrides)
     for i, f in enumerate(data["faults"]):
         if f["kind"] == "latency" and not latency_given[i]:

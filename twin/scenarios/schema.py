@@ -49,6 +49,7 @@ class Key:
     # default, so that the record of a run that does not use them stays byte-identical.
     recorded_at_default: bool = True
     recorded: bool = True  # False: never part of a run's record (what checks the run, not what it ran)
+    hi_open: bool = False
 
 
 def _f(default=REQUIRED, lo=-math.inf, hi=math.inf, unit="", doc="", lo_open=False, nullable=False):
@@ -97,7 +98,9 @@ SCHEMA: dict[str, Key] = {
         "params": Key("params", {}, recorded_at_default=False, role="controller",
                       doc="[controller.params.KIND]: keyword arguments for building controller KIND "
                           "(quote a KIND with dots or a colon)"),
-        "fou": _f(DEFAULT_FOU, 0.0, 0.95, "1", doc="IT2 footprint of uncertainty of the Mamdani sets (0: type-1 shaped)"),
+        "fou": Key("float", DEFAULT_FOU, 0.0, 0.5, False, "1", hi_open=True,
+                   doc="IT2 footprint of uncertainty of the Mamdani sets (0: type-1 shaped; the sets' lower "
+                       "membership functions vanish at 0.5)"),
         "type_reduction": Key("str", "bmm", choices=TYPE_REDUCERS, doc="BMM (the paper), Nie–Tan or exact Karnik–Mendel"),
         "psi_error_limit": _f(DEFAULT_PSI_ERROR_LIMIT, 0.0, 100.0, "rad", lo_open=True, doc="clip of the wheel-angle error"),
     }),
@@ -193,7 +196,8 @@ def _number(v, key: Key, path: str, integer: bool = False):
         if math.isnan(v) or (math.isinf(v) and not (key.hi == math.inf and v > 0)):
             raise ScenarioError(f"{path}: must be a finite number{_range(key)}, got {v!r}")
     low_ok = v > key.lo if key.lo_open else v >= key.lo
-    if not (low_ok and v <= key.hi):
+    high_ok = v < key.hi if key.hi_open else v <= key.hi
+    if not (low_ok and high_ok):
         raise ScenarioError(f"{path}: {v!r} is out of range; allowed{_range(key)}")
     return v
 
@@ -204,7 +208,7 @@ def _range(key: Key) -> str:
     if math.isinf(lo) and math.isinf(hi):
         return unit and f" in{unit}"
     left = "(" if key.lo_open or math.isinf(lo) else "["
-    right = ")" if math.isinf(hi) else "]"
+    right = ")" if math.isinf(hi) or key.hi_open else "]"
     fmt = (lambda x: f"{x:g}")
     return f" in {left}{fmt(lo) if not math.isinf(lo) else '-inf'}, {fmt(hi) if not math.isinf(hi) else 'inf'}{right}{unit}"
 
