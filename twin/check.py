@@ -168,6 +168,53 @@ def _run(tasks, workers: int, progress) -> list:
     return out
 
 
+def format_table(result: CheckResult) -> str:
+    """Each bound with its measured value (the worst over the seeds) and ok / FAIL, a line each."""
+    from twin.registry import label
+
+    rows = []
+    for case in result.cases:
+        n = len(case.seeds)
+        for bound in dict.fromkeys(v.bound for v in case.verdicts):
+            vs = [v for v in case.verdicts if v.bound == bound]
+            bad = [v for v in vs if v in case.failures]
+            over_seeds = bound.stat is not None or bound.metric == "pass_rate"
+            shown = bad[0] if bad else vs[-1] if over_seeds else _worst(vs)
+            n_bad = len([v for v in vs if not v.holds])
+            where = "" if n == 1 or over_seeds else (f" ({n_bad}/{n} seeds fail)" if n_bad else f" (worst of {n} seeds)")
+            rows.append((case.scenario, label(case.controller), str(bound), shown.measured_text() + where,
+                         "FAIL" if bad else "ok"))
+        for seed, error in case.errors.items():
+            rows.append((case.scenario, label(case.controller), f"run with seed {seed}", error[:60], "ERROR"))
+    head = ("scenario", "controller", "bound", "measured", "result")
+    widths = [max(len(r[i]) for r in rows + [head]) for i in range(5)]
+    return "\n".join("  " + "  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in [head] + rows)
+
+
+def failure_lines(result: CheckResult) -> list[str]:
+    """One line per failed bound or run: scenario, controller, seed, metric, measured value and bound."""
+    out = []
+    for case in result.cases:
+        for v in case.failures:
+            seed = f" seed {v.seed}" if v.seed is not None else f" over {len(case.seeds)} seeds"
+            out.append(f"FAIL {case.scenario} {case.controller}{seed}: {v.bound.key} = {v.measured_text()} "
+                       f"{v.bound.unit}, bound {v.bound}")
+        for seed, error in case.errors.items():
+            out.append(f"FAIL {case.scenario} {case.controller} seed {seed}: {error}")
+    return out
+
+
+def _worst(verdicts):
+    """The verdict whose measured value is nearest to breaking its bound (or past it)."""
+    b = verdicts[0].bound
+    if isinstance(b.value, bool):
+        return verdicts[-1]
+    missing = [v for v in verdicts if v.measured is None]
+    if missing:
+        return missing[0]
+    return (max if b.op in ("<=", "<") else min)(verdicts, key=lambda v: float(v.measured))
+
+
 def write_junit(result: CheckResult, path: Path) -> Path:
     """JUnit XML: a test suite per scenario, a test case per controller and seed (its per-run
     bounds) and one per controller over the seeds (the ``[expect.seeds]`` bounds), with the
@@ -203,4 +250,5 @@ def write_junit(result: CheckResult, path: Path) -> Path:
     return path
 
 
-__all__ = ["CaseResult", "CheckResult", "CheckTask", "collect", "run_checks", "run_task", "write_junit"]
+__all__ = ["CaseResult", "CheckResult", "CheckTask", "collect", "failure_lines", "format_table", "run_checks",
+           "run_task", "write_junit"]

@@ -445,8 +445,7 @@ def check(targets, controller, seeds, workers, overrides, junit):
       twin check paper-exp1 paper-exp2 paper-exp3
       twin check scenarios/ --controller my_filters:Tuned,it2 --seeds 20 --junit check.xml
     """
-    from twin.check import collect, run_checks, write_junit
-    from twin.registry import label
+    from twin.check import collect, failure_lines, format_table, run_checks, write_junit
     from twin.sweep.backends import default_workers
 
     kinds = None
@@ -462,50 +461,15 @@ def check(targets, controller, seeds, workers, overrides, junit):
     bar = _SweepBar("runs")
     result = run_checks(scenarios, kinds, seeds, workers or default_workers(), progress=bar.update)
     bar.close()
-    rows = []
-    for case in result.cases:
-        for bound in dict.fromkeys(v.bound for v in case.verdicts):
-            vs = [v for v in case.verdicts if v.bound == bound]
-            bad = [v for v in vs if v in case.failures]
-            shown = bad[0] if bad else vs[-1] if bound.stat or bound.metric == "pass_rate" else _worst(vs)
-            n = len(case.seeds)
-            n_bad = len([v for v in vs if not v.holds])
-            where = "" if n == 1 or bound.stat or bound.metric == "pass_rate" else (
-                f" ({n_bad}/{n} seeds fail)" if n_bad else f" (worst of {n} seeds)")
-            rows.append((case.scenario, label(case.controller), str(bound), shown.measured_text() + where,
-                         "FAIL" if bad else "ok"))
-        for seed, error in case.errors.items():
-            rows.append((case.scenario, label(case.controller), f"run with seed {seed}", error[:60], "ERROR"))
-    widths = [max(len(r[i]) for r in rows + [("scenario", "controller", "bound", "measured", "result")])
-              for i in range(5)]
-    head = ("scenario", "controller", "bound", "measured", "result")
-    click.echo("  " + "  ".join(h.ljust(w) for h, w in zip(head, widths)))
-    for r in rows:
-        click.echo("  " + "  ".join(c.ljust(w) for c, w in zip(r, widths)))
+    click.echo(format_table(result))
     n_bad = sum(not c.passed for c in result.cases)
     click.echo(f"  {len(result.cases)} checks ({result.runs} runs) in {result.wall_s:.1f} s: "
                + ("all bounds hold" if not n_bad else f"{n_bad} failed"))
     if junit is not None:
         click.echo(f"wrote {write_junit(result, junit)}")
-    for case in result.cases:
-        for v in case.failures:
-            seed = f" seed {v.seed}" if v.seed is not None else f" over {len(case.seeds)} seeds"
-            click.echo(f"FAIL {case.scenario} {case.controller}{seed}: {v.bound.key} = {v.measured_text()} "
-                       f"{v.bound.unit}, bound {v.bound}", err=True)
-        for seed, error in case.errors.items():
-            click.echo(f"FAIL {case.scenario} {case.controller} seed {seed}: {error}", err=True)
+    for line in failure_lines(result):
+        click.echo(line, err=True)
     return 0 if result.passed else 1
-
-
-def _worst(verdicts):
-    """The verdict whose measured value is nearest to breaking (or past) its bound."""
-    b = verdicts[0].bound
-    if isinstance(b.value, bool):
-        return verdicts[-1]
-    vals = [v for v in verdicts if v.measured is not None]
-    if len(vals) < len(verdicts):
-        return next(v for v in verdicts if v.measured is None)
-    return (max if b.op in ("<=", "<") else min)(vals, key=lambda v: float(v.measured))
 
 
 def _success_table(summary) -> str:

@@ -1,0 +1,99 @@
+"""pytest plugin (entry point ``pytest11``): scenario files with an ``[expect]`` table become tests.
+
+Two ways in, one test item per scenario and controller (its seeds inside):
+
+* ``pytest --twin-scenarios DIR|FILE|builtin`` (repeatable): the ``.toml`` files of a
+  directory that have an ``[expect]`` table, a file, or ``builtin`` for every built-in
+  scenario; ``--twin-seeds N`` checks N seeds each;
+* the naming rule: files called ``twin_*.toml`` under the test paths are collected like
+  test modules.
+
+A failing item's report is the table of every bound with its measured value, then one line
+per failed bound (scenario, controller, seed, metric, measured value and bound). Nothing
+is imported from the twin until a scenario is collected, so the plugin costs nothing in a
+session that does not use it.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+NAMING_RULE = "twin_*.toml"
+
+
+def pytest_addoption(parser):
+    group = parser.getgroup("twin", "mtwip-twin scenario checks")
+    group.addoption("--twin-scenarios", action="append", default=[], metavar="DIR|FILE|builtin",
+                    help="check these scenarios' [expect] tables as tests ('builtin': every built-in scenario)")
+    group.addoption("--twin-seeds", type=int, default=1, metavar="N", help="seeds per scenario and controller")
+
+
+def pytest_collect_file(parent, file_path):
+    if file_path.suffix == ".toml" and file_path.match(NAMING_RULE):
+        return TwinScenarioFile.from_parent(parent, path=file_path)
+    return None
+
+
+def pytest_collection_modifyitems(session, config, items):
+    targets = config.getoption("twin_scenarios")
+    if not targets:
+        return
+    from twin.scenarios.scenario import builtin_names
+
+    names = []
+    for t in targets:
+        names += builtin_names() if t == "builtin" else [t]
+    for scenario in _scenarios(names):
+        for kind in scenario.controllers:
+            items.append(TwinCheckItem.from_parent(session, name=f"{scenario.name}::{kind}",
+                                                   nodeid=f"twin:{scenario.name}::{kind}", scenario=scenario,
+                                                   kind=kind))
+
+
+
+def _scenarios(names):
+    from twin.check import collect
+
+    return collect(names)[0]
+
+
+class TwinScenarioFile(pytest.File):
+    """A ``twin_*.toml`` scenario file: one item per controller of ``controller.kinds``."""
+
+    def collect(self):
+        from twin.scenarios import load_scenario
+
+        scenario = load_scenario(str(self.path))
+        if not scenario.data["expect"]:
+            raise TwinCheckFailure(f"{self.path}: a {NAMING_RULE} file needs an [expect] table")
+        for kind in scenario.controllers:
+            yield TwinCheckItem.from_parent(self, name=kind, scenario=scenario, kind=kind)
+
+
+class TwinCheckFailure(Exception):
+    """A check that failed; its message is the report."""
+
+
+class TwinCheckItem(pytest.Item):
+    """One scenario and controller, over ``--twin-seeds`` seeds."""
+
+    def __init__(self, *, scenario, kind, **kwargs):
+        super().__init__(**kwargs)
+        self.scenario, self.kind = scenario, kind
+
+    def runtest(self):
+        from twin.check import run_checks
+        from twin.testing import report
+
+        result = run_checks([self.scenario], [self.kind], self.config.getoption("twin_seeds"), 1)
+        if not result.passed:
+            raise TwinCheckFailure(report(result))
+
+    def repr_failure(self, excinfo):
+        if isinstance(excinfo.value, TwinCheckFailure):
+            return str(excinfo.value)
+        return super().repr_failure(excinfo)
+
+    def reportinfo(self):
+        return Path(self.scenario.source.split(" with --set ")[0]), None, f"{self.scenario.name} {self.kind}"
