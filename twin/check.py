@@ -31,10 +31,11 @@ class CheckTask:
     kind: str
     seed: int
     plugin_paths: tuple = ()
+    trajectory: bool = False  # also return the run's signals (for golden trajectories)
 
 
-def run_task(task: CheckTask) -> tuple[dict | None, str]:
-    """(metrics, "") of one run, or (None, error message) if the run raised."""
+def run_task(task: CheckTask) -> tuple[dict | None, str, object]:
+    """(metrics, "", trajectory or None) of one run, or (None, error message, None) if it raised."""
     import sys
 
     from twin.scenarios.runner import run_scenario
@@ -47,9 +48,15 @@ def run_task(task: CheckTask) -> tuple[dict | None, str]:
     if task.design is not None:
         sc.adopt_design(task.design)
     try:
-        return run_scenario(sc, (task.kind,)).metrics[task.kind], ""
+        result = run_scenario(sc, (task.kind,))
     except Exception as exc:  # noqa: BLE001 -- a run that errors fails its check, with its message
-        return None, f"{type(exc).__name__}: {' '.join(str(exc).split())}"
+        return None, f"{type(exc).__name__}: {' '.join(str(exc).split())}", None
+    traj = None
+    if task.trajectory:
+        from twin.golden import Trajectory
+
+        traj = Trajectory.of(result.runs[0])
+    return result.metrics[task.kind], "", traj
 
 
 @dataclass
@@ -65,10 +72,15 @@ class CaseResult:
     errors: dict
     verdicts: list
     failures: list
+    golden: dict = field(default_factory=dict)  # seed → Departure, or a message (no reference), or None (agrees)
+
+    @property
+    def departures(self) -> dict:
+        return {seed: d for seed, d in self.golden.items() if d is not None}
 
     @property
     def passed(self) -> bool:
-        return not self.failures and not self.errors
+        return not self.failures and not self.errors and not self.departures
 
 
 @dataclass
@@ -112,9 +124,12 @@ def collect(targets, overrides=()) -> tuple[list, list[str]]:
     return scenarios, skipped
 
 
-def run_checks(scenarios, controllers=None, seeds: int = 1, workers: int = 1, progress=None) -> CheckResult:
+def run_checks(scenarios, controllers=None, seeds: int = 1, workers: int = 1, progress=None,
+               record: Path | None = None, golden: Path | None = None) -> CheckResult:
     """Run every scenario with each controller (None: each scenario's ``controller.kinds``) on
-    ``seeds`` seeds, on ``workers`` processes, and judge the runs by the ``[expect]`` tables."""
+    ``seeds`` seeds, on ``workers`` processes, and judge the runs by the ``[expect]`` tables;
+    ``record``: store each run as a golden trajectory under this directory; ``golden``:
+    compare each run with the one stored there (:mod:`twin.golden`)."""
     from twin.registry import check_kinds, plugin_dirs, uses_design
 
     if not (isinstance(seeds, int) and 1 <= seeds <= 10_000):
@@ -129,7 +144,8 @@ def run_checks(scenarios, controllers=None, seeds: int = 1, workers: int = 1, pr
         for kind in kinds:
             sc.build_controller(kind)  # a plugin that cannot be built is a user error: before anything runs
             plan.append((sc, kind, tuple(CheckTask(sc.data, sc.source, sc.overrides, design, kind, sc.seed + i,
-                                                   paths) for i in range(seeds))))
+                                                   paths, record is not None or golden is not None)
+                                         for i in range(seeds))))
     tasks = [t for _, _, ts in plan for t in ts]
     t0 = time.perf_counter()
     outcomes = iter(_run(tasks, workers, progress))
@@ -137,13 +153,33 @@ def run_checks(scenarios, controllers=None, seeds: int = 1, workers: int = 1, pr
     cases = []
     for sc, kind, ts in plan:
         done = [(t.seed, next(outcomes)) for t in ts]
-        metrics = {seed: m for seed, (m, _) in done if m is not None}
-        errors = {seed: e for seed, (_, e) in done if e}
+        metrics = {seed: m for seed, (m, _, _) in done if m is not None}
+        errors = {seed: e for seed, (_, e, _) in done if e}
         bounds = parse_expect(sc.data["expect"])
         verdicts = evaluate(bounds, kind, metrics) if metrics else []
-        cases.append(CaseResult(sc.name, sc.source, kind, tuple(t.seed for t in ts), metrics, errors, verdicts,
-                                failed(verdicts, bounds)))
+        case = CaseResult(sc.name, sc.source, kind, tuple(t.seed for t in ts), metrics, errors, verdicts,
+                          failed(verdicts, bounds))
+        for seed, (_, _, traj) in done:
+            if traj is not None:
+                _golden(case, sc, kind, seed, traj, record, golden)
+        cases.append(case)
     return CheckResult(cases, wall, len(tasks))
+
+
+def _golden(case: CaseResult, sc, kind: str, seed: int, traj, record, golden) -> None:
+    from twin import golden as g
+
+    if golden is not None:
+        try:
+            ref, meta = g.load(g.path_for(golden, sc.name, kind, seed))
+        except TwinError as exc:
+            case.golden[seed] = str(exc)
+        else:
+            here = g.build()
+            case.golden[seed] = g.compare(traj, ref, exact=meta["build"] == here and here != "mixed")
+    if record is not None:
+        g.record(g.path_for(record, sc.name, kind, seed), traj,
+                 {"scenario": sc.name, "source": sc.source, "controller": kind, "seed": seed})
 
 
 def _run(tasks, workers: int, progress) -> list:
@@ -186,6 +222,10 @@ def format_table(result: CheckResult) -> str:
                          "FAIL" if bad else "ok"))
         for seed, error in case.errors.items():
             rows.append((case.scenario, label(case.controller), f"run with seed {seed}", error[:60], "ERROR"))
+        for seed, dep in case.golden.items():
+            text = "matches" if dep is None else str(dep)
+            rows.append((case.scenario, label(case.controller), f"golden trajectory, seed {seed}",
+                         text if len(text) <= 70 else text[:67] + "...", "ok" if dep is None else "FAIL"))
     head = ("scenario", "controller", "bound", "measured", "result")
     widths = [max(len(r[i]) for r in rows + [head]) for i in range(5)]
     return "\n".join("  " + "  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in [head] + rows)
@@ -201,6 +241,8 @@ def failure_lines(result: CheckResult) -> list[str]:
                        f"{v.bound.unit}, bound {v.bound}")
         for seed, error in case.errors.items():
             out.append(f"FAIL {case.scenario} {case.controller} seed {seed}: {error}")
+        for seed, dep in case.departures.items():
+            out.append(f"FAIL {case.scenario} {case.controller} seed {seed}: golden trajectory {dep}")
     return out
 
 
@@ -237,6 +279,8 @@ def write_junit(result: CheckResult, path: Path) -> Path:
             suite.set("tests", str(int(suite.get("tests")) + 1))
             bad = [v for v in case.failures if v.seed == seed]
             error = case.errors.get(seed) if seed is not None else None
+            if seed is not None and case.departures.get(seed) is not None:
+                error = (error + "; " if error else "") + f"golden trajectory {case.departures[seed]}"
             if bad or error:
                 fails += 1
                 suite.set("failures", str(int(suite.get("failures")) + 1))

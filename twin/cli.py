@@ -433,7 +433,11 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE", help="Override a key in every scenario.")
 @click.option("--junit", type=click.Path(dir_okay=False, path_type=Path), default=None, metavar="FILE",
               help="Also write the verdicts as JUnit XML, for CI systems.")
-def check(targets, controller, seeds, workers, overrides, junit):
+@click.option("--record", type=click.Path(file_okay=False, path_type=Path), default=None, metavar="DIR",
+              help="Store every run as a golden trajectory under DIR (compressed).")
+@click.option("--golden", type=click.Path(file_okay=False, path_type=Path), default=None, metavar="DIR",
+              help="Compare every run with the golden trajectory stored under DIR; report where it departs.")
+def check(targets, controller, seeds, workers, overrides, junit, record, golden):
     """Check scenarios against their [expect] bounds: exit 0 if all hold, 1 if any fails.
 
     Runs every scenario, controller and seed (in parallel on local cores) and prints each
@@ -459,7 +463,8 @@ def check(targets, controller, seeds, workers, overrides, junit):
     if not scenarios:
         raise TwinError("no scenario with an [expect] table to check")
     bar = _SweepBar("runs")
-    result = run_checks(scenarios, kinds, seeds, workers or default_workers(), progress=bar.update)
+    result = run_checks(scenarios, kinds, seeds, workers or default_workers(), progress=bar.update, record=record,
+                        golden=golden)
     bar.close()
     click.echo(format_table(result))
     n_bad = sum(not c.passed for c in result.cases)
@@ -467,6 +472,8 @@ def check(targets, controller, seeds, workers, overrides, junit):
                + ("all bounds hold" if not n_bad else f"{n_bad} failed"))
     if junit is not None:
         click.echo(f"wrote {write_junit(result, junit)}")
+    if record is not None:
+        click.echo(f"recorded {result.runs} golden trajectories under {record}")
     for line in failure_lines(result):
         click.echo(line, err=True)
     return 0 if result.passed else 1
