@@ -183,24 +183,45 @@ def _golden(case: CaseResult, sc, kind: str, seed: int, traj, record, golden) ->
 
 
 def _run(tasks, workers: int, progress) -> list:
-    """The outcomes of ``tasks``, in their order."""
-    out = []
+    """The outcomes of ``tasks``, in their order. With K workers this process runs tasks too,
+    beside K − 1 spawned ones: it needs no start-up, which on a short check is much of the
+    work (a spawned worker takes about a second to import the twin)."""
+    out: list = [None] * len(tasks)
+    finished = [0]
+
+    def done(i, r):
+        out[i] = r
+        finished[0] += 1
+        if progress is not None:
+            progress(finished[0], len(tasks))
+
     if progress is not None:
         progress(0, len(tasks))
     if workers == 1 or len(tasks) == 1:
         for i, t in enumerate(tasks):
-            out.append(run_task(t))
-            if progress is not None:
-                progress(i + 1, len(tasks))
+            done(i, run_task(t))
         return out
+    from concurrent.futures import FIRST_COMPLETED, wait
+
     from twin.sweep.worker import ignore_sigint
 
+    queue = list(range(len(tasks)))  # this process takes from the front, the workers from the back
+    pending: dict = {}
     ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(min(workers, len(tasks)), mp_context=ctx, initializer=ignore_sigint) as pool:
-        for i, r in enumerate(pool.map(run_task, tasks)):
-            out.append(r)
-            if progress is not None:
-                progress(i + 1, len(tasks))
+    with ProcessPoolExecutor(workers - 1, mp_context=ctx, initializer=ignore_sigint) as pool:
+        while queue or pending:
+            while queue and len(pending) < 2 * (workers - 1):  # one queued behind each running: never idle
+                i = queue.pop()
+                pending[pool.submit(run_task, tasks[i])] = i
+            for f in [f for f in pending if f.done()]:
+                done(pending.pop(f), f.result())
+            if queue:
+                i = queue.pop(0)
+                done(i, run_task(tasks[i]))
+            elif pending:
+                finished_now, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for f in finished_now:
+                    done(pending.pop(f), f.result())
     return out
 
 
