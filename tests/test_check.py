@@ -218,3 +218,47 @@ def test_a_directory_checks_the_files_with_expectations(tmp_path):
     status, out, err = twin("check", d, "--workers", "1")
     assert status == 0, out + err
     assert f"skipped {d / 'b.toml'}: no [expect] table" in out and "1 checks (1 runs)" in out
+
+
+# ---- found in review -----------------------------------------------------------------------------
+def test_an_undefined_value_sits_on_the_failing_side_of_a_statistic():
+    from twin.expectations import _stat
+
+    assert _stat("median", [1.0, 2.0, None]) == 2.0 and _stat("p50", [1.0, None, 3.0]) == 3.0  # not NaN
+    cap = parse_expect({"seeds": {"median(settling_time_s)": "<= 5"}})
+    runs = {0: {"settling_time_s": 1.0}, 1: {"settling_time_s": 2.0}, 2: {"settling_time_s": None}}
+    assert failed(evaluate(cap, "lqr", runs), cap) == []  # the median of 1, 2, never is 2
+    floor = parse_expect({"seeds": {"min(final_theta_rad)": ">= -0.1"}})
+    (bad,) = failed(evaluate(floor, "lqr", {0: {"final_theta_rad": None}}), floor)
+    assert bad.measured == -math.inf  # an undefined value does not pass a floor
+
+
+@pytest.mark.parametrize("table, message", [
+    ({"duration_s": "== 0.7"}, "== on a real-valued metric holds only by accident of rounding"),
+    ({"iae_theta": "<= 1e400"}, "is not a finite number"),
+    ({"|fell|": False}, "|fell| has no meaning"),
+])
+def test_bounds_that_cannot_mean_what_they_say_are_refused(table, message):
+    with pytest.raises(ExpectError, match=message.replace("|", "\\\\|")):
+        parse_expect(table)
+    assert parse_expect({"rejected_measurements": "== 0"})  # whole numbers may be compared exactly
+
+
+def test_record_and_golden_together_and_a_missing_golden_dir_are_user_errors(tmp_path):
+    for args, message in ((["--record", tmp_path, "--golden", tmp_path], "--record and --golden together"),
+                          (["--golden", tmp_path / "nope"], "no such directory")):
+        status, out, err = twin("check", "paper-exp1", "--controller", "lqr", *args)
+        assert status == 2 and message in err, (out, err)
+
+
+def test_two_scenarios_with_one_name_are_refused(tmp_path):
+    for f in ("a.toml", "b.toml"):
+        (tmp_path / f).write_text('name = "same"\nduration = 1.0\n[expect]\nfell = false\n', encoding="utf-8")
+    status, out, err = twin("check", tmp_path)
+    assert status == 2 and "two scenarios are named 'same'" in err, (out, err)
+
+
+def test_recorded_counts_only_the_files_written(tmp_path):
+    status, out, err = twin("check", "paper-exp1", "--controller", "lqr", "--set", "duration=0.5", "--workers", "1",
+                            "--record", tmp_path / "g")
+    assert "recorded 1 golden trajectories" in out and len(list((tmp_path / "g").rglob("*.npz"))) == 1

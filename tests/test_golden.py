@@ -96,3 +96,19 @@ def test_the_pure_python_build_passes_a_compiled_reference_within_tolerance(tmp_
                         "1", "--golden", str(gold)], capture_output=True, text=True, env=env, cwd=tmp_path,
                        timeout=600)
     assert r.returncode == 0 and "matches" in r.stdout, r.stdout + r.stderr
+
+
+def test_nan_and_infinity_on_both_sides_agree_with_tolerance_too():
+    ref = _traj()
+    ref.data[1, 2] = np.nan
+    ref.data[2, 2] = np.inf
+    run = Trajectory(ref.names, ref.units, ref.data.copy(), "ok")
+    assert compare(run, ref, exact=False) is None and compare(run, ref, exact=True) is None
+    run.data[1, 2] = 0.0
+    assert compare(run, ref, exact=False).signal == "ul_cmd"
+
+
+def test_signals_in_another_order_are_named_as_such():
+    ref = _traj()
+    run = Trajectory(("t", "ul_cmd", "theta"), ("s", "N·m", "rad"), ref.data[:, [0, 2, 1]], "ok")
+    assert "the same but in another order" in str(compare(run, ref, exact=True))

@@ -83,3 +83,21 @@ def test_twin_scenarios_builtin_makes_an_item_per_scenario_and_controller(pytest
     assert sorted(lines) == sorted(f"twin:{n}::{k}" for n in builtin_names() for k in ("it2", "t1"))
     run = pytester.runpytest_subprocess("-p", "no:cacheprovider", "--twin-scenarios", "builtin", "-k", "paper-exp1")
     run.assert_outcomes(passed=2)
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--twin-scenarios", "nonexist"], "--twin-scenarios: 'nonexist' is neither a built-in scenario"),
+    (["--twin-seeds", "0"], "--twin-seeds must be at least 1"),
+])
+def test_bad_plugin_options_are_usage_errors(pytester, args, message):
+    result = pytester.runpytest_subprocess("-p", "no:cacheprovider", *args)
+    assert result.ret == pytest.ExitCode.USAGE_ERROR
+    assert message in result.stderr.str() and "Traceback" not in result.stderr.str()
+
+
+def test_a_twin_file_without_expectations_is_one_collection_error(pytester):
+    pytester.makefile(".toml", twin_plain="duration = 1.0\n")
+    result = pytester.runpytest_subprocess("-p", "no:cacheprovider")
+    result.assert_outcomes(errors=1)
+    result.stdout.fnmatch_lines(["*twin_plain.toml: a twin_*.toml file needs an ?expect? table*"])
+    assert "Traceback" not in result.stdout.str()

@@ -73,6 +73,7 @@ class CaseResult:
     verdicts: list
     failures: list
     golden: dict = field(default_factory=dict)  # seed → Departure, or a message (no reference), or None (agrees)
+    has_seed_bounds: bool = False  # the scenario has [expect.seeds] bounds
 
     @property
     def departures(self) -> dict:
@@ -89,6 +90,7 @@ class CheckResult:
     wall_s: float = 0.0
     runs: int = 0
     skipped: list = field(default_factory=list)
+    recorded: int = 0  # golden trajectories written
 
     @property
     def passed(self) -> bool:
@@ -121,6 +123,12 @@ def collect(targets, overrides=()) -> tuple[list, list[str]]:
             raise TwinError(f"{sc.source}: no [expect] table, so nothing to check; add bounds such as "
                             "fell = false (see the README, 'twin check')")
         scenarios.append(sc)
+    seen: dict[str, str] = {}
+    for sc in scenarios:  # reports, JUnit suites and golden files are keyed by the name
+        if sc.name in seen:
+            raise TwinError(f"two scenarios are named {sc.name!r} ({seen[sc.name]} and {sc.source}); give each its own "
+                            "'name' (or check them separately)")
+        seen[sc.name] = sc.source
     return scenarios, skipped
 
 
@@ -150,7 +158,7 @@ def run_checks(scenarios, controllers=None, seeds: int = 1, workers: int = 1, pr
     t0 = time.perf_counter()
     outcomes = iter(_run(tasks, workers, progress))
     wall = time.perf_counter() - t0
-    cases = []
+    cases, recorded = [], 0
     for sc, kind, ts in plan:
         done = [(t.seed, next(outcomes)) for t in ts]
         metrics = {seed: m for seed, (m, _, _) in done if m is not None}
@@ -158,15 +166,16 @@ def run_checks(scenarios, controllers=None, seeds: int = 1, workers: int = 1, pr
         bounds = parse_expect(sc.data["expect"])
         verdicts = evaluate(bounds, kind, metrics) if metrics else []
         case = CaseResult(sc.name, sc.source, kind, tuple(t.seed for t in ts), metrics, errors, verdicts,
-                          failed(verdicts, bounds))
+                          failed(verdicts, bounds), has_seed_bounds=bool(bounds.get("seeds")))
         for seed, (_, _, traj) in done:
             if traj is not None:
-                _golden(case, sc, kind, seed, traj, record, golden)
+                recorded += _golden(case, sc, kind, seed, traj, record, golden)
         cases.append(case)
-    return CheckResult(cases, wall, len(tasks))
+    return CheckResult(cases, wall, len(tasks), recorded=recorded)
 
 
-def _golden(case: CaseResult, sc, kind: str, seed: int, traj, record, golden) -> None:
+def _golden(case: CaseResult, sc, kind: str, seed: int, traj, record, golden) -> int:
+    """Compare with the reference and/or record the run; the number of files written."""
     from twin import golden as g
 
     if golden is not None:
@@ -177,9 +186,11 @@ def _golden(case: CaseResult, sc, kind: str, seed: int, traj, record, golden) ->
         else:
             here = g.build()
             case.golden[seed] = g.compare(traj, ref, exact=meta["build"] == here and here != "mixed")
-    if record is not None:
-        g.record(g.path_for(record, sc.name, kind, seed), traj,
-                 {"scenario": sc.name, "source": sc.source, "controller": kind, "seed": seed})
+    if record is None:
+        return 0
+    g.record(g.path_for(record, sc.name, kind, seed), traj,
+             {"scenario": sc.name, "source": sc.source, "controller": kind, "seed": seed})
+    return 1
 
 
 def _run(tasks, workers: int, progress) -> list:
@@ -258,7 +269,7 @@ def failure_lines(result: CheckResult) -> list[str]:
     for case in result.cases:
         for v in case.failures:
             seed = f" seed {v.seed}" if v.seed is not None else f" over {len(case.seeds)} seeds"
-            out.append(f"FAIL {case.scenario} {case.controller}{seed}: {v.bound.key} = {v.measured_text()} "
+            out.append(f"FAIL {case.scenario} {case.controller}{seed}: {v.bound.key} = {v.measured_text(full=True)} "
                        f"{v.bound.unit}, bound {v.bound}")
         for seed, error in case.errors.items():
             out.append(f"FAIL {case.scenario} {case.controller} seed {seed}: {error}")
@@ -292,7 +303,7 @@ def write_junit(result: CheckResult, path: Path) -> Path:
         if suite is None:
             suite = suites[case.source] = ET.SubElement(root, "testsuite", name=case.scenario, tests="0", failures="0")
         groups = [(seed, f"{case.controller} seed {seed}") for seed in case.seeds]
-        if any(v.seed is None for v in case.verdicts):
+        if case.has_seed_bounds:
             groups.append((None, f"{case.controller} over {len(case.seeds)} seeds"))
         for seed, name in groups:
             tc = ET.SubElement(suite, "testcase", classname=case.scenario, name=name)
@@ -301,7 +312,8 @@ def write_junit(result: CheckResult, path: Path) -> Path:
             bad = [v for v in case.failures if v.seed == seed]
             error = case.errors.get(seed) if seed is not None else None
             if seed is not None and case.departures.get(seed) is not None:
-                error = (error + "; " if error else "") + f"golden trajectory {case.departures[seed]}"
+                error = "; ".join(filter(None, [error, *(f"{v.bound}: measured {v.measured_text()}" for v in bad),
+                                                f"golden trajectory {case.departures[seed]}"]))
             if bad or error:
                 fails += 1
                 suite.set("failures", str(int(suite.get("failures")) + 1))

@@ -452,6 +452,12 @@ def check(targets, controller, seeds, workers, overrides, junit, record, golden)
     from twin.check import collect, failure_lines, format_table, run_checks, write_junit
     from twin.sweep.backends import default_workers
 
+    if record is not None and golden is not None:
+        raise TwinError("--record and --golden together would overwrite the references with the runs they judge; "
+                        "give one of them")
+    if golden is not None and not golden.is_dir():
+        raise TwinError(f"--golden {golden}: no such directory; record references first with --record {golden}")
+
     kinds = None
     if controller is not None:
         from twin.registry import parse_controllers
@@ -473,7 +479,7 @@ def check(targets, controller, seeds, workers, overrides, junit, record, golden)
     if junit is not None:
         click.echo(f"wrote {write_junit(result, junit)}")
     if record is not None:
-        click.echo(f"recorded {result.runs} golden trajectories under {record}")
+        click.echo(f"recorded {result.recorded} golden trajectories under {record}")
     for line in failure_lines(result):
         click.echo(line, err=True)
     return 0 if result.passed else 1

@@ -25,7 +25,8 @@ Meaning. A per-run bound must hold on every seed, unless ``[expect.seeds]`` sets
 ``pass_rate``: then it is the fraction of seeds on which all the per-run bounds of a
 controller hold that must meet it. A metric that is undefined (``settling_time_s`` of
 a run that never settles, a position error without a position target) fails a per-run
-bound, and counts as +∞ in a statistic.
+bound, and in a statistic counts on the failing side of its bound (+∞ under a cap such as
+``<=``, −∞ over a floor such as ``>=``).
 """
 from __future__ import annotations
 
@@ -109,6 +110,8 @@ def parse_bound(key: str, value, where: str, over_seeds: bool) -> Bound:
                                               f"a statistic over seeds ({stat}) belongs in [expect.seeds]"))
         if stat and stat.startswith("p") and not 1 <= int(stat[1:]) <= 99:
             raise ExpectError(f"{where}: percentile {stat!r} out of range; allowed p1 to p99")
+    if metric == "fell" and absolute:
+        raise ExpectError(f"{where}: |fell| has no meaning; fell takes true or false")
     if metric == "fell" and stat is None:
         if not isinstance(value, bool):
             raise ExpectError(f"{where}: fell takes true or false, got {value!r}")
@@ -118,12 +121,17 @@ def parse_bound(key: str, value, where: str, over_seeds: bool) -> Bound:
         raise ExpectError(f"{where}: {value!r} is not a bound; allowed: a string \"<op> number\" with op one of "
                           f"<=, <, >=, >, == (e.g. \"<= 0.02\", in {METRICS.get(metric, '1')})")
     number = float(m["num"])
+    if not math.isfinite(number):
+        raise ExpectError(f"{where}: {value!r} is not a finite number")
+    if m["op"] == "==" and metric not in ("rejected_measurements",) and not (metric == "fell"):
+        raise ExpectError(f"{where}: == on a real-valued metric holds only by accident of rounding; use <= and >= "
+                          f"(== is for whole numbers: rejected_measurements)")
     if metric == "pass_rate" and not 0.0 <= number <= 1.0:
         raise ExpectError(f"{where}: a pass rate is a fraction in [0, 1], got {number:g}")
     return Bound(key, metric, absolute, stat, m["op"], number)
 
 
-def parse_expect(table, path: str = "expect") -> dict[str, tuple[Bound, ...]]:
+def parse_expect(table, path: str = "expect") -> dict[str, tuple[Bound, ...]]:  # noqa: C901
     """The ``[expect]`` table as scope → bounds: :data:`ALL` for every controller, a kind for one,
     :data:`SEEDS` for the statistics over seeds (and ``pass_rate``)."""
     from twin.registry import check_kind
@@ -157,17 +165,18 @@ class Verdict:
     measured: object
     holds: bool
 
-    def measured_text(self) -> str:
+    def measured_text(self, full: bool = False) -> str:
+        """The measured value for a report: 4 significant digits, or every digit (``full``)."""
         v = self.measured
         if v is None:
             return "undefined"
         if isinstance(v, bool):
             return str(v).lower()
-        return f"{v:.4g}"
+        return repr(float(v)) if full else f"{v:.4g}"
 
 
-def _stat(name: str, values: list[float]) -> float:
-    xs = sorted(math.inf if v is None else float(v) for v in values)
+def _stat(name: str, values: list[float], undefined: float = math.inf) -> float:
+    xs = sorted(undefined if v is None else float(v) for v in values)
     if name == "mean":
         return math.fsum(xs) / len(xs)
     if name == "min":
@@ -175,12 +184,15 @@ def _stat(name: str, values: list[float]) -> float:
     if name == "max":
         return xs[-1]
     q = 0.5 if name == "median" else int(name[1:]) / 100.0
-    # linear interpolation between order statistics (numpy's default 'linear')
+    # linear interpolation between order statistics (numpy's default 'linear'); an infinite
+    # neighbour is not interpolated towards (0 · ∞ is NaN): the value is infinite once past it
     pos = q * (len(xs) - 1)
     lo = math.floor(pos)
     hi = min(lo + 1, len(xs) - 1)
-    if xs[lo] == xs[hi]:
+    if pos == lo or xs[lo] == xs[hi]:
         return xs[lo]
+    if math.isinf(xs[hi]) or math.isinf(xs[lo]):
+        return xs[hi] if math.isinf(xs[hi]) else xs[lo]
     return xs[lo] + (pos - lo) * (xs[hi] - xs[lo])
 
 
@@ -200,7 +212,9 @@ def evaluate(bounds: dict[str, tuple[Bound, ...]], controller: str, runs: dict[i
             value = passed / len(runs)
         else:
             values = [b.measure(m) for m in runs.values()]
-            value = _stat(b.stat, [float(v) if isinstance(v, bool) else v for v in values])
+            # an undefined value is on the failing side of the bound: +∞ under a cap, −∞ over a floor
+            worst = math.inf if b.op in ("<=", "<") else -math.inf if b.op in (">=", ">") else math.nan
+            value = _stat(b.stat, [float(v) if isinstance(v, bool) else v for v in values], worst)
         out.append(Verdict(controller, None, b, value, b.holds(value)))
     return out
 

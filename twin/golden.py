@@ -122,8 +122,10 @@ class Departure:
 def compare(run: Trajectory, ref: Trajectory, exact: bool) -> Departure | None:
     """The first departure of ``run`` from ``ref`` (None: they agree); see the module docstring."""
     if run.names != ref.names:
-        missing = sorted(set(ref.names) ^ set(run.names))
-        return Departure(0.0, "", "", 0.0, 0.0, 0.0, f"the logged signals differ ({', '.join(missing[:5])})")
+        differ = sorted(set(ref.names) ^ set(run.names))
+        why = (f"the logged signals differ ({', '.join(differ[:5])})" if differ else
+               "the logged signals are the same but in another order")
+        return Departure(0.0, "", "", 0.0, 0.0, 0.0, why)
     n = min(len(run.data), len(ref.data))
     a, b = run.data[:n], ref.data[:n]
     if exact:
@@ -131,7 +133,9 @@ def compare(run: Trajectory, ref: Trajectory, exact: bool) -> Departure | None:
         tol = np.zeros_like(b)
     else:
         tol = ATOL + RTOL * np.abs(b)
-        bad = ~(np.abs(a - b) <= tol)
+        with np.errstate(invalid="ignore"):
+            # equal values (inf included) and NaN on both sides agree, as they do bit for bit
+            bad = ~((a == b) | (np.isnan(a) & np.isnan(b)) | (np.abs(a - b) <= tol))
     rows = np.nonzero(bad.any(axis=1))[0]
     t_col = run.names.index("t")
     if len(rows):

@@ -20,6 +20,7 @@ from pathlib import Path
 import pytest
 
 NAMING_RULE = "twin_*.toml"
+_SCENARIOS = pytest.StashKey[list]()  # the --twin-scenarios, loaded once at configure time
 
 
 def pytest_addoption(parser):
@@ -29,6 +30,29 @@ def pytest_addoption(parser):
     group.addoption("--twin-seeds", type=int, default=1, metavar="N", help="seeds per scenario and controller")
 
 
+def pytest_configure(config):
+    """Bad --twin-* options are usage errors (one message, pytest's exit status 4), not tracebacks."""
+    if config.getoption("twin_seeds", 1) < 1:
+        raise pytest.UsageError(f"--twin-seeds must be at least 1, got {config.getoption('twin_seeds')}")
+    targets = config.getoption("twin_scenarios", [])
+    if targets:
+        from twin.errors import TwinError
+
+        try:
+            config.stash[_SCENARIOS] = _scenarios(_expand(targets))
+        except TwinError as exc:
+            raise pytest.UsageError(f"--twin-scenarios: {exc}") from None
+
+
+def _expand(targets) -> list[str]:
+    from twin.scenarios.scenario import builtin_names
+
+    names = []
+    for t in targets:
+        names += builtin_names() if t == "builtin" else [t]
+    return names
+
+
 def pytest_collect_file(parent, file_path):
     if file_path.suffix == ".toml" and file_path.match(NAMING_RULE):
         return TwinScenarioFile.from_parent(parent, path=file_path)
@@ -36,16 +60,15 @@ def pytest_collect_file(parent, file_path):
 
 
 def pytest_collection_modifyitems(session, config, items):
-    targets = config.getoption("twin_scenarios")
-    if not targets:
+    scenarios = config.stash.get(_SCENARIOS, None)
+    if not scenarios:
         return
-    from twin.scenarios.scenario import builtin_names
-
-    names = []
-    for t in targets:
-        names += builtin_names() if t == "builtin" else [t]
-    for scenario in _scenarios(names):
+    # a twin_*.toml under the test paths is collected by the naming rule already: not twice
+    have = {(str(it.scenario.source), it.kind) for it in items if isinstance(it, TwinCheckItem)}
+    for scenario in scenarios:
         for kind in scenario.controllers:
+            if (str(scenario.source), kind) in have:
+                continue
             items.append(TwinCheckItem.from_parent(session, name=f"{scenario.name}::{kind}",
                                                    nodeid=f"twin:{scenario.name}::{kind}", scenario=scenario,
                                                    kind=kind))
@@ -62,13 +85,23 @@ class TwinScenarioFile(pytest.File):
     """A ``twin_*.toml`` scenario file: one item per controller of ``controller.kinds``."""
 
     def collect(self):
+        from twin.errors import TwinError
         from twin.scenarios import load_scenario
 
-        scenario = load_scenario(str(self.path))
+        try:
+            scenario = load_scenario(str(self.path))
+        except TwinError as exc:
+            raise TwinCheckFailure(str(exc)) from None
         if not scenario.data["expect"]:
-            raise TwinCheckFailure(f"{self.path}: a {NAMING_RULE} file needs an [expect] table")
+            raise TwinCheckFailure(f"{self.path}: a {NAMING_RULE} file needs an [expect] table (bounds such as "
+                                   "fell = false)")
         for kind in scenario.controllers:
             yield TwinCheckItem.from_parent(self, name=kind, scenario=scenario, kind=kind)
+
+    def repr_failure(self, excinfo):
+        if isinstance(excinfo.value, TwinCheckFailure):
+            return str(excinfo.value)
+        return super().repr_failure(excinfo)
 
 
 class TwinCheckFailure(Exception):

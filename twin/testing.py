@@ -28,17 +28,19 @@ def check(scenario, controller=None, estimator: str | None = None, seeds: int = 
     from twin.scenarios import load_scenario
     from twin.scenarios.scenario import Scenario
 
+    from twin.errors import TwinError
+
+    if expect is not None and not expect:
+        raise TwinError("expect= is empty: give at least one bound, e.g. {'fell': False}")
     extra = list(overrides)
     if estimator is not None:
-        extra.append(f"sensors.estimator={estimator!r}".replace("'", '"'))
+        extra.append(f"sensors.estimator={estimator!r}")
     if isinstance(scenario, Scenario):
         if extra or expect is not None:
             scenario = load_scenario(_source_name(scenario), list(scenario.overrides) + extra + _expect(expect))
     else:
         scenario = load_scenario(str(scenario), extra + _expect(expect))
     if not scenario.data["expect"]:
-        from twin.errors import TwinError
-
         raise TwinError(f"{scenario.source}: no [expect] table and no expect= given, so nothing to check")
     kinds = [controller] if isinstance(controller, str) else controller
     return run_checks([scenario], kinds, seeds, workers)
