@@ -13,9 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from estimation import ekf
-from twin.fuzzy import mamdani
-from twin.plant import bullet
+from twin import golden
 from twin.scenarios import load_scenario
 from twin.scenarios.runner import run_scenario
 
@@ -23,12 +21,8 @@ DATA = json.loads((Path(__file__).parent / "data" / "refactor_hashes.json").read
 
 
 def _path() -> str | None:
-    built = [bullet._fastpath is not None, ekf._kernel is not None, mamdani._kernel is not None]
-    if all(built):
-        return "compiled"
-    if not any(built):
-        return "pure"
-    return None
+    build = golden.build()  # "compiled", "pure" or "mixed"
+    return None if build == "mixed" else build
 
 
 @pytest.mark.parametrize("case", sorted(DATA["cases"]))

@@ -36,14 +36,11 @@ class CheckTask:
 
 def run_task(task: CheckTask) -> tuple[dict | None, str, object]:
     """(metrics, "", trajectory or None) of one run, or (None, error message, None) if it raised."""
-    import sys
-
+    from twin.registry import use_plugin_dirs
     from twin.scenarios.runner import run_scenario
     from twin.scenarios.scenario import Scenario
 
-    for path in reversed(task.plugin_paths):
-        if path not in sys.path:
-            sys.path.insert(0, path)
+    use_plugin_dirs(task.plugin_paths)
     sc = Scenario({**task.data, "seed": task.seed}, task.source, task.overrides)
     if task.design is not None:
         sc.adopt_design(task.design)

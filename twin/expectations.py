@@ -203,8 +203,8 @@ def evaluate(bounds: dict[str, tuple[Bound, ...]], controller: str, runs: dict[i
     out = []
     passed = 0
     for seed, metrics in sorted(runs.items()):
-        verdicts = [Verdict(controller, seed, b, b.measure(metrics), False) for b in per_run]
-        verdicts = [Verdict(v.controller, v.seed, v.bound, v.measured, v.bound.holds(v.measured)) for v in verdicts]
+        measured = [(b, b.measure(metrics)) for b in per_run]
+        verdicts = [Verdict(controller, seed, b, m, b.holds(m)) for b, m in measured]
         passed += all(v.holds for v in verdicts)
         out += verdicts
     for b in over:

@@ -21,6 +21,7 @@ file and the file's SHA-256 so a result can be traced to the code that produced 
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib
 import inspect
@@ -195,6 +196,14 @@ def plugin_dirs(kinds) -> tuple[str, ...]:
     return tuple(dirs)
 
 
+def use_plugin_dirs(dirs) -> None:
+    """Put ``dirs`` (from :func:`plugin_dirs`) first on ``sys.path``: a spawned worker or a Ray
+    task then imports the same plugin files as the process that planned the work."""
+    for path in reversed(tuple(dirs)):
+        if path not in sys.path:
+            sys.path.insert(0, path)
+
+
 def is_import_path(kind: str) -> bool:
     """True for ``"package.module:attribute"``."""
     return isinstance(kind, str) and bool(_IMPORT_PATH.match(kind))
@@ -347,20 +356,25 @@ def build_estimator(kind: str, params: dict | None = None, context: BuildContext
 
 def provenance(role: str, kind: str) -> dict | None:
     """For an import path: ``{"role", "kind", "module", "file", "sha256"}`` of the module
-    that defines it (its source file's SHA-256); None for a built-in."""
+    that defines it (its source file's SHA-256); None for a built-in. The file is hashed
+    once per process, when first asked: the code imported then is the code that runs."""
     if not is_import_path(kind):
         return None
     resolve(role, kind)
     module_name = kind.split(":", 1)[0]
-    module = sys.modules[module_name]
-    file = getattr(module, "__file__", None)
-    digest = None
-    if file:
-        try:
-            digest = hashlib.sha256(Path(file).read_bytes()).hexdigest()
-        except OSError:
-            digest = None
-    return {"role": role, "kind": kind, "module": module_name, "file": str(file) if file else None, "sha256": digest}
+    file, digest = _file_digest(module_name)
+    return {"role": role, "kind": kind, "module": module_name, "file": file, "sha256": digest}
+
+
+@functools.lru_cache(maxsize=None)
+def _file_digest(module_name: str) -> tuple[str | None, str | None]:
+    file = getattr(sys.modules[module_name], "__file__", None)
+    if not file:
+        return None, None
+    try:
+        return str(file), hashlib.sha256(Path(file).read_bytes()).hexdigest()
+    except OSError:
+        return str(file), None
 
 
 def check_kinds(role: str, kinds, where: str) -> tuple[str, ...]:

@@ -396,7 +396,8 @@ class TwinEnv(gymnasium.Env):
             raise TwinError("call reset() before step()")
         t = self.max_torque
         try:
-            ul, ur = (float(v) for v in np.asarray(action, dtype=float).reshape(2))
+            ul, ur = action  # an array of shape (2,), a list or a tuple
+            ul, ur = float(ul), float(ur)
         except (TypeError, ValueError):
             raise TwinError(f"action must be the two wheel torques (ul, ur) in N·m, got {action!r}") from None
         ul = t if ul > t else (-t if ul < -t else ul)  # NaN passes through: the loop rejects it in one line

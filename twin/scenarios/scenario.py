@@ -234,7 +234,8 @@ class Scenario:
                 raise self._error(f"{where}: {exc}") from None
         from twin.plant.bullet import touch_angle
 
-        limit = min(touch_angle(self.true_params()), self.twin_config().fall_angle) - 0.01
+        config = self.twin_config()  # validated just above
+        limit = min(touch_angle(config.params), config.fall_angle) - 0.01
         theta0 = d["initial"]["theta"]
         if abs(theta0) >= limit:
             raise self._error(f"initial.theta: {theta0:g} rad does not start on the wheels: this robot's body touches "

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from twin.errors import TwinError
+from twin.registry import uses_design
 from twin.scenarios.scenario import Scenario
 from twin.sweep.backends import BACKENDS, default_workers, run_local, run_ray
 from twin.sweep.sampling import value_columns
@@ -86,13 +87,7 @@ def preflight(scenario: Scenario, kinds, duration: float = 0.05) -> None:
     d = scenario.data
     short = Scenario({**d, "duration": max(duration, 1.0 / d["rates"]["control"])}, scenario.source,
                      scenario.overrides)
-    run_scenario(short.adopt_design(scenario.design()) if any(_uses_design(k) for k in plugins) else short, plugins)
-
-
-def _uses_design(kind: str) -> bool:
-    from twin.registry import uses_design
-
-    return uses_design(kind)
+    run_scenario(short.adopt_design(scenario.design()) if any(uses_design(k) for k in plugins) else short, plugins)
 
 
 def run_sweep(scenario: Scenario, draws: int, out: Path, scenario_arg: str | None = None, workers: int | None = None,
@@ -120,7 +115,7 @@ def run_sweep(scenario: Scenario, draws: int, out: Path, scenario_arg: str | Non
     manifest = {"scenario": scenario.data, "source": scenario.source, "scenario_arg": scenario_arg or scenario.name,
                 "overrides": [o for o in scenario.overrides if not o.startswith("seed=")],
                 "root_seed": scenario.seed, "controllers": list(kinds), "draws": draws}
-    design = scenario.design() if any(_uses_design(k) for k in kinds) else None
+    design = scenario.design() if any(uses_design(k) for k in kinds) else None
     paths = plugin_dirs([("controller", k) for k in kinds] + [("estimator", scenario.estimator)])
     job = SweepJob(scenario.data, scenario.source, scenario.overrides, scenario.seed, design, kinds, paths)
     with SweepStore(out, manifest) as store:

@@ -32,13 +32,10 @@ class SweepJob:
     plugin_paths: tuple = ()
 
     def scenario(self):
-        import sys
-
+        from twin.registry import use_plugin_dirs
         from twin.scenarios.scenario import Scenario
 
-        for path in reversed(self.plugin_paths):
-            if path not in sys.path:
-                sys.path.insert(0, path)
+        use_plugin_dirs(self.plugin_paths)
         sc = Scenario(self.data, self.source, self.overrides)
         return sc.adopt_design(self.design) if self.design is not None else sc
 
