@@ -21,6 +21,7 @@
             failing the gate (may_reject false); healthy 0 if the state had to be restored
      forward(core, commands) -> ([θ, θ̇, ψ, ψ̇, α, α̇] predicted over the commands, finite)
      state6(core) -> the filter's own [θ, θ̇, ψ, ψ̇, α, α̇]
+     set_consider(core, mask)          mask (12,): 1.0 for a state the updates leave alone (Schmidt)
 
    Built by setup.py with -ffp-contract=off like the other kernels. */
 #define PY_SSIZE_T_CLEAN
@@ -39,12 +40,14 @@ typedef struct {
     /* the estimator's model: equation (1) with d_b + c_e, and the motors' driver */
     double mdt, m11, m12, m22, n_bla, d_b, d_w, g_b, yaw_damping, m33, g;
     double has_motor, compensates, tau_max, i_tau, sigma_tau, c_e, tol, every;
+    /* 1.0 for a consider state (Schmidt): kept in P, never corrected by a measurement */
+    double consider[NX];
     /* state */
     double x[NX], P[NX * NX], w[2], w_prev[2];
     double xg[NX], Pg[NX * NX], wg[2], wpg[2];
 } Core;
 
-#define NCONST 39 /* doubles before x */
+#define NCONST 51 /* doubles before x */
 
 static void core_free(PyObject *cap) { PyMem_Free(PyCapsule_GetPointer(cap, "ekf_core")); }
 
@@ -365,7 +368,7 @@ static double encoder_fit(const Core *c, const double *enc, const double *last, 
 }
 
 /* the Kalman update (Joseph form, as filterpy) of x, P with the encoder measurement */
-static int kalman_update(double *x, double *P, const EncMeas *em) {
+static int kalman_update(double *x, double *P, const EncMeas *em, const double *consider) {
     int m = em->dof;
     double PHt[NX][2], S[2][2], Si[2][2], K[NX][2], y[2];
     innovation(x, P, em, y, PHt, S);
@@ -384,7 +387,7 @@ static int kalman_update(double *x, double *P, const EncMeas *em) {
         for (int b = 0; b < m; b++) {
             double s = 0.0;
             for (int a = 0; a < m; a++) s += PHt[i][a] * Si[a][b];
-            K[i][b] = s;
+            K[i][b] = consider[i] != 0.0 ? 0.0 : s; /* Schmidt: the Joseph form below stays exact */
         }
     for (int i = 0; i < NX; i++)
         for (int a = 0; a < m; a++) x[i] += K[i][a] * y[a];
@@ -458,6 +461,16 @@ static PyObject *set_state(PyObject *self, PyObject *const *args, Py_ssize_t nar
         floats(args[4], c->w_prev, 2, "w_prev"))
         return NULL;
     if (healthy(c)) keep_good(c); /* a broken state is never kept as the one to restore */
+    Py_RETURN_NONE;
+}
+
+static PyObject *set_consider(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    Core *c;
+    if (nargs != 2 || !(c = get(args[0]))) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "set_consider(core, mask)");
+        return NULL;
+    }
+    if (floats(args[1], c->consider, NX, "mask")) return NULL;
     Py_RETURN_NONE;
 }
 
@@ -550,7 +563,7 @@ static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs
             enc_code = 3;
         else {
             enc_code = (nis <= c->gate[dof]) ? 2 : 4;
-            if (kalman_update(c->x, c->P, &em)) ok = 0;
+            if (kalman_update(c->x, c->P, &em, c->consider)) ok = 0;
         }
     }
     for (int i = 0; i < NX; i++)
@@ -596,6 +609,7 @@ static PyMethodDef methods[] = {
     {"new", new_core, METH_O, "A filter from its constants."},
     {"set_state", (PyCFunction)(void (*)(void))set_state, METH_FASTCALL, "Set x, P and the last gyro rates."},
     {"state", get_state, METH_O, "(x, P, w, w_prev) as tuples."},
+    {"set_consider", (PyCFunction)(void (*)(void))set_consider, METH_FASTCALL, "Set the consider-state mask."},
     {"state6", py_state6, METH_O, "The filter's [θ, θ̇, ψ, ψ̇, α, α̇]."},
     {"advance", (PyCFunction)(void (*)(void))advance, METH_FASTCALL, "One filter step with an IMU sample."},
     {"forward", (PyCFunction)(void (*)(void))forward, METH_FASTCALL, "Predict the state over commands."},

@@ -103,6 +103,10 @@ STATE_UNITS = ("rad", "rad", "m/s", "rad", "rad/s", "rad/s", "rad", "1", "rad", 
 N = len(STATE_NAMES)
 TH, PS, V, AL, BY, BZ, C0, SY, H0, SZ, SAX, SAZ = range(N)
 GROUPS = ("gyro", "accel", "encoders")
+# the constants the encoders and the IMU cannot tell apart from the strapdown integration's
+# own errors: kept in P (their uncertainty is accounted for) but never corrected (Schmidt);
+# see the module docstring, "Consider states"
+CONSIDER = ("encoder_zero", "encoder_heading_zero", "gyro_scale_y", "gyro_scale_z", "accel_scale_x", "accel_scale_z")
 MAX_RIM_SPEED = 20.0  # m/s: encoder counts implying a faster wheel (relative to the body) are a fault
 
 try:  # the optional compiled path (setup.py); TWIN_PURE_PYTHON=1 turns it off
@@ -121,15 +125,34 @@ def finite_reading(v) -> bool:
 
 
 class TwinEKF(ExtendedKalmanFilter):
-    """filterpy's EKF whose nonlinear prediction is computed (with F and Q) beforehand."""
+    """filterpy's EKF whose nonlinear prediction is computed (with F and Q) beforehand, and
+    whose update leaves the consider states (``consider``, a (12,) mask) uncorrected."""
 
-    def __init__(self):
+    def __init__(self, consider=None):
         super().__init__(dim_x=N, dim_z=2)
         self.x = np.zeros(N)
         self._x_next = self.x
+        self.consider = np.zeros(N, dtype=bool) if consider is None else np.asarray(consider, dtype=bool)
 
     def predict_x(self, u=0):
         self.x = self._x_next
+
+    def update(self, z, HJacobian, Hx, R=None, args=(), hx_args=(), residual=np.subtract):
+        """filterpy's update (Joseph form) with the gain's rows of the consider states zeroed
+        (the Schmidt–Kalman update: the Joseph form is exact for any gain, so P keeps their
+        uncertainty and its correlations; only their estimates are never moved)."""
+        if not self.consider.any():
+            return super().update(z, HJacobian, Hx, R=R, args=args, hx_args=hx_args, residual=residual)
+        H = HJacobian(self.x)
+        PHT = self.P @ H.T
+        self.S = H @ PHT + R
+        self.SI = np.linalg.inv(self.S)
+        self.K = PHT @ self.SI
+        self.K[self.consider] = 0.0
+        self.y = residual(z, Hx(self.x))
+        self.x = self.x + self.K @ self.y
+        I_KH = self._I - self.K @ H
+        self.P = I_KH @ self.P @ I_KH.T + self.K @ R @ self.K.T
 
 
 class EKFEstimator:
@@ -150,6 +173,14 @@ class EKFEstimator:
         Probability that the gate rejects a measurement that fits the model.
     max_rejects_in_row : int
         See the module docstring.
+    consider : sequence of str
+        State names (:data:`STATE_NAMES`) that become consider states after ``learn_time``:
+        measurements no longer correct their estimates (a Schmidt–Kalman filter: their
+        uncertainty stays in P). Default :data:`CONSIDER`; ``()`` estimates every state for
+        ever (the filter before issue 16, which drifts in long runs).
+    learn_time : float
+        s; how long the consider states are estimated like the others (the initial
+        alignment, through the robot's first recovery).
     compiled : bool or None
         Run the filter step in the compiled kernel (``estimation._ekf``, the same
         algorithm without filterpy's per-call overhead); None: when it is built. False:
@@ -160,9 +191,18 @@ class EKFEstimator:
 
     def __init__(self, model: EstimatorModel, imu_every: int = 1, imu_latency: int = 1, encoder_latency: int = 0,
                  alpha0: float = 0.0, gate_probability: float = 1e-4, max_rejects_in_row: int = 5,
-                 compiled: bool | None = None):
+                 consider=CONSIDER, learn_time: float = 10.0, compiled: bool | None = None):
         if not (0.0 < gate_probability < 0.5):
             raise TwinError(f"gate_probability must be in (0, 0.5), got {gate_probability!r}")
+        if isinstance(consider, str) or not isinstance(consider, (list, tuple)) or \
+                not all(isinstance(n, str) and n in STATE_NAMES for n in consider):
+            raise TwinError(f"consider must be a list of state names from {', '.join(STATE_NAMES)}, got {consider!r}")
+        self.consider = tuple(n for n in STATE_NAMES if n in consider)
+        self._consider_mask = np.array([n in self.consider for n in STATE_NAMES])
+        if isinstance(learn_time, bool) or not isinstance(learn_time, (int, float)) or \
+                not (0.0 <= learn_time < math.inf):
+            raise TwinError(f"learn_time must be a finite time >= 0 in s, got {learn_time!r}")
+        self.learn_time = float(learn_time)
         self.model = model
         self.every, self.d_imu, self.d_enc = int(imu_every), int(imu_latency), int(encoder_latency)
         self.lag = max(self.d_imu, self.d_enc)
@@ -212,13 +252,14 @@ class EKFEstimator:
                 self._bias_q, 0.0, self.gates[1], self.gates[2], 0.0, self.imu_gates[1], self.imu_gates[2],
                 *self._limits, m.dt, m.m11, m.m12, m.m22, m.plant.n_bla, m.plant.d_b, m.plant.d_w, m.plant.g_b,
                 m.plant.yaw_damping, m.plant.m33, m.g, float(motor is not None), float(m.compensates),
-                m.tau_max, m.i_tau, m.sigma_tau, m.c_e, TORQUE_TOLERANCE, float(self.every))
+                m.tau_max, m.i_tau, m.sigma_tau, m.c_e, TORQUE_TOLERANCE, float(self.every), *([0.0] * N))
         self._new_run()
 
     def _new_run(self) -> None:
         """The state of one run, as before the first start(); start() calls it again when the
         filter is reused for another run, so that nothing of the previous one is kept."""
         self.kf = TwinEKF()
+        self.holding = False  # the consider states are held (after learn_time)
         self.last_dof = 0
         self.k = -1
         self.m = 0
@@ -392,6 +433,8 @@ class EKFEstimator:
         m = k - self.lag
         if m >= self.every and m % self.every == 0 and m > self.m:
             t = meas.t - self.lag * self.model.dt
+            if not self.holding and self.consider and t >= self.learn_time - 1e-9:
+                self._hold()
             try:
                 self._advance(m, t)
             except (np.linalg.LinAlgError, FloatingPointError, ValueError, ZeroDivisionError, OverflowError) as err:
@@ -404,6 +447,13 @@ class EKFEstimator:
         return self._estimate(k)
 
     # ---- internals ---------------------------------------------------------------------
+    def _hold(self) -> None:
+        """From now on the consider states are held: no update corrects them."""
+        self.holding = True
+        self.kf.consider = self._consider_mask.copy()
+        if self._core is not None:
+            _kernel.set_consider(self._core, [float(v) for v in self._consider_mask])
+
     def _store(self, meas, k: int) -> None:
         ok = finite_reading
         gyro, accel, enc = meas.gyro, meas.accel, meas.encoders
@@ -671,6 +721,8 @@ class EKFEstimator:
             PHt = Pa @ Ha.T
             S = Ha @ PHt + R
             K = np.linalg.solve(S, PHt.T).T
+            if self.holding:
+                K[:N][self._consider_mask] = 0.0  # Schmidt, as TwinEKF.update
             za = za + K @ (zm_ - (H @ kf.x + off))
             IKH = np.eye(N + 4) - K @ Ha
             Pa = IKH @ Pa @ IKH.T + K @ R @ K.T
