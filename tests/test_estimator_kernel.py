@@ -61,7 +61,10 @@ def test_kernel_follows_python_path(design, case, theta0):
     # coasting steps (IMU missing or rejected) run in Python for both, with a Jacobian by
     # central differences (h = 1e-6): that lifts the paths' 1e-13 differences in x to ~1e-7
     # relative in P's smallest elements
-    np.testing.assert_allclose(fa.P, fb.P, rtol=1e-5, atol=1e-14)
+    # compared on the scale of each element's correlation: the consider states' tiny cross
+    # covariances (~1e-11) are rounding-level differences otherwise
+    scale = np.sqrt(np.outer(np.diag(fb.P), np.diag(fb.P)))
+    assert np.all(np.abs(fa.P - fb.P) <= 1e-5 * np.abs(fb.P) + 1e-9 * scale + 1e-14)
     np.testing.assert_allclose(fa.covariance6(), fb.covariance6(), rtol=1e-6, atol=1e-15)
     if case != "default noise":
         assert sa["rejected_total"] > 0 or sa["predict_only_steps"] > 0
