@@ -73,6 +73,17 @@ moves v, which the encoders only see in the following samples, so a full-scale
 accelerometer spike is not caught at the sample (benchmarks/estimator_accuracy.py
 reports what it costs).
 
+Consider states: the four scale factors and the two encoder zeros are learned for
+``learn_time`` (10 s: the initial alignment and the first recovery, when they are
+observable), then held (a Schmidt–Kalman filter: the gain's rows for them are zero, the
+Joseph-form update keeps P exact for that gain, so their uncertainty still enters every
+other state's). Learned for ever, they drift without bound while the robot balances: a
+scale factor's Jacobian is the measured rate, whose noise is also in the error it is
+regressed on, and the zeros sit in a direction (ψ + c, α + h r/b) no sensor sees, where
+the strapdown's unmodelled errors accumulate. In paper-exp2 the gyro and accelerometer
+scale states reached +0.17 to +0.25 in 900 s (true 0.2–0.9 %) at σ 0.004–0.009, θ̇ was read
+17 % low, and the robot rocked into a 0.35 rad limit cycle (README, "Long runs").
+
 Latency: the filter runs L = max(IMU, encoder latency) periods behind, where every
 sample it uses has arrived; the estimate handed to the controllers is its state
 predicted the L periods forward with equation (1) and the commands since.
