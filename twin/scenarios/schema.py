@@ -83,12 +83,13 @@ def _triad(unit: str, absent: str) -> Key:
                    recorded_at_default=False)
 
     return Key("table", recorded_at_default=False, keys={
-        "noise_density": new("float", 0.0, 1e3, f"{unit}/√Hz", "white noise density (per-sample σ = density·√rate)"),
+        "noise_density": new("float", 0.0, 1e3, f"{unit}/√Hz",
+                             "white noise density (per-sample σ = density·√rate)"),
         "bias_random_walk": new("float", 0.0, 1e3, f"{unit}/√s", "bias random walk K (the bias moves K·√Δt per "
                                 "sample; with a correlation time, drives the Gauss–Markov bias)"),
-        "bias_correlation_time": new("float", 0.0, 1e7, "s", "the bias is first-order Gauss–Markov with this "
-                                     "time constant (steady σ = K·√(τ/2)) instead of a random walk (as in every preset)",
-                                     lo_open=True),
+        "bias_correlation_time": new("float", 0.0, 1e7, "s",
+                                     "the bias is first-order Gauss–Markov with this time constant (steady σ = "
+                                     "K·√(τ/2)) instead of a random walk (as in every preset)", lo_open=True),
         "turn_on_bias": new("float", 0.0, 1e3, unit, "σ of the constant bias drawn per run, per axis"),
         "scale_factor_error": new("float", 0.0, 0.5, "1", "σ of the per-axis sensitivity error"),
         "full_scale": new("float", 0.0, 1e6, unit, "range ±full_scale (at least 5 × the per-sample white noise)",
