@@ -40,8 +40,7 @@ bias random walk (see below)           1.25e-6 rad/s/√s             3e-5 m/s²
 =====================================  ===========================  =====================================
 figure                                 gyro                         accelerometer
 =====================================  ===========================  =====================================
-full scale (GYRO_RANGE 0x02 /          ±500 °/s                     ±6 g
-ACC_RANGE 0x01)
+full scale (GYRO/ACC_RANGE = 2 / 1)    ±500 °/s                     ±6 g
 ADC                                    16 bit (65.536 LSB per °/s)  16 bit (5460 LSB per g)
 noise density (datasheet)              0.014 °/s/√Hz                175 µg/√Hz
 sensitivity tolerance                  ±1 % → σ = 0.333 %           ±1 % → σ = 0.333 % (see below)
