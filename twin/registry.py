@@ -57,7 +57,9 @@ class BuildContext:
     ``control_rate`` Hz; ``model`` the :class:`~twin.params.RobotParams` the controllers and
     the estimator assume (the nominal model, not the twin's true plant); ``motor`` the
     motors' :class:`~twin.actuators.DCMotorParams` (None: ideal torque sources);
-    ``sensors`` the :class:`~twin.sensors.SensorConfig` (None: ideal sensing);
+    ``sensors`` the :class:`~twin.sensors.SensorConfig` as the estimator believes it (None:
+    ideal sensing; a scenario's ``[sensors.believed]``, while the twin simulates the true one),
+    from which the EKF's Q and R derive;
     ``targets`` the run's :class:`~twin.protocols.Targets`; ``alpha0`` the initial heading
     in rad; ``design`` a zero-argument callable returning the LMI balance design
     (:class:`~twin.controllers.lmi.BalanceDesign`, solved on first use); ``options`` the

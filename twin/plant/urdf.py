@@ -75,6 +75,14 @@ def body_width(params: RobotParams) -> float:
     return max(0.02, 2.0 * params.b - WHEEL_WIDTH - 2.0 * WHEEL_CLEARANCE)
 
 
+def body_box(params: RobotParams) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    """The body box's (lowest, highest) corner in m, body frame from the axle midpoint: x within
+    ±BODY_DEPTH/2, y within ±body_width/2, z within l ± body_height/2 (a centre-of-mass offset
+    does not move it)."""
+    h, w = body_height(params), body_width(params)
+    return (-0.5 * BODY_DEPTH, -0.5 * w, params.l - 0.5 * h), (0.5 * BODY_DEPTH, 0.5 * w, params.l + 0.5 * h)
+
+
 def _f(v: float) -> str:
     return repr(float(v))
 

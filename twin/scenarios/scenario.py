@@ -89,14 +89,15 @@ class Scenario:
     # ---- what the scenario builds ------------------------------------------------------------
     def build_context(self, design=None):
         """The :class:`twin.registry.BuildContext` of this scenario's runs: nominal model, its
-        motors, sensors, targets, heading, cascade options, and ``design`` (a zero-argument
-        callable; default :meth:`design`, which solves the LMIs only when a controller asks)."""
+        motors, the sensors as the estimator believes them (:meth:`believed_sensor_config`),
+        targets, heading, cascade options, and ``design`` (a zero-argument callable; default
+        :meth:`design`, which solves the LMIs only when a controller asks)."""
         from twin.params import NOMINAL
         from twin.registry import BuildContext
 
         d = self.data
         config = self.twin_config()
-        return BuildContext(config.control_rate, NOMINAL, config.motor, self.sensor_config(),
+        return BuildContext(config.control_rate, NOMINAL, config.motor, self.believed_sensor_config(),
                             self.experiment().targets, d["initial"]["alpha"], design or self.design,
                             self.cascade_options())
 
@@ -155,25 +156,17 @@ class Scenario:
                           control_rate=d["rates"]["control"], ground=ground, disturbances=dist, **kwargs)
 
     def sensor_config(self):
-        """The sensors, or None for ideal sensing."""
-        from twin.sensors import Dropout, LatencyChange, SensorConfig, Spikes, Stuck
-        from twin.sensors.specs import DEFAULT_IMU, EncoderSpec, ImuSpec
+        """The sensors the twin simulates (the true specification), or None for ideal sensing."""
+        from twin.scenarios.sensors import true_config
 
-        s = self.data["sensors"]
-        if s["sensing"] == "ideal":
-            return None
-        faults = []
-        for f in self.data["faults"]:
-            if f["kind"] == "latency":
-                faults.append(LatencyChange(f["sensor"], f["start"], f["latency"]))
-            elif f["kind"] == "spikes":
-                faults.append(Spikes(f["sensor"], f["start"], f["duration"], rate=f["rate"], magnitude=f["magnitude"]))
-            else:
-                faults.append({"dropout": Dropout, "stuck": Stuck}[f["kind"]](f["sensor"], f["start"], f["duration"]))
-        imu = ImuSpec(gyro=DEFAULT_IMU.gyro, accel=DEFAULT_IMU.accel, position=DEFAULT_IMU.position,
-                      rate=s["imu_rate"], latency=s["imu_latency"])
-        return SensorConfig(imu=imu, encoders=EncoderSpec(s["encoder_counts"], s["encoder_latency"]),
-                            faults=tuple(faults))
+        return true_config(self.data)
+
+    def believed_sensor_config(self):
+        """The sensors as the estimator believes them (``[sensors.believed]``; without it the
+        true specification), or None for ideal sensing. The estimator's Q and R derive from it."""
+        from twin.scenarios.sensors import believed_config
+
+        return believed_config(self.data)
 
     def design_options(self) -> dict:
         return dict(self.data["design"])
@@ -224,12 +217,20 @@ class Scenario:
                                       f"(duration = {d['duration']:g} s); allowed: [0, {d['duration']:g}) s")
 
         def sensors():
+            from twin.scenarios.sensors import problems
+
+            problem = problems(d, self.true_params())
+            if problem:
+                raise self._error(problem)
             config = self.sensor_config()
+            self.believed_sensor_config()
             return None if config is None else config.steps(control)
 
         for where, build in (("plant", self.true_params), ("twin", self.twin_config), ("sensors", sensors)):
             try:
                 build()
+            except ScenarioError:
+                raise
             except TwinError as exc:
                 raise self._error(f"{where}: {exc}") from None
         from twin.plant.bullet import touch_angle

@@ -20,6 +20,7 @@ from twin.controllers.mamdani import DEFAULT_FOU, P_E_RANGE
 from twin.fuzzy.mamdani import TYPE_REDUCERS
 from twin.errors import TwinError
 from twin.params import PARAMETER_DOCS
+from twin.sensors.specs import IMU_PRESETS
 
 REQUIRED = object()
 
@@ -73,6 +74,33 @@ FAULT = {
     "magnitude": _f(1.0, 0.0, 1e6, "sensor unit", lo_open=True, doc="spikes: offset on every axis"),
     "latency": _f(0.0, 0.0, 1.0, "s", doc="latency: the new latency"),
 }
+
+def _triad(unit: str, absent: str) -> Key:
+    """[sensors.gyro] / [sensors.accel] (and under [sensors.believed]): overrides of the preset's
+    figures, in SI units; each absent key is ``absent``'s figure."""
+    def new(kind, lo, hi, u, doc, lo_open=False):
+        return Key(kind, None, lo, hi, lo_open, u, doc=f"{doc}; absent: {absent}", nullable=True,
+                   recorded_at_default=False)
+
+    return Key("table", recorded_at_default=False, keys={
+        "noise_density": new("float", 0.0, 1e3, f"{unit}/√Hz",
+                             "white noise density (per-sample σ = density·√rate)"),
+        "bias_random_walk": new("float", 0.0, 1e3, f"{unit}/√s", "bias random walk K (the bias moves K·√Δt per "
+                                "sample; with a correlation time, drives the Gauss–Markov bias)"),
+        "bias_correlation_time": new("float", 0.0, 1e7, "s",
+                                     "the bias is first-order Gauss–Markov with this time constant (steady σ = "
+                                     "K·√(τ/2)) instead of a random walk (as in every preset)", lo_open=True),
+        "turn_on_bias": new("float", 0.0, 1e3, unit, "σ of the constant bias drawn per run, per axis"),
+        "scale_factor_error": new("float", 0.0, 0.5, "1", "σ of the per-axis sensitivity error"),
+        "full_scale": new("float", 0.0, 1e6, unit, "range ±full_scale (at least 5 × the per-sample white noise)",
+                          lo_open=True),
+        "bits": new("int", 2, 32, "bits", "ADC resolution (LSB = full_scale / 2^(bits−1))"),
+    })
+
+
+def _believed_triad(unit: str) -> Key:
+    return _triad(unit, "as believed.imu's preset, or (without it) as the true sensor")
+
 
 SCHEMA: dict[str, Key] = {
     "name": Key("str", "", doc="short name (default: the file name)"),
@@ -143,6 +171,22 @@ SCHEMA: dict[str, Key] = {
         "imu_latency": _f(0.005, 0.0, 1.0, "s", doc="a whole number of control periods"),
         "encoder_counts": Key("int", 1200, 4, 10_000_000, doc="counts per wheel revolution"),
         "encoder_latency": _f(0.0, 0.0, 1.0, "s"),
+        "imu": Key("str", "mpu6050", choices=tuple(IMU_PRESETS), recorded_at_default=False,
+                   doc="the IMU part whose datasheet figures the gyro and accelerometer take (see "
+                       "twin/sensors/specs.py); [sensors.gyro] and [sensors.accel] override single figures"),
+        "imu_position": Key("vec3", None, -1.0, 1.0, unit="m", nullable=True, recorded_at_default=False,
+                            doc="IMU sensing point, body frame from the axle midpoint (x forward, y left, z up); "
+                                "must lie in the body's box; absent: (0, 0, 0.1)"),
+        "gyro": _triad("rad/s", "the preset's"),
+        "accel": _triad("m/s²", "the preset's"),
+        "believed": Key("table", recorded_at_default=False,
+                        doc="the specification the estimator believes (its Q and R); absent: the true one",
+                        keys={
+            "imu": Key("str", None, choices=tuple(IMU_PRESETS), nullable=True, recorded_at_default=False,
+                       doc="the part the estimator believes it has; absent: the true sensors' figures"),
+            "gyro": _believed_triad("rad/s"),
+            "accel": _believed_triad("m/s²"),
+        }),
     }),
     "faults": Key("tables", [], keys=FAULT),
     "sweep": Key("table", doc="what 'twin sweep' samples (one draw per sample, shared by every level)", keys={
@@ -352,7 +396,9 @@ def record(data: dict, keys: dict[str, Key] | None = None) -> dict:
         elif not key.recorded or not key.recorded_at_default and _same(value, key.default):
             continue
         elif key.kind == "table" and isinstance(value, dict):
-            out[name] = record(value, key.keys)
+            sub = record(value, key.keys)
+            if sub or key.recorded_at_default:  # a table of keys all at their defaults is left out with them
+                out[name] = sub
         else:
             out[name] = value
     return out

@@ -1,6 +1,6 @@
 """Sensors on the twin: what the robot measures of the ground truth.
 
-``specs``    the IMU's and encoders' datasheet figures, in one place
+``specs``    the IMU's and encoders' datasheet figures, in one place; three IMU presets
 ``imu``      the IMU's true angular velocity and specific force from the physics
 ``noise``    a 3-axis sensor's noise pipeline (bias, scale, white noise, range, ADC)
 ``faults``   dropouts, stuck outputs, spikes, latency changes
@@ -8,8 +8,8 @@
 """
 from twin.sensors.faults import Dropout, LatencyChange, Spikes, Stuck
 from twin.sensors.imu import imu_kinematics
-from twin.sensors.specs import DEFAULT_ENCODERS, DEFAULT_IMU, EncoderSpec, ImuSpec, TriadSpec
+from twin.sensors.specs import DEFAULT_ENCODERS, DEFAULT_IMU, IMU_PRESETS, EncoderSpec, ImuSpec, TriadSpec
 from twin.sensors.suite import Measurement, SensorConfig, SensorSuite
 
-__all__ = ["DEFAULT_ENCODERS", "DEFAULT_IMU", "Dropout", "EncoderSpec", "ImuSpec", "LatencyChange", "Measurement",
-           "SensorConfig", "SensorSuite", "Spikes", "Stuck", "TriadSpec", "imu_kinematics"]
+__all__ = ["DEFAULT_ENCODERS", "DEFAULT_IMU", "Dropout", "EncoderSpec", "IMU_PRESETS", "ImuSpec", "LatencyChange",
+           "Measurement", "SensorConfig", "SensorSuite", "Spikes", "Stuck", "TriadSpec", "imu_kinematics"]

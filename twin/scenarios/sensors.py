@@ -1,0 +1,106 @@
+"""A scenario's sensors: the ``[sensors]`` keys as the true specification the twin simulates
+and the believed one the estimator is built with.
+
+True: the preset ``sensors.imu`` (:data:`twin.sensors.specs.IMU_PRESETS`) with the figures
+of ``[sensors.gyro]`` and ``[sensors.accel]`` replacing its own, mounted at
+``sensors.imu_position``, at ``sensors.imu_rate`` and ``sensors.imu_latency``; the encoders
+and faults. Believed (``[sensors.believed]``): the true specification, or the preset
+``believed.imu``, with the figures of ``[sensors.believed.gyro]`` / ``[...accel]``
+replacing those; rate, latency, mounting point, encoders and faults are the true ones.
+
+:func:`problems` finds what the schema's per-key ranges cannot: a full scale the noise
+would saturate (:meth:`~twin.sensors.specs.TriadSpec.range_problem`) and a mounting point
+outside the body's box (:func:`twin.plant.urdf.body_box`).
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+from twin.sensors import Dropout, LatencyChange, SensorConfig, Spikes, Stuck
+from twin.sensors.specs import DEFAULT_IMU, IMU_PRESETS, EncoderSpec, ImuSpec, TriadSpec
+
+TRIADS = ("gyro", "accel")
+
+
+def _overridden(base: TriadSpec, table: dict) -> TriadSpec:
+    given = {k: v for k, v in table.items() if v is not None}
+    return replace(base, **given) if given else base
+
+
+def true_triads(s: dict) -> tuple[TriadSpec, TriadSpec]:
+    """(gyro, accelerometer) the sensors simulate, from the validated ``[sensors]`` table ``s``."""
+    preset = IMU_PRESETS[s["imu"]]
+    return tuple(_overridden(base, s[t]) for base, t in zip(preset, TRIADS))
+
+
+def believed_triads(s: dict) -> tuple[TriadSpec, TriadSpec]:
+    """(gyro, accelerometer) the estimator believes in."""
+    b = s["believed"]
+    preset = IMU_PRESETS[b["imu"]] if b["imu"] is not None else true_triads(s)
+    return tuple(_overridden(base, b[t]) for base, t in zip(preset, TRIADS))
+
+
+def has_belief(s: dict) -> bool:
+    """True if ``[sensors.believed]`` says anything (else the estimator believes the truth)."""
+    b = s["believed"]
+    return b["imu"] is not None or any(v is not None for t in TRIADS for v in b[t].values())
+
+
+def _faults(data: dict) -> tuple:
+    out = []
+    for f in data["faults"]:
+        if f["kind"] == "latency":
+            out.append(LatencyChange(f["sensor"], f["start"], f["latency"]))
+        elif f["kind"] == "spikes":
+            out.append(Spikes(f["sensor"], f["start"], f["duration"], rate=f["rate"], magnitude=f["magnitude"]))
+        else:
+            out.append({"dropout": Dropout, "stuck": Stuck}[f["kind"]](f["sensor"], f["start"], f["duration"]))
+    return tuple(out)
+
+
+def _config(data: dict, triads) -> SensorConfig:
+    s = data["sensors"]
+    position = DEFAULT_IMU.position if s["imu_position"] is None else tuple(s["imu_position"])
+    imu = ImuSpec(gyro=triads[0], accel=triads[1], position=position, rate=s["imu_rate"], latency=s["imu_latency"])
+    return SensorConfig(imu=imu, encoders=EncoderSpec(s["encoder_counts"], s["encoder_latency"]),
+                        faults=_faults(data))
+
+
+def true_config(data: dict) -> SensorConfig | None:
+    """The sensors the twin simulates (None: ideal sensing)."""
+    if data["sensors"]["sensing"] == "ideal":
+        return None
+    return _config(data, true_triads(data["sensors"]))
+
+
+def believed_config(data: dict) -> SensorConfig | None:
+    """The sensors as the estimator believes them (None: ideal sensing); the true
+    configuration itself when ``[sensors.believed]`` is empty."""
+    s = data["sensors"]
+    if s["sensing"] == "ideal":
+        return None
+    if not has_belief(s):
+        return true_config(data)
+    return _config(data, believed_triads(s))
+
+
+def problems(data: dict, params) -> str | None:
+    """The first sensor problem as ``"key: what is wrong; allowed: ..."``, or None.
+
+    ``params``: the true plant's :class:`~twin.params.RobotParams` (its body box holds the IMU)."""
+    s = data["sensors"]
+    for where, triads in (("sensors", true_triads(s)), ("sensors.believed", believed_triads(s))):
+        for t, triad in zip(TRIADS, triads):
+            problem = triad.range_problem(s["imu_rate"])
+            if problem:
+                return f"{where}.{t}.full_scale: {problem}"
+    if s["imu_position"] is not None:
+        from twin.plant.urdf import body_box
+
+        lo, hi = body_box(params)
+        p = tuple(s["imu_position"])
+        if not all(a - 1e-12 <= v <= b + 1e-12 for v, a, b in zip(p, lo, hi)):
+            box = ", ".join(f"{c} in [{a:.4g}, {b:.4g}]" for c, a, b in zip("xyz", lo, hi))
+            return (f"sensors.imu_position: ({', '.join(f'{v:g}' for v in p)}) m is outside the robot's body; allowed: "
+                    f"a point of the body's box, {box} m (body frame, from the axle midpoint)")
+    return None
