@@ -71,3 +71,42 @@ def test_short_soak_ekf_in_the_loop_holds_balance_and_estimates():
         assert float(np.percentile(err[settled], 99.0)) <= 0.02, (name, float(err[settled].max()))
     alpha = run.signal("alpha")
     assert abs(alpha[-1] - alpha[int(np.searchsorted(t, 20.0))]) < 1e-3
+
+
+def test_consider_states_are_held_after_the_learning_window_on_both_paths():
+    """After learn_time the encoder zeros and scale factors no longer move; before it they do.
+    The compiled kernel and the Python path hold the same states."""
+    from estimation import build_estimator
+    from estimation.ekf import STATE_NAMES, _kernel
+    from twin.actuators.dc_motor import DEFAULT_MOTOR
+    from twin.bullet_loop import simulate_twin
+    from twin.controllers.cascade import build_cascade
+    from twin.controllers.lmi import design_balance_gains
+    from twin.experiments import Experiment
+    from twin.params import NOMINAL
+    from twin.sensors import SensorConfig
+
+    e = Experiment("hold", "balance from 0.3 rad", theta0=0.3, duration=4.0)
+    ctrl = build_cascade("it2", design_balance_gains(), e.targets)
+    held = [STATE_NAMES.index(n) for n in ("encoder_zero", "gyro_scale_y", "accel_scale_x")]
+    for compiled in ((False, True) if _kernel is not None else (False,)):
+        est = build_estimator("ekf", SensorConfig(), 200.0, DEFAULT_MOTOR, NOMINAL, compiled=compiled,
+                              learn_time=2.0)
+        run = simulate_twin(ctrl, e, sensors=SensorConfig(), seed=0, estimator=est, log_filter=True)
+        x, t = run.filter_log["x"], run.t
+        early = (t > 0.2) & (t < 1.9)
+        late = t > 2.1
+        assert np.ptp(x[early][:, held], axis=0).min() > 0.0, compiled  # learned while the window lasts
+        assert np.ptp(x[late][:, held], axis=0).max() == 0.0, compiled  # held from then on
+
+
+@pytest.mark.parametrize("params, match", [({"consider": ["foo"]}, "consider must be a list of state names"),
+                                           ({"consider": "theta"}, "consider must be a list"),
+                                           ({"learn_time": -1.0}, "learn_time must be a finite time")])
+def test_bad_consider_parameters_are_one_line_errors(params, match):
+    from estimation import build_estimator
+    from twin.params import NOMINAL
+    from twin.sensors import SensorConfig
+
+    with pytest.raises(TwinError, match=match):
+        build_estimator("ekf", SensorConfig(), 200.0, None, NOMINAL, **params)
