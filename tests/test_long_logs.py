@@ -237,3 +237,25 @@ def test_measurements_are_arrays_with_nan_where_nothing_arrived(design):
     assert log[10:20] == items[10:20] and log[10:20] != items[11:21]
     with pytest.raises(IndexError):
         log[len(log)]
+
+
+@pytest.mark.parametrize("chunk", [50, 64])
+def test_chunk_boundaries_change_nothing(design, monkeypatch, chunk):
+    """The log moves into its arrays every CHUNK steps; chunks that do not line up with N (50)
+    or do (64 with N = 8) give the same arrays as one chunk for the whole run."""
+    import twin.bullet_loop as bl
+
+    exp = Experiment("balance", "", theta0=0.2, p_d=0.3, duration=1.5)
+    sensors = SensorConfig(imu=ImuSpec(rate=100.0, latency=0.01))
+
+    def run(n):
+        return simulate_twin(build_cascade("it2", design, exp.targets), exp, sensors=sensors, seed=2, log_every=n)
+
+    whole = run(1)  # 301 steps, less than one default chunk
+    monkeypatch.setattr(bl, "CHUNK", chunk)
+    for n in (1, 7, 8):
+        r = run(n)
+        for name in ("truth", "estimates", "commands", "actuation", "push", "gyro_bias"):
+            np.testing.assert_array_equal(getattr(r, name), getattr(whole, name)[::n], err_msg=f"{name}, N = {n}")
+        assert r.measurements == list(whole.measurements)[::n]
+        assert run_metrics(r) == run_metrics(whole)
