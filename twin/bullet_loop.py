@@ -106,9 +106,8 @@ def simulate_twin(controller, experiment: Experiment, config: TwinConfig | None 
     n_rows = n_ctrl + 1
     names = ("ul_cmd", "ur_cmd") + loop.signals
     log = _Log(n_rows, every, len(names), measured=not ideal, with_truth=bool(getattr(filt, "reads_truth", False)))
-    truth, est, cmds, act, push, meas_log = log.truth_rows, log.est_rows, log.cmd_rows, log.act_rows, log.push_rows, \
-        log.meas_rows
-    bias_log = None if ideal else np.full((log.kept(n_rows), 3), np.nan)
+    truth, est, cmds, act, push = log.truth_rows, log.est_rows, log.cmd_rows, log.act_rows, log.push_rows
+    meas_log, bias_log = log.meas_rows, log.bias_rows
     diag = [] if log_filter else None
     n = n_rows
     flush_at = CHUNK
@@ -126,8 +125,7 @@ def simulate_twin(controller, experiment: Experiment, config: TwinConfig | None 
             truth.append(loop.truth)
             if not ideal:
                 meas_log.append(loop.measurement)
-                if loop.true_gyro_bias is not None and i % every == 0:
-                    bias_log[i // every] = loop.true_gyro_bias
+                bias_log.append(loop.true_gyro_bias)
             if diag is not None:
                 diag.append(loop.diagnostics())
             est.append(loop.estimate)
@@ -152,14 +150,14 @@ def simulate_twin(controller, experiment: Experiment, config: TwinConfig | None 
     act += [(0.0,) * len(ACTUATION_NAMES)] * (len(truth) - len(act))
     push += [(0.0,) * 3] * (len(truth) - len(push))
     log.flush()
-    k = log.kept(n)
-    truth, est, cmds, act, push = (a[:k] for a in (log.truth, log.est, log.cmds, log.act, log.push))
+    rows = log.kept(n)
+    truth, est, cmds, act, push = (a[:rows] for a in (log.truth, log.est, log.cmds, log.act, log.push))
     t = truth[:, 0].copy()
     units = {**COMMAND_UNITS, **getattr(controller, "signal_units", {})}
     return Run(t, truth, cmds, act, push, status, reason, config, experiment, controller_name,
-                   estimates=est, sensing=sensing, measurements=[] if ideal else log.meas[:k],
+                   estimates=est, sensing=sensing, measurements=[] if ideal else log.meas[:rows],
                    estimator_stats=stats, sensor_counts=sensor_counts,
-                   gyro_bias=None if ideal else bias_log[:k], filter_log=_filter_log(diag, n),
+                   gyro_bias=None if ideal else log.bias[:rows], filter_log=_filter_log(diag, n),
                    seed=None if ideal else int(seed), sensor_truth=sensor_truth, sensor_config=sensors,
                    model_params=model_params, command_names=names,
                    command_units=tuple(units.get(k, "1") for k in names), log_every=every,
@@ -179,8 +177,9 @@ class _Log:
     The loop appends each control step's tuples to the ``*_rows`` lists; :meth:`flush`
     moves every ``every``-th step of them (steps 0, N, 2N, …) into the arrays and empties
     the lists. With ``every`` > 1, :data:`FULL_RATE_NAMES` are also copied at every step
-    into ``full`` (the metrics' signals); the arrays are allocated for the whole run, but
-    only the rows written take memory.
+    into ``full`` (the metrics' signals). The arrays are allocated (``np.empty``) for the
+    whole run, but only the rows written take memory: a run that falls early costs what it
+    logged.
     """
 
     def __init__(self, n_rows: int, every: int, n_commands: int, measured: bool, with_truth: bool):
@@ -192,9 +191,10 @@ class _Log:
         self.act = np.empty((k, len(ACTUATION_NAMES)))
         self.push = np.empty((k, len(PUSH_NAMES)))
         self.meas = MeasurementLog.empty(k, with_truth) if measured else None
+        self.bias = np.empty((k, 3)) if measured else None  # the gyro's true bias, NaN on steps without a sample
         self.full = {name: np.empty(n_rows) for name in FULL_RATE_NAMES} if every > 1 else None
-        self.truth_rows, self.est_rows, self.cmd_rows, self.act_rows, self.push_rows, self.meas_rows = \
-            [], [], [], [], [], []
+        self.truth_rows, self.est_rows, self.cmd_rows, self.act_rows, self.push_rows = [], [], [], [], []
+        self.meas_rows, self.bias_rows = [], []
         self.start = 0  # the control step of the lists' first row
 
     def kept(self, steps: int) -> int:
@@ -220,6 +220,11 @@ class _Log:
         self.push[r0:r1] = np.array(self.push_rows[pick], dtype=float).reshape(r1 - r0, len(PUSH_NAMES))
         if self.meas is not None:
             self.meas.put(r0, self.meas_rows[pick])
+            bias = self.bias_rows[pick]
+            self.bias[r0:r1] = np.nan
+            where = [j for j, b in enumerate(bias) if b is not None]
+            if where:
+                self.bias[r0 + np.array(where)] = [bias[j] for j in where]
         if self.full is not None:
             rows = slice(s, s + m)
             f = self.full
@@ -230,7 +235,8 @@ class _Log:
             f["theta_est"][rows] = est[:, ESTIMATE_NAMES.index("theta_est")]
             f["torque_l"][rows] = act[:, ACTUATION_NAMES.index("torque_l")]
             f["torque_r"][rows] = act[:, ACTUATION_NAMES.index("torque_r")]
-        for rows in (self.truth_rows, self.est_rows, self.cmd_rows, self.act_rows, self.push_rows, self.meas_rows):
+        for rows in (self.truth_rows, self.est_rows, self.cmd_rows, self.act_rows, self.push_rows, self.meas_rows,
+                     self.bias_rows):
             rows.clear()
         self.start = s + m
 

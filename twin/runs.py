@@ -63,11 +63,11 @@ class MeasurementLog(Sequence):
 
     @classmethod
     def empty(cls, n: int, with_truth: bool = False) -> "MeasurementLog":
-        """A log of ``n`` steps to fill in (NaN, nothing arrived)."""
-        nan = np.nan
-        return cls(np.full(n, nan), np.full((n, 3), nan), np.full((n, 3), nan), np.full((n, 2), nan),
+        """A log of ``n`` steps to fill in with :meth:`put` (allocated, not yet written: a row
+        takes memory once it is put)."""
+        return cls(np.empty(n), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 2)),
                    np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool),
-                   np.full((n, len(TRUTH_NAMES)), nan) if with_truth else None)
+                   np.empty((n, len(TRUTH_NAMES))) if with_truth else None)
 
     def put(self, start: int, measurements) -> None:
         """Store ``measurements`` (Measurement objects) at rows ``start``, ``start`` + 1, …"""
@@ -78,6 +78,8 @@ class MeasurementLog(Sequence):
                                   ("encoders", self.encoders, self.has_encoders)):
             got = [getattr(x, name) for x in m]
             where = [j for j, v in enumerate(got) if v is not None]
+            values[rows] = np.nan
+            has[rows] = False
             if where:
                 values[start + np.array(where)] = [got[j] for j in where]
                 has[start + np.array(where)] = True
