@@ -15,6 +15,7 @@ depend on N.
 from __future__ import annotations
 
 import math
+import operator
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -106,7 +107,7 @@ class MeasurementLog(Sequence):
                 self.t, self.gyro, self.accel, self.encoders, self.has_gyro, self.has_accel, self.has_encoders,
                 self.truth)))
         n = len(self)
-        i = i.__index__()
+        i = operator.index(i)
         if i < 0:
             i += n
         if not 0 <= i < n:
