@@ -167,6 +167,9 @@ def test_cli_log_every_and_gz(tmp_path):
     assert not (tmp_path / "trajectory.csv").exists()
     head, rows = _rows(tmp_path / "trajectory.csv.gz")
     assert len(rows) == 51 and json.loads((tmp_path / "metrics.json").read_text())["log"]["every"] == 4
+    r = twin("run", "paper-exp2", "--duration", "1.01", "--controller", "it2", "--no-video", "--out",
+             str(tmp_path / "b"), "--log-every", "4")  # 203 steps: the last written is t = 1.0 s, the last 1.01 s
+    assert r.returncode == 0 and "simulated 1.01 s in" in r.stdout, r.stdout
 
 
 # ---- the Python API ----------------------------------------------------------------------------

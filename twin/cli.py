@@ -307,7 +307,7 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample, log
         if result.metrics[c]["fell"]:
             click.echo(f"  {label(c)}: {result.metrics[c]['status']}: {result.metrics[c]['end_reason']}")
     t = result.timings
-    sim = sum(float(r.t[-1]) for r in result.runs)
+    sim = sum(float(r.full_signal("t")[-1]) for r in result.runs)  # the last step simulated, logged or not
     wall = sum(v for k, v in t.items() if k.startswith("run_"))
     click.echo(f"  simulated {sim:g} s in {wall:.2f} s (real-time factor {sim / max(wall, 1e-9):.0f})"
                + (f"; video {result.video.frames} frames in {t['video_s']:.1f} s ({result.video.codec}, "
