@@ -6,7 +6,11 @@ simulated IMU and encoders (:mod:`twin.sensors`, :mod:`estimation`); ``sensors=N
 asks for ideal sensing (the ``ideal`` estimator passes the ground truth through), kept
 as a reference.
 
-Logged at the control rate, one row per control instant (see :mod:`twin.runs`).
+Logged at the control rate, one row per control instant (see :mod:`twin.runs`), or at
+every N-th instant (``log_every``). Memory: the rows are gathered as tuples (the cheapest
+thing to append in the loop) for a chunk of :data:`CHUNK` control steps at a time, then
+moved into preallocated float64 arrays, so a run costs about 8 bytes per logged number
+(some 0.27 GB per simulated hour at 200 Hz with sensors, every step logged).
 """
 from __future__ import annotations
 
@@ -18,9 +22,11 @@ from twin.errors import TwinError
 from twin.experiments import Experiment
 from twin.params import NOMINAL, RobotParams
 from twin.plant.bullet import TwinConfig
-from twin.runs import (ACTUATION_NAMES, COMMAND_NAMES, COMMAND_UNITS, ESTIMATE_NAMES, ESTIMATE_UNITS, PUSH_NAMES,
-                       PUSH_UNITS, TRUTH_NAMES, Run, TwinRun)
-from twin.sensors import Measurement, SensorConfig
+from twin.runs import (ACTUATION_NAMES, COMMAND_NAMES, COMMAND_UNITS, ESTIMATE_NAMES, ESTIMATE_UNITS,
+                       FULL_RATE_NAMES, PUSH_NAMES, PUSH_UNITS, TRUTH_NAMES, MeasurementLog, Run, TwinRun)
+from twin.sensors import SensorConfig
+
+CHUNK = 4096  # control steps gathered as tuples before they move into the log's arrays
 
 __all__ = ["ACTUATION_NAMES", "COMMAND_NAMES", "COMMAND_UNITS", "ESTIMATE_NAMES", "ESTIMATE_UNITS", "PUSH_NAMES",
            "PUSH_UNITS", "Run", "TRUTH_NAMES", "TwinRun", "simulate_twin"]
@@ -30,7 +36,7 @@ def simulate_twin(controller, experiment: Experiment, config: TwinConfig | None 
                   duration: float | None = None, controller_name: str = "", alpha0: float = 0.0,
                   position=(0.0, 0.0), sensors: SensorConfig | None = SensorConfig(), estimator="ekf",
                   seed: int = 0, model_params: RobotParams = NOMINAL, log_filter: bool = False,
-                  progress=None, estimator_params: dict | None = None) -> Run:
+                  progress=None, estimator_params: dict | None = None, log_every: int = 1) -> Run:
     """Run ``controller`` on a new twin built from ``config`` from the experiment's θ0.
 
     A driver of :class:`twin.loop.ClosedLoop`: reset, then the controller's command and a
@@ -56,6 +62,11 @@ def simulate_twin(controller, experiment: Experiment, config: TwinConfig | None 
         covariance and NIS, ``filter_log``).
     progress : callable or None
         ``progress(steps_done, steps_total)``, called once per simulated second and at the end.
+    log_every : int
+        Log every N-th control step (N ≥ 1): row i of the run is step i·N (t = i·N·T); the
+        other steps are not kept. The signals the metrics read are kept at every step
+        (``Run.full_rate``), so :func:`twin.metrics.run_metrics` gives the same figures for
+        every N. N > 1 excludes ``log_filter`` (the EKF's consistency checks need every step).
 
     The twin is closed when the run ends, fallen or not.
     """
@@ -73,6 +84,10 @@ def simulate_twin(controller, experiment: Experiment, config: TwinConfig | None 
         sensors.steps(config.control_rate)  # rates and latencies fit the control period: check before building
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise TwinError(f"seed must be a non-negative integer, got {seed!r}")
+    every = check_log_every(log_every)
+    if every > 1 and log_filter:
+        raise TwinError(f"log_filter needs every control step (the filter's lagged states are matched to the truth "
+                        f"step by step), so log_every must be 1 with it, got {log_every!r}")
     ideal = sensors is None
     if ideal and not (estimator in ("ekf", "ideal") if isinstance(estimator, str)
                       else getattr(estimator, "reads_truth", False)):
@@ -89,12 +104,13 @@ def simulate_twin(controller, experiment: Experiment, config: TwinConfig | None 
     n_ctrl = int(round(duration / control_dt))
     report_every = max(1, int(round(config.control_rate)))
     n_rows = n_ctrl + 1
-    # rows collected as tuples (cheaper per step than writing numpy rows), stacked at the end
-    truth, est, cmds, act, push = [], [], [], [], []
-    meas_log: list[Measurement] = []
-    bias_log = None if ideal else np.full((n_rows, 3), np.nan)
+    names = ("ul_cmd", "ur_cmd") + loop.signals
+    log = _Log(n_rows, every, len(names), measured=not ideal, with_truth=bool(getattr(filt, "reads_truth", False)))
+    truth, est, cmds, act, push = log.truth_rows, log.est_rows, log.cmd_rows, log.act_rows, log.push_rows
+    meas_log, bias_log = log.meas_rows, log.bias_rows
     diag = [] if log_filter else None
     n = n_rows
+    flush_at = CHUNK
     with loop:
         loop.reset(seed)
         twin = loop.twin  # read directly below: this loop runs once per control period
@@ -103,11 +119,13 @@ def simulate_twin(controller, experiment: Experiment, config: TwinConfig | None 
             if twin.status == "diverged":
                 n = i  # the non-finite state is not logged: the log ends with the last finite one
                 break
+            if i == flush_at:
+                log.flush()
+                flush_at += CHUNK
             truth.append(loop.truth)
             if not ideal:
                 meas_log.append(loop.measurement)
-                if loop.true_gyro_bias is not None:
-                    bias_log[i] = loop.true_gyro_bias
+                bias_log.append(loop.true_gyro_bias)
             if diag is not None:
                 diag.append(loop.diagnostics())
             est.append(loop.estimate)
@@ -128,23 +146,99 @@ def simulate_twin(controller, experiment: Experiment, config: TwinConfig | None 
         sensor_truth = {} if ideal else loop.suite.truth()
         if progress is not None:
             progress(n_ctrl, n_ctrl)
-    names = ("ul_cmd", "ur_cmd") + loop.signals
-    truth = np.array(truth[:n], dtype=float).reshape(n, len(TRUTH_NAMES))
-    est = np.array(est[:n], dtype=float).reshape(n, len(ESTIMATE_NAMES))
-    cmds = np.array(cmds[:n], dtype=float).reshape(n, len(names))
     # the last row's actuation is zero: nothing was applied after it
-    act = np.array(act[:n] + [(0.0,) * len(ACTUATION_NAMES)] * (n - len(act[:n])), dtype=float).reshape(
-        n, len(ACTUATION_NAMES))
-    push = np.array(push[:n] + [(0.0,) * 3] * (n - len(push[:n])), dtype=float).reshape(n, 3)
+    act += [(0.0,) * len(ACTUATION_NAMES)] * (len(truth) - len(act))
+    push += [(0.0,) * 3] * (len(truth) - len(push))
+    log.flush()
+    rows = log.kept(n)
+    truth, est, cmds, act, push = (a[:rows] for a in (log.truth, log.est, log.cmds, log.act, log.push))
     t = truth[:, 0].copy()
     units = {**COMMAND_UNITS, **getattr(controller, "signal_units", {})}
     return Run(t, truth, cmds, act, push, status, reason, config, experiment, controller_name,
-                   estimates=est, sensing=sensing, measurements=meas_log[:n],
+                   estimates=est, sensing=sensing, measurements=[] if ideal else log.meas[:rows],
                    estimator_stats=stats, sensor_counts=sensor_counts,
-                   gyro_bias=None if ideal else bias_log[:n], filter_log=_filter_log(diag, n),
+                   gyro_bias=None if ideal else log.bias[:rows], filter_log=_filter_log(diag, n),
                    seed=None if ideal else int(seed), sensor_truth=sensor_truth, sensor_config=sensors,
                    model_params=model_params, command_names=names,
-                   command_units=tuple(units.get(k, "1") for k in names))
+                   command_units=tuple(units.get(k, "1") for k in names), log_every=every,
+                   full_rate=None if log.full is None else {name: a[:n] for name, a in log.full.items()})
+
+
+def check_log_every(value) -> int:
+    """``log_every`` as an int, or a TwinError naming what is allowed."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise TwinError(f"log_every must be a whole number of control steps ≥ 1 (1: log every step), got {value!r}")
+    return int(value)
+
+
+class _Log:
+    """A run's log in preallocated float64 arrays, filled a chunk at a time.
+
+    The loop appends each control step's tuples to the ``*_rows`` lists; :meth:`flush`
+    moves every ``every``-th step of them (steps 0, N, 2N, …) into the arrays and empties
+    the lists. With ``every`` > 1, :data:`FULL_RATE_NAMES` are also copied at every step
+    into ``full`` (the metrics' signals). The arrays are allocated (``np.empty``) for the
+    whole run, but only the rows written take memory: a run that falls early costs what it
+    logged.
+    """
+
+    def __init__(self, n_rows: int, every: int, n_commands: int, measured: bool, with_truth: bool):
+        self.every = every
+        k = self.kept(n_rows)
+        self.truth = np.empty((k, len(TRUTH_NAMES)))
+        self.est = np.empty((k, len(ESTIMATE_NAMES)))
+        self.cmds = np.empty((k, n_commands))
+        self.act = np.empty((k, len(ACTUATION_NAMES)))
+        self.push = np.empty((k, len(PUSH_NAMES)))
+        self.meas = MeasurementLog.empty(k, with_truth) if measured else None
+        self.bias = np.empty((k, 3)) if measured else None  # the gyro's true bias, NaN on steps without a sample
+        self.full = {name: np.empty(n_rows) for name in FULL_RATE_NAMES} if every > 1 else None
+        self.truth_rows, self.est_rows, self.cmd_rows, self.act_rows, self.push_rows = [], [], [], [], []
+        self.meas_rows, self.bias_rows = [], []
+        self.start = 0  # the control step of the lists' first row
+
+    def kept(self, steps: int) -> int:
+        """Rows logged out of the first ``steps`` control steps."""
+        return (steps + self.every - 1) // self.every
+
+    def flush(self) -> None:
+        m = len(self.truth_rows)
+        if not m:
+            return
+        s, every = self.start, self.every
+        first = (-s) % every  # the lists' first row that is a logged step
+        r0 = (s + first) // every
+        r1 = r0 + len(range(first, m, every))
+        pick = slice(first, m, every)
+        truth = np.array(self.truth_rows, dtype=float).reshape(m, len(TRUTH_NAMES))
+        est = np.array(self.est_rows, dtype=float).reshape(m, len(ESTIMATE_NAMES))
+        act = np.array(self.act_rows, dtype=float).reshape(m, len(ACTUATION_NAMES))
+        self.truth[r0:r1] = truth[pick]
+        self.est[r0:r1] = est[pick]
+        self.act[r0:r1] = act[pick]
+        self.cmds[r0:r1] = np.array(self.cmd_rows[pick], dtype=float).reshape(r1 - r0, self.cmds.shape[1])
+        self.push[r0:r1] = np.array(self.push_rows[pick], dtype=float).reshape(r1 - r0, len(PUSH_NAMES))
+        if self.meas is not None:
+            self.meas.put(r0, self.meas_rows[pick])
+            bias = self.bias_rows[pick]
+            self.bias[r0:r1] = np.nan
+            where = [j for j, b in enumerate(bias) if b is not None]
+            if where:
+                self.bias[r0 + np.array(where)] = [bias[j] for j in where]
+        if self.full is not None:
+            rows = slice(s, s + m)
+            f = self.full
+            f["t"][rows] = truth[:, TRUTH_NAMES.index("t")]
+            f["theta"][rows] = truth[:, TRUTH_NAMES.index("theta")]
+            f["distance"][rows] = truth[:, TRUTH_NAMES.index("distance")]
+            f["alpha"][rows] = truth[:, TRUTH_NAMES.index("alpha")]
+            f["theta_est"][rows] = est[:, ESTIMATE_NAMES.index("theta_est")]
+            f["torque_l"][rows] = act[:, ACTUATION_NAMES.index("torque_l")]
+            f["torque_r"][rows] = act[:, ACTUATION_NAMES.index("torque_r")]
+        for rows in (self.truth_rows, self.est_rows, self.cmd_rows, self.act_rows, self.push_rows, self.meas_rows,
+                     self.bias_rows):
+            rows.clear()
+        self.start = s + m
 
 
 def _filter_log(diag: list | None, n: int) -> dict | None:

@@ -252,12 +252,18 @@ def _paper_experiment(experiment, controller, out, duration, gains_file, design_
 @click.option("--sample", type=click.IntRange(min=0), default=None, metavar="K",
               help="Replay sample K of 'twin sweep' (the 'sample' column of sweep.csv); --seed is then the "
                    "sweep's root seed, and --set/--duration must be the sweep's.")
-def run(scenario, controller, seed, duration, overrides, out, video, sample):
+@click.option("--log-every", "log_every", default="1", show_default=True, metavar="N",
+              help="Write (and keep in memory) every N-th control step of the trajectory only; the metrics are "
+                   "still computed from every step. metrics.json's 'log' says what was dropped.")
+@click.option("--log-format", "log_format", type=click.Choice(["csv", "csv.gz"]), default="csv", show_default=True,
+              help="trajectory.csv, or trajectory.csv.gz: the same text gzip-compressed (pandas.read_csv reads it).")
+def run(scenario, controller, seed, duration, overrides, out, video, sample, log_every, log_format):
     """Run a scenario on the PyBullet twin: trajectory, metrics, figure and video.
 
     SCENARIO is a built-in name (see 'twin scenarios') or a scenario .toml file. Writes
-    trajectory.csv, metrics.json, figure.png, design.json and video.mp4 into --out.
-    The same scenario and seed give identical metrics.json and trajectory.csv.
+    trajectory.csv (or trajectory.csv.gz), metrics.json, figure.png, design.json and
+    video.mp4 into --out. The same scenario and seed give identical metrics.json and
+    trajectory.csv.
 
     \b
     Examples:
@@ -268,10 +274,12 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample):
       twin run push-recovery --set pushes='[{force=[20,0,0], start=3, duration=0.1}]'
       twin run my-robot.toml --set plant.scale.m_b=1.2 --set sensors.sensing=ideal --out runs/heavy
       twin run paper-exp3 --sample 17 --seed 0 --no-video   # replay a sweep's sample 17
+      twin run paper-exp2 --duration 3600 --log-every 20 --log-format csv.gz --no-video   # an hour at 10 Hz
     """
     from twin.registry import label
     from twin.scenarios.runner import controllers_of, plugins_of, run_scenario
 
+    every = _log_every(log_every)
     sc = _load(scenario, overrides, seed, duration)
     out = out if out is not None else Path("runs") / (sc.name if sample is None else f"{sc.name}-sample{sample}")
     kinds = controllers_of(controller, sc)
@@ -286,7 +294,8 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample):
     click.echo(_title(sc))
     _echo_plugins(plugins_of(sc, kinds))
     with _Progress() as bar:
-        result = run_scenario(sc, kinds, out=out, video=video, progress=bar.update)
+        result = run_scenario(sc, kinds, out=out, video=video, progress=bar.update, log_every=every,
+                              log_format=log_format)
     keys = ("status", "settling_time_s", "theta_rms_rad", "oscillation_peak_to_peak_rad", "final_position_error_m",
             "final_heading_error_rad", "iae_theta", "control_effort", "max_abs_torque_nm", "estimator_theta_rmse_rad",
             "rejected_measurements")
@@ -298,12 +307,27 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample):
         if result.metrics[c]["fell"]:
             click.echo(f"  {label(c)}: {result.metrics[c]['status']}: {result.metrics[c]['end_reason']}")
     t = result.timings
-    sim = sum(float(r.t[-1]) for r in result.runs)
+    sim = sum(float(r.full_signal("t")[-1]) for r in result.runs)  # the last step simulated, logged or not
     wall = sum(v for k, v in t.items() if k.startswith("run_"))
     click.echo(f"  simulated {sim:g} s in {wall:.2f} s (real-time factor {sim / max(wall, 1e-9):.0f})"
                + (f"; video {result.video.frames} frames in {t['video_s']:.1f} s ({result.video.codec}, "
                   f"{result.video.renderer})" if result.video is not None else ""))
+    if every > 1:
+        n = sum(len(r.t) for r in result.runs)
+        click.echo(f"  trajectory: one control step in {every} written ({n} of "
+                   f"{sum(r.control_steps for r in result.runs)} rows); the metrics are from every step")
+    for note in result.notes:
+        click.echo(f"  note: {note}")
     click.echo(f"wrote {out}/: " + ", ".join(Path(f).name for f in result.files))
+
+
+def _log_every(text: str) -> int:
+    """--log-every as an int ≥ 1, or one line saying what is allowed."""
+    value = int(text.strip()) if re.fullmatch(r"\s*\d+\s*", text) else None
+    if value is None or value < 1:
+        raise TwinError(f"--log-every must be a whole number ≥ 1 (write every N-th control step; 1: every step), "
+                        f"got {text!r}")
+    return value
 
 
 def _check_plugins(sc, kinds) -> None:

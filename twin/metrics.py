@@ -38,14 +38,21 @@ def run_metrics(run, settle_tol: float = 0.01, tail: float = 5.0) -> dict:
     ``control_effort`` (∫(τ_l² + τ_r²) dt of the delivered torques, N²·m²·s);
     ``max_abs_torque_nm``; ``estimator_theta_rmse_rad`` (estimate against truth, whole run;
     0 with ideal sensing); ``rejected_measurements`` (the estimator's count).
+
+    Every figure is computed from every control step: a run that logs every N-th step only
+    (``run.log_every`` > 1) keeps the signals read here at every step in ``run.full_rate``.
     """
-    t = run.t
-    theta = run.signal("theta")
+    full = getattr(run, "full_rate", None)
+    if full is None:
+        t, theta, distance = run.t, run.signal("theta"), run.distance
+        alpha, tl, tr = run.signal("alpha"), run.signal("torque_l"), run.signal("torque_r")
+    else:
+        t, theta, distance, alpha, tl, tr = (full[k] for k in ("t", "theta", "distance", "alpha", "torque_l",
+                                                               "torque_r"))
     ts = settling_time(t, theta, settle_tol) if not run.fell else math.inf
     after = t >= ts - 1e-12 if math.isfinite(ts) else t >= t[-1] - tail - 1e-12
     last = t >= t[-1] - tail - 1e-12
     e = run.experiment
-    tl, tr = run.signal("torque_l"), run.signal("torque_r")
     effort = tl * tl + tr * tr
     return {
         "controller": run.controller,
@@ -58,10 +65,10 @@ def run_metrics(run, settle_tol: float = 0.01, tail: float = 5.0) -> dict:
         "theta_rms_rad": math.sqrt(exact_mean(theta[after] ** 2)),
         "oscillation_peak_to_peak_rad": float(np.ptp(theta[last])),
         "final_theta_rad": float(theta[-1]),
-        "final_distance_m": float(run.distance[-1]),
-        "final_heading_rad": float(run.signal("alpha")[-1]),
-        "final_position_error_m": None if e is None or e.p_d is None else float(run.distance[-1] - e.p_d),
-        "final_heading_error_rad": None if e is None or e.alpha_d is None else float(run.signal("alpha")[-1] - e.alpha_d),
+        "final_distance_m": float(distance[-1]),
+        "final_heading_rad": float(alpha[-1]),
+        "final_position_error_m": None if e is None or e.p_d is None else float(distance[-1] - e.p_d),
+        "final_heading_error_rad": None if e is None or e.alpha_d is None else float(alpha[-1] - e.alpha_d),
         "iae_theta": _integral(t, np.abs(theta)),
         "control_effort": _integral(t, effort),
         "max_abs_torque_nm": float(np.max(np.abs(np.concatenate([tl, tr])))),

@@ -6,10 +6,17 @@ pushes did over [t_i, t_i+1) (period means). A run that falls stops at the row w
 was detected; its last row's actuation is zero, because nothing was applied after it. A
 run that diverges (a non-finite state from the physics) stops at the last finite row: no
 NaN is logged. :func:`twin.metrics.run_metrics` gives every run's figures of merit.
+
+A long run may keep only every N-th control step (``log_every``, see
+:func:`twin.bullet_loop.simulate_twin`): row i is then control step i·N, and the few
+signals the metrics need are kept at every step in ``full_rate``, so that the metrics do not
+depend on N.
 """
 from __future__ import annotations
 
 import math
+import operator
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -19,7 +26,7 @@ from twin.experiments import Experiment
 from twin.metrics import settling_time
 from twin.params import RobotParams
 from twin.plant.bullet import ACTUATION_UNITS, TRUTH_UNITS, Actuation, GroundTruth, TwinConfig
-from twin.sensors import SensorConfig
+from twin.sensors import Measurement, SensorConfig
 
 TRUTH_NAMES = GroundTruth._fields
 ESTIMATE_NAMES = ("theta_est", "theta_dot_est", "psi_est", "psi_dot_est", "alpha_est", "alpha_dot_est")
@@ -30,6 +37,111 @@ COMMAND_UNITS = dict(ul_cmd="N·m", ur_cmd="N·m", u="N·m", theta_off="rad", u_
 ACTUATION_NAMES = Actuation._fields
 PUSH_NAMES = ("push_fx", "push_fy", "push_fz")
 PUSH_UNITS = dict(push_fx="N", push_fy="N", push_fz="N")
+# the signals twin.metrics.run_metrics reads, kept at every control step when the log keeps every N-th
+FULL_RATE_NAMES = ("t", "theta", "theta_est", "torque_l", "torque_r", "distance", "alpha")
+
+
+class MeasurementLog(Sequence):
+    """What reached the estimator at each logged step, stored as arrays: a read-only
+    sequence of :class:`twin.sensors.Measurement`, each built when it is read.
+
+    ``t`` (n,) s; ``gyro`` (n, 3) rad/s, ``accel`` (n, 3) m/s² and ``encoders`` (n, 2) rad,
+    NaN where nothing arrived at that step; ``has_gyro``, ``has_accel`` and ``has_encoders``
+    (n,) bool say where something did (so a reading is never taken for a gap); ``truth``
+    (n, 15) the ground truth attached to each measurement (``Measurement.truth``, for
+    estimators that read it), else None. ``log[i]`` is the Measurement the estimator got
+    (None for what did not arrive), ``log[a:b]`` a MeasurementLog, and a log equals another
+    log or a list holding the same Measurements.
+    """
+
+    __slots__ = ("t", "gyro", "accel", "encoders", "has_gyro", "has_accel", "has_encoders", "truth")
+    _BLOCK = 4096  # Measurements built at a time when iterating
+
+    def __init__(self, t, gyro, accel, encoders, has_gyro, has_accel, has_encoders, truth=None):
+        self.t, self.gyro, self.accel, self.encoders = t, gyro, accel, encoders
+        self.has_gyro, self.has_accel, self.has_encoders = has_gyro, has_accel, has_encoders
+        self.truth = truth
+
+    @classmethod
+    def empty(cls, n: int, with_truth: bool = False) -> "MeasurementLog":
+        """A log of ``n`` steps to fill in with :meth:`put` (allocated, not yet written: a row
+        takes memory once it is put)."""
+        return cls(np.empty(n), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 2)),
+                   np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool),
+                   np.empty((n, len(TRUTH_NAMES))) if with_truth else None)
+
+    def put(self, start: int, measurements) -> None:
+        """Store ``measurements`` (Measurement objects) at rows ``start``, ``start`` + 1, …"""
+        m = list(measurements)
+        rows = slice(start, start + len(m))
+        self.t[rows] = [x.t for x in m]
+        for name, values, has in (("gyro", self.gyro, self.has_gyro), ("accel", self.accel, self.has_accel),
+                                  ("encoders", self.encoders, self.has_encoders)):
+            got = [getattr(x, name) for x in m]
+            where = [j for j, v in enumerate(got) if v is not None]
+            values[rows] = np.nan
+            has[rows] = False
+            if where:
+                values[start + np.array(where)] = [got[j] for j in where]
+                has[start + np.array(where)] = True
+        if self.truth is not None:
+            self.truth[rows] = [x.truth for x in m]
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def _lists(self) -> tuple:
+        """The columns as Python lists (floats, bools; None for no truth), to build Measurements from."""
+        return (self.t.tolist(), self.gyro.tolist(), self.accel.tolist(), self.encoders.tolist(),
+                self.has_gyro.tolist(), self.has_accel.tolist(), self.has_encoders.tolist(),
+                None if self.truth is None else self.truth.tolist())
+
+    @staticmethod
+    def _one(j: int, t, g, a, e, hg, ha, he, tr) -> Measurement:
+        return Measurement(t[j], tuple(g[j]) if hg[j] else None, tuple(a[j]) if ha[j] else None,
+                           tuple(e[j]) if he[j] else None, None if tr is None else GroundTruth(*tr[j]))
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return MeasurementLog(*(None if v is None else v[i] for v in (
+                self.t, self.gyro, self.accel, self.encoders, self.has_gyro, self.has_accel, self.has_encoders,
+                self.truth)))
+        n = len(self)
+        i = operator.index(i)
+        if i < 0:
+            i += n
+        if not 0 <= i < n:
+            raise IndexError(f"measurement index out of range: {n} steps logged")
+        return self._one(0, *self[i:i + 1]._lists())
+
+    def __iter__(self):
+        for s in range(0, len(self), self._BLOCK):
+            cols = self[s:s + self._BLOCK]._lists()
+            for j in range(len(cols[0])):
+                yield self._one(j, *cols)
+
+    def __eq__(self, other):
+        if isinstance(other, MeasurementLog):
+            if len(self) != len(other) or (self.truth is None) != (other.truth is None):
+                return False
+            pairs = [(self.t, other.t), (self.has_gyro, other.has_gyro), (self.has_accel, other.has_accel),
+                     (self.has_encoders, other.has_encoders)]
+            if self.truth is not None:
+                pairs.append((self.truth, other.truth))
+            if not all(np.array_equal(x, y) for x, y in pairs):
+                return False
+            return all(np.array_equal(x[h], y[h]) for x, y, h in ((self.gyro, other.gyro, self.has_gyro),
+                                                                  (self.accel, other.accel, self.has_accel),
+                                                                  (self.encoders, other.encoders, self.has_encoders)))
+        if isinstance(other, (list, tuple)):
+            return len(self) == len(other) and all(a == b for a, b in zip(self, other))
+        return NotImplemented
+
+    __hash__ = None
+
+    def __repr__(self) -> str:
+        return (f"MeasurementLog({len(self)} steps, gyro {int(self.has_gyro.sum())}, accel {int(self.has_accel.sum())}, "
+                f"encoders {int(self.has_encoders.sum())} arrived)")
 
 
 @dataclass
@@ -46,7 +158,7 @@ class Run:
     (:data:`COMMAND_NAMES` for the fuzzy cascade and LQR); ``actuation`` (n, 6) :data:`ACTUATION_NAMES`; ``push`` (n, 3)
     N, world frame. ``status`` is "ok" (ran its duration), "fell" or "diverged".
     ``sensing`` is "ideal" or the estimator's name; ``measurements`` what reached the
-    estimator at each step; ``estimator_stats`` its counts (rejected measurements,
+    estimator at each step (a :class:`MeasurementLog`; an empty list with ideal sensing); ``estimator_stats`` its counts (rejected measurements,
     resets, events); ``gyro_bias`` (n, 3) rad/s the gyro's true bias in the sample taken
     at each step (NaN without one); ``sensor_truth`` the sensors' drawn constants (scale
     factors, turn-on biases, encoder phases); ``sensor_config`` and ``model_params`` what the
@@ -54,6 +166,12 @@ class Run:
     filter's own state ``x`` (n, 12) and covariance ``P`` (n, 12, 12) at t_{i − lag} (see
     :mod:`estimation.ekf`), and the encoder update's ``nis`` (n,) (NaN where none was tried) with its degrees of freedom
     ``nis_dof`` (n,) (the number of wheels whose count changed; 0 where none was tried).
+
+    ``log_every`` N: row i is control step i·N (1: every step is logged). With N > 1 every
+    per-row attribute above holds those rows only (so replaying the estimator on
+    ``measurements`` needs N = 1), and ``full_rate`` holds :data:`FULL_RATE_NAMES` (t, θ,
+    the θ estimate, both delivered torques, distance, α) at every control step, which the
+    metrics read (:meth:`full_signal`); None when N = 1.
     """
 
     t: np.ndarray
@@ -80,6 +198,8 @@ class Run:
     command_names: tuple = COMMAND_NAMES
     command_units: tuple = tuple(COMMAND_UNITS[k] for k in COMMAND_NAMES)
     plant: str = "twin"
+    log_every: int = 1
+    full_rate: dict | None = field(default=None, repr=False)
 
     @property
     def fell(self) -> bool:
@@ -115,18 +235,47 @@ class Run:
         """(names, units, data (n, k)) of everything logged, for CSV files."""
         names = list(self.signal_names())
         units = [self.signal_units()[n] for n in names]
-        return names, units, np.column_stack([self.truth, self.estimates, self.commands, self.actuation, self.push])
+        return names, units, np.column_stack(self._blocks())
+
+    def _blocks(self) -> list:
+        return [self.truth, self.estimates, self.commands, self.actuation, self.push]
+
+    def column_chunks(self, rows: int = 4096):
+        """The data of :meth:`columns`, ``rows`` rows at a time (arrays (≤ rows, k)): the same
+        values without a copy of the whole log."""
+        blocks = self._blocks()
+        for s in range(0, len(self.t), rows):
+            yield np.column_stack([b[s:s + rows] for b in blocks])
+
+    @property
+    def control_steps(self) -> int:
+        """Control instants simulated (rows of the log at every step; ``len(t)`` when N = 1)."""
+        return len(self.full_rate["t"]) if self.full_rate is not None else len(self.t)
+
+    def full_signal(self, name: str) -> np.ndarray:
+        """Signal ``name`` ("t" or a logged signal) at every control step: from ``full_rate``
+        when the log keeps every N-th step (only :data:`FULL_RATE_NAMES` are there), else the log."""
+        if self.full_rate is None:
+            return self.t if name == "t" else self.signal(name)
+        if name not in self.full_rate:
+            raise TwinError(f"{name!r} was logged at one control step in {self.log_every} only; kept at every "
+                            f"step: {', '.join(self.full_rate)}")
+        return self.full_rate[name]
 
     def settling_time(self, tol: float = 0.01) -> float:
-        """First time (s) after which |θ| stays below ``tol`` rad; inf if it never does or fell."""
+        """First time (s) after which |θ| stays below ``tol`` rad; inf if it never does or fell.
+        From every control step, whatever ``log_every``."""
         if self.fell:
             return math.inf
-        return settling_time(self.t, self.signal("theta"), tol)
+        return settling_time(self.full_signal("t"), self.full_signal("theta"), tol)
 
     def estimation_rmse(self, name: str = "theta", start: float = 0.0) -> float:
-        """RMS of (estimate − truth) of ``name`` (θ, θ̇, ψ, ψ̇, α or α̇) from ``start`` s on."""
-        keep = self.t >= start - 1e-9
-        err = self.signal(name + "_est")[keep] - self.signal(name)[keep]
+        """RMS of (estimate − truth) of ``name`` (θ, θ̇, ψ, ψ̇, α or α̇) from ``start`` s on: over
+        every control step for θ (and for all when ``log_every`` is 1), else over the logged rows."""
+        full = self.full_rate is None or (name in self.full_rate and name + "_est" in self.full_rate)
+        get, t = (self.full_signal, self.full_signal("t")) if full else (self.signal, self.t)
+        keep = t >= start - 1e-9
+        err = get(name + "_est")[keep] - get(name)[keep]
         from twin.metrics import exact_mean
 
         return math.sqrt(exact_mean(err * err)) if err.size else math.nan

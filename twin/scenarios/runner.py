@@ -4,9 +4,13 @@ Outputs in the run directory:
 
 - ``trajectory.csv``: one row per control step and controller (``controller`` column
   first), every logged signal with its unit in the header: time, ground truth, the
-  estimates the controllers acted on, commands, torques delivered, pushes;
+  estimates the controllers acted on, commands, torques delivered, pushes. With
+  ``log_every`` N > 1, one row per N control steps; with ``log_format="csv.gz"`` the same
+  text gzip-compressed, as ``trajectory.csv.gz``;
 - ``metrics.json``: the scenario (complete, defaults filled in), the seed, and one
-  object per controller run (:func:`twin.metrics.run_metrics`);
+  object per controller run (:func:`twin.metrics.run_metrics`, always from every control
+  step); when the trajectory is decimated or compressed, a ``log`` object says so (which
+  rows were written, how many of how many, the file);
 - ``figure.png``: θ, torque, dψ/dt, distance and α over time (the paper's Figs. 6–8),
   the controllers overlaid;
 - ``video.mp4``: offscreen rendering, the controllers side by side (optional);
@@ -18,12 +22,16 @@ Nothing here depends on the wall clock: the same scenario and seed give byte-ide
 from __future__ import annotations
 
 import csv
+import gzip
+import io
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from twin.errors import TwinError
 from twin.scenarios.scenario import Scenario
+
+LOG_FORMATS = ("csv", "csv.gz")  # trajectory.csv, or the same text gzip-compressed
 
 
 @dataclass
@@ -39,6 +47,7 @@ class ScenarioResult:
     video: object = None
     plugins: list = field(default_factory=list)
     design: object = None
+    notes: list = field(default_factory=list)
 
 
 def controllers_of(choice: str | None, scenario: Scenario | None = None) -> tuple[str, ...]:
@@ -61,21 +70,26 @@ def plugins_of(scenario: Scenario, controllers) -> list[dict]:
 
 
 def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, video: bool | None = None,
-                 progress=None) -> ScenarioResult:
+                 progress=None, log_every: int = 1, log_format: str = "csv") -> ScenarioResult:
     """Run ``scenario`` with each of ``controllers`` (kinds; None: the scenario's
     ``controller.kinds``) on identical conditions: same true plant, sensor seed,
     estimator kind, pushes and faults.
 
     ``out``: the run directory (None: write nothing); ``video``: render the MP4 (None: as the
-    scenario says); ``progress(stage, done, total)``: called as the runs and the video advance.
-    Nothing is written unless every run finished (a run that falls is a result; a plugin
-    that breaks its contract is an error).
+    scenario says); ``progress(stage, done, total)``: called as the runs and the video advance;
+    ``log_every`` N: keep and write every N-th control step only (the metrics still come
+    from every step; see :func:`twin.bullet_loop.simulate_twin`); ``log_format``: "csv"
+    (trajectory.csv) or "csv.gz" (trajectory.csv.gz, gzip). Nothing is written unless every
+    run finished (a run that falls is a result; a plugin that breaks its contract is an error).
     """
-    from twin.bullet_loop import simulate_twin
+    from twin.bullet_loop import check_log_every, simulate_twin
     from twin.metrics import run_metrics
 
     from twin.registry import check_kinds, parse_controllers
 
+    every = check_log_every(log_every)
+    if log_format not in LOG_FORMATS:
+        raise TwinError(f"log_format must be one of {', '.join(LOG_FORMATS)}, got {log_format!r}")
     if isinstance(controllers, str):
         kinds = parse_controllers(controllers)
     else:
@@ -105,7 +119,7 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
         run = simulate_twin(controller, exp, config, duration=scenario.duration, controller_name=kind,
                             alpha0=d["initial"]["alpha"], position=(d["initial"]["x"], d["initial"]["y"]),
                             sensors=sensors, estimator=scenario.build_estimator(context), seed=scenario.seed,
-                            model_params=context.model, progress=cb)
+                            model_params=context.model, progress=cb, log_every=every)
         run.sensing = scenario.estimator
         timings[f"run_{kind}_s"] = time.perf_counter() - t0
         runs.append(run)
@@ -121,7 +135,13 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
     doc = {"scenario": scenario.record(), "source": scenario.source, "seed": scenario.seed, "runs": metrics}
     if plugins:
         doc["plugins"] = plugins
-    result.files += [report.write_json(doc, out / "metrics.json"), write_trajectories_csv(runs, out / "trajectory.csv")]
+    name = "trajectory." + log_format
+    if every > 1 or log_format != "csv":  # at the defaults metrics.json stays as it always was
+        doc["log"] = log_record(runs, every, log_format, name)
+    result.files += [report.write_json(doc, out / "metrics.json"), write_trajectories_csv(runs, out / name)]
+    for other in LOG_FORMATS:  # an earlier run's trajectory in the other format would not show these runs
+        if other != log_format:
+            (out / f"trajectory.{other}").unlink(missing_ok=True)
     if solved:
         result.files.append(report.write_json(solved[0].to_json_dict(), out / "design.json"))
     else:
@@ -133,6 +153,10 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
         from twin.render import render_video
 
         v = d["video"]
+        rate = config.control_rate / every
+        if rate < v["fps"]:
+            result.notes.append(f"the video interpolates the trajectory logged at {rate:g} Hz (--log-every {every}) "
+                                f"to {v['fps']} frames/s: motion between logged rows is drawn as straight lines")
         cb = None if progress is None else (lambda done, total: progress("video", done, total))
         t0 = time.perf_counter()
         result.video = render_video(runs, out / "video.mp4", fps=v["fps"], size=(v["width"], v["height"]), progress=cb)
@@ -143,24 +167,51 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
     return result
 
 
+def log_record(runs, every: int, log_format: str, name: str) -> dict:
+    """metrics.json's ``log`` object: which rows of each run the trajectory file holds."""
+    period = 1.0 / runs[0].config.control_rate if runs and runs[0].config is not None else None
+    simulated = {r.controller: r.control_steps for r in runs}
+    written = {r.controller: len(r.t) for r in runs}
+    if every == 1:
+        dropped = "nothing: every control step is written"
+    else:
+        grid = f"t = k·{every * period:g} s" if period is not None else f"control steps k·{every}"
+        dropped = (f"one control step in {every} is written and kept ({grid}: steps 0, {every}, "
+                   f"{2 * every}, …), so a run's last step is in the file only if it lies on that grid; the "
+                   f"metrics in 'runs' are computed from every control step; the figure (and the video) show the "
+                   f"written rows")
+    return {"file": name, "format": log_format, "every": every, "control_period_s": period, "log_period_s": None if period is None else every * period,
+            "rows_simulated": simulated, "rows_written": written, "dropped": dropped}
+
+
 def write_trajectories_csv(runs, path: Path) -> Path:
-    """Every logged signal of every run, one row per control step, units in the header.
+    """Every logged signal of every run, one row per logged control step, units in the header;
+    gzip-compressed if ``path`` ends in ``.gz`` (reproducible: no time stamp in the header).
 
     Controllers may log different extra signals: the columns are their union, in the order
-    first met, and a run leaves the columns it does not log empty."""
+    first met, and a run leaves the columns it does not log empty. Written a block of rows at a
+    time: no copy of a whole log is made."""
     names, units = [], []
     for run in runs:
-        for n, u in zip(*run.columns()[:2]):
+        for n in run.signal_names():
             if n not in names:
                 names.append(n)
-                units.append(u)
+                units.append(run.signal_units()[n])
+    path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh)
-        w.writerow(["controller"] + [f"{n} [{u}]" for n, u in zip(names, units)])
-        for run in runs:
-            own, _, data = run.columns()
-            where = [own.index(n) if n in own else None for n in names]
-            for row in data:
-                w.writerow([run.controller] + ["" if j is None else repr(float(row[j])) for j in where])
+    with open(path, "wb") as raw:
+        gz = (gzip.GzipFile(filename=path.name[:-3], mode="wb", fileobj=raw, mtime=0, compresslevel=6)
+              if path.suffix == ".gz" else None)
+        fh = io.TextIOWrapper(gz if gz is not None else raw, encoding="utf-8", newline="")
+        try:
+            w = csv.writer(fh)
+            w.writerow(["controller"] + [f"{n} [{u}]" for n, u in zip(names, units)])
+            for run in runs:
+                own = list(run.signal_names())
+                where = [own.index(n) if n in own else None for n in names]
+                for block in run.column_chunks():
+                    for row in block.tolist():
+                        w.writerow([run.controller] + ["" if j is None else repr(row[j]) for j in where])
+        finally:
+            fh.close()  # closes the gzip stream (its trailer) and the file
     return path
