@@ -13,12 +13,13 @@
          in Python: EKFEstimator._coast).
          imu = (ω_y, ω_z, f_x, f_z); enc, last = (e_l, e_r) or None; T the time since the
          encoder sample ``last`` (s); command = (ul, ur) N·m held over the step.
-         -> (imu_code, saturated, enc_code, nis, dof, healthy)
+         -> (imu_code, saturated, enc_code, nis, dof, healthy, inside)
             imu_code 1 used; 2 an outlier (the encoders fail the IMU gate with it and pass the
             normal gate with the model's sample): nothing changed, nis is the encoders' NIS
             with it, and the Python side coasts instead
             enc_code 0 no sample, 1 unchanged counts, 2 used, 3 rejected, 4 used although
-            failing the gate (may_reject false); healthy 0 if the state had to be restored
+            failing the gate (may_reject false); healthy 0 if the state had to be restored;
+            inside the truncated updates that brought a wheel back into its unchanged count
      forward(core, commands) -> ([θ, θ̇, ψ, ψ̇, α, α̇] predicted over the commands, finite)
      state6(core) -> the filter's own [θ, θ̇, ψ, ψ̇, α, α̇]
      set_consider(core, mask)          mask (12,): 1.0 for a state the updates leave alone (Schmidt)
@@ -415,6 +416,62 @@ static int kalman_update(double *x, double *P, const EncMeas *em, const double *
     return 0;
 }
 
+/* (z, R) of the measurement whose update truncates the prior N(w, s2) to [lo, hi]; 0 if
+   there is nothing to do (w inside, s2 not positive, w more than gate σ outside): as
+   truncated_measurement in ekf.py */
+static int truncated_measurement(double w, double s2, double lo, double hi, double gate, double *z, double *R) {
+    if (!(s2 > 0.0) || (lo <= w && w < hi)) return 0;
+    double s = sqrt(s2), a = (lo - w) / s, b = (hi - w) / s, sign = 1.0;
+    if (b <= 0.0) {
+        double t = a;
+        a = -b;
+        b = -t;
+        sign = -1.0;
+    }
+    if (a > gate) return 0;
+    double pa = exp(-0.5 * a * a) / sqrt(2.0 * M_PI), pb = exp(-0.5 * b * b) / sqrt(2.0 * M_PI);
+    double Z = 0.5 * (erfc(a / sqrt(2.0)) - erfc(b / sqrt(2.0)));
+    if (!(Z > 0.0)) return 0;
+    double mean = (pa - pb) / Z;
+    double var = 1.0 + (a * pa - b * pb) / Z - mean * mean;
+    if (!(var > 0.0 && var < 1.0)) return 0;
+    double k = 1.0 - var;
+    *z = w + sign * s * mean / k;
+    *R = s2 * var / k;
+    return 1;
+}
+
+/* the truncated updates of the wheels whose count is unchanged and whose estimate has left
+   it (EKFEstimator._keep_inside); returns how many were made, −1 if one failed */
+static int keep_inside(Core *c, const double *enc, const double *last) {
+    int n = 0;
+    for (int i = 0; i < 2; i++) {
+        if (enc[i] != last[i]) continue;
+        double sgn = 2 * i - 1;
+        EncMeas em;
+        em.dof = 1;
+        memset(em.H[0], 0, sizeof em.H[0]);
+        em.H[0][PS] = em.H[0][C0] = 1.0;
+        em.H[0][TH] = -1.0;
+        em.H[0][AL] = sgn * c->b_r;
+        em.H[0][H0] = sgn;
+        em.off[0] = -sgn * c->b_r * c->alpha0;
+        double w = em.off[0], s2 = 0.0;
+        for (int j = 0; j < NX; j++) {
+            w += em.H[0][j] * c->x[j];
+            double t = 0.0;
+            for (int k = 0; k < NX; k++) t += c->P[j * NX + k] * em.H[0][k];
+            s2 += em.H[0][j] * t;
+        }
+        if (!truncated_measurement(w, s2, enc[i] - 0.5 * c->delta, enc[i] + 0.5 * c->delta, sqrt(c->imu_gate[1]),
+                                   &em.z[0], &em.R[0]))
+            continue;
+        if (kalman_update(c->x, c->P, &em, c->consider)) return -1;
+        n++;
+    }
+    return n;
+}
+
 static int healthy(const Core *c) {
     for (int i = 0; i < NX; i++)
         if (!isfinite(c->x[i]) || !(c->P[i * NX + i] > 0.0)) return 0;
@@ -544,7 +601,7 @@ static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs
             propagate(c, c->x, syn, syn_extra, ax1, aF, aQ);
             cov_predict(aF, c->P, aQ, aPp);
             if (encoder_fit(c, enc, last, T, ax1, syn, aPp, 1, &em) <= c->gate[em.dof])
-                return Py_BuildValue("(iiidii)", 2, 0, 0, eps, 0, 1);
+                return Py_BuildValue("(iiidiii)", 2, 0, 0, eps, 0, 1, 0);
         }
         em.dof = 0;
     }
@@ -556,6 +613,7 @@ static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs
     c->w[1] = smp[1];
     if (has_enc) nis = encoder_fit(c, enc, last, T, c->x, c->w, c->P, 0, &em);
     int dof = em.dof;
+    int inside = 0;
     if (has_enc) {
         if (dof == 0)
             enc_code = 1;
@@ -564,6 +622,13 @@ static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs
         else {
             enc_code = (nis <= c->gate[dof]) ? 2 : 4;
             if (kalman_update(c->x, c->P, &em, c->consider)) ok = 0;
+        }
+        if (ok && enc_code != 3) {
+            inside = keep_inside(c, enc, last);
+            if (inside < 0) {
+                ok = 0;
+                inside = 0;
+            }
         }
     }
     for (int i = 0; i < NX; i++)
@@ -577,7 +642,7 @@ static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs
         restore(c);
         ok = 0;
     }
-    return Py_BuildValue("(iiidii)", 1, saturated, enc_code, nis, dof, ok);
+    return Py_BuildValue("(iiidiii)", 1, saturated, enc_code, nis, dof, ok, inside);
 }
 
 static PyObject *forward(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {

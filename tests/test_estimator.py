@@ -655,3 +655,28 @@ def test_absurd_finite_encoder_readings_are_rejected_without_resets_on_both_path
     if len(stats) == 2:
         assert stats[0] == stats[1]
         np.testing.assert_allclose(outs[0], outs[1], rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("w, s2, lo, hi", [(0.0, 1.0, 0.5, 1.5), (2.0, 1.0, 0.5, 1.5), (0.0, 4e-6, 0.003, 0.008),
+                                           (0.01, 1e-4, -0.002, 0.003), (-0.004, 1e-8, -0.0026, 0.0026)])
+def test_truncated_measurement_gives_the_truncated_normals_moments(w, s2, lo, hi):
+    """The pseudo-measurement of EKFEstimator._keep_inside: a scalar Kalman update with it
+    gives the mean and variance of N(w, s2) truncated to [lo, hi] (scipy's truncnorm)."""
+    from scipy.stats import truncnorm
+    from estimation.ekf import truncated_measurement
+
+    z, R = truncated_measurement(w, s2, lo, hi, 40.0)
+    s = math.sqrt(s2)
+    d = truncnorm((lo - w) / s, (hi - w) / s, loc=w, scale=s)
+    k = s2 / (s2 + R)
+    assert w + k * (z - w) == pytest.approx(d.mean(), rel=1e-9, abs=1e-12 * s)
+    assert s2 * (1.0 - k) == pytest.approx(d.var(), rel=1e-7)
+
+
+def test_truncated_measurement_leaves_a_mean_inside_or_beyond_the_gate_alone():
+    from estimation.ekf import truncated_measurement
+
+    assert truncated_measurement(0.001, 1e-6, 0.0, 0.002, 6.0) is None  # inside
+    assert truncated_measurement(-0.01, 1e-6, 0.0, 0.002, 6.0) is None  # 10 σ below
+    assert truncated_measurement(-0.001, 1e-6, 0.0, 0.002, 6.0) is not None  # 1 σ below
+    assert truncated_measurement(-0.001, 0.0, 0.0, 0.002, 6.0) is None  # no prior spread

@@ -66,9 +66,9 @@ def test_short_soak_ekf_in_the_loop_holds_balance_and_estimates():
         err = np.abs(run.signal(f"{name}_est") - run.signal(name))
         # no drift: the typical error at the end is as small as after settling (before: 0.076 rad)
         assert float(np.median(err[last100])) <= 0.01, (name, float(np.median(err[last100])))
-        # brief excursions while a wheel dwells inside one encoder count stay rare; their peak
-        # (0.033 rad for ψ in 1200 s) is above 0.02 rad, an open point of issue 16
-        assert float(np.percentile(err[settled], 99.0)) <= 0.02, (name, float(err[settled].max()))
+        # and no excursion: while a wheel dwelt inside one encoder count, ψ̂ strayed up to
+        # 0.033 rad (in 1200 s) before the truncated update kept it inside the count
+        assert float(err[settled].max()) <= 0.02, (name, float(err[settled].max()))
     alpha = run.signal("alpha")
     assert abs(alpha[-1] - alpha[int(np.searchsorted(t, 20.0))]) < 1e-3
 
