@@ -61,7 +61,7 @@ def test_preset_white_noise_is_the_datasheet_noise_density(name, i):
     assert n_hat / spec.noise_density == pytest.approx(1.0, abs=0.10), (name, spec.name, n_hat / spec.noise_density)
     # the figure is the datasheet's, in SI: 1 °/s = π/180 rad/s, 1 µg = 9.80665e-6 m/s²
     datasheet = {"mpu6050": (0.005 * DEG, 400e-6 * G0), "icm42688p": (0.0028 * DEG, 70e-6 * G0),
-                 "bmi088": (0.014 * DEG, 175e-6 * G0)}[name][i]
+                 "bmi088": (0.014 * DEG, 190e-6 * G0)}[name][i]
     assert spec.noise_density == pytest.approx(datasheet, rel=1e-12)
 
 

@@ -40,7 +40,7 @@ def plot_runs(runs: list, path: Path, title: str = "") -> Path:
     fig, axes = plt.subplots(len(panels), 1, figsize=(8, 10), sharex=True)
     for ax, (label, get) in zip(axes, panels):
         for i, r in enumerate(runs):
-            ax.plot(r.t, get(r), color=_COLOURS[i % len(_COLOURS)], lw=1.2, label=kind_label(r.controller) or None)
+            ax.plot(*_envelope(r.t, get(r)), color=_COLOURS[i % len(_COLOURS)], lw=1.2, label=kind_label(r.controller) or None)
         ax.set_ylabel(label, fontsize=8)
         ax.grid(alpha=0.3)
     exp = runs[0].experiment
@@ -55,6 +55,27 @@ def plot_runs(runs: list, path: Path, title: str = "") -> Path:
 
     fig.suptitle("\n".join(textwrap.fill(line, 95) for line in title.splitlines()), fontsize=10)
     return _save(plt, fig, path)
+
+
+def _envelope(t, y, buckets: int = 2000):
+    """(t, y) thinned for drawing: above 4 × ``buckets`` samples, each of ``buckets`` equal
+    runs of samples keeps its minimum and its maximum, in time order. A line 880 pixels
+    wide shows no difference, peaks stay exact, and an hour at 200 Hz (720 000 samples a
+    line) no longer costs matplotlib hundreds of megabytes."""
+    t, y = np.asarray(t), np.asarray(y)
+    n = len(t)
+    if n <= 4 * buckets:
+        return t, y
+    edges = np.linspace(0, n, buckets + 1).astype(int)
+    keep = []
+    for a, b in zip(edges[:-1], edges[1:]):
+        seg = y[a:b]
+        if np.isnan(seg).all():  # nothing to draw there; keep the gap a gap
+            keep.append(a)
+            continue
+        keep.extend(sorted({a + int(np.nanargmin(seg)), a + int(np.nanargmax(seg))}))
+    keep = np.asarray(keep)
+    return t[keep], y[keep]
 
 
 def _save(plt, fig, path: Path) -> Path:

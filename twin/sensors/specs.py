@@ -20,14 +20,14 @@ latency                                5 ms                         5 ms
 
 ``icm42688p``: TDK InvenSense ICM-42688-P, Datasheet DS-000347 rev. 1.7, section 3.1
 (Table 1, gyroscope specifications) and section 3.2 (Table 2, accelerometer
-specifications), low-noise mode:
+specifications; Tables 1–2 unchanged from rev. 1.2 to 1.8):
 
 =====================================  ===========================  =====================================
 figure                                 gyro                         accelerometer
 =====================================  ===========================  =====================================
 full scale (GYRO/ACCEL_FS_SEL = 2)     ±500 °/s                     ±4 g
 ADC (UI registers)                     16 bit (65.5 LSB per °/s)    16 bit (8192 LSB per g)
-noise density (datasheet)              0.0028 °/s/√Hz               70 µg/√Hz
+noise density (datasheet)              0.0028 °/s/√Hz               70 µg/√Hz (z; x, y: 65)
 sensitivity tolerance (datasheet)      ±0.5 % → σ = 0.167 %         ±0.5 % → σ = 0.167 %
 zero offset drift (datasheet)          ±0.005 °/s/°C                ±0.15 mg/°C
 turn-on bias (see below)               σ = 0.0156 °/s               σ = 0 (calibrated)
@@ -35,17 +35,18 @@ bias random walk (see below)           1.25e-6 rad/s/√s             3e-5 m/s²
 =====================================  ===========================  =====================================
 
 ``bmi088``: Bosch Sensortec BMI088, Data sheet BST-BMI088-DS001 rev. 1.3 (DS001-13, May
-2018), section 1 (Specification): Table 1 (accelerometer) and Table 2 (gyroscope):
+2018; rev. 1.9, BST-BMI088-DS000-19, Jan. 2024, has the same tables), section 1
+(Specification): Table 4 (accelerometer, 1.2) and Table 5 (gyroscope, 1.3):
 
 =====================================  ===========================  =====================================
 figure                                 gyro                         accelerometer
 =====================================  ===========================  =====================================
 full scale (GYRO/ACC_RANGE = 2 / 1)    ±500 °/s                     ±6 g
 ADC                                    16 bit (65.536 LSB per °/s)  16 bit (5460 LSB per g)
-noise density (datasheet)              0.014 °/s/√Hz                175 µg/√Hz
+noise density (datasheet)              0.014 °/s/√Hz                190 µg/√Hz (z; x, y: 160; at ±3 g)
 sensitivity tolerance                  ±1 % → σ = 0.333 %           ±1 % → σ = 0.333 % (see below)
 zero offset drift (datasheet)          ±0.015 °/s/K                 < ±0.2 mg/K
-bias stability (datasheet)             2 °/h                        —
+bias stability (product flyer)         2 °/h                        —
 turn-on bias (see below)               σ = 0.0469 °/s               σ = 0 (calibrated)
 bias random walk (see below)           3.75e-6 rad/s/√s             4e-5 m/s²/√s
 =====================================  ===========================  =====================================
@@ -55,7 +56,7 @@ specific force at its IMU below ~2 g, except in hard shoves and when it is picke
 The MPU-6050 default keeps its most sensitive settings (±250 °/s, ±2 g); for the two
 newer parts ±500 °/s and ±4 g / ±6 g (the BMI088's ranges are ±3/6/12/24 g) leave that
 headroom while one LSB (0.015 °/s; 0.12 mg, 0.18 mg) stays below the white noise of one
-200 Hz sample (0.040 and 0.198 °/s; 0.99 and 2.5 mg), so quantisation adds at most
+200 Hz sample (0.040 and 0.198 °/s; 0.99 and 2.7 mg), so quantisation adds at most
 1.3 % to the noise variance. The rate (``sensors.imu_rate``) and latency
 (``sensors.imu_latency``) are the scenario's, not the part's: they follow from the
 chosen output data rate and digital low-pass filter.
@@ -83,10 +84,17 @@ Judgement calls, documented rather than hidden:
   × 0.094 as above; accelerometer by the zero-g drifts, 0.15 and 0.2 mg/K against the
   MPU-6050's ±35 mg over 0…70 °C (0.5 mg/K), × 0.3 and × 0.4. Check: the BMI088's gyro
   walk with its white noise puts the Allan minimum at √(2 N K / √3) = 6.7 °/h at
-  τ = √3 N / K = 113 s, above the datasheet's 2 °/h bias stability (measured at a
-  constant temperature), as a robot's changing temperature should.
-* **Latency.** On the MPU-6050 the digital low-pass filter at DLPF_CFG = 3 (44 Hz
-  bandwidth) delays the gyro by 4.8 ms and the accelerometer by 4.9 ms: one 5 ms
+  τ = √3 N / K = 113 s, above the 2 °/h bias stability of Bosch's product flyer (not in
+  the datasheet; measured at a constant temperature), as a robot's changing temperature
+  should.
+* **One noise density per triad.** The model draws every axis of a triad from one
+  density; where a datasheet gives the z axis a larger one (ICM-42688-P 70 against
+  65 µg/√Hz, BMI088 190 against 160 µg/√Hz) the preset takes the larger, so a filter
+  tuned to it is never overconfident on an axis. The BMI088 specifies its accelerometer
+  noise at ±3 g only; the ±6 g preset takes that figure.
+* **Latency.** On the MPU-6050 the digital low-pass filter at DLPF_CFG = 3 (register map
+  RM-MPU-6000A-00, section 4.3: accelerometer 44 Hz, gyro 42 Hz bandwidth) delays the
+  gyro by 4.8 ms and the accelerometer by 4.9 ms: one 5 ms
   control period, the default ``sensors.imu_latency``.
 
 Noise model (the one used by Gazebo, PX4 and Kalibr), per axis, at output interval Δt::
@@ -211,7 +219,7 @@ ICM42688P_ACCEL = _accel(noise_density=70e-6 * G0, bias_random_walk=1e-4 * 0.15 
                          scale_factor_error=0.005 / 3.0, full_scale=4.0 * G0)
 BMI088_GYRO = _gyro(noise_density=0.014 * DEG, bias_random_walk=4e-5 * 0.015 / 0.16,
                     turn_on_bias=0.5 * DEG * 0.015 / 0.16, scale_factor_error=0.01 / 3.0, full_scale=500.0 * DEG)
-BMI088_ACCEL = _accel(noise_density=175e-6 * G0, bias_random_walk=1e-4 * 0.2 / 0.5, turn_on_bias=0.0,
+BMI088_ACCEL = _accel(noise_density=190e-6 * G0, bias_random_walk=1e-4 * 0.2 / 0.5, turn_on_bias=0.0,
                       scale_factor_error=0.01 / 3.0, full_scale=6.0 * G0)
 
 IMU_PRESETS: dict[str, tuple[TriadSpec, TriadSpec]] = {
