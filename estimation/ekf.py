@@ -119,6 +119,13 @@ GROUPS = ("gyro", "accel", "encoders")
 # see the module docstring, "Consider states"
 CONSIDER = ("encoder_zero", "encoder_heading_zero", "gyro_scale_y", "gyro_scale_z", "accel_scale_x", "accel_scale_z")
 MAX_RIM_SPEED = 20.0  # m/s: encoder counts implying a faster wheel (relative to the body) are a fault
+# the latency watch (EKFEstimator._watch_latency), all in control periods
+WATCH_WINDOW = 100  # samples correlated (0.5 s at 200 Hz)
+WATCH_EVERY = 10  # periods between checks
+WATCH_MAX_LAG = 20  # the largest latency looked for (100 ms at 200 Hz)
+WATCH_RHO = 0.2  # the best lag's correlation must reach this ...
+WATCH_MARGIN = 0.15  # ... and beat the assumed latency's by this much ...
+WATCH_PERSIST = 3  # ... in this many checks in a row
 
 try:  # the optional compiled path (setup.py); TWIN_PURE_PYTHON=1 turns it off
     from estimation import _ekf as _kernel
@@ -217,6 +224,11 @@ class EKFEstimator:
         self.model = model
         self.every, self.d_imu, self.d_enc = int(imu_every), int(imu_latency), int(encoder_latency)
         self.lag = max(self.d_imu, self.d_enc)
+        # the latency watch (see _watch_latency): θ̈ responds to the wheel torques at once, so
+        # the gyro's second difference follows the commands' differences at its latency
+        m0 = model
+        self._torque_sign = -1.0 if (m0.m11 + m0.m12) / (m0.m11 * m0.m22 - m0.m12 ** 2) > 0 else 1.0
+        self._watch = self.every == 1  # the kernel below assumes one IMU sample per period
         self.dt = self.every * model.dt
         self.alpha0 = float(alpha0)
         # an IMU sample is called an outlier only on much stronger evidence (1 − 1e-9):
@@ -275,8 +287,19 @@ class EKFEstimator:
         self.k = -1
         self.m = 0
         self._commands: dict[int, tuple[float, float]] = {}
-        self._imu: dict[int, tuple] = {}
+        self._gyro: dict[int, tuple] = {}  # by sample time (control step), each half on its own latency
+        self._acc: dict[int, tuple] = {}
         self._enc: dict[int, tuple] = {}
+        self.d_gyro = self.d_acc = self.d_imu  # the latencies assumed now (periods); the watch may change them
+        self.lag = max(self.d_imu, self.d_enc)
+        self.latency_changes = 0
+        self._w_y: list[float] = []  # the watch's window: gyro ω_y by arrival step (NaN: none)
+        self._w_u: list[float] = []  # the sum of the wheel commands over the period ending at each step
+        self._gaps = {"gyro": [], "accel": []}  # (step, length) of recent arrival gaps, per triad
+        self._last_arrival = {"gyro": 0, "accel": 0}
+        self._votes = (0, 0)  # (candidate latency, consecutive checks that chose it)
+        self._watch_hold = 0  # no verdict before this step (after a change)
+        self._watch_last = None  # (t, best latency, its ρ, the assumed one's ρ) of the last check
         self.accepted = dict.fromkeys(GROUPS, 0)
         self.rejected = dict.fromkeys(GROUPS, 0)
         self.in_row = 0
@@ -441,9 +464,10 @@ class EKFEstimator:
         self.last_nis, self.last_dof = math.nan, 0  # diagnostics() reports this step's update alone
         self._commands[k - 1] = (float(command[0]), float(command[1]))
         self._store(meas, k)
-        m = k - self.lag
-        if m >= self.every and m % self.every == 0 and m > self.m:
-            t = meas.t - self.lag * self.model.dt
+        last = k - self.lag
+        # one filter step per due IMU instant; after the assumed latency shrinks several are due
+        for m in range(self.m + self.every, last + 1, self.every):
+            t = meas.t - (k - m) * self.model.dt
             if not self.holding and self.consider and t >= self.learn_time - 1e-9:
                 self._hold()
             try:
@@ -452,7 +476,8 @@ class EKFEstimator:
                 self._restore(t, f"numerical failure in the filter ({err}); restored the last good estimate")
             for j in range(self.m - self.every, m - self.every):  # samples no step will need again
                 self._commands.pop(j, None)
-                self._imu.pop(j, None)
+                self._gyro.pop(j, None)
+                self._acc.pop(j, None)
                 self._enc.pop(j, None)
             self.m = m
         return self._estimate(k)
@@ -472,13 +497,14 @@ class EKFEstimator:
         for n, v, good in (("gyro", gyro, g_ok), ("accel", accel, a_ok), ("encoders", enc, e_ok)):
             if v is not None and not good:
                 self.events.append((meas.t, f"non-finite {n} reading ignored"))
-        if g_ok and a_ok:
-            sample = (tuple(gyro), tuple(accel))
-            last = self._last_imu
+        if g_ok or a_ok:
+            # each half on its own latency: they pair up by sample time in _advance
+            g_new, a_new = (tuple(gyro) if g_ok else None), (tuple(accel) if a_ok else None)
+            last_g, last_a = self._last_imu if self._last_imu is not None else (None, None)
             # with the noise several ADC steps wide, a triad repeating all three values is
             # stale (stuck), not a measurement: coast as without the sample
-            if last is not None and ((self._stale_check[0] and sample[0] == last[0])
-                                     or (self._stale_check[1] and sample[1] == last[1])):
+            if (self._stale_check[0] and g_new is not None and g_new == last_g) or \
+                    (self._stale_check[1] and a_new is not None and a_new == last_a):
                 self.rejected["gyro"] += 1
                 self.rejected["accel"] += 1
                 self.stale += 1
@@ -486,17 +512,108 @@ class EKFEstimator:
                     self.events.append((meas.t, "IMU sample repeats the previous one: stale, treated as missing"))
                 self._stale_in_row += 1
             else:
-                self._imu[k - self.d_imu] = (gyro, accel)
+                # a sample for a time the filter has already passed (just after the assumed
+                # latency grew) can no longer be used
+                if g_ok and k - self.d_gyro > self.m:
+                    self._gyro[k - self.d_gyro] = gyro
+                if a_ok and k - self.d_acc > self.m:
+                    self._acc[k - self.d_acc] = accel
                 self._stale_in_row = 0
-            self._last_imu = sample
-        elif g_ok or a_ok:
-            self.events.append((meas.t, "an IMU sample without its gyro or accelerometer half was dropped"))
+            self._last_imu = (g_new if g_ok else last_g, a_new if a_ok else last_a)
+        if self._watch and k > 0:
+            self._watch_latency(meas.t, k, gyro if g_ok else None, a_ok)
         if e_ok:
             if -self._enc_range <= enc[0] <= self._enc_range and -self._enc_range <= enc[1] <= self._enc_range:
                 self._enc[k - self.d_enc] = enc
             else:
                 self.events.append((meas.t, f"encoder reading {tuple(enc)} ignored: beyond a 32-bit "
                                             f"counter's range (±{self._enc_range:.4g} rad)"))
+
+    def _watch_latency(self, t: float, k: int, gyro, a_ok: bool) -> None:
+        """Watch the gyro's latency: every :data:`WATCH_EVERY` periods, correlate the gyro's
+        second difference Δ²ω_y (arrival-indexed, the last :data:`WATCH_WINDOW` samples) with
+        the commands' torque-sum differences at candidate latencies 0 … :data:`WATCH_MAX_LAG`.
+
+        Why this works: θ̈ responds to the wheel torques at once (equation (1)), so Δ²ω_y of
+        the sample taken over period p follows (u_p + u_{p−1}) − (u_{p−2} + u_{p−3}) (u the
+        command sum; the two-period kernel because the sample is a mean over its period and
+        the difference spans two), whose high-frequency part is the controller's reaction
+        to sensor noise - uncorrelated with the state, so the correlation peaks sharply at
+        the gyro's true latency (|ρ| 0.2–0.4 balancing, 0.3–0.8 in a limit cycle) and drops
+        to ~0 one or more periods off. The commands are known exactly and undelayed: they
+        are the clock. A change is declared when the best latency differs from the assumed
+        one, its ρ (sign as equation (1) gives) ≥ :data:`WATCH_RHO` and beats the assumed
+        one's by :data:`WATCH_MARGIN`, in :data:`WATCH_PERSIST` checks in a row; then
+        :meth:`_latency_changed` re-aligns."""
+        wy, wu = self._w_y, self._w_u
+        wy.append(float(gyro[1]) if gyro is not None else math.nan)
+        c = self._commands.get(k - 1, (0.0, 0.0))
+        wu.append(c[0] + c[1])
+        for name, arrived in (("gyro", gyro is not None), ("accel", a_ok)):
+            if arrived:
+                gap = k - self._last_arrival[name] - 1
+                if gap > 0:
+                    self._gaps[name].append((k, gap))
+                    if len(self._gaps[name]) > 8:
+                        del self._gaps[name][0]
+                self._last_arrival[name] = k
+        n = WATCH_WINDOW + WATCH_MAX_LAG + 5
+        if len(wy) > n:
+            del wy[0], wu[0]
+        if k % WATCH_EVERY or len(wy) < n or self._watch_hold > k:
+            return
+        y, u = np.array(wy), np.array(wu)
+        rows = np.arange(n - 1 - WATCH_WINDOW, n - 1)  # the newest has no command after it yet
+        y2 = y[rows] - 2.0 * y[rows - 1] + y[rows - 2]
+        ok = np.isfinite(y2)
+        if ok.sum() < WATCH_WINDOW // 2:
+            return
+        # wu[i] is the command over the period ending at step i: Δ-kernel at latency L
+        dk = np.full(n, math.nan)
+        i = np.arange(2, n - 1)
+        dk[i] = u[i + 1] + u[i] - u[i - 1] - u[i - 2]
+        lags = np.arange(WATCH_MAX_LAG + 1)
+        Z = dk[rows[ok][None, :] - lags[:, None]]
+        yy = y2[ok] - y2[ok].mean()
+        Z = Z - Z.mean(axis=1, keepdims=True)
+        den = np.sqrt((yy @ yy) * np.einsum("ij,ij->i", Z, Z))
+        rho = self._torque_sign * (Z @ yy) / np.where(den > 0, den, math.inf)
+        best = int(np.argmax(rho))
+        self._watch_last = (t, best, float(rho[best]), float(rho[self.d_gyro]))
+        if best != self.d_gyro and rho[best] >= WATCH_RHO and rho[best] - rho[self.d_gyro] >= WATCH_MARGIN:
+            votes = self._votes[1] + 1 if self._votes[0] == best else 1
+            self._votes = (best, votes)
+            if votes >= WATCH_PERSIST:
+                self._latency_changed(t, k, best, float(rho[best]))
+        else:
+            self._votes = (0, 0)
+
+    def _latency_changed(self, t: float, k: int, new: int, rho: float) -> None:
+        """The gyro's latency is now ``new`` periods: re-align the samples not yet used, and the
+        accelerometer's too if it fell behind by as much at the same time (both halves of the
+        IMU then stopped arriving for the same span: a gap of ``new − old`` samples in each,
+        within a period of each other; an accelerometer-only change is not detected)."""
+        old, delta = self.d_gyro, new - self.d_gyro
+        g_gap = [s for s, n in self._gaps["gyro"] if n == delta]
+        acc = delta > 0 and any(abs(s - sg) <= 1 for s, n in self._gaps["accel"] if n == delta for sg in g_gap)
+        dt_ms = 1e3 * self.model.dt
+        for store, d in ((self._gyro, delta), (self._acc, delta if acc else 0)):
+            if d:
+                moved = {key - d: v for key, v in store.items() if key > self.m}
+                for key in [key for key in store if key > self.m]:
+                    del store[key]
+                store.update({key: v for key, v in moved.items() if key > self.m})
+        self.d_gyro = new
+        if acc:
+            self.d_acc += delta
+        self.lag = max(self.d_gyro, self.d_acc, self.d_enc)
+        self.latency_changes += 1
+        self._votes = (0, 0)
+        self._watch_hold = k + WATCH_WINDOW  # the next verdict on a window of the new latency alone
+        what = "gyro and accelerometer latency" if acc else "gyro latency"
+        self.events.append((t, f"{what} changed: now about {new * dt_ms:.0f} ms (was {old * dt_ms:.0f} ms; "
+                               f"correlation with the commands {rho:.2f}): re-aligned, the filter now runs "
+                               f"{self.lag} periods behind"))
 
     def _estimate(self, k: int) -> Estimate:
         """The filter's state predicted forward to control step ``k``; never non-finite."""
@@ -515,7 +632,10 @@ class EKFEstimator:
 
     def _advance(self, m: int, t: float) -> None:
         """Predict from the filter's time to t_m and update with the encoders there."""
-        imu = self._imu.get(m)
+        g, a = self._gyro.get(m), self._acc.get(m)
+        imu = None if g is None or a is None else (g, a)
+        if imu is None and (g is not None or a is not None):
+            self.events.append((t, "an IMU sample without its gyro or accelerometer half was dropped"))
         command = self._commands.get(m - self.every, (0.0, 0.0))
         enc = self._screen_encoders(self._enc.get(m), m, t)
         if imu is not None:
