@@ -568,6 +568,12 @@ class EKFEstimator:
         ok = np.isfinite(y2)
         if ok.sum() < WATCH_WINDOW // 2:
             return
+        # an outlier (a spike moves three second differences by up to twice its size) would
+        # carry the correlation: rows beyond 5 robust σ (median absolute deviation) are left out
+        dev = np.abs(y2 - np.median(y2[ok]))
+        ok &= ~(dev > 5.0 * 1.4826 * np.median(dev[ok]))
+        if ok.sum() < WATCH_WINDOW // 2:
+            return
         # wu[i] is the command over the period ending at step i: Δ-kernel at latency L
         dk = np.full(n, math.nan)
         i = np.arange(2, n - 1)
