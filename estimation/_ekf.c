@@ -8,13 +8,15 @@
 
      new(consts)                       -> capsule holding the filter (see Core)
      set_state(core, x, P, w, w_prev)  /  state(core) -> (x, P, w, w_prev) as tuples
-     advance(core, imu, enc, last, T, command, may_reject, acc_gate)
+     advance(core, imu, enc, last, T, command, may_reject, acc_test)
          one step driven by an IMU sample (steps without one, or with one rejected, coast
          in Python: EKFEstimator._coast).
          imu = (ω_y, ω_z, f_x, f_z); enc, last = (e_l, e_r) or None; T the time since the
          encoder sample ``last`` (s); command = (ul, ur) N·m held over the step.
-         acc_gate > 0: test the accelerometer half against the model's first (see imu_sample)
-         -> (imu_code, saturated, enc_code, nis, dof, healthy, acc_out)
+         acc_test = (gate, b_x, b_z, may): gate > 0 computes the accelerometer half's innovation
+         e against the model's (f_x, f_z); with may != 0 the half is an outlier (replaced by the
+         model's) when (e − b)ᵀ S⁻¹ (e − b) > 2 gate, b the recent innovations' median
+         -> (imu_code, saturated, enc_code, nis, dof, healthy, acc_out, e_x, e_z)
             imu_code 1 used; 2 an outlier (the encoders fail the IMU gate with it and pass the
             normal gate with the model's sample): nothing changed, nis is the encoders' NIS
             with it, and the Python side coasts instead
@@ -491,27 +493,30 @@ static PyObject *py_state6(PyObject *self, PyObject *arg) {
 }
 
 /* the IMU sample as the filter uses it: an axis at the end of its range replaced by the
-   model's prediction (syn, computed here) with its extra variance; with acc_gate > 0 the
-   accelerometer half is tested against the model's (f_x, f_z) first (EKFEstimator._accel_nis)
-   and replaced by it when its NIS exceeds acc_gate (*acc_out = 1); returns 1 if any axis was
-   saturated */
-static int imu_sample(const Core *c, const double *cmd, double acc_gate, double *smp, double *extra, double *syn,
-                      double *syn_extra, int *acc_out) {
+   model's prediction (syn, computed here) with its extra variance; with acc[0] > 0 the
+   accelerometer half's innovation e against the model's (f_x, f_z) is computed and, with
+   acc[3] != 0, the half is an outlier and replaced when e less the recent innovations' median
+   (acc[1], acc[2]) fails the gate (EKFEstimator._accel_nis); returns 1 if any axis was saturated */
+static int imu_sample(const Core *c, const double *cmd, const double *acc, double *smp, double *extra, double *syn,
+                      double *syn_extra, int *acc_out, double *e) {
     int any = 0, sat[4], have_syn = 0;
     *acc_out = 0;
+    e[0] = e[1] = NAN;
     for (int j = 0; j < 4; j++) {
         extra[j] = 0.0;
         any |= sat[j] = fabs(smp[j]) >= c->lim[j];
     }
-    if (acc_gate > 0.0 && !sat[2] && !sat[3]) {
+    if (acc[0] > 0.0 && !sat[2] && !sat[3]) {
         synthetic(c, c->x, cmd[0], cmd[1], syn, syn_extra);
         have_syn = 1;
         const double *P = c->P;
         double g = c->g, fx = syn[2], fz = syn[3];
         double sx = c->a_var + syn_extra[2] + g * g * P[TH * NX + TH] + fx * fx * P[SAX * NX + SAX];
         double sz = c->a_var + syn_extra[3] + fz * fz * P[SAZ * NX + SAZ];
-        double ex = smp[2] - fx, ez = smp[3] - fz;
-        *acc_out = ex * ex / sx + ez * ez / sz > acc_gate;
+        e[0] = smp[2] - fx;
+        e[1] = smp[3] - fz;
+        double ex = e[0] - acc[1], ez = e[1] - acc[2];
+        *acc_out = acc[3] != 0.0 && ex * ex / sx + ez * ez / sz > 2.0 * acc[0];
     }
     if (!any && !*acc_out) return 0;
     if (!have_syn) synthetic(c, c->x, cmd[0], cmd[1], syn, syn_extra);
@@ -523,8 +528,8 @@ static int imu_sample(const Core *c, const double *cmd, double acc_gate, double 
     return any;
 }
 
-/* advance(core, imu, enc, last, T, command, may_reject, acc_gate)
-       -> (imu_code, saturated, enc_code, nis, dof, ok, acc_out):
+/* advance(core, imu, enc, last, T, command, may_reject, acc_test)
+       -> (imu_code, saturated, enc_code, nis, dof, ok, acc_out, e_x, e_z):
    one strapdown step with an IMU sample (steps without one are the Python side's); imu_code 2:
    the sample is an outlier (the encoders fail the IMU gate with it and pass the normal gate with
    the model's sample), nothing changed, nis = the encoders' NIS with the sample */
@@ -532,7 +537,7 @@ static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs
     Core *c;
     if (nargs != 8 || !(c = get(args[0]))) {
         if (!PyErr_Occurred())
-            PyErr_SetString(PyExc_TypeError, "advance(core, imu, enc, last, T, command, may_reject, acc_gate)");
+            PyErr_SetString(PyExc_TypeError, "advance(core, imu, enc, last, T, command, may_reject, acc_test)");
         return NULL;
     }
     double smp[4], extra[4], syn[4], syn_extra[4], enc[2], last[2], cmd[2], T = 0.0;
@@ -544,8 +549,8 @@ static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs
     if (floats(args[5], cmd, 2, "command")) return NULL;
     int may_reject = PyObject_IsTrue(args[6]);
     if (may_reject < 0) return NULL;
-    double acc_gate = PyFloat_AsDouble(args[7]);
-    if (acc_gate == -1.0 && PyErr_Occurred()) return NULL;
+    double acc[4], e[2];
+    if (floats(args[7], acc, 4, "acc_test")) return NULL;
     int acc_out = 0;
 
     double x1[NX], F[NX * NX], Q[NX * NX], Pp[NX * NX];
@@ -553,7 +558,7 @@ static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs
     double nis = NAN;
     EncMeas em;
     em.dof = 0;
-    int saturated = imu_sample(c, cmd, acc_gate, smp, extra, syn, syn_extra, &acc_out);
+    int saturated = imu_sample(c, cmd, acc, smp, extra, syn, syn_extra, &acc_out, e);
     propagate(c, c->x, smp, (saturated || acc_out) ? extra : NULL, x1, F, Q);
     cov_predict(F, c->P, Q, Pp);
     if (has_enc) {
@@ -564,7 +569,7 @@ static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs
             propagate(c, c->x, syn, syn_extra, ax1, aF, aQ);
             cov_predict(aF, c->P, aQ, aPp);
             if (encoder_fit(c, enc, last, T, ax1, syn, aPp, 1, &em) <= c->gate[em.dof])
-                return Py_BuildValue("(iiidiii)", 2, 0, 0, eps, 0, 1, acc_out);
+                return Py_BuildValue("(iiidiiidd)", 2, 0, 0, eps, 0, 1, acc_out, e[0], e[1]);
         }
         em.dof = 0;
     }
@@ -597,7 +602,7 @@ static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs
         restore(c);
         ok = 0;
     }
-    return Py_BuildValue("(iiidiii)", 1, saturated, enc_code, nis, dof, ok, acc_out);
+    return Py_BuildValue("(iiidiiidd)", 1, saturated, enc_code, nis, dof, ok, acc_out, e[0], e[1]);
 }
 
 static PyObject *forward(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {

@@ -297,6 +297,8 @@ class EKFEstimator:
         self.accel_outliers = 0  # accelerometer halves replaced by the model's (the gyro's kept)
         self._acc_in_row = 0
         self._acc_out = False
+        self._acc_e = None  # the last accelerometer innovation (m/s², (f_x, f_z)), None: not computed
+        self._acc_hist: list = []  # the last three
         self._w_y: list[float] = []  # the watch's window: gyro ω_y by arrival step (NaN: none)
         self._w_u: list[float] = []  # the sum of the wheel commands over the period ending at each step
         self._gaps = {"gyro": [], "accel": []}  # (step, length) of recent arrival gaps, per triad
@@ -661,6 +663,7 @@ class EKFEstimator:
                     self._strapdown(m, t, pred, enc)
                 self._acc_out = acc_out
             acc_out = self._acc_out
+            self._acc_seen(self._acc_e)
             self._acc_in_row = self._acc_in_row + 1 if acc_out else 0
             if acc_out:
                 self.accel_outliers += 1
@@ -738,13 +741,17 @@ class EKFEstimator:
         this much", so the model's prediction (``synthetic``, else None) replaces it (``extra``
         then holds the variances it adds; None for a sample with no axis replaced). With
         ``acc_test`` the accelerometer half is tested against the model's first
-        (:meth:`_accel_nis`) and, an outlier, replaced by it: the gyro half is kept."""
+        (:meth:`_acc_test`) and, an outlier, replaced by it: the gyro half is kept."""
         sample = ((imu[0][1], imu[0][2], imu[1][0], imu[1][2]), None)
         sat = [abs(v) >= lim for v, lim in zip(sample[0], self._limits)]
         syn, acc_out = None, False
-        if acc_test and not (sat[2] or sat[3]):
+        self._acc_e = None
+        if acc_test is not None and acc_test[0] > 0.0 and not (sat[2] or sat[3]):
             syn = self._synthetic(x, command)
-            acc_out = self._accel_nis(x, sample[0], syn) > self.imu_gates[2]
+            e, sx, sz = self._accel_innovation(x, sample[0], syn)
+            self._acc_e = e
+            ex, ez = e[0] - acc_test[1], e[1] - acc_test[2]
+            acc_out = bool(acc_test[3]) and ex * ex / sx + ez * ez / sz > 2.0 * acc_test[0]
         if not any(sat) and not acc_out:
             return sample, syn, False, False
         if syn is None:
@@ -753,27 +760,39 @@ class EKFEstimator:
         return (tuple(sv if k else v for v, sv, k in zip(sample[0], syn[0], rep)),
                 tuple(e if k else 0.0 for e, k in zip(syn[1], rep))), syn, any(sat), acc_out
 
-    def _accel_nis(self, x, sample, syn) -> float:
-        """The accelerometer half (f_x, f_z) of ``sample`` against the specific force equation (1)
-        predicts from the state and the command (``syn`` from :meth:`_synthetic`): its NIS
-        with variance per axis = the accelerometer's per-sample noise + the model's torque
-        uncertainty (``synthetic``'s) + the state's share (θ through gravity, g² P_θθ, in f_x;
-        the scale factors, f² P_s). A spike there is seen at once; the encoders see it in v
-        only samples later. Measured on fault-free runs: NIS mean 1.1–1.6 for 2 dof, max 17.5
-        in 3000 samples; a ±1 m/s² spike gives 300–470."""
+    def _accel_innovation(self, x, sample, syn):
+        """((e_x, e_z), S_x, S_z): the accelerometer half (f_x, f_z) of ``sample`` less the specific
+        force equation (1) predicts from the state and the command (``syn`` from
+        :meth:`_synthetic`), and its variance per axis = the accelerometer's per-sample noise +
+        the model's torque uncertainty (``synthetic``'s) + the state's share (θ through
+        gravity, g² P_θθ, in f_x; the scale factors, f² P_s). Measured on fault-free runs
+        (θ0 = 0.2 rad): e/√S has mean square 1.1–1.6 over both axes, max 17.5 in 3000 samples;
+        a ±1 m/s² spike gives 300–470."""
         P = self.kf.P
         fx, fz = syn[0][2], syn[0][3]
-        av = syn[1][2]
-        sx = self._a_var + av + self.model.g ** 2 * P[TH, TH] + fx * fx * P[SAX, SAX]
+        sx = self._a_var + syn[1][2] + self.model.g * self.model.g * P[TH, TH] + fx * fx * P[SAX, SAX]
         sz = self._a_var + syn[1][3] + fz * fz * P[SAZ, SAZ]
-        ex, ez = sample[2] - fx, sample[3] - fz
-        return ex * ex / sx + ez * ez / sz
+        return (sample[2] - fx, sample[3] - fz), sx, sz
 
-    def _acc_test(self) -> bool:
-        """Test the accelerometer half against the model? Not after :data:`ACCEL_MAX_IN_ROW`
-        rejections in a row: a push (a force the model does not know) moves the specific
-        force for many samples, a spike for one; the next is then taken as real."""
-        return self._acc_in_row < ACCEL_MAX_IN_ROW
+    def _acc_test(self):
+        """(gate, b_x, b_z, may) for the accelerometer test of the next sample: its innovation e
+        (:meth:`_accel_innovation`) less b, the median of the last three innovations, must pass
+        the IMU gate (1 − 1e-9, 2 dof) with twice the variance (e and b both noisy). The median
+        follows a lasting change (a slope, a payload, a push: a force the model does not know)
+        after two samples, an isolated spike not at all. ``may`` is False until three
+        innovations are known and after :data:`ACCEL_MAX_IN_ROW` rejections in a row."""
+        h = self._acc_hist
+        if len(h) < 3:
+            return (self.imu_gates[2], 0.0, 0.0, 0.0)
+        bx = sorted(v[0] for v in h)[1]
+        bz = sorted(v[1] for v in h)[1]
+        return (self.imu_gates[2], bx, bz, float(self._acc_in_row < ACCEL_MAX_IN_ROW))
+
+    def _acc_seen(self, e) -> None:
+        if e is not None and math.isfinite(e[0]) and math.isfinite(e[1]):
+            self._acc_hist.append(e)
+            if len(self._acc_hist) > 3:
+                del self._acc_hist[0]
 
     def _imu_outlier(self, pred, syn, enc, m: int, command):
         """The encoders' NIS with the IMU sample behind ``pred`` (its step, from
@@ -813,10 +832,11 @@ class EKFEstimator:
         state then unchanged), else None."""
         sample = (imu[0][1], imu[0][2], imu[1][0], imu[1][2])
         T = (m - self._last_enc_m) * self.model.dt
-        code_i, sat, code_e, nis, dof, ok, acc_out = _kernel.advance(
+        code_i, sat, code_e, nis, dof, ok, acc_out, ex, ez = _kernel.advance(
             self._core, sample, enc, self._last_enc if enc is not None else None, T, command,
-            self.in_row < self.max_rejects_in_row, self.imu_gates[2] if self._acc_test() else 0.0)
+            self.in_row < self.max_rejects_in_row, self._acc_test())
         self._acc_out = bool(acc_out)
+        self._acc_e = (ex, ez)
         if code_i == 2:
             return nis
         self.saturated += sat
