@@ -516,7 +516,10 @@ static int imu_sample(const Core *c, const double *cmd, const double *acc, doubl
         e[0] = smp[2] - fx;
         e[1] = smp[3] - fz;
         double ex = e[0] - acc[1], ez = e[1] - acc[2];
-        *acc_out = acc[3] != 0.0 && ex * ex / sx + ez * ez / sz > 2.0 * acc[0];
+        /* a push moves the specific force too, but also θ̈, which the gyro sees: an
+           accelerometer outlier needs a gyro sample that agrees with the model */
+        double eg = smp[0] - syn[0], sg = 3.5 * c->g_var + syn_extra[0];
+        *acc_out = acc[3] != 0.0 && ex * ex / sx + ez * ez / sz > 2.0 * acc[0] && eg * eg / sg <= c->imu_gate[1];
     }
     if (!any && !*acc_out) return 0;
     if (!have_syn) synthetic(c, c->x, cmd[0], cmd[1], syn, syn_extra);
