@@ -24,7 +24,7 @@ from twin.params import NOMINAL
 from twin.sensors import LatencyChange, Measurement, SensorConfig, Spikes
 
 FAULT_T = 2.0  # s, when every fault starts
-DETECT_WITHIN = 1.5  # s: the latency change is logged by FAULT_T + this (measured: 0.30-1.10 s)
+DETECT_WITHIN = 1.5  # s: the latency change is logged by FAULT_T + this (measured: 0.35-1.10 s)
 SEEDS = range(10)
 
 
@@ -49,8 +49,9 @@ def _resyncs(run) -> int:
 
 
 def test_gyro_latency_5_to_20ms_is_detected_and_the_robot_stays_up(design):
-    """Gyro 5 → 20 ms at t = 2 s, 10 seeds: measured 10/10 balanced (0/10 before), the event
-    logged 0.30–0.73 s after the change, naming 20 ms and the gyro alone."""
+    """Gyro 5 → 20 ms at t = 2 s, 10 seeds: measured 10/10 balanced (0/10 before), θ RMSE
+    median 1.72 mrad (76 before), the event logged 0.35–0.75 s after the change, naming 20 ms
+    and the gyro alone."""
     balanced, late = 0, []
     for s in SEEDS:
         run = _run(design, (LatencyChange("gyro", FAULT_T, 0.020),), s)
