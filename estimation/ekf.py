@@ -81,7 +81,7 @@ by the model's (with its variance), the gyro half is kept; after
 :data:`ACCEL_MAX_IN_ROW` in a row the next is taken as real (``accel_outliers`` in
 :meth:`EKFEstimator.stats`). Measured (θ0 = 0.2 rad, 5 s): fault-free NIS ≤ 17.5 against
 the gate 2 × 41.4, no rejection on 10 fault-free runs nor on any built-in scenario
-(push-recovery and slope-payload included); every one of 36 injected ±1 m/s² spikes
+(push-recovery and slope-payload included); every one of 31 injected ±1 m/s² spikes
 rejected at the sample, no forced encoder re-synchronisation (before: 8 of 22 spiked IMU
 samples caught, up to 24 re-synchronisations per run).
 
