@@ -135,6 +135,9 @@ FAULT_CASES = (
     FaultCase("IMU spikes", (Spikes("imu", FAULT_T, 1.0, rate=10.0, magnitude=1.0),),
               "for 1 s, each gyro and each accelerometer sample is an outlier with probability 10/s x 5 ms "
               "(~10 per sensor), every axis offset by ±1 rad/s (gyro) / ±1 m/s² (accelerometer)"),
+    FaultCase("accel spikes", (Spikes("accel", FAULT_T, 1.0, rate=10.0, magnitude=1.0),),
+              "for 1 s, each accelerometer sample is an outlier with probability 10/s x 5 ms (~10), every axis "
+              "offset by ±1 m/s²; the gyro is clean"),
     FaultCase("encoder spikes", (Spikes("encoders", FAULT_T, 1.0, rate=10.0, magnitude=0.1),),
               "for 1 s, each encoder sample is an outlier with probability 10/s x 5 ms (~10), both wheels "
               "offset by ±0.1 rad (±19 counts)"),
@@ -375,6 +378,23 @@ def section_b(design, seeds, reference) -> list[str]:
                                  + (" (gyro and accelerometer counted separately)" if grp == "IMU" else ""))
         if resets:
             flags.append(f"B, {label}: {resets} numerical resets of the EKF")
+        acc_out = [s.get("accel_outliers", 0) for s in st]
+        if sum(acc_out):
+            spiked_a = [r.sensor_counts["accel"]["spiked"] for r in runs]
+            flags.append(f"B, {label}: accelerometer samples replaced by the model's (gyro kept) per run: median "
+                         f"{int(np.median(acc_out))} (max {max(acc_out)}); accelerometer samples spiked: median "
+                         f"{int(np.median(spiked_a))}")
+        if case is not None and any(isinstance(x, LatencyChange) for x in case.faults):
+            det = []
+            for s in st:
+                ts = [float(ev.split(" s:")[0][4:]) for ev in s["events"] if "latency changed" in ev]
+                det.append(ts[0] - FAULT_T if ts else math.nan)
+            n_det = sum(not math.isnan(x) for x in det)
+            flags.append(f"B, {label}: the latency change was logged in {n_det}/{len(runs)} runs"
+                         + (f", {min(x for x in det if not math.isnan(x)):.2f}-"
+                            f"{max(x for x in det if not math.isnan(x)):.2f} s after it" if n_det else ""))
+        elif sum(s.get("latency_changes", 0) for s in st):
+            flags.append(f"B, {label}: a latency change was logged in a run without one (false alarm)")
 
     # B2: against the baselines on the same data
     print()

@@ -8,12 +8,15 @@
 
      new(consts)                       -> capsule holding the filter (see Core)
      set_state(core, x, P, w, w_prev)  /  state(core) -> (x, P, w, w_prev) as tuples
-     advance(core, imu, enc, last, T, command, may_reject)
+     advance(core, imu, enc, last, T, command, may_reject, acc_test)
          one step driven by an IMU sample (steps without one, or with one rejected, coast
          in Python: EKFEstimator._coast).
          imu = (ω_y, ω_z, f_x, f_z); enc, last = (e_l, e_r) or None; T the time since the
          encoder sample ``last`` (s); command = (ul, ur) N·m held over the step.
-         -> (imu_code, saturated, enc_code, nis, dof, healthy, inside)
+         acc_test = (gate, b_x, b_z, may): gate > 0 computes the accelerometer half's innovation
+         e against the model's (f_x, f_z); with may != 0 the half is an outlier (replaced by the
+         model's) when (e − b)ᵀ S⁻¹ (e − b) > 2 gate, b the recent innovations' median
+         -> (imu_code, saturated, enc_code, nis, dof, healthy, acc_out, e_x, e_z, inside)
             imu_code 1 used; 2 an outlier (the encoders fail the IMU gate with it and pass the
             normal gate with the model's sample): nothing changed, nis is the encoders' NIS
             with it, and the Python side coasts instead
@@ -547,32 +550,54 @@ static PyObject *py_state6(PyObject *self, PyObject *arg) {
 }
 
 /* the IMU sample as the filter uses it: an axis at the end of its range replaced by the
-   model's prediction (syn, computed here) with its extra variance; returns 1 if any was */
-static int imu_sample(const Core *c, const double *cmd, double *smp, double *extra, double *syn,
-                      double *syn_extra) {
-    int any = 0, sat[4];
+   model's prediction (syn, computed here) with its extra variance; with acc[0] > 0 the
+   accelerometer half's innovation e against the model's (f_x, f_z) is computed and, with
+   acc[3] != 0, the half is an outlier and replaced when e less the recent innovations' median
+   (acc[1], acc[2]) fails the gate (EKFEstimator._accel_nis); returns 1 if any axis was saturated */
+static int imu_sample(const Core *c, const double *cmd, const double *acc, double *smp, double *extra, double *syn,
+                      double *syn_extra, int *acc_out, double *e) {
+    int any = 0, sat[4], have_syn = 0;
+    *acc_out = 0;
+    e[0] = e[1] = NAN;
     for (int j = 0; j < 4; j++) {
         extra[j] = 0.0;
         any |= sat[j] = fabs(smp[j]) >= c->lim[j];
     }
-    if (!any) return 0;
-    synthetic(c, c->x, cmd[0], cmd[1], syn, syn_extra);
+    if (acc[0] > 0.0 && !sat[2] && !sat[3]) {
+        synthetic(c, c->x, cmd[0], cmd[1], syn, syn_extra);
+        have_syn = 1;
+        const double *P = c->P;
+        double g = c->g, fx = syn[2], fz = syn[3];
+        double sx = c->a_var + syn_extra[2] + g * g * P[TH * NX + TH] + fx * fx * P[SAX * NX + SAX];
+        double sz = c->a_var + syn_extra[3] + fz * fz * P[SAZ * NX + SAZ];
+        e[0] = smp[2] - fx;
+        e[1] = smp[3] - fz;
+        double ex = e[0] - acc[1], ez = e[1] - acc[2];
+        /* a push moves the specific force too, but also θ̈, which the gyro sees: an
+           accelerometer outlier needs a gyro sample that agrees with the model */
+        double eg = smp[0] - syn[0], sg = 3.5 * c->g_var + syn_extra[0];
+        *acc_out = acc[3] != 0.0 && ex * ex / sx + ez * ez / sz > 2.0 * acc[0] && eg * eg / sg <= c->imu_gate[1];
+    }
+    if (!any && !*acc_out) return 0;
+    if (!have_syn) synthetic(c, c->x, cmd[0], cmd[1], syn, syn_extra);
     for (int j = 0; j < 4; j++)
-        if (sat[j]) {
+        if (sat[j] || (j >= 2 && *acc_out)) {
             smp[j] = syn[j];
             extra[j] = syn_extra[j];
         }
-    return 1;
+    return any;
 }
 
-/* advance(core, imu, enc, last, T, command, may_reject) -> (imu_code, saturated, enc_code, nis, dof, ok):
+/* advance(core, imu, enc, last, T, command, may_reject, acc_test)
+       -> (imu_code, saturated, enc_code, nis, dof, ok, acc_out, e_x, e_z):
    one strapdown step with an IMU sample (steps without one are the Python side's); imu_code 2:
    the sample is an outlier (the encoders fail the IMU gate with it and pass the normal gate with
    the model's sample), nothing changed, nis = the encoders' NIS with the sample */
 static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
     Core *c;
-    if (nargs != 7 || !(c = get(args[0]))) {
-        if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "advance(core, imu, enc, last, T, command, may_reject)");
+    if (nargs != 8 || !(c = get(args[0]))) {
+        if (!PyErr_Occurred())
+            PyErr_SetString(PyExc_TypeError, "advance(core, imu, enc, last, T, command, may_reject, acc_test)");
         return NULL;
     }
     double smp[4], extra[4], syn[4], syn_extra[4], enc[2], last[2], cmd[2], T = 0.0;
@@ -584,24 +609,27 @@ static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs
     if (floats(args[5], cmd, 2, "command")) return NULL;
     int may_reject = PyObject_IsTrue(args[6]);
     if (may_reject < 0) return NULL;
+    double acc[4], e[2];
+    if (floats(args[7], acc, 4, "acc_test")) return NULL;
+    int acc_out = 0;
 
     double x1[NX], F[NX * NX], Q[NX * NX], Pp[NX * NX];
     int enc_code = 0, ok = 1;
     double nis = NAN;
     EncMeas em;
     em.dof = 0;
-    int saturated = imu_sample(c, cmd, smp, extra, syn, syn_extra);
-    propagate(c, c->x, smp, saturated ? extra : NULL, x1, F, Q);
+    int saturated = imu_sample(c, cmd, acc, smp, extra, syn, syn_extra, &acc_out, e);
+    propagate(c, c->x, smp, (saturated || acc_out) ? extra : NULL, x1, F, Q);
     cov_predict(F, c->P, Q, Pp);
     if (has_enc) {
         double eps = encoder_fit(c, enc, last, T, x1, smp, Pp, 1, &em);
         if (!(eps <= c->imu_gate[em.dof])) {
             double ax1[NX], aF[NX * NX], aQ[NX * NX], aPp[NX * NX];
-            if (!saturated) synthetic(c, c->x, cmd[0], cmd[1], syn, syn_extra);
+            if (!saturated && !acc_out) synthetic(c, c->x, cmd[0], cmd[1], syn, syn_extra);
             propagate(c, c->x, syn, syn_extra, ax1, aF, aQ);
             cov_predict(aF, c->P, aQ, aPp);
             if (encoder_fit(c, enc, last, T, ax1, syn, aPp, 1, &em) <= c->gate[em.dof])
-                return Py_BuildValue("(iiidiii)", 2, 0, 0, eps, 0, 1, 0);
+                return Py_BuildValue("(iiidiiiddi)", 2, 0, 0, eps, 0, 1, acc_out, e[0], e[1], 0);
         }
         em.dof = 0;
     }
@@ -642,7 +670,7 @@ static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs
         restore(c);
         ok = 0;
     }
-    return Py_BuildValue("(iiidiii)", 1, saturated, enc_code, nis, dof, ok, inside);
+    return Py_BuildValue("(iiidiiiddi)", 1, saturated, enc_code, nis, dof, ok, acc_out, e[0], e[1], inside);
 }
 
 static PyObject *forward(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
