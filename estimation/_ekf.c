@@ -44,6 +44,8 @@ typedef struct {
     /* the estimator's model: equation (1) with d_b + c_e, and the motors' driver */
     double mdt, m11, m12, m22, n_bla, d_b, d_w, g_b, yaw_damping, m33, g;
     double has_motor, compensates, tau_max, i_tau, sigma_tau, c_e, tol, every;
+    /* half the width (rad) of the interval an unchanged count keeps its wheel in (keep_inside) */
+    double inside_half;
     /* 1.0 for a consider state (Schmidt): kept in P, never corrected by a measurement */
     double consider[NX];
     /* state */
@@ -51,7 +53,7 @@ typedef struct {
     double xg[NX], Pg[NX * NX], wg[2], wpg[2];
 } Core;
 
-#define NCONST 51 /* doubles before x */
+#define NCONST 52 /* doubles before x */
 
 static void core_free(PyObject *cap) { PyMem_Free(PyCapsule_GetPointer(cap, "ekf_core")); }
 
@@ -466,7 +468,7 @@ static int keep_inside(Core *c, const double *enc, const double *last) {
             for (int k = 0; k < NX; k++) t += c->P[j * NX + k] * em.H[0][k];
             s2 += em.H[0][j] * t;
         }
-        if (!truncated_measurement(w, s2, enc[i] - 0.5 * c->delta, enc[i] + 0.5 * c->delta, sqrt(c->imu_gate[1]),
+        if (!truncated_measurement(w, s2, enc[i] - c->inside_half, enc[i] + c->inside_half, sqrt(c->imu_gate[1]),
                                    &em.z[0], &em.R[0]))
             continue;
         if (kalman_update(c->x, c->P, &em, c->consider)) return -1;
