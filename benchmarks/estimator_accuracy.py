@@ -59,9 +59,10 @@ C. Closed-loop success: each estimator in the loop (``simulate_twin(...,
    EKF's runs are those of B).
 D. Consistency of the EKF: ``estimation.consistency.monte_carlo`` over R runs (default
    20, ``--quick`` 8) of 3 s from θ0 = 0.05, 0.2 and 0.48 rad, rows from t = 0.5 s: mean
-   NEES against the state dimension, the fraction of rows whose run-averaged NEES lies
-   inside its two-sided 95 % χ² bounds, the same for the summed NIS of the encoder
-   updates, and NIS per degree of freedom (1 for a consistent filter). Runs that fell are
+   NEES (with the standard error of the per-run means) against the state dimension, the
+   fraction of rows whose run-averaged NEES lies inside its two-sided 95 % χ² bounds, the
+   same for the summed NIS of the encoder updates, and NIS per degree of freedom (1 for a
+   consistent filter). Runs that fell are
    left out (the test needs runs of equal length); their number is shown.
 
 The closing "Flags" list is computed from the tables: every comparison the EKF loses
@@ -497,9 +498,9 @@ def section_d(design, n_runs: int) -> list[str]:
     print()
     print(f"D. EKF consistency (estimation.consistency.monte_carlo, 95 % two-sided χ² bounds): {n_runs} runs x "
           f"{MC_DURATION:g} s per θ0 (seeds 0-{n_runs - 1}), rows from t = {MC_START:g} s")
-    h1 = (f"   {'θ0':>6}{'runs':>8}{'rows':>6}{'NEES':>9}{'dim':>5}{'bounds on run-avg NEES':>24}"
+    h1 = (f"   {'θ0':>6}{'runs':>8}{'rows':>6}{'NEES':>9}{'s.e.':>7}{'dim':>5}{'bounds on run-avg NEES':>24}"
           f"{'NEES inside':>13}{'NIS inside':>12}{'NIS/dof':>9}")
-    h2 = (f"   {'[rad]':>6}{'[used]':>8}{'':>6}{'mean':>9}{'':>5}{'':>24}{'[% rows]':>13}{'[% rows]':>12}"
+    h2 = (f"   {'[rad]':>6}{'[used]':>8}{'':>6}{'mean':>9}{'':>7}{'':>5}{'':>24}{'[% rows]':>13}{'[% rows]':>12}"
           f"{'[1]':>9}")
     print(h1)
     print(h2)
@@ -513,7 +514,8 @@ def section_d(design, n_runs: int) -> list[str]:
             continue
         m = monte_carlo(ok, start=MC_START)
         lo, hi = m["nees_bounds"]
-        print(f"   {th:6.2f}{f'{len(ok)}/{len(runs)}':>8}{m['rows']:6d}{m['nees_mean']:9.2f}{m['dim']:5d}"
+        se = float(np.std(m["nees_run_means"], ddof=1)) / math.sqrt(len(ok))  # of the per-run means
+        print(f"   {th:6.2f}{f'{len(ok)}/{len(runs)}':>8}{m['rows']:6d}{m['nees_mean']:9.2f}{se:7.2f}{m['dim']:5d}"
               f"{f'[{lo:.2f}, {hi:.2f}]':>24}{100 * m['nees_inside']:13.1f}{100 * m['nis_inside']:12.1f}"
               f"{m['nis_per_dof']:9.2f}")
         if not (lo <= m["nees_mean"] <= hi) or m["nees_inside"] < 0.9:
