@@ -137,7 +137,9 @@ class BareWorld:
             self.cid = cid = p.connect(p.DIRECT)
         p.setPhysicsEngineParameter(fixedTimeStep=1.0 / config.physics_rate,
                                     numSolverIterations=config.solver_iterations, numSubSteps=0,
-                                    deterministicOverlappingPairs=1, physicsClientId=cid)
+                                    deterministicOverlappingPairs=1,
+                                    solverResidualThreshold=config.solver_residual_threshold,  # as the twin's
+                                    physicsClientId=cid)
         p.setGravity(0.0, 0.0, -par.g, physicsClientId=cid)
         self.plane = p.loadURDF(os.path.join(pybullet_data.getDataPath(), "plane.urdf"), (0.0, 0.0, 0.0),
                                 (0.0, 0.0, 0.0, 1.0), useFixedBase=True, physicsClientId=cid)
