@@ -225,8 +225,10 @@ def test_monte_carlo_nees_and_nis_are_consistent(mc_runs):
     and 12 inside the t-interval of the per-run means; the summed NIS inside its bounds on ≥ 90 %
     of the rows with an encoder update; NIS per dof within 5 standard errors of 1.
 
-    Measured on seeds 0–19: mean NEES 12.21 (bounds 9.95–14.24; t-interval 9.94–14.48), NIS
-    inside 94.7 %, NIS per dof 0.962 (D = 2334, tolerance ±0.146). On the 15 disjoint batches
+    Measured on seeds 0–19: mean NEES 12.28 (bounds 9.95–14.24), NIS inside 96.5 %, NIS per
+    dof 0.969 (tolerance ±0.148); before the dwelling-wheel update (EKFEstimator._keep_inside)
+    12.21, 94.7 %, 0.962, and with it at the count's own edges 12.93, 92.9 %, 0.754 (fails).
+    The batch figures below predate that update. On the 15 disjoint batches
     of seeds 0–299 the NEES test passes 14 times (seeds 40–59 fail: mean 15.07, interval
     12.46–17.68), as a 95 % test should; over all 300 runs the mean NEES is 12.62 ± 0.25 (s.e.),
     about 5 % overconfident, inside what 20 runs can resolve (the cause, the scale factors
