@@ -256,9 +256,9 @@ def test_hud_says_what_it_shows():
     lines = hud_lines(s)
     text = [t for t, _ in lines]
     assert text[0] == "IT2  paper-exp3"
-    assert "1.23 s" in text[1] and "-5.0 deg" in text[2]
+    assert "1.23 s" in text[1] and "-0.087 rad" in text[2]  # SI, as everywhere: no degrees
     assert "+0.457 m" in text[3] and "(target 1.00 m)" in text[3]
-    assert "+57.3 deg" in text[4] and "(target 85.9 deg)" in text[4]
+    assert "+1.000 rad" in text[4] and "(target 1.50 rad)" in text[4]
     assert lines[-1] == ("FELL at 1.23 s", RED)
     quiet = [t for t, _ in hud_lines(HudState("T1", 0.0, -1e-9, -1e-9, -1e-9))]
     assert len(quiet) == 5 and not any("target" in t or "-0.0" in t for t in quiet)

@@ -1,13 +1,13 @@
 """The heads-up overlay of a video panel, drawn with OpenCV (Hershey fonts: ASCII only).
 
 Top left, on a darkened box: the panel's label (controller), the simulated time (s),
-the body pitch θ (deg), the travelled distance p = r ψ (m) and the heading α (deg),
+the body pitch θ (rad), the travelled distance p = r ψ (m) and the heading α (rad), in the
+project's SI units like every figure and file,
 each with the experiment's target where it has one, and, once the run has ended early,
 why (fell / diverged) in red.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,7 +21,7 @@ BOX_DARKEN = 0.45  # the box keeps this fraction of the picture's brightness
 
 @dataclass(frozen=True)
 class HudState:
-    """What the overlay shows at one frame (SI units; the overlay prints degrees for angles)."""
+    """What the overlay shows at one frame (SI units, printed as they are)."""
 
     label: str
     t: float  # s
@@ -42,13 +42,13 @@ def _num(v: float, decimals: int) -> float:
 def hud_lines(s: HudState) -> list[tuple[str, tuple[int, int, int]]]:
     """The overlay's text lines and their BGR colours."""
     lines = [(s.label, YELLOW), (f"t       {_num(s.t, 2):6.2f} s", WHITE),
-             (f"pitch   {_num(math.degrees(s.theta), 1):+6.1f} deg", WHITE)]
+             (f"pitch   {_num(s.theta, 3):+6.3f} rad", WHITE)]
     dist = f"dist    {_num(s.distance, 3):+6.3f} m"
     if s.p_d is not None:
         dist += f"  (target {s.p_d:.2f} m)"
-    head = f"heading {_num(math.degrees(s.alpha), 1):+6.1f} deg"
+    head = f"heading {_num(s.alpha, 3):+6.3f} rad"
     if s.alpha_d is not None:
-        head += f"  (target {math.degrees(s.alpha_d):.1f} deg)"
+        head += f"  (target {s.alpha_d:.2f} rad)"
     lines += [(dist, WHITE), (head, WHITE)]
     if s.ended:
         lines.append((s.ended, RED if s.alarm else GREY))
