@@ -17,9 +17,13 @@ rises from 0.48 rad, drives and turns, so every frame differs) is replayed in a
   segmentation mask), the renderer's whole cost per frame; after 3 warm-up frames
   (EGL's first frames compile shaders and are much slower; reported separately).
 * **overlay** – RGB → BGR conversion and the heads-up overlay (``draw_hud``).
-* **encode** – ``cv2.VideoWriter.write`` per frame, for each codec ``render_video`` may
-  use (``vp09`` first, ``mp4v`` as fallback), on the frames the EGL (else Tiny) scene
-  rendered; release included. Also the file size per second of video.
+* **encode** – per frame, for each encoder ``render_video`` may use: H.264 by
+  imageio-ffmpeg's ffmpeg (``libx264`` ultrafast, ``libopenh264``) fed through a pipe,
+  and OpenCV's ``cv2.VideoWriter`` (``vp09``, ``mp4v``), on the frames the EGL (else
+  Tiny) scene rendered, at the panel size and at two panels side by side (the frame of
+  ``--controller both``); the writer's whole life (ffmpeg: process start, pipe, finish;
+  OpenCV: write and release) over the frames. For ffmpeg also its CPU time (the child
+  process's user + system) per frame. And the file size per second of video.
 * **end to end** – ``render_video`` on the same run, one panel per renderer and two
   panels side by side: wall time per frame, including setup, rendering, the encoder
   thread (it overlaps rendering) and the final flush.
@@ -101,7 +105,25 @@ def render_frames(run, renderer: str, size, n_frames: int, warmup: int = 3) -> d
             "overlay": statistics.median(overlay), "frames": frames}
 
 
+def ffmpeg_version() -> str:
+    """imageio-ffmpeg's version and its ffmpeg's first line, or why there is none."""
+    import subprocess
+
+    from twin.errors import TwinError
+    from twin.render.video import _ffmpeg_exe
+
+    try:
+        exe = _ffmpeg_exe()
+    except TwinError as exc:
+        return str(exc)
+    import imageio_ffmpeg
+
+    first = subprocess.run([exe, "-version"], capture_output=True, text=True).stdout.splitlines()[:1]
+    return f"imageio-ffmpeg {imageio_ffmpeg.__version__}: {first[0] if first else exe}"
+
+
 def encode(frames, fourcc: str, fps: float, tmpdir: Path) -> dict | None:
+    """OpenCV's ``cv2.VideoWriter`` with ``fourcc``: wall time per frame (None: no such codec)."""
     import cv2
 
     from twin.plant.bullet import quiet_native_output
@@ -119,7 +141,70 @@ def encode(frames, fourcc: str, fps: float, tmpdir: Path) -> dict | None:
     wall = pc() - t0
     size = path.stat().st_size
     path.unlink()
-    return {"per_frame": wall / len(frames), "kib_per_s": size / 1024 / (len(frames) / fps)}
+    return {"per_frame": wall / len(frames), "cpu_per_frame": None, "kib_per_s": size / 1024 / (len(frames) / fps)}
+
+
+def encode_ffmpeg(frames, encoder: str, fps: float, tmpdir: Path) -> dict | None:
+    """H.264 by ffmpeg through render_video's pipe writer: wall and child CPU time per frame
+    (None: no ffmpeg, or this ffmpeg lacks ``encoder``)."""
+    import resource
+
+    from twin.errors import TwinError
+    from twin.render.video import _FfmpegWriter, _ffmpeg_exe, _h264_encoder
+
+    try:
+        exe = _ffmpeg_exe()
+        _h264_encoder(exe)
+    except TwinError:
+        return None
+    h, w = frames[0].shape[:2]
+    path = tmpdir / f"bench_{encoder}.mp4"
+
+    def child_cpu() -> float:
+        ru = resource.getrusage(resource.RUSAGE_CHILDREN)  # counts ffmpeg once it has been waited for
+        return ru.ru_utime + ru.ru_stime
+
+    c0, t0 = child_cpu(), pc()
+    try:
+        writer = _FfmpegWriter(exe, encoder, path, fps, (w, h))
+        for f in frames:
+            writer.write(f)
+        writer.release()
+    except TwinError as exc:  # e.g. this ffmpeg was built without the encoder
+        print(f"  ({encoder}: {exc})")
+        return None
+    wall, cpu = pc() - t0, child_cpu() - c0
+    size = path.stat().st_size
+    path.unlink()
+    return {"per_frame": wall / len(frames), "cpu_per_frame": cpu / len(frames),
+            "kib_per_s": size / 1024 / (len(frames) / fps)}
+
+
+ENCODERS = ("libx264", "libopenh264", "vp09", "mp4v")  # ffmpeg's H.264 encoders (pipe), then OpenCV's
+
+
+def encode_table(frames, n_encode: int, tmpdir: Path) -> dict:
+    """Encode cost per encoder at the panel size and at two panels side by side."""
+    base = frames[:n_encode]
+    h, w = base[0].shape[:2]
+    wide = [np.ascontiguousarray(np.hstack([f, base[(i + len(base) // 2) % len(base)]])) for i, f in enumerate(base)]
+    print(f"{'encoder':14}{'frame':>10}{'encode wall':>13}{'ffmpeg CPU':>12}{'encode':>12}{'size':>16}")
+    print(f"{'':14}{'[px]':>10}{'[ms/frame]':>13}{'[ms/frame]':>12}{'[frames/s]':>12}{'[KiB/s video]':>16}")
+    print("-" * 77)
+    out = {}
+    for name in ENCODERS:
+        for fr in (base, wide):
+            size = f"{fr[0].shape[1]}x{fr[0].shape[0]}"
+            e = (encode_ffmpeg(fr, name, 30.0, tmpdir) if name.startswith("lib")
+                 else encode(fr, name, 30.0, tmpdir))
+            out[(name, size)] = e
+            if e is None:
+                print(f"{name:14}{size:>10}{'not available here':>30}")
+                continue
+            cpu = "" if e["cpu_per_frame"] is None else f"{1e3 * e['cpu_per_frame']:.1f}"
+            print(f"{name:14}{size:>10}{1e3 * e['per_frame']:13.1f}{cpu:>12}{1 / e['per_frame']:12.1f}"
+                  f"{e['kib_per_s']:16.0f}")
+    return out
 
 
 def main(argv=None) -> int:
@@ -142,12 +227,12 @@ def main(argv=None) -> int:
     with quiet_native_output():  # PyBullet prints its build time on import
         import pybullet
     from twin.render import Scene, render_video
-    from twin.render.video import CODECS
 
     print("Offscreen video renderer: frames per second at "
           f"{size[0]}x{size[1]}, PyBullet EGL plugin vs TinyRenderer, and the encode cost")
     print(f"machine: {cpu_model()}, {os.cpu_count()} logical CPUs; Python {platform.python_version()}; "
           f"PyBullet API {pybullet.getAPIVersion()}; OpenCV {cv2.__version__}; numpy {np.__version__}")
+    print(f"ffmpeg: {ffmpeg_version()}")
     run = make_run(3.0)
     print(f"run: paper experiment 3, IT2, ideal sensing, {run.t[-1]:g} s simulated; frames at 30 fps")
 
@@ -172,21 +257,11 @@ def main(argv=None) -> int:
               f"{1 / d['render']:13.1f}{1 / (d['render'] + d['overlay']):14.1f}    ({len(d['frames'])} frames)")
 
     frames = results[renderers[0]]["frames"]
+    n_encode = min(len(frames), 30 if args.quick else 60)  # VP9 at 1280x480 costs ~0.25 s a frame
     print()
-    print(f"Encoding {len(frames)} frames of {size[0]}x{size[1]} ({renderers[0]} pictures), cv2.VideoWriter, "
-          f"30 fps, MP4:")
-    print(f"{'codec':10}{'encode':>12}{'encode':>12}{'size':>16}")
-    print(f"{'':10}{'[ms/frame]':>12}{'[frames/s]':>12}{'[KiB/s video]':>16}")
-    print("-" * 50)
-    enc = {}
+    print(f"Encoding {n_encode} frames ({renderers[0]} pictures, 30 fps, MP4), alone and two side by side:")
     with tempfile.TemporaryDirectory() as tmp:
-        for fourcc in CODECS:
-            e = encode(frames, fourcc, 30.0, Path(tmp))
-            enc[fourcc] = e
-            if e is None:
-                print(f"{fourcc:10}{'not available in this OpenCV':>40}")
-            else:
-                print(f"{fourcc:10}{1e3 * e['per_frame']:12.1f}{1 / e['per_frame']:12.1f}{e['kib_per_s']:16.0f}")
+        enc = encode_table(frames, n_encode, Path(tmp))
 
         print()
         print(f"End to end: render_video on the first {video_s:g} s of the run ({size[0]}x{size[1]} per panel)")
@@ -202,6 +277,7 @@ def main(argv=None) -> int:
             per_frame = 1e3 * info.seconds / info.frames
             print(f"{label:30}{info.frames:8d}{info.codec:>7}{info.seconds:9.2f}{per_frame:11.1f}"
                   f"{info.frames / info.seconds:10.1f}{info.render_seconds:9.2f}{info.encode_seconds:9.2f}")
+        last_codec, last_encoder, last_note = info.codec, info.encoder, info.note
 
     print()
     if egl:
@@ -212,10 +288,9 @@ def main(argv=None) -> int:
     else:
         print(f"RESULT: no EGL here; TinyRenderer renders {1 / results['tiny']['render']:.1f} frames/s "
               f"(the {TARGET_FPS:g} fps target applies where EGL loads)")
-    best = min((e["per_frame"], c) for c, e in enc.items() if e is not None)
-    costs = ", ".join(f"{c} {1e3 * e['per_frame']:.1f} ms/frame" for c, e in enc.items() if e)
-    print(f"        encoding: {costs} (render_video uses {next(c for c in CODECS if enc[c])}; "
-          f"fastest here {best[1]})")
+    costs = ", ".join(f"{c} {1e3 * e['per_frame']:.1f}" for (c, px), e in enc.items() if e and px == f"{size[0]}x{size[1]}")
+    print(f"        encoding, ms per {size[0]}x{size[1]} frame: {costs}; render_video used {last_codec} "
+          f"({last_encoder}){'; ' + last_note if last_note else ''}")
     return 0
 
 

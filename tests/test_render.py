@@ -343,3 +343,102 @@ def test_closing_one_egl_scene_leaves_the_others_working(tmp_path):
         "print('ok')\n", encoding="utf-8")
     r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0 and r.stdout.strip() == "ok", (r.returncode, r.stderr[-2000:])
+
+
+# ---- encoders ---------------------------------------------------------------------------------
+def fourcc_of(path) -> str:
+    """The codec OpenCV's decoder reports for ``path`` (FourCC, lower case)."""
+    cap = cv2.VideoCapture(str(path))
+    code = int(cap.get(cv2.CAP_PROP_FOURCC))
+    cap.release()
+    return "".join(chr((code >> 8 * i) & 0xFF) for i in range(4)).lower()
+
+
+def ffmpeg_says(path) -> str:
+    """ffmpeg's description of the video stream of ``path`` (it has no ffprobe beside it)."""
+    import subprocess
+
+    import imageio_ffmpeg
+
+    err = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-hide_banner", "-i", str(path)],
+                         capture_output=True, text=True).stderr
+    return next(line for line in err.splitlines() if "Video:" in line)
+
+
+def test_video_is_h264_by_ffmpeg(run_exp1, tmp_path):
+    pytest.importorskip("imageio_ffmpeg")
+    info = render_video(run_exp1, tmp_path / "h264.mp4", fps=FPS, size=SIZE)
+    assert (info.codec, info.encoder, info.note) == ("avc1", "ffmpeg libx264", "")
+    assert fourcc_of(info.path) in ("avc1", "h264")
+    stream = ffmpeg_says(info.path)
+    assert "h264" in stream and "yuv420p" in stream and f"{SIZE[0]}x{SIZE[1]}" in stream, stream
+    data = info.path.read_bytes()
+    assert data.index(b"moov") < data.index(b"mdat"), "+faststart: the index comes before the frames"
+    frames = read_video(info.path)
+    assert len(frames) == info.frames == 31  # exactly: H.264 by ffmpeg neither drops nor adds frames
+    assert all(f.shape == (SIZE[1], SIZE[0], 3) for f in frames)
+    below = hud_rows()
+    assert changed(frames[3][below:], frames[6][below:]) > 0.02, "frames change as the robot moves"
+    assert orange(frames[-1][below:]).mean() > 0.03, "the robot is in the picture"
+
+
+def test_libopenh264_where_ffmpeg_has_no_libx264(run_exp1, tmp_path, monkeypatch):
+    pytest.importorskip("imageio_ffmpeg")
+    import twin.render.video as video
+
+    monkeypatch.setattr(video, "_h264_encoder", lambda exe: "libopenh264")
+    info = render_video(run_exp1, tmp_path / "openh264.mp4", fps=10, size=SIZE)
+    assert (info.codec, info.encoder, info.note) == ("avc1", "ffmpeg libopenh264", "")
+    assert fourcc_of(info.path) in ("avc1", "h264") and len(read_video(info.path)) == info.frames == 11
+
+
+def test_without_ffmpeg_opencv_writes_the_video_and_says_why(run_exp1, tmp_path, monkeypatch):
+    import sys
+
+    monkeypatch.setenv("IMAGEIO_FFMPEG_EXE", str(tmp_path / "no-such-ffmpeg"))  # imageio-ffmpeg's override
+    info = render_video(run_exp1, tmp_path / "missing.mp4", fps=5, size=(64, 48))
+    assert info.codec in CODECS[1:] and info.encoder == f"opencv {info.codec}"
+    assert info.note.startswith(f"video encoded by OpenCV as {info.codec}, not H.264: ffmpeg ")
+    assert "no-such-ffmpeg" in info.note and "does not run" in info.note and "\n" not in info.note
+    assert fourcc_of(info.path) not in ("avc1", "h264") and len(read_video(info.path)) == info.frames == 6
+
+    monkeypatch.setitem(sys.modules, "imageio_ffmpeg", None)  # as if the package were not installed
+    info = render_video(run_exp1, tmp_path / "no-package.mp4", fps=5, size=(64, 48))
+    assert info.codec in CODECS[1:]
+    assert info.note.endswith("not H.264: the package imageio-ffmpeg is not installed")
+
+
+def test_twin_run_notes_the_fallback_encoder(tmp_path, monkeypatch):
+    from twin.scenarios import load_scenario
+    from twin.scenarios.runner import run_scenario
+
+    monkeypatch.setenv("IMAGEIO_FFMPEG_EXE", str(tmp_path / "no-such-ffmpeg"))
+    sc = load_scenario("paper-exp2", ["duration=0.2", "video.width=64", "video.height=48"])
+    res = run_scenario(sc, ("it2",), out=tmp_path / "run", video=True)
+    assert res.video.codec in CODECS[1:]
+    assert [n for n in res.notes if "not H.264" in n] == [res.video.note]
+
+
+FAKE_FFMPEG = """#!/bin/sh
+case "$*" in *-encoders*) echo " V....D libx264  H.264 (a stand-in)"; exit 0;; esac
+{read}
+echo "[libx264 @ 0x1] starting" >&2
+echo "{message}" >&2
+exit 1
+"""
+
+
+@pytest.mark.parametrize("read, message, when", [
+    ("head -c 1000 > /dev/null", "x264 [error]: malloc of size 123 failed", "while encoding"),  # dies early
+    ("cat > /dev/null", "[out#0/mp4 @ 0x2] Error writing trailer: No space left on device", "writing the video"),
+])
+def test_ffmpeg_failing_is_a_twin_error_with_its_last_line(read, message, when, run_exp1, tmp_path, monkeypatch):
+    fake = tmp_path / "fake-ffmpeg"
+    fake.write_text(FAKE_FFMPEG.format(read=read, message=message))
+    fake.chmod(0o755)
+    monkeypatch.setenv("IMAGEIO_FFMPEG_EXE", str(fake))
+    out = tmp_path / "out"
+    with pytest.raises(TwinError) as err:
+        render_video(run_exp1, out / "v.mp4", fps=FPS, size=SIZE)
+    assert str(err.value) == f"ffmpeg failed {when} (exit status 1): {message}"
+    assert list(out.iterdir()) == [], "no partial video left behind"

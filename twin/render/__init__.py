@@ -1,9 +1,9 @@
-"""Offscreen videos of logged twin runs (PyBullet replay, OpenCV overlay and MP4 encoding).
+"""Offscreen videos of logged twin runs (PyBullet replay, OpenCV overlay, H.264 MP4 by ffmpeg).
 
 >>> from twin.render import render_video
 >>> info = render_video([run_it2, run_t1], "runs/exp3/video.mp4")  # doctest: +SKIP
 >>> info.frames, info.codec, info.renderer  # doctest: +SKIP
-(451, 'vp09', 'egl')
+(451, 'avc1', 'egl')
 
 PyBullet and OpenCV are imported when a video is made, not with this package.
 """

@@ -1,4 +1,4 @@
-"""MP4 video of logged twin runs, rendered offscreen with PyBullet and encoded with OpenCV.
+"""MP4 video of logged twin runs, rendered offscreen with PyBullet, encoded as H.264 by ffmpeg.
 
 A replay, decoupled from the simulation: each run's logged ground truth is played back
 in a :class:`~twin.render.scene.Scene` of its own (a separate PyBullet world that is
@@ -17,17 +17,26 @@ Layout
     (:mod:`twin.render.hud`).
 
 Encoding
-    ``cv2.VideoWriter`` into an MP4 container with the codec ``vp09`` (VP9: plays in
-    browsers), else ``mp4v`` (MPEG-4 part 2) where this OpenCV has no VP9 encoder;
-    :attr:`VideoInfo.codec` says which. The file is written under a temporary name in
-    the same directory and renamed when complete, so a failed render leaves no partial
-    video behind.
+    H.264 (``avc1``: yuv420p, ``+faststart``; plays in every browser, Safari included)
+    by the ffmpeg binary that the ``imageio-ffmpeg`` package bundles, run as a
+    subprocess fed raw BGR frames on its stdin: encoder ``libx264`` (preset
+    ``ultrafast``, CRF 23), else ``libopenh264`` where that ffmpeg lacks libx264.
+    Without a working ffmpeg (package missing, binary absent or failing, no H.264
+    encoder in it) OpenCV's ``cv2.VideoWriter`` writes ``vp09`` (VP9), else ``mp4v``
+    (MPEG-4 part 2); :attr:`VideoInfo.codec` and :attr:`VideoInfo.encoder` say which
+    and :attr:`VideoInfo.note` why H.264 was not used. ``$IMAGEIO_FFMPEG_EXE`` names
+    another ffmpeg binary (imageio-ffmpeg's own rule). The file is written under a
+    temporary name in the same directory and renamed when complete, so a failed render
+    leaves no partial video behind; an ffmpeg that exits with an error raises
+    :class:`~twin.errors.TwinError` with its last line of stderr.
 """
 from __future__ import annotations
 
+import functools
 import math
 import os
 import queue
+import subprocess
 import tempfile
 import threading
 import time
@@ -41,7 +50,10 @@ from twin.errors import TwinError
 from twin.render.hud import HudState, draw_hud
 from twin.render.scene import Camera, Scene, check_size, resolve_renderer
 
-CODECS = ("vp09", "mp4v")  # tried in this order
+CODECS = ("avc1", "vp09", "mp4v")  # tried in this order: H.264 by ffmpeg, then OpenCV's VP9 and MPEG-4
+H264_ENCODERS = ("libx264", "libopenh264")  # ffmpeg's H.264 encoders, preferred first
+X264_ARGS = ("-preset", "ultrafast", "-crf", "23")  # ultrafast: ~3 ms per 1280x480 frame; CRF 23 is x264's default
+OPENH264_BITS_PER_PIXEL = 0.15  # libopenh264 has no CRF: a bit rate per pixel and frame instead
 MAX_FPS = 240.0
 MAX_WIDTH = 7680  # px, the whole side-by-side frame
 SEPARATOR = (40, 40, 40)  # BGR line between panels
@@ -63,7 +75,7 @@ class VideoInfo:
     fps : float
         Frames per second (real time: 1 s of video = 1 s simulated).
     codec : str
-        FourCC of the encoder used: ``"vp09"`` or ``"mp4v"``.
+        FourCC of the video's codec: ``"avc1"`` (H.264), ``"vp09"`` or ``"mp4v"``.
     renderer : str
         ``"egl"`` or ``"tiny"`` (``"egl+tiny"`` if the panels' scenes differ).
     panels : int
@@ -75,7 +87,13 @@ class VideoInfo:
     encode_seconds : float
         Time the encoder spent on the frames, s. It runs in a thread of its own,
         overlapping the rendering, so ``render_seconds + encode_seconds`` may exceed
-        ``seconds``.
+        ``seconds``. With ffmpeg, the time spent handing frames to its pipe (blocked
+        while it is busy) and waiting for it to finish.
+    encoder : str
+        What wrote the video: ``"ffmpeg libx264"``, ``"ffmpeg libopenh264"`` or
+        ``"opencv vp09"``, ``"opencv mp4v"``.
+    note : str
+        Why H.264 by ffmpeg was not used (one line); empty when it was.
     """
 
     path: Path
@@ -88,6 +106,8 @@ class VideoInfo:
     seconds: float
     render_seconds: float
     encode_seconds: float
+    encoder: str = ""
+    note: str = ""
 
     @property
     def duration(self) -> float:
@@ -192,25 +212,133 @@ def _temp_file(p: Path) -> Path:
     return Path(tmp)
 
 
-def _open_writer(path: Path, fps: float, size: tuple[int, int]):
-    """A ``cv2.VideoWriter`` open on ``path`` with the first codec of :data:`CODECS` that works."""
+def _last_line(text: str) -> str:
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    return lines[-1] if lines else "no message"
+
+
+def _ffmpeg_exe() -> str:
+    """imageio-ffmpeg's ffmpeg binary (or ``$IMAGEIO_FFMPEG_EXE``); TwinError saying why not."""
+    try:
+        import imageio_ffmpeg
+    except ImportError:
+        raise TwinError("the package imageio-ffmpeg is not installed") from None
+    try:
+        return imageio_ffmpeg.get_ffmpeg_exe()
+    except RuntimeError as exc:
+        raise TwinError(f"imageio-ffmpeg found no ffmpeg binary ({_last_line(str(exc))})") from None
+
+
+@functools.lru_cache(maxsize=8)
+def _h264_encoder(exe: str) -> str:
+    """The first of :data:`H264_ENCODERS` that the ffmpeg ``exe`` has; TwinError saying why none.
+    Cached per binary: listing the encoders takes a process start (~50 ms)."""
+    try:
+        out = subprocess.run([exe, "-hide_banner", "-encoders"], capture_output=True, text=True, timeout=30)
+    except (OSError, subprocess.SubprocessError) as exc:
+        raise TwinError(f"ffmpeg {exe!r} does not run ({exc.__class__.__name__}: {exc})") from None
+    if out.returncode != 0:
+        raise TwinError(f"ffmpeg {exe!r} -encoders exited with status {out.returncode}: "
+                        f"{_last_line(out.stderr)}")
+    names = {parts[1] for parts in (ln.split() for ln in out.stdout.splitlines()) if len(parts) > 1}
+    for enc in H264_ENCODERS:
+        if enc in names:
+            return enc
+    raise TwinError(f"ffmpeg {exe!r} has no H.264 encoder ({' or '.join(H264_ENCODERS)})")
+
+
+class _FfmpegWriter:
+    """An H.264 MP4 written by an ffmpeg subprocess; the ``write``/``release`` interface of
+    ``cv2.VideoWriter``, but failures raise TwinError (with ffmpeg's last stderr line)
+    instead of passing silently."""
+
+    def __init__(self, exe: str, encoder: str, path: Path, fps: float, size: tuple[int, int]):
+        w, h = size
+        if w % 2 or h % 2:  # yuv420p subsamples chroma 2x2: odd sizes are refused by the encoders
+            raise TwinError(f"H.264 (yuv420p) needs an even frame size, got {w}x{h}")
+        self.size = (w, h)
+        if encoder == "libx264":
+            codec_args = ["-c:v", "libx264", *X264_ARGS]
+        else:
+            codec_args = ["-c:v", encoder, "-b:v", str(int(OPENH264_BITS_PER_PIXEL * w * h * fps))]
+        args = [exe, "-hide_banner", "-loglevel", "error", "-y",  # -y: the temporary file already exists
+                "-f", "rawvideo", "-pix_fmt", "bgr24", "-s", f"{w}x{h}", "-framerate", repr(float(fps)), "-i", "-",
+                "-an", *codec_args, "-pix_fmt", "yuv420p", "-movflags", "+faststart", "-f", "mp4", str(path)]
+        # stderr to a file, not a pipe: an undrained pipe could fill and stall ffmpeg
+        self._stderr = tempfile.TemporaryFile()
+        try:
+            self._proc = subprocess.Popen(args, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                                          stderr=self._stderr)
+        except OSError as exc:
+            self._stderr.close()
+            raise TwinError(f"ffmpeg {exe!r} does not start ({exc.strerror or exc})") from None
+
+    def _failure(self, what: str) -> TwinError:
+        self._stderr.seek(0)
+        last = _last_line(self._stderr.read().decode("utf-8", "replace"))
+        return TwinError(f"ffmpeg failed {what} (exit status {self._proc.returncode}): {last}")
+
+    def write(self, frame: np.ndarray) -> None:
+        """Hand a BGR frame (h, w, 3) uint8 to ffmpeg; blocks while its pipe is full."""
+        if frame.shape != (self.size[1], self.size[0], 3) or frame.dtype != np.uint8:
+            raise TwinError(f"a frame must be {self.size[1]}x{self.size[0]}x3 uint8, got {frame.shape} {frame.dtype}")
+        try:
+            self._proc.stdin.write(memoryview(np.ascontiguousarray(frame)).cast("B"))
+        except (BrokenPipeError, ValueError):  # ffmpeg has exited (ValueError: pipe already closed)
+            self._finish()
+            raise self._failure("while encoding") from None
+
+    def _finish(self) -> int:
+        if self._proc.stdin is not None and not self._proc.stdin.closed:
+            try:
+                self._proc.stdin.close()  # end of input: ffmpeg flushes and writes the moov atom
+            except BrokenPipeError:
+                pass
+        return self._proc.wait()
+
+    def release(self) -> None:
+        """Close the input, wait for ffmpeg; TwinError if it exited with an error."""
+        try:
+            if self._finish() != 0:
+                raise self._failure("writing the video")
+        finally:
+            self._stderr.close()
+
+
+def _open_opencv(path: Path, fps: float, size: tuple[int, int]):
+    """A ``cv2.VideoWriter`` open on ``path`` with OpenCV's first codec of :data:`CODECS` that works."""
     import cv2
 
     from twin.plant.bullet import quiet_native_output
 
-    for fourcc in CODECS:
+    for fourcc in CODECS[1:]:
         with quiet_native_output():  # FFmpeg logs each codec it cannot open
             writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), fps, size)
         if writer.isOpened():
             return writer, fourcc
         writer.release()
-    raise TwinError(f"OpenCV cannot write an MP4 video here with any of the codecs {', '.join(CODECS)} "
-                    f"(cv2 {cv2.__version__}); install an opencv-python build with FFmpeg")
+    raise TwinError(f"OpenCV cannot write an MP4 video here with any of the codecs {', '.join(CODECS[1:])} "
+                    f"(cv2 {cv2.__version__}), and H.264 by ffmpeg is not available either; "
+                    f"pip install imageio-ffmpeg")
+
+
+def _open_writer(path: Path, fps: float, size: tuple[int, int]):
+    """The writer of the first codec of :data:`CODECS` that works here: ``(writer, codec,
+    encoder, note)``; ``note`` says why H.264 by ffmpeg was not used ("" when it was)."""
+    try:
+        exe = _ffmpeg_exe()
+        encoder = _h264_encoder(exe)
+        return _FfmpegWriter(exe, encoder, path, fps, size), "avc1", f"ffmpeg {encoder}", ""
+    except TwinError as exc:
+        why = str(exc)
+    writer, fourcc = _open_opencv(path, fps, size)
+    return writer, fourcc, f"opencv {fourcc}", f"video encoded by OpenCV as {fourcc}, not H.264: {why}"
 
 
 class _Encoder:
-    """Feeds a ``cv2.VideoWriter`` from a thread of its own, so that encoding (OpenCV's VP9
-    encoder runs on one core and releases the GIL) overlaps the rendering of later frames."""
+    """Feeds a writer (``cv2.VideoWriter`` or :class:`_FfmpegWriter`) from a thread of its
+    own, so that encoding (OpenCV's encoders release the GIL; ffmpeg is a process of its
+    own and a pipe write releases it too) overlaps the rendering of later frames."""
 
     def __init__(self, writer, depth: int = 6):
         self.writer = writer
@@ -294,13 +422,14 @@ def render_video(runs, path, fps: float = 30, size=(640, 480),
     Returns
     -------
     VideoInfo
-        Frames, size, fps, codec, renderer and the time spent.
+        Frames, size, fps, codec, encoder (and why not H.264), renderer and the time spent.
 
     Raises
     ------
     TwinError
         Bad input (no runs, fps or size out of range, a path that is not a writable
-        ``.mp4`` file) or no working MP4 encoder; the message says what is allowed.
+        ``.mp4`` file), no working MP4 encoder, or ffmpeg exiting with an error (its
+        last stderr line); the message says what is allowed or what went wrong.
     """
     t_start = time.perf_counter()
     runs = _check_runs(runs)
@@ -335,7 +464,7 @@ def render_video(runs, path, fps: float = 30, size=(640, 480),
     try:
         for r in runs:
             scenes.append(Scene(r.config, (w, h), renderer, camera))
-        writer, codec = _open_writer(tmp, fps, (total_w, h))
+        writer, codec, encoder_name, note = _open_writer(tmp, fps, (total_w, h))
         encoder = _Encoder(writer)
         held: list[np.ndarray | None] = [None] * len(runs)
         for k in range(n):
@@ -369,7 +498,7 @@ def render_video(runs, path, fps: float = 30, size=(640, 480),
         enc, encoder = encoder, None
         enc.close()
         if tmp.stat().st_size == 0:
-            raise TwinError(f"OpenCV wrote nothing to {str(path)!r} (codec {codec}); the video is missing")
+            raise TwinError(f"{encoder_name} wrote nothing to {str(path)!r}; the video is missing")
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)  # mkstemp made it private; the video is an ordinary output file
@@ -388,4 +517,4 @@ def render_video(runs, path, fps: float = 30, size=(640, 480),
     used = sorted({s.renderer for s in scenes}, reverse=False)
     return VideoInfo(path=path, frames=n, size=(total_w, h), fps=fps, codec=codec, renderer="+".join(used),
                      panels=len(runs), seconds=time.perf_counter() - t_start, render_seconds=t_render,
-                     encode_seconds=enc.busy)
+                     encode_seconds=enc.busy, encoder=encoder_name, note=note)

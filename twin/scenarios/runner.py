@@ -161,6 +161,8 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
         t0 = time.perf_counter()
         result.video = render_video(runs, out / "video.mp4", fps=v["fps"], size=(v["width"], v["height"]), progress=cb)
         timings["video_s"] = time.perf_counter() - t0
+        if result.video.note:  # H.264 by ffmpeg was not available: say what wrote the video instead, and why
+            result.notes.append(result.video.note)
         result.files.append(out / "video.mp4")
     else:
         (out / "video.mp4").unlink(missing_ok=True)  # an earlier run's video would not show these runs
