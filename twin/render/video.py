@@ -47,7 +47,6 @@ from pathlib import Path
 import numpy as np
 
 from twin.errors import TwinError
-from twin.render.hud import HudState, draw_hud
 from twin.render.scene import Camera, Scene, check_size, resolve_renderer
 
 CODECS = ("avc1", "vp09", "mp4v")  # tried in this order: H.264 by ffmpeg, then OpenCV's VP9 and MPEG-4
@@ -388,7 +387,8 @@ def _default_label(run, i: int) -> str:
 
 def render_video(runs, path, fps: float = 30, size=(640, 480),
                  progress: Callable[[int, int], object] | None = None, *, renderer: str | None = None,
-                 camera: Camera | None = None, labels: Sequence[str] | None = None, hud: bool = True) -> VideoInfo:
+                 camera: Camera | None = None, labels: Sequence[str] | None = None, hud: bool = True,
+                 parallel: bool | None = None) -> VideoInfo:
     """Render logged twin runs into an MP4 video, side by side, in real time.
 
     Parameters
@@ -417,7 +417,11 @@ def render_video(runs, path, fps: float = 30, size=(640, 480),
         One per run, shown at the top of its overlay; default the controller's label
         (upper case) and the experiment's name.
     hud : bool
-        Draw the heads-up overlay (time s, pitch deg, distance m, heading deg, targets).
+        Draw the heads-up overlay (time s, pitch rad, distance m, heading rad, targets).
+    parallel : bool, optional
+        Render each panel in a worker process of its own (:mod:`twin.render.panels`)
+        while this one composes and encodes; default: when there are several runs and
+        more than one CPU. The frames are the same either way.
 
     Returns
     -------
@@ -446,45 +450,40 @@ def render_video(runs, path, fps: float = 30, size=(640, 480),
         raise TwinError(f"labels must be a sequence of {len(runs)} strings, one per run, got {labels!r}")
     if progress is not None and not callable(progress):
         raise TwinError(f"progress must be a callable progress(frames_done, frames_total) or None, got {progress!r}")
+    if parallel is not None and not isinstance(parallel, bool):
+        raise TwinError(f"parallel must be True, False or None (automatic), got {parallel!r}")
     if camera is not None and not isinstance(camera, Camera):
         raise TwinError(f"camera must be a twin.render.Camera, got {camera!r}")
     renderer = resolve_renderer(renderer)
     path = _check_path(path)
 
-    import cv2
+    from twin.render.panels import RemotePanel, panel_frames
 
     tracks = [_Track(r, labels[i]) for i, r in enumerate(runs)]
     times = frame_times(max(tr.duration for tr in tracks), fps)
     n = len(times)
     samples = [tr.sample(times) for tr in tracks]
+    if parallel is None:
+        parallel = len(runs) > 1 and (os.cpu_count() or 1) > 1
     tmp = _temp_file(path)
     scenes: list[Scene] = []
+    remotes: list[RemotePanel] = []
     encoder = None
     t_render = 0.0
     try:
-        for r in runs:
-            scenes.append(Scene(r.config, (w, h), renderer, camera))
+        sources = []
+        for j, (r, tr, smp) in enumerate(zip(runs, tracks, samples)):
+            if parallel:
+                remotes.append(RemotePanel(j, r.config, (w, h), renderer, camera, tr, smp, times, hud))
+                sources.append(remotes[-1].frames())
+            else:
+                scenes.append(Scene(r.config, (w, h), renderer, camera))
+                sources.append(panel_frames(scenes[-1], tr, smp, times, hud))
         writer, codec, encoder_name, note = _open_writer(tmp, fps, (total_w, h))
         encoder = _Encoder(writer)
-        held: list[np.ndarray | None] = [None] * len(runs)
         for k in range(n):
             t0 = time.perf_counter()
-            tk = float(times[k])
-            panels = []
-            for j, (scene, tr, s) in enumerate(zip(scenes, tracks, samples)):
-                if held[j] is not None:
-                    panels.append(held[j])
-                    continue
-                rgb = scene.render(s["theta"][k], s["alpha"][k], s["x"][k], s["y"][k], s["psi_l"][k], s["psi_r"][k],
-                                   s["roll"][k])
-                panel = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
-                if hud:
-                    draw_hud(panel, HudState(tr.label, min(tk, tr.duration), s["theta"][k], s["distance"][k],
-                                             s["alpha"][k], tr.p_d, tr.alpha_d, tr.ended(tk),
-                                             tr.status != "ok"))
-                if tk > tr.duration + 1e-9:
-                    held[j] = panel  # the run has ended: this panel stays as it is
-                panels.append(panel)
+            panels = [next(src) for src in sources]
             if len(panels) == 1:
                 frame = panels[0]
             else:
@@ -514,7 +513,9 @@ def render_video(runs, path, fps: float = 30, size=(640, 480),
     finally:
         for scene in scenes:
             scene.close()
-    used = sorted({s.renderer for s in scenes}, reverse=False)
+        for remote in remotes:
+            remote.close()
+    used = sorted({s.renderer for s in scenes} | {rp.renderer for rp in remotes})
     return VideoInfo(path=path, frames=n, size=(total_w, h), fps=fps, codec=codec, renderer="+".join(used),
                      panels=len(runs), seconds=time.perf_counter() - t_start, render_seconds=t_render,
                      encode_seconds=enc.busy, encoder=encoder_name, note=note)

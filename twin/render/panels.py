@@ -1,0 +1,165 @@
+"""The frames of one video panel, rendered here or in a process of their own.
+
+A panel is one run replayed in a :class:`~twin.render.scene.Scene` of its own, with its
+heads-up overlay, one BGR picture per frame time; a run that has ended holds its last
+picture. Panels share nothing, so with several runs each can be rendered by a worker
+process while this one composes the frames and feeds the encoder: rendering (about 20 ms
+per 640x480 EGL frame here) is the video's bottleneck once H.264 encodes a frame in
+2–3 ms. The pictures are the same bytes either way (tests/test_render.py).
+
+Worker protocol (on the worker's stdout; every message is its length, 8 bytes little-endian,
+then its bytes): the name of the renderer it got (``b"egl"`` or ``b"tiny"``), then one
+message of ``height·width·3`` bytes per frame; on an error ``b"ERROR: "`` and one line,
+and it stops. Its job, a pickle, comes on its stdin.
+"""
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+
+import numpy as np
+
+from twin.errors import TwinError
+from twin.render.hud import HudState, draw_hud
+from twin.render.scene import Scene
+
+_ERROR = b"ERROR: "
+
+
+def panel_frames(scene: Scene, track, samples: dict, times: np.ndarray, hud: bool) -> Iterator[np.ndarray]:
+    """The BGR panels (height, width, 3) of ``track`` (a video ``_Track``) at ``times`` (s),
+    from its ``samples`` (the track sampled at ``times``), drawn in ``scene``."""
+    import cv2
+
+    held = None
+    for k, tk in enumerate(times.tolist()):
+        if held is not None:
+            yield held
+            continue
+        s = samples
+        rgb = scene.render(s["theta"][k], s["alpha"][k], s["x"][k], s["y"][k], s["psi_l"][k], s["psi_r"][k],
+                           s["roll"][k])
+        panel = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
+        if hud:
+            draw_hud(panel, HudState(track.label, min(tk, track.duration), s["theta"][k], s["distance"][k],
+                                     s["alpha"][k], track.p_d, track.alpha_d, track.ended(tk),
+                                     track.status != "ok"))
+        if tk > track.duration + 1e-9:
+            held = panel  # the run has ended: this panel stays as it is
+        yield panel
+
+
+def _send(out, payload) -> None:
+    """One message: ``payload`` (bytes, or a frame's buffer) with its length in bytes first."""
+    out.write(memoryview(payload).nbytes.to_bytes(8, "little"))
+    out.write(payload)
+
+
+def _read_exact(stream, n: int) -> bytes:
+    buf = bytearray()
+    while len(buf) < n:
+        chunk = stream.read(n - len(buf))
+        if not chunk:
+            raise EOFError
+        buf += chunk
+    return bytes(buf)
+
+
+def _worker_main() -> None:
+    """A worker process's whole life (``python -m twin.render.panels``): read its job, a
+    pickle, from stdin; render one panel's frames into the protocol stream. The stream is
+    the process's original stdout; fd 1 itself is pointed at stderr first, so that what
+    PyBullet or EGL print cannot end up inside a frame."""
+    import os
+    import pickle
+    import sys
+
+    out = os.fdopen(os.dup(1), "wb", buffering=1 << 20)
+    os.dup2(2, 1)
+    try:
+        job = pickle.load(sys.stdin.buffer)
+        with Scene(job["config"], job["size"], job["renderer"], job["camera"]) as scene:
+            _send(out, scene.renderer.encode())
+            for panel in panel_frames(scene, job["track"], job["samples"], job["times"], job["hud"]):
+                _send(out, panel.data)
+    except BaseException as exc:  # the parent turns it into a TwinError
+        line = (str(exc).splitlines() or [""])[0]
+        try:
+            _send(out, _ERROR + f"{type(exc).__name__}: {line}".encode())
+        except OSError:
+            pass
+    finally:
+        try:
+            out.close()
+        except OSError:
+            pass
+
+
+class RemotePanel:
+    """A panel rendered by a worker process (``python -m twin.render.panels``, not
+    multiprocessing: that would re-import the caller's main module, which a script without
+    an ``if __name__ == "__main__"`` guard cannot survive): :meth:`frames` yields its
+    pictures as they arrive; :attr:`renderer` is the worker's renderer once the first has.
+    Close it (or use ``with``) to stop the worker."""
+
+    def __init__(self, index: int, config, size, renderer, camera, track, samples, times, hud):
+        import pickle
+        import subprocess
+        import sys
+
+        self.index = index
+        self.width, self.height = size
+        self.n = len(times)
+        self.wait = 0.0  # s this process waited for the worker's frames
+        self.renderer = ""  # the worker's first message: read with the frames, so workers start together
+        self._proc = subprocess.Popen([sys.executable, "-m", "twin.render.panels"], stdin=subprocess.PIPE,
+                                      stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+        job = dict(config=config, size=size, renderer=renderer, camera=camera, track=track, samples=samples,
+                   times=times, hud=hud)
+        try:
+            self._proc.stdin.write(pickle.dumps(job, protocol=pickle.HIGHEST_PROTOCOL))
+            self._proc.stdin.close()
+        except OSError:
+            pass  # the worker died at once: its missing first message says so
+
+    def _message(self) -> bytes:
+        t0 = time.perf_counter()
+        stream = self._proc.stdout
+        try:
+            size = int.from_bytes(_read_exact(stream, 8), "little")
+            msg = _read_exact(stream, size)
+        except EOFError:
+            self._proc.wait(5.0)
+            raise TwinError(f"the renderer process of video panel {self.index + 1} ended without a word "
+                            f"(exit status {self._proc.returncode})") from None
+        finally:
+            self.wait += time.perf_counter() - t0
+        if msg.startswith(_ERROR):
+            raise TwinError(f"video panel {self.index + 1}: {msg[len(_ERROR):].decode(errors='replace')}")
+        return msg
+
+    def frames(self) -> Iterator[np.ndarray]:
+        shape = (self.height, self.width, 3)
+        self.renderer = self._message().decode()
+        for _ in range(self.n):
+            msg = self._message()
+            if len(msg) != shape[0] * shape[1] * 3:
+                raise TwinError(f"video panel {self.index + 1}: a frame of {len(msg)} bytes, expected "
+                                f"{shape[0] * shape[1] * 3}")
+            yield np.frombuffer(msg, np.uint8).reshape(shape)
+
+    def close(self) -> None:
+        if self._proc.poll() is None:
+            self._proc.kill()
+        self._proc.stdout.close()
+        self._proc.wait()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+if __name__ == "__main__":
+    _worker_main()
