@@ -1,6 +1,22 @@
+import os
+
 import pytest
 
 from twin.controllers.lmi import design_balance_gains
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _private_design_cache(tmp_path_factory):
+    """Every design the session caches (in this process and in the subprocesses it starts,
+    which inherit the environment) goes to a directory of its own: the tests must neither
+    write into the user's cache nor be served designs from it."""
+    old = os.environ.get("TWIN_CACHE_DIR")
+    os.environ["TWIN_CACHE_DIR"] = str(tmp_path_factory.mktemp("design-cache"))
+    yield
+    if old is None:
+        os.environ.pop("TWIN_CACHE_DIR", None)
+    else:
+        os.environ["TWIN_CACHE_DIR"] = old
 
 
 @pytest.fixture(scope="session")

@@ -78,13 +78,59 @@ def _design_options(f):
     return f
 
 
+def _no_cache_option(f):
+    """--no-cache: solve the LMI design even if the design cache has it, and do not store it."""
+    def disable(ctx, param, value):
+        if value:
+            from twin.controllers import design_cache
+
+            design_cache.set_enabled(False)
+        return value
+    return click.option("--no-cache", is_flag=True, callback=disable, expose_value=True,
+                        help="Solve the LMI design anew instead of taking it from the design cache "
+                             "(see 'twin cache'), and do not store it.")(f)
+
+
+@main.group()
+def cache():
+    """The design cache: LMI designs stored by their inputs, so that a run need not solve them.
+
+    Where: $TWIN_CACHE_DIR, else $XDG_CACHE_HOME/mtwip-twin, else ~/.cache/mtwip-twin.
+
+    \b
+    Examples:
+      twin cache info
+      twin cache clear
+    """
+
+
+@cache.command("info")
+def cache_info():
+    """Print the design cache's directory and how many designs it holds."""
+    from twin.controllers import design_cache
+
+    d = design_cache.cache_dir()
+    n = len(list(d.glob("lmi-*.json"))) if d.is_dir() else 0
+    click.echo(f"{d}: {n} cached design{'s' * (n != 1)}")
+
+
+@cache.command("clear")
+def cache_clear():
+    """Delete every cached design (only the cache's own files)."""
+    from twin.controllers import design_cache
+
+    d, n = design_cache.clear()
+    click.echo(f"removed {n} file{'s' * (n != 1)} from {d}")
+
+
 @main.command()
 @_design_options
 @click.option("--solver", type=click.Choice(["CLARABEL", "SCS"], case_sensitive=False), default=None,
               help="cvxpy solver (default Clarabel, SCS as fallback).")
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Write the design as JSON (gains, P, solve time, ε, ρ, decay rate, certificate).")
-def design(epsilon, rho, decay_rate, max_gain, solver, out):
+@_no_cache_option
+def design(epsilon, rho, decay_rate, max_gain, solver, out, no_cache):
     """Design the IT2 PDC balance gains by LMIs (paper Lemmas 1–2 plus a decay rate).
 
     Prints G1, G2 for the state [θ, θ̇, ψ, ψ̇] (u = Σ m_i G_i x, the total wheel torque
@@ -95,10 +141,11 @@ def design(epsilon, rho, decay_rate, max_gain, solver, out):
       twin design
       twin design --epsilon 0.5 --rho 2 --decay-rate 4 --out gains.json
     """
+    from twin.controllers import design_cache
     from twin.controllers.lmi import design_balance_gains
 
     d = design_balance_gains(epsilon=epsilon, rho=rho, decay_rate=decay_rate, max_gain=max_gain,
-                             solver=solver.upper() if solver else None)
+                             solver=solver.upper() if solver else None, cache=design_cache.enabled())
     _print_design(d)
     if out is not None:
         from twin.report import write_json
@@ -110,7 +157,7 @@ def design(epsilon, rho, decay_rate, max_gain, solver, out):
 def _print_design(d) -> None:
     names = ("θ [N·m/rad]", "θ̇ [N·m·s/rad]", "ψ [N·m/rad]", "ψ̇ [N·m·s/rad]")
     click.echo(f"IT2 PDC gains (ε = {d.epsilon:g}, ρ = {d.rho:g} N·m, decay rate = {d.decay_rate:g} 1/s, "
-               f"solver {d.solver}, {d.solve_time_s * 1000:.0f} ms)")
+               f"solver {d.solver}, {d.solve_time_s * 1000:.0f} ms{', from the design cache' if d.from_cache else ''})")
     click.echo("        " + "".join(f"{n:>16}" for n in names))
     for i, g in enumerate(d.gains):
         click.echo(f"  G{i + 1}  " + "".join(f"{v:16.6g}" for v in g))
@@ -126,6 +173,7 @@ def _print_design(d) -> None:
 
 
 def _load_design(path: Path | None, epsilon, rho, decay_rate, max_gain):
+    from twin.controllers import design_cache
     from twin.controllers.lmi import design_balance_gains
 
     ctx = click.get_current_context()
@@ -134,7 +182,8 @@ def _load_design(path: Path | None, epsilon, rho, decay_rate, max_gain):
     if path is not None and given:
         raise TwinError(f"--gains uses a finished design; {', '.join(given)} would be ignored: give one or the other")
     if path is None:
-        return design_balance_gains(epsilon=epsilon, rho=rho, decay_rate=decay_rate, max_gain=max_gain)
+        return design_balance_gains(epsilon=epsilon, rho=rho, decay_rate=decay_rate, max_gain=max_gain,
+                                    cache=design_cache.enabled())
     from types import SimpleNamespace
 
     import numpy as np
@@ -257,7 +306,8 @@ def _paper_experiment(experiment, controller, out, duration, gains_file, design_
                    "still computed from every step. metrics.json's 'log' says what was dropped.")
 @click.option("--log-format", "log_format", type=click.Choice(["csv", "csv.gz"]), default="csv", show_default=True,
               help="trajectory.csv, or trajectory.csv.gz: the same text gzip-compressed (pandas.read_csv reads it).")
-def run(scenario, controller, seed, duration, overrides, out, video, sample, log_every, log_format):
+@_no_cache_option
+def run(scenario, controller, seed, duration, overrides, out, video, sample, log_every, log_format, no_cache):
     """Run a scenario on the PyBullet twin: trajectory, metrics, figure and video.
 
     SCENARIO is a built-in name (see 'twin scenarios') or a scenario .toml file. Writes

@@ -83,9 +83,10 @@ class BuildContext:
 
     def balance_design(self):
         if self.design is None:
+            from twin.controllers import design_cache
             from twin.controllers.lmi import design_balance_gains
 
-            design = design_balance_gains(self.model)
+            design = design_balance_gains(self.model, cache=design_cache.enabled())
             object.__setattr__(self, "design", lambda: design)
         return self.design()
 

@@ -120,6 +120,8 @@ class BalanceDesign:
     certificate: Certificate
     params: RobotParams = field(repr=False, default=NOMINAL)
     slowest_vertex_pole: float = math.nan  # max Re λ(A_i + B_i G_i), 1/s
+    # where this object came from, not part of the design: not compared, not written out
+    from_cache: bool = field(default=False, compare=False, repr=False)
 
     def to_json_dict(self) -> dict:
         return {
@@ -275,6 +277,8 @@ def design_balance_gains(
     decay_rate: float = DEFAULT_DECAY_RATE,
     max_gain: float | None = None,
     solver: str | None = None,
+    *,
+    cache: bool = False,
 ) -> BalanceDesign:
     """Solve Lemmas 1–2 with a decay rate for the IT2 PDC gains.
 
@@ -292,6 +296,12 @@ def design_balance_gains(
         Upper bound on the spectral norm of each G_i.
     solver : str, optional
         A cvxpy solver name; default Clarabel, then SCS as fallback.
+    cache : bool
+        Look the design up in the on-disk cache (:mod:`twin.controllers.design_cache`)
+        first and store a fresh one there. Off by default so that a library call solves;
+        the command line and the scenarios turn it on (unless ``--no-cache``). A cached
+        design equals the fresh one bit for bit, including its original ``solve_time_s``;
+        its ``from_cache`` is True. cvxpy is imported only when the design is solved.
 
     Raises
     ------
@@ -304,6 +314,19 @@ def design_balance_gains(
     decay_rate = _check_positive("decay rate", decay_rate, allow_zero=True, upper=_MAX_DECAY)
     if max_gain is not None:
         max_gain = _check_positive("max gain", max_gain, upper=_MAX_GAIN)
+    if solver is not None and not isinstance(solver, str):
+        raise TwinError(f"solver must be a cvxpy solver name, got {solver!r}")
+    if cache:
+        from twin.controllers import design_cache
+
+        inputs = design_cache.inputs_of(params, epsilon, rho, decay_rate, max_gain, solver.upper() if solver else None)
+        key = design_cache.key_of(inputs)
+        hit = design_cache.load(key, inputs, params)
+        if hit is not None:
+            return hit
+        d = design_balance_gains(params, epsilon, rho, decay_rate, max_gain, solver)
+        design_cache.store(key, inputs, d)
+        return d
     import cvxpy  # (imported before the clock starts: solve time excludes import)
 
     if solver is not None and solver.upper() not in cvxpy.installed_solvers():

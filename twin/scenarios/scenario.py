@@ -175,10 +175,11 @@ class Scenario:
         """The LMI balance design (on the nominal model), solved once per set of options."""
         key = tuple(sorted(self.data["design"].items()))
         if key not in _DESIGNS:
+            from twin.controllers import design_cache
             from twin.controllers.lmi import design_balance_gains
 
-            try:
-                _DESIGNS[key] = design_balance_gains(**self.design_options())
+            try:  # from the on-disk cache when it has this design (then cvxpy is never imported)
+                _DESIGNS[key] = design_balance_gains(**self.design_options(), cache=design_cache.enabled())
             except TwinError as exc:
                 msg = str(exc)
                 for flag, name in (("--epsilon", "design.epsilon"), ("--rho", "design.rho"),

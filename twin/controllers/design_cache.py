@@ -1,0 +1,330 @@
+"""On-disk cache of LMI balance designs, keyed by everything the answer depends on.
+
+A design is a pure function of its inputs, but solving it means importing cvxpy (about
+1 s) and running the SDP solver; a cached design skips both, so a ``twin run`` process
+that finds its design here never imports cvxpy.
+
+Where: ``$TWIN_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/mtwip-twin``, else
+``~/.cache/mtwip-twin``; one file ``lmi-<key>.json`` per design.
+
+Key: SHA-256 of a canonical JSON of the robot parameters, the design options (ε, ρ,
+decay rate, gain bound, requested solver), the versions of cvxpy, Clarabel, SCS and numpy,
+the Python version and machine, this file's format number and a hash of the design code's
+source (lmi.py, ts_model.py, params.py): change any of them and the old entries are
+simply never looked up again.
+
+Every float is stored as ``float.hex`` so that a cached design equals a fresh one bit for
+bit. An entry is used only if it parses, carries the key it was looked up by and the
+inputs it was made for, matches its own checksum, has arrays of the right shapes with
+finite values, a positive definite P with P Q = I, and gains that still make V = xᵀPx
+decrease at the design's rate on the TS model (checked here with numpy). Anything else is
+ignored with a one-line note on stderr and the design is solved again; the fresh design
+then replaces the bad file. Writes go to a temporary file renamed into place, so a
+reader never sees half a file.
+
+This module imports only the standard library and numpy: it is on the path of every run.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import platform
+import sys
+import tempfile
+from dataclasses import fields
+from pathlib import Path
+
+import numpy as np
+
+FORMAT = 1  # bump when the file layout or what is stored changes
+_PREFIX = "lmi-"
+_SUFFIX = ".json"
+_SHAPES = {"gains": (2, 4), "P": (4, 4), "Q": (4, 4)}
+_enabled = True
+
+
+def set_enabled(flag: bool) -> None:
+    """Turn the cache on or off for this process (``--no-cache``: neither read nor written)."""
+    global _enabled
+    _enabled = bool(flag)
+
+
+def enabled() -> bool:
+    return _enabled
+
+
+def cache_dir() -> Path:
+    """``$TWIN_CACHE_DIR``, else ``$XDG_CACHE_HOME/mtwip-twin``, else ``~/.cache/mtwip-twin``."""
+    explicit = os.environ.get("TWIN_CACHE_DIR")
+    if explicit:
+        return Path(explicit).expanduser()
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    # the XDG spec says a relative $XDG_CACHE_HOME is invalid and must be ignored
+    base = Path(xdg) if xdg and os.path.isabs(xdg) else Path.home() / ".cache"
+    return base / "mtwip-twin"
+
+
+def clear() -> tuple[Path, int]:
+    """Delete every cached design (only this cache's own files); returns (directory, count)."""
+    d = cache_dir()
+    n = 0
+    if d.is_dir():
+        for f in d.iterdir():
+            # our entries and the temporary files of an interrupted write; nothing else
+            if f.is_file() and f.name.startswith(_PREFIX) and (f.name.endswith(_SUFFIX) or ".tmp" in f.name):
+                f.unlink(missing_ok=True)
+                n += 1
+    return d, n
+
+
+def _note(text: str) -> None:
+    print(f"note: design cache: {text}", file=sys.stderr)
+
+
+# ---- the key ---------------------------------------------------------------------------------
+def _hex(v) -> str | None:
+    return None if v is None else float(v).hex()
+
+
+_versions_memo: dict | None = None
+
+
+def _dist_version(name: str) -> str:
+    """An installed distribution's version, found by its .dist-info directory on sys.path.
+
+    importlib.metadata would do, but importing it costs ~30 ms (the email package) on a
+    path whose point is to start fast; it remains the fallback."""
+    want = name.lower().replace("-", "_")
+    for entry in sys.path:
+        try:
+            names = os.listdir(entry or ".")
+        except OSError:
+            continue
+        for n in names:
+            if n.endswith(".dist-info"):
+                dist, _, version = n[:-len(".dist-info")].partition("-")
+                if dist.lower().replace("-", "_").replace(".", "_") == want and version:
+                    return version
+    try:
+        from importlib.metadata import PackageNotFoundError, version
+    except ImportError:  # pragma: no cover
+        return "unknown"
+    try:
+        return version(name)
+    except PackageNotFoundError:
+        return "absent"
+
+
+def _versions() -> dict:
+    global _versions_memo
+    if _versions_memo is None:
+        here = Path(__file__).resolve().parent
+        code = hashlib.sha256()
+        for f in (here / "lmi.py", here.parent / "plant" / "ts_model.py", here.parent / "params.py"):
+            try:
+                code.update(f.read_bytes())
+            except OSError:  # pragma: no cover - source not on disk (zipped install): key on the package version
+                code.update(_dist_version("mtwip-twin").encode())
+        _versions_memo = {
+            "design_code_sha256": code.hexdigest(),
+            "cvxpy": _dist_version("cvxpy"),
+            "clarabel": _dist_version("clarabel"),
+            "scs": _dist_version("scs"),
+            "numpy": np.__version__,
+            "python": ".".join(map(str, sys.version_info[:3])),
+            "machine": platform.machine(),
+        }
+    return _versions_memo
+
+
+def inputs_of(params, epsilon, rho, decay_rate, max_gain, solver) -> dict:
+    """What the design depends on, as canonical JSON-able values (floats as hex)."""
+    return {
+        "format": FORMAT,
+        "function": "twin.controllers.lmi.design_balance_gains",
+        "params": {f.name: _hex(getattr(params, f.name)) for f in fields(params)},
+        "options": {"epsilon": _hex(epsilon), "rho": _hex(rho), "decay_rate": _hex(decay_rate),
+                    "max_gain": _hex(max_gain), "solver": solver},
+        "versions": _versions(),
+    }
+
+
+def _canonical(doc) -> bytes:
+    return json.dumps(doc, sort_keys=True, separators=(",", ":"), ensure_ascii=True).encode()
+
+
+def key_of(inputs: dict) -> str:
+    return hashlib.sha256(_canonical(inputs)).hexdigest()
+
+
+def path_of(key: str) -> Path:
+    return cache_dir() / f"{_PREFIX}{key}{_SUFFIX}"
+
+
+# ---- storing ---------------------------------------------------------------------------------
+def _array(a) -> dict:
+    a = np.asarray(a, dtype=np.float64)
+    return {"shape": list(a.shape), "hex": [float(v).hex() for v in a.ravel()]}
+
+
+def _design_doc(d) -> dict:
+    c = d.certificate
+    return {
+        "gains": _array(d.gains), "P": _array(d.P), "Q": _array(d.Q),
+        "epsilon": _hex(d.epsilon), "rho": _hex(d.rho), "decay_rate": _hex(d.decay_rate),
+        "max_gain": _hex(d.max_gain), "peak_input": _hex(d.peak_input), "solve_time_s": _hex(d.solve_time_s),
+        "solver": d.solver, "slowest_vertex_pole": _hex(d.slowest_vertex_pole),
+        # a list, not an object: the margins' order is part of the design (it is printed)
+        "certificate": {"lmi_margins": [[k, _hex(v)] for k, v in c.lmi_margins.items()],
+                        "lyapunov_margin": _hex(c.lyapunov_margin), "epsilon_margin": _hex(c.epsilon_margin),
+                        "rho_margin": _hex(c.rho_margin), "passed": bool(c.passed)},
+    }
+
+
+def store(key: str, inputs: dict, design) -> None:
+    """Write ``design`` under ``key`` atomically; a failure to write is a note, not an error
+    (the design in hand is good either way)."""
+    body = _design_doc(design)
+    doc = {"format": FORMAT, "key": key, "inputs": inputs, "design": body,
+           "checksum": hashlib.sha256(_canonical(body)).hexdigest()}
+    target = path_of(key)
+    tmp = None
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f"{_PREFIX}{key[:16]}.", suffix=".tmp", dir=target.parent)
+        with os.fdopen(fd, "wb") as f:
+            f.write(json.dumps(doc, indent=1, sort_keys=True).encode())
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, target)  # atomic: readers see the old file or the whole new one
+        tmp = None
+    except OSError as exc:
+        _note(f"could not write {target} ({exc.strerror or exc}); the design is used but not cached")
+    finally:
+        if tmp is not None:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+
+
+# ---- loading ---------------------------------------------------------------------------------
+class _Bad(Exception):
+    """Why an entry is not used (one line)."""
+
+
+def _float(v, what: str, finite: bool = True) -> float:
+    if not isinstance(v, str):
+        raise _Bad(f"{what} is not a hex float")
+    try:
+        x = float.fromhex(v)
+    except (ValueError, OverflowError):
+        raise _Bad(f"{what} is not a hex float") from None
+    if finite and not math.isfinite(x):
+        raise _Bad(f"{what} is not finite")
+    return x
+
+
+def _load_array(doc, name: str) -> np.ndarray:
+    item = doc.get(name)
+    if not isinstance(item, dict) or not isinstance(item.get("hex"), list):
+        raise _Bad(f"{name} is missing")
+    if item.get("shape") != list(_SHAPES[name]) or len(item["hex"]) != math.prod(_SHAPES[name]):
+        raise _Bad(f"{name} has shape {item.get('shape')}, expected {list(_SHAPES[name])}")
+    return np.array([_float(v, name) for v in item["hex"]], dtype=np.float64).reshape(_SHAPES[name])
+
+
+def _parse(raw: bytes, key: str, inputs: dict, params):
+    from twin.controllers.lmi import BalanceDesign, Certificate
+
+    try:
+        doc = json.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError):
+        raise _Bad("not valid JSON (truncated or garbled)") from None
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        raise _Bad("not a design-cache entry of this format")
+    if doc.get("key") != key or doc.get("inputs") != inputs:
+        raise _Bad("made for other inputs (stale or misplaced)")
+    body = doc.get("design")
+    if not isinstance(body, dict) or doc.get("checksum") != hashlib.sha256(_canonical(body)).hexdigest():
+        raise _Bad("checksum mismatch (corrupted)")
+    try:
+        gains, P, Q = (_load_array(body, n) for n in ("gains", "P", "Q"))
+        opts = inputs["options"]
+        for name in ("epsilon", "rho", "decay_rate", "max_gain"):
+            if body.get(name) != opts[name]:
+                raise _Bad(f"{name} differs from the request")
+        c = body["certificate"]
+        margins = c["lmi_margins"]
+        if not isinstance(margins, list) or not margins or not all(
+                isinstance(m, list) and len(m) == 2 and isinstance(m[0], str) for m in margins):
+            raise _Bad("certificate margins are malformed")
+        cert = Certificate(
+            lmi_margins={k: _float(v, f"margin {k}") for k, v in margins},
+            lyapunov_margin=_float(c["lyapunov_margin"], "lyapunov margin"),
+            epsilon_margin=_float(c["epsilon_margin"], "epsilon margin"),
+            rho_margin=_float(c["rho_margin"], "rho margin"),
+            passed=c["passed"] is True,
+        )
+        solver = body["solver"]
+        if solver not in ("CLARABEL", "SCS"):
+            raise _Bad(f"unknown solver {solver!r}")
+        design = BalanceDesign(
+            gains=gains, P=P, Q=Q,
+            epsilon=_float(body["epsilon"], "epsilon"), rho=_float(body["rho"], "rho"),
+            decay_rate=_float(body["decay_rate"], "decay_rate"),
+            max_gain=None if body["max_gain"] is None else _float(body["max_gain"], "max_gain"),
+            peak_input=_float(body["peak_input"], "peak_input"),
+            solve_time_s=_float(body["solve_time_s"], "solve_time_s"),
+            solver=solver, certificate=cert, params=params,
+            slowest_vertex_pole=_float(body["slowest_vertex_pole"], "slowest_vertex_pole"),
+            from_cache=True,
+        )
+    except (KeyError, TypeError, AttributeError):
+        raise _Bad("a field is missing or of the wrong type") from None
+    _check_design(design)
+    return design
+
+
+def _check_design(d) -> None:
+    """What the design claims, re-checked from its own numbers: a checksum only proves the
+    file is as written, not that what was written is a working design."""
+    from twin.plant.ts_model import ts_matrices
+
+    if not d.certificate.passed or d.certificate.lyapunov_margin <= 0 or min(d.certificate.lmi_margins.values()) <= 0:
+        raise _Bad("its certificate did not pass")
+    if not (d.peak_input <= d.rho) or not (d.slowest_vertex_pole < 0):
+        raise _Bad("its peak input or poles contradict the design")
+    if not np.array_equal(d.P, d.P.T):  # the design symmetrises P exactly
+        raise _Bad("P is not symmetric")
+    if np.linalg.eigvalsh(d.P).min() <= 0:
+        raise _Bad("P is not positive definite")
+    if np.abs(d.P @ d.Q - np.eye(4)).max() > 1e-6:
+        raise _Bad("P and Q are not inverses")
+    A, B = ts_matrices(d.params)
+    G, P, a = d.gains, d.P, d.decay_rate
+    for m1 in np.linspace(0.0, 1.0, 11):  # V = xᵀPx must fall at rate 2a for every weight mix
+        m = (m1, 1.0 - m1)
+        Acl = sum(m[i] * m[j] * (A[i] + B[i] @ G[j:j + 1]) for i in range(2) for j in range(2))
+        L = Acl.T @ P + P @ Acl + 2 * a * P
+        if np.linalg.eigvalsh(0.5 * (L + L.T)).max() >= 0:
+            raise _Bad("its gains do not make V = xᵀPx decrease at the design's rate")
+
+
+def load(key: str, inputs: dict, params):
+    """The cached design for ``key``, or None (absent, or unusable: then a one-line note)."""
+    path = path_of(key)
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        _note(f"ignored {path} (unreadable: {exc.strerror or exc}); solving the design again")
+        return None
+    try:
+        return _parse(raw, key, inputs, params)
+    except _Bad as exc:
+        _note(f"ignored {path} ({exc}); solving the design again")
+        return None
