@@ -237,6 +237,28 @@ def test_video_side_by_side_holds_the_shorter_run(run_exp1, run_fell, tmp_path):
         assert orange(f[below:, :w]).mean() > 0.03 and orange(f[below:, w:]).mean() > 0.03
 
 
+def test_panels_rendered_in_worker_processes_are_the_same_frames(run_exp1, run_fell, tmp_path):
+    """The parallel path (one worker process per panel) gives the serial path's frames, bit
+    for bit, and the same file."""
+    a = render_video([run_exp1, run_fell], tmp_path / "serial.mp4", size=SIZE, parallel=False)
+    b = render_video([run_exp1, run_fell], tmp_path / "parallel.mp4", size=SIZE, parallel=True)
+    assert a.renderer == b.renderer and a.frames == b.frames == 31
+    fa, fb = read_video(a.path), read_video(b.path)
+    assert len(fa) == len(fb) == 31 and all(np.array_equal(x, y) for x, y in zip(fa, fb))
+    assert a.path.read_bytes() == b.path.read_bytes()
+
+
+def test_a_worker_that_fails_is_one_line_and_leaves_no_video(run_exp1, run_fell, tmp_path, monkeypatch):
+    import sys
+
+    # the worker exits at once without a word (an interpreter that is /bin/false): the
+    # parent must say so in one line, not hang or write a video
+    monkeypatch.setattr(sys, "executable", "/bin/false")
+    with pytest.raises(TwinError, match=r"the renderer process of video panel 1 ended without a word \(exit status 1\)"):
+        render_video([run_exp1, run_fell], tmp_path / "v.mp4", size=SIZE, parallel=True)
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_hud_is_drawn(run_exp1, tmp_path):
     with_hud = read_video(render_video(run_exp1, tmp_path / "hud.mp4", fps=5, size=SIZE).path)
     without = read_video(render_video(run_exp1, tmp_path / "plain.mp4", fps=5, size=SIZE, hud=False).path)
@@ -294,6 +316,7 @@ def test_rendering_leaves_the_run_alone(run_fell, tmp_path):
     (dict(progress="yes"), "progress must be a callable"),
     (dict(renderer="vulkan"), "renderer must be one of auto, egl, tiny, got 'vulkan'"),
     (dict(camera="side"), "camera must be a twin.render.Camera"),
+    (dict(parallel="yes"), "parallel must be True, False or None"),
 ])
 def test_bad_input_is_a_twin_error(kwargs, message, run_exp1, tmp_path):
     args = dict(runs=run_exp1, path=tmp_path / "v.mp4", size=(64, 48))
