@@ -465,3 +465,27 @@ def test_ffmpeg_failing_is_a_twin_error_with_its_last_line(read, message, when, 
         render_video(run_exp1, out / "v.mp4", fps=FPS, size=SIZE)
     assert str(err.value) == f"ffmpeg failed {when} (exit status 1): {message}"
     assert list(out.iterdir()) == [], "no partial video left behind"
+
+
+def test_camera_modes():
+    """video.camera: the follow camera keeps its world bearing (the turning camera's at the
+    start), the fixed one aims at the middle of the run whatever the robot does, the top
+    one looks straight down; an unknown mode is one line naming the allowed ones."""
+    from twin.plant.bullet import TwinConfig
+    from twin.render.scene import CAMERA_MODES, camera_mode
+
+    assert CAMERA_MODES == ("follow", "turning", "fixed", "top")
+    follow = camera_mode("follow", alpha0=0.5)
+    assert not follow.follow_heading and follow.yaw == pytest.approx(25.0 + math.degrees(0.5))
+    assert camera_mode("turning") == Camera()
+    assert camera_mode("top").pitch == -89.0
+    fixed = camera_mode("fixed", 0.0, (0.0, 1.0, -0.2, 0.2))
+    assert fixed.aim == (0.5, 0.0, 0.0) and fixed.distance > 0.85
+    with pytest.raises(TwinError, match="video camera must be one of follow, turning, fixed, top, got 'side'"):
+        camera_mode("side")
+    with pytest.raises(TwinError, match="camera aim must be a world point"):
+        Camera(aim=(0.0, float("nan"), 0.0))
+    with Scene(TwinConfig(), (64, 48), "tiny", fixed) as still, Scene(TwinConfig(), (64, 48), "tiny", follow) as moving:
+        assert still.view_matrix((0.0, 0.0, 0.0), 0.3) == still.view_matrix((2.0, 1.0, 0.0), -1.0)
+        assert moving.view_matrix((0.0, 0.0, 0.0), 0.3) != moving.view_matrix((2.0, 1.0, 0.0), 0.3)
+        assert moving.view_matrix((0.0, 0.0, 0.0), 0.3) == moving.view_matrix((0.0, 0.0, 0.0), -1.0)

@@ -142,6 +142,9 @@ class Camera:
         body sits in the middle of the picture.
     follow_heading : bool
         Turn with the robot's heading (True) or keep a fixed world direction.
+    aim : (x, y, z) m, optional
+        A fixed world point to aim at instead of the robot (a camera that does not move);
+        ``target_height`` is added to z.
     """
 
     distance: float = 0.85
@@ -150,6 +153,7 @@ class Camera:
     fov: float = 45.0
     target_height: float = 0.06
     follow_heading: bool = True
+    aim: tuple | None = None
 
     def __post_init__(self):
         for name, lo, hi in (("distance", 0.05, 100.0), ("yaw", -360.0, 360.0), ("pitch", -89.0, 89.0),
@@ -159,6 +163,43 @@ class Camera:
                 raise TwinError(f"camera {name} must be a number in [{lo:g}, {hi:g}], got {v!r}")
         if not isinstance(self.follow_heading, bool):
             raise TwinError(f"camera follow_heading must be True or False, got {self.follow_heading!r}")
+        if self.aim is not None:
+            ok = (isinstance(self.aim, (tuple, list)) and len(self.aim) == 3
+                  and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                          for v in self.aim))
+            if not ok:
+                raise TwinError(f"camera aim must be a world point (x, y, z) in m, or None, got {self.aim!r}")
+            object.__setattr__(self, "aim", tuple(float(v) for v in self.aim))
+
+
+CAMERA_MODES = ("follow", "turning", "fixed", "top")
+
+
+def camera_mode(mode: str, alpha0: float = 0.0, extent=None) -> Camera:
+    """The camera of ``video.camera`` = ``mode`` for a run starting at heading ``alpha0`` rad
+    whose axle stays inside ``extent`` = (x_min, x_max, y_min, y_max) m (for "fixed").
+
+    * ``follow``: follows the robot at a bearing fixed in the world (the side view of its
+      starting heading), so that its turning shows as the robot turning and its travel
+      as the floor moving under it; the default.
+    * ``turning``: follows the robot and turns with its heading (a side view throughout).
+    * ``fixed``: does not move: aims at the middle of ``extent`` from far enough back to
+      see all of it, from the starting side, looking down 25°.
+    * ``top``: follows the robot from above, its starting heading to the right.
+    """
+    side = 25.0 + math.degrees(alpha0)  # the turning camera's bearing at the start
+    if mode == "follow":
+        return Camera(yaw=side, follow_heading=False)
+    if mode == "turning":
+        return Camera()
+    if mode == "top":
+        return Camera(distance=1.6, yaw=math.degrees(alpha0), pitch=-89.0, follow_heading=False)
+    if mode == "fixed":
+        x0, x1, y0, y1 = extent if extent is not None else (0.0, 0.0, 0.0, 0.0)
+        span = math.hypot(x1 - x0, y1 - y0)
+        return Camera(distance=max(0.85, 1.3 * span + 0.6), yaw=side, pitch=-25.0, follow_heading=False,
+                      aim=(0.5 * (x0 + x1), 0.5 * (y0 + y1), 0.0))
+    raise TwinError(f"video camera must be one of {', '.join(CAMERA_MODES)}, got {mode!r}")
 
 
 _EGL_OPEN: set = set()  # ids of the open scenes that loaded the EGL plugin
@@ -332,6 +373,8 @@ class Scene:
         """The camera's view matrix aiming at ``target`` (m, world), the robot heading ``alpha`` rad."""
         cam = self.camera
         yaw = cam.yaw + (math.degrees(alpha) if cam.follow_heading else 0.0)
+        if cam.aim is not None:  # a camera that does not move
+            target = cam.aim
         aim = (float(target[0]), float(target[1]), float(target[2]) + cam.target_height)
         return self._require_open().computeViewMatrixFromYawPitchRoll(aim, cam.distance, yaw, cam.pitch, 0.0, 2)
 

@@ -28,6 +28,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from twin.errors import TwinError
 from twin.scenarios.scenario import Scenario
 
@@ -151,6 +153,7 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
     result.files.append(report.plot_runs(runs, out / "figure.png", title))
     if video if video is not None else d["video"]["enabled"]:
         from twin.render import render_video
+        from twin.render.scene import camera_mode
 
         v = d["video"]
         rate = config.control_rate / every
@@ -159,7 +162,9 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
                                 f"to {v['fps']} frames/s: motion between logged rows is drawn as straight lines")
         cb = None if progress is None else (lambda done, total: progress("video", done, total))
         t0 = time.perf_counter()
-        result.video = render_video(runs, out / "video.mp4", fps=v["fps"], size=(v["width"], v["height"]), progress=cb)
+        camera = camera_mode(v["camera"], float(runs[0].signal("alpha")[0]), _extent(runs))
+        result.video = render_video(runs, out / "video.mp4", fps=v["fps"], size=(v["width"], v["height"]), progress=cb,
+                                    camera=camera)
         timings["video_s"] = time.perf_counter() - t0
         if result.video.note:  # H.264 by ffmpeg was not available: say what wrote the video instead, and why
             result.notes.append(result.video.note)
@@ -217,3 +222,10 @@ def write_trajectories_csv(runs, path: Path) -> Path:
         finally:
             fh.close()  # closes the gzip stream (its trailer) and the file
     return path
+
+
+def _extent(runs) -> tuple[float, float, float, float]:
+    """(x_min, x_max, y_min, y_max) m of every run's axle: what a fixed video camera must see."""
+    xs = np.concatenate([r.signal("x") for r in runs])
+    ys = np.concatenate([r.signal("y") for r in runs])
+    return float(xs.min()), float(xs.max()), float(ys.min()), float(ys.max())

@@ -223,6 +223,9 @@ SCHEMA: dict[str, Key] = {
         "fps": Key("int", 30, 1, 120),
         "width": Key("int", 640, 64, 3840),
         "height": Key("int", 480, 48, 2160),
+        "camera": Key("str", "follow", choices=("follow", "turning", "fixed", "top"), recorded_at_default=False,
+                      doc="follow: at a bearing fixed in the world; turning: turns with the heading; fixed: "
+                          "still, sees the whole run; top: from above (twin.render.scene.camera_mode)"),
     }),
 }
 
