@@ -1,6 +1,7 @@
 """Offscreen MP4 videos of twin runs (twin.render): decoded back with OpenCV and looked at."""
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -16,6 +17,7 @@ from twin.plant.bullet import WHEEL_JOINTS, BulletTwin, GroundTruth, TwinConfig,
 from twin.plant.disturbances import Disturbances, Ground, Push  # noqa: E402
 from twin.render import (CODECS, Camera, HudState, Scene, draw_hud, frame_count, frame_times,  # noqa: E402
                          render_video, resolve_renderer)
+from twin.render import hud  # noqa: E402
 from twin.render.hud import RED, hud_lines  # noqa: E402
 from twin.render.scene import egl_available  # noqa: E402
 
@@ -489,3 +491,47 @@ def test_camera_modes():
         assert still.view_matrix((0.0, 0.0, 0.0), 0.3) == still.view_matrix((2.0, 1.0, 0.0), -1.0)
         assert moving.view_matrix((0.0, 0.0, 0.0), 0.3) != moving.view_matrix((2.0, 1.0, 0.0), 0.3)
         assert moving.view_matrix((0.0, 0.0, 0.0), 0.3) == moving.view_matrix((0.0, 0.0, 0.0), -1.0)
+
+
+def _magenta(bgr: np.ndarray) -> int:
+    b, g, r = (bgr[..., i].astype(int) for i in range(3))
+    return int(((b > 180) & (r > 180) & (g < 90)).sum())
+
+
+def _green(bgr: np.ndarray) -> int:
+    b, g, r = (bgr[..., i].astype(int) for i in range(3))
+    return int(((g > 150) & (b < 110) & (r < 110)).sum())
+
+
+def test_push_arrow_is_drawn_while_a_push_acts_and_only_then(tmp_path):
+    from twin.scenarios import load_scenario
+    from twin.scenarios.runner import run_scenario
+
+    run = run_scenario(load_scenario("push-recovery", ["duration=9"]), controllers="it2").runs[0]
+    info = render_video(run, tmp_path / "push.mp4", fps=20, size=(320, 240))
+    frames = read_video(info.path)
+    t = np.arange(len(frames)) / 20.0
+    pushing = [(3.0 <= tk < 3.1) or (8.0 <= tk < 8.1) for tk in t]  # the scenario's two 0.1 s shoves
+    during = [_magenta(f) for f, p in zip(frames, pushing) if p]
+    outside = [_magenta(f) for f, p in zip(frames, pushing) if not p]
+    assert len(during) == 4 and min(during) > 40, during
+    assert max(outside) == 0, max(outside)
+
+
+def test_position_target_is_marked_on_the_floor_in_experiment_2(tmp_path):
+    from twin.scenarios import load_scenario
+    from twin.scenarios.runner import run_scenario
+
+    run = run_scenario(load_scenario("paper-exp2", ["duration=4"]), controllers="it2").runs[0]
+    with_marker = read_video(render_video(run, tmp_path / "a.mp4", fps=5, size=(320, 240)).path)
+    # the ring 0.7 m ahead of the start comes into the follow camera's view as the robot nears it
+    assert min(_green(f) for f in with_marker[10:]) > 100, [_green(f) for f in with_marker]
+    bare = dataclasses.replace(run, experiment=dataclasses.replace(run.experiment, p_d=None))
+    without = read_video(render_video(bare, tmp_path / "b.mp4", fps=5, size=(320, 240)).path)
+    assert max(_green(f) for f in without) == 0
+
+
+def test_hud_names_the_faults_acting():
+    s = HudState("IT2", 2.1, 0.0, 0.0, 0.0, fault="IMU dropout")
+    assert ("fault: IMU dropout", hud.VIOLET) in hud_lines(s)
+    assert not any(t.startswith("fault") for t, _ in hud_lines(HudState("IT2", 2.1, 0.0, 0.0, 0.0)))

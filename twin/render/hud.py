@@ -3,8 +3,8 @@
 Top left, on a darkened box: the panel's label (controller), the simulated time (s),
 the body pitch θ (rad), the travelled distance p = r ψ (m) and the heading α (rad), in the
 project's SI units like every figure and file,
-each with the experiment's target where it has one, and, once the run has ended early,
-why (fell / diverged) in red.
+each with the experiment's target where it has one, the sensor faults acting (violet),
+and, once the run has ended early, why (fell / diverged) in red.
 """
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ WHITE = (245, 245, 245)  # BGR
 GREY = (190, 190, 190)
 YELLOW = (80, 220, 255)
 RED = (60, 60, 240)
+VIOLET = (230, 130, 200)  # the figure's fault shading, in BGR
 BOX_DARKEN = 0.45  # the box keeps this fraction of the picture's brightness
 
 
@@ -32,6 +33,7 @@ class HudState:
     alpha_d: float | None = None  # rad, target heading
     ended: str = ""  # "" while the run goes on; else what to say (e.g. "FELL at 1.23 s")
     alarm: bool = False  # the run ended early (fell, diverged): ``ended`` in red
+    fault: str = ""  # the sensor faults acting now, named (e.g. "IMU dropout"); "" for none
 
 
 def _num(v: float, decimals: int) -> float:
@@ -50,6 +52,8 @@ def hud_lines(s: HudState) -> list[tuple[str, tuple[int, int, int]]]:
     if s.alpha_d is not None:
         head += f"  (target {s.alpha_d:.2f} rad)"
     lines += [(dist, WHITE), (head, WHITE)]
+    if s.fault:
+        lines.append((f"fault: {s.fault}", VIOLET))
     if s.ended:
         lines.append((s.ended, RED if s.alarm else GREY))
     return lines

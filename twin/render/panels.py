@@ -40,13 +40,58 @@ def panel_frames(scene: Scene, track, samples: dict, times: np.ndarray, hud: boo
         rgb = scene.render(s["theta"][k], s["alpha"][k], s["x"][k], s["y"][k], s["psi_l"][k], s["psi_r"][k],
                            s["roll"][k])
         panel = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
+        draw_markers(panel, scene, track, s, k)
         if hud:
             draw_hud(panel, HudState(track.label, min(tk, track.duration), s["theta"][k], s["distance"][k],
                                      s["alpha"][k], track.p_d, track.alpha_d, track.ended(tk),
-                                     track.status != "ok"))
+                                     track.status != "ok", track.fault_at(min(tk, track.duration))))
         if tk > track.duration + 1e-9:
             held = panel  # the run has ended: this panel stays as it is
         yield panel
+
+
+TARGET_BGR = (40, 200, 40)  # green: the position target on the floor, the heading target's arrow
+PUSH_BGR = (255, 0, 255)  # magenta: a push acting now (no other magenta in the scene)
+PUSH_M_PER_N = 0.02  # m of arrow per N of push (12 N: 24 cm)
+HEADING_ARROW_M = 0.3  # m
+
+
+def draw_markers(img: np.ndarray, scene: Scene, track, s: dict, k: int) -> None:
+    """Draw, over the picture just taken, what the world does not show: the position target
+    (a ring on the floor, p_d ahead of the start along the starting heading; drawn only
+    without a heading target, when that is where the robot is to stop), the heading target
+    (an arrow on the floor from the axle towards α_d) and a push acting now (an arrow into
+    the top of the body along the force, its length proportional to it)."""
+    import cv2
+
+    def line(a, b, colour, thick, arrow=False):
+        (u0, v0), (u1, v1) = scene.project(np.array([a, b]))
+        if not np.isfinite([u0, v0, u1, v1]).all():
+            return
+        p0, p1 = (int(round(u0)), int(round(v0))), (int(round(u1)), int(round(v1)))
+        if arrow:
+            cv2.arrowedLine(img, p0, p1, colour, thick, cv2.LINE_AA, tipLength=0.25)
+        else:
+            cv2.line(img, p0, p1, colour, thick, cv2.LINE_AA)
+
+    thick = max(2, int(round(img.shape[0] / 160)))
+    x, y, a = s["x"][k], s["y"][k], s["alpha"][k]
+    if track.p_d is not None and track.alpha_d is None:
+        x0, y0, a0 = track.start
+        cx, cy = x0 + track.p_d * np.cos(a0), y0 + track.p_d * np.sin(a0)
+        ring = [(cx + 0.06 * np.cos(q), cy + 0.06 * np.sin(q), 0.002) for q in np.linspace(0, 2 * np.pi, 25)]
+        for p0, p1 in zip(ring[:-1], ring[1:]):
+            line(p0, p1, TARGET_BGR, thick)
+    if track.alpha_d is not None:
+        d = track.alpha_d
+        line((x, y, 0.002), (x + HEADING_ARROW_M * np.cos(d), y + HEADING_ARROW_M * np.sin(d), 0.002), TARGET_BGR,
+             thick, arrow=True)
+    f = np.array([s["push_fx"][k], s["push_fy"][k], s["push_fz"][k]])
+    if np.abs(f).sum() > 0.0:
+        th = s["theta"][k]
+        top = np.array([x + track.body_top * np.sin(th) * np.cos(a), y + track.body_top * np.sin(th) * np.sin(a),
+                        track.body_top * np.cos(th)])
+        line(top - PUSH_M_PER_N * f, top, PUSH_BGR, thick + 1, arrow=True)
 
 
 def _send(out, payload) -> None:

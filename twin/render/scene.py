@@ -382,11 +382,26 @@ class Scene:
         """RGB picture (height, width, 3) uint8 of the scene as it stands, camera on ``target``."""
         c = self._require_open()
         view = self.view_matrix(target, alpha)
+        self._last_view = view
         with quiet_native_output():  # the EGL plugin prints its GL vendor on the first pictures
             _, _, rgba, _, _ = c.getCameraImage(self.width, self.height, view, self._proj, shadow=1,
                                                 lightDirection=_LIGHT_DIRECTION, renderer=self._mode,
                                                 flags=self._flags)
         return np.asarray(rgba, dtype=np.uint8).reshape(self.height, self.width, 4)[:, :, :3]
+
+    def project(self, points) -> np.ndarray:
+        """Pixel coordinates (k, 2) (column, row) of world points ``points`` (k, 3) m in the
+        last picture taken; NaN for a point behind the camera."""
+        pts = np.atleast_2d(np.asarray(points, dtype=float))
+        V = np.asarray(self._last_view, dtype=float).reshape(4, 4).T  # PyBullet's matrices are column-major
+        P = np.asarray(self._proj, dtype=float).reshape(4, 4).T
+        clip = (P @ V @ np.column_stack([pts, np.ones(len(pts))]).T).T
+        w = clip[:, 3]
+        out = np.full((len(pts), 2), np.nan)
+        ok = w > 1e-9
+        out[ok, 0] = (clip[ok, 0] / w[ok] + 1.0) * 0.5 * self.width
+        out[ok, 1] = (1.0 - clip[ok, 1] / w[ok]) * 0.5 * self.height
+        return out
 
     def render(self, theta: float, alpha: float, x: float, y: float, psi_l: float, psi_r: float,
                roll: float = 0.0, show_robot: bool = True) -> np.ndarray:

@@ -138,10 +138,23 @@ class _Track:
         self.alpha_d = None if e is None else e.alpha_d
         self.label = label
         self.status = run.status
+        self.push = np.asarray(run.push, dtype=float)  # (n, 3) N, world frame
+        self.start = (float(self.cols["x"][0]), float(self.cols["y"][0]), float(self.cols["alpha"][0]))
+        self.body_top = 2.0 * run.config.params.l if run.config is not None else 0.2  # m above the axle
+        self.faults = _fault_windows(run)
 
     def sample(self, times: np.ndarray) -> dict[str, np.ndarray]:
         tt = self.t[0] + np.minimum(times, self.duration)
-        return {name: np.interp(tt, self.t, col) for name, col in self.cols.items()}
+        out = {name: np.interp(tt, self.t, col) for name, col in self.cols.items()}
+        # a push is a pulse of a few control periods: the row in force at each frame, not a blend
+        rows = np.clip(np.searchsorted(self.t, tt, side="right") - 1, 0, len(self.t) - 1)
+        for i, name in enumerate(("push_fx", "push_fy", "push_fz")):
+            out[name] = np.where(times <= self.duration + 1e-9, self.push[rows, i], 0.0)
+        return out
+
+    def fault_at(self, t: float) -> str:
+        """The names of the sensor faults acting at ``t`` s, for the overlay ("" for none)."""
+        return ", ".join(name for name, a, b in self.faults if a - 1e-9 <= t < b - 1e-9)
 
     def ended(self, t: float) -> str:
         """The overlay's last line at frame time ``t``: empty while the run goes on."""
@@ -150,6 +163,19 @@ class _Track:
         if self.status != "ok":
             return f"{self.status.upper()} at {self.duration:.2f} s"
         return f"run ended at {self.duration:.2f} s" if t > self.duration + 1e-9 else ""
+
+
+def _fault_windows(run) -> list[tuple[str, float, float]]:
+    """(name, start s, end s) of each sensor fault of ``run`` (a latency change lasts)."""
+    out = []
+    for f in getattr(run.sensor_config, "faults", ()) or ():
+        kind = type(f).__name__.lower()
+        sensor = {"imu": "IMU", "all": "all sensors"}.get(f.sensor, f.sensor)
+        if hasattr(f, "time"):
+            out.append((f"{sensor} latency {1e3 * f.latency:.0f} ms", f.time, math.inf))
+        else:
+            out.append((f"{sensor} {kind}", f.start, f.start + f.duration))
+    return out
 
 
 def _check_runs(runs) -> list:
