@@ -10,6 +10,7 @@ import numpy as np
 
 from twin.registry import label as kind_label
 from twin.runs import Run
+from twin.sensors.faults import fault_windows
 
 _COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:gray",
             "tab:olive", "tab:cyan")  # matplotlib's tab10, in the order the runs are given
@@ -114,12 +115,8 @@ def _shaded_spans(runs: list) -> list:
             dt = float(r.t[1] - r.t[0]) if len(r.t) > 1 else 0.0
             for a, b in zip(edges[::2], edges[1::2]):
                 spans.append(("push", float(r.t[a]), float(r.t[b - 1]) + dt))
-        sensors = r.sensor_config
-        for f in getattr(sensors, "faults", ()) or ():
-            if hasattr(f, "time"):  # a latency change lasts
-                spans.append(("sensor fault", f.time, end))
-            else:
-                spans.append(("sensor fault", f.start, min(f.start + f.duration, end)))
+        for _, a, b in fault_windows(getattr(r.sensor_config, "faults", ())):
+            spans.append(("sensor fault", a, min(b, end)))  # a latency change lasts to the end
     return spans
 
 

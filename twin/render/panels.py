@@ -78,10 +78,14 @@ def draw_markers(img: np.ndarray, scene: Scene, track, s: dict, k: int) -> None:
     x, y, a = s["x"][k], s["y"][k], s["alpha"][k]
     if track.p_d is not None and track.alpha_d is None:
         x0, y0, a0 = track.start
-        cx, cy = x0 + track.p_d * np.cos(a0), y0 + track.p_d * np.sin(a0)
-        ring = [(cx + 0.06 * np.cos(q), cy + 0.06 * np.sin(q), 0.002) for q in np.linspace(0, 2 * np.pi, 25)]
-        for p0, p1 in zip(ring[:-1], ring[1:]):
-            line(p0, p1, TARGET_BGR, thick)
+        q = np.linspace(0, 2 * np.pi, 25)
+        ring = np.column_stack([x0 + track.p_d * np.cos(a0) + 0.06 * np.cos(q),
+                                y0 + track.p_d * np.sin(a0) + 0.06 * np.sin(q), np.full(len(q), 0.002)])
+        uv = scene.project(ring)  # one projection for the whole ring
+        for p0, p1 in zip(uv[:-1], uv[1:]):
+            if np.isfinite(p0).all() and np.isfinite(p1).all():
+                cv2.line(img, (int(round(p0[0])), int(round(p0[1]))), (int(round(p1[0])), int(round(p1[1]))),
+                         TARGET_BGR, thick, cv2.LINE_AA)
     if track.alpha_d is not None:
         d = track.alpha_d
         line((x, y, 0.002), (x + HEADING_ARROW_M * np.cos(d), y + HEADING_ARROW_M * np.sin(d), 0.002), TARGET_BGR,

@@ -48,6 +48,7 @@ import numpy as np
 
 from twin.errors import TwinError
 from twin.render.scene import Camera, Scene, check_size, resolve_renderer
+from twin.sensors.faults import fault_windows
 
 CODECS = ("avc1", "vp09", "mp4v")  # tried in this order: H.264 by ffmpeg, then OpenCV's VP9 and MPEG-4
 H264_ENCODERS = ("libx264", "libopenh264")  # ffmpeg's H.264 encoders, preferred first
@@ -141,7 +142,7 @@ class _Track:
         self.push = np.asarray(run.push, dtype=float)  # (n, 3) N, world frame
         self.start = (float(self.cols["x"][0]), float(self.cols["y"][0]), float(self.cols["alpha"][0]))
         self.body_top = 2.0 * run.config.params.l if run.config is not None else 0.2  # m above the axle
-        self.faults = _fault_windows(run)
+        self.faults = fault_windows(getattr(run.sensor_config, "faults", ()))
 
     def sample(self, times: np.ndarray) -> dict[str, np.ndarray]:
         tt = self.t[0] + np.minimum(times, self.duration)
@@ -163,19 +164,6 @@ class _Track:
         if self.status != "ok":
             return f"{self.status.upper()} at {self.duration:.2f} s"
         return f"run ended at {self.duration:.2f} s" if t > self.duration + 1e-9 else ""
-
-
-def _fault_windows(run) -> list[tuple[str, float, float]]:
-    """(name, start s, end s) of each sensor fault of ``run`` (a latency change lasts)."""
-    out = []
-    for f in getattr(run.sensor_config, "faults", ()) or ():
-        kind = type(f).__name__.lower()
-        sensor = {"imu": "IMU", "all": "all sensors"}.get(f.sensor, f.sensor)
-        if hasattr(f, "time"):
-            out.append((f"{sensor} latency {1e3 * f.latency:.0f} ms", f.time, math.inf))
-        else:
-            out.append((f"{sensor} {kind}", f.start, f.start + f.duration))
-    return out
 
 
 def _check_runs(runs) -> list:

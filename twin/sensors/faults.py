@@ -102,3 +102,16 @@ class LatencyChange:
 
 
 FAULT_TYPES = (Dropout, Stuck, Spikes, LatencyChange)
+
+
+def fault_windows(faults) -> list[tuple[str, float, float]]:
+    """(name, start s, end s) of each fault, for figures and overlays: e.g. ("IMU dropout",
+    2.0, 2.2); a latency change, which lasts, ends at inf."""
+    out = []
+    for f in faults or ():
+        sensor = {"imu": "IMU", "all": "all sensors"}.get(f.sensor, f.sensor)
+        if isinstance(f, LatencyChange):
+            out.append((f"{sensor} latency {1e3 * f.latency:.0f} ms", f.time, math.inf))
+        else:
+            out.append((f"{sensor} {type(f).__name__.lower()}", f.start, f.start + f.duration))
+    return out
