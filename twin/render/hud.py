@@ -3,7 +3,8 @@
 Top left, on a darkened box: the panel's label (controller), the simulated time (s),
 the body pitch θ (rad), the travelled distance p = r ψ (m) and the heading α (rad), in the
 project's SI units like every figure and file,
-each with the experiment's target where it has one, the sensor faults acting (violet),
+each with the experiment's target where it has one, the estimator's pitch θ̂ (rad, cyan like
+the ghost of the body drawn at the estimate), the sensor faults acting (violet),
 and, once the run has ended early, why (fell / diverged) in red.
 """
 from __future__ import annotations
@@ -17,6 +18,7 @@ GREY = (190, 190, 190)
 YELLOW = (80, 220, 255)
 RED = (60, 60, 240)
 VIOLET = (230, 130, 200)  # the figure's fault shading, in BGR
+CYAN = (255, 255, 0)  # the estimator's ghost (twin.render.panels.GHOST_BGR)
 BOX_DARKEN = 0.45  # the box keeps this fraction of the picture's brightness
 
 
@@ -34,6 +36,7 @@ class HudState:
     ended: str = ""  # "" while the run goes on; else what to say (e.g. "FELL at 1.23 s")
     alarm: bool = False  # the run ended early (fell, diverged): ``ended`` in red
     fault: str = ""  # the sensor faults acting now, named (e.g. "IMU dropout"); "" for none
+    theta_est: float | None = None  # rad, the estimator's pitch (None with ideal sensing)
 
 
 def _num(v: float, decimals: int) -> float:
@@ -45,6 +48,8 @@ def hud_lines(s: HudState) -> list[tuple[str, tuple[int, int, int]]]:
     """The overlay's text lines and their BGR colours."""
     lines = [(s.label, YELLOW), (f"t       {_num(s.t, 2):6.2f} s", WHITE),
              (f"pitch   {_num(s.theta, 3):+6.3f} rad", WHITE)]
+    if s.theta_est is not None:
+        lines.append((f"  est.  {_num(s.theta_est, 3):+6.3f} rad", CYAN))
     dist = f"dist    {_num(s.distance, 3):+6.3f} m"
     if s.p_d is not None:
         dist += f"  (target {s.p_d:.2f} m)"

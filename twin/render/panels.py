@@ -20,7 +20,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from twin.errors import TwinError
-from twin.render.hud import HudState, draw_hud
+from twin.render.hud import CYAN, HudState, draw_hud
 from twin.render.scene import Scene
 
 _ERROR = b"ERROR: "
@@ -44,7 +44,8 @@ def panel_frames(scene: Scene, track, samples: dict, times: np.ndarray, hud: boo
         if hud:
             draw_hud(panel, HudState(track.label, min(tk, track.duration), s["theta"][k], s["distance"][k],
                                      s["alpha"][k], track.p_d, track.alpha_d, track.ended(tk),
-                                     track.status != "ok", track.fault_at(min(tk, track.duration))))
+                                     track.status != "ok", track.fault_at(min(tk, track.duration)),
+                                     s["theta_est"][k] if "theta_est" in s else None))
         if tk > track.duration + 1e-9:
             held = panel  # the run has ended: this panel stays as it is
         yield panel
@@ -52,16 +53,56 @@ def panel_frames(scene: Scene, track, samples: dict, times: np.ndarray, hud: boo
 
 TARGET_BGR = (40, 200, 40)  # green: the position target on the floor, the heading target's arrow
 PUSH_BGR = (255, 0, 255)  # magenta: a push acting now (no other magenta in the scene)
+GHOST_BGR = CYAN  # the body where the estimator puts it (the HUD's estimate line has its colour)
+GHOST_FILL = 0.15  # opacity of the ghost's faces: the body shows through in its own colour
 PUSH_M_PER_N = 0.02  # m of arrow per N of push (12 N: 24 cm)
 HEADING_ARROW_M = 0.3  # m
+# the 12 edges of a box whose corners are numbered 4·ix + 2·iy + iz (i = 0 low, 1 high)
+_BOX_EDGES = [(a, a | bit) for a in range(8) for bit in (1, 2, 4) if not a & bit]
+
+
+def box_corners(box) -> np.ndarray:
+    """The 8 corners (8, 3) of the box with lowest and highest corners ``box``, numbered as
+    :data:`_BOX_EDGES` expects."""
+    lo, hi = box
+    return np.array([(hi[0] if i & 4 else lo[0], hi[1] if i & 2 else lo[1], hi[2] if i & 1 else lo[2])
+                     for i in range(8)])
+
+
+def draw_ghost(img: np.ndarray, uv: np.ndarray, thick: int) -> None:
+    """A translucent box over ``img`` with its corners at the pixels ``uv`` (8, 2): faces
+    filled at :data:`GHOST_FILL` opacity, every edge drawn (the far ones show through)."""
+    import cv2
+
+    if not np.isfinite(uv).all():
+        return
+    px = np.round(uv).astype(np.int32)
+    hull = cv2.convexHull(px)
+    x0, y0, bw, bh = cv2.boundingRect(hull)
+    x0, y0 = max(x0, 0), max(y0, 0)
+    x1, y1 = min(x0 + bw, img.shape[1]), min(y0 + bh, img.shape[0])
+    if x1 <= x0 or y1 <= y0:
+        return
+    roi = img[y0:y1, x0:x1]
+    mask = np.zeros(roi.shape[:2], np.uint8)
+    cv2.fillConvexPoly(mask, hull - (x0, y0), 255)
+    tint = np.empty_like(roi)
+    tint[:] = GHOST_BGR
+    blend = cv2.addWeighted(roi, 1.0 - GHOST_FILL, tint, GHOST_FILL, 0.0)
+    roi[mask > 0] = blend[mask > 0]
+    for a, b in _BOX_EDGES:
+        cv2.line(img, tuple(int(v) for v in px[a]), tuple(int(v) for v in px[b]), GHOST_BGR, thick, cv2.LINE_AA)
 
 
 def draw_markers(img: np.ndarray, scene: Scene, track, s: dict, k: int) -> None:
     """Draw, over the picture just taken, what the world does not show: the position target
     (a ring on the floor, p_d ahead of the start along the starting heading; drawn only
     without a heading target, when that is where the robot is to stop), the heading target
-    (an arrow on the floor from the axle towards α_d) and a push acting now (an arrow into
-    the top of the body along the force, its length proportional to it)."""
+    (an arrow on the floor from the axle towards α_d), the estimator's ghost (the body box
+    at the estimated pitch θ̂ and heading α̂, moved along the heading by r(ψ̂ − ψ), the error
+    in travelled distance; translucent cyan) and a push acting now (an arrow into the top
+    of the body along the force, its length proportional to it). Floor markers follow a
+    sloped floor."""
     import cv2
 
     def line(a, b, colour, thick, arrow=False):
@@ -75,26 +116,29 @@ def draw_markers(img: np.ndarray, scene: Scene, track, s: dict, k: int) -> None:
             cv2.line(img, p0, p1, colour, thick, cv2.LINE_AA)
 
     thick = max(2, int(round(img.shape[0] / 160)))
-    x, y, a = s["x"][k], s["y"][k], s["alpha"][k]
+    x, y, a, roll = s["x"][k], s["y"][k], s["alpha"][k], s["roll"][k]
     if track.p_d is not None and track.alpha_d is None:
         x0, y0, a0 = track.start
         q = np.linspace(0, 2 * np.pi, 25)
-        ring = np.column_stack([x0 + track.p_d * np.cos(a0) + 0.06 * np.cos(q),
-                                y0 + track.p_d * np.sin(a0) + 0.06 * np.sin(q), np.full(len(q), 0.002)])
+        ring = scene.floor_points(np.column_stack([x0 + track.p_d * np.cos(a0) + 0.06 * np.cos(q),
+                                                   y0 + track.p_d * np.sin(a0) + 0.06 * np.sin(q)]))
         uv = scene.project(ring)  # one projection for the whole ring
         for p0, p1 in zip(uv[:-1], uv[1:]):
             if np.isfinite(p0).all() and np.isfinite(p1).all():
                 cv2.line(img, (int(round(p0[0])), int(round(p0[1]))), (int(round(p1[0])), int(round(p1[1]))),
                          TARGET_BGR, thick, cv2.LINE_AA)
+    if "theta_est" in s:
+        ahead = track.r * (s["psi_est"][k] - s["psi"][k])  # m, the estimate's error in distance travelled
+        corners = scene.body_points(box_corners(track.box), s["theta_est"][k], s["alpha_est"][k],
+                                    x + ahead * np.cos(a), y + ahead * np.sin(a), roll)
+        draw_ghost(img, scene.project(corners), 1)
     if track.alpha_d is not None:
         d = track.alpha_d
-        line((x, y, 0.002), (x + HEADING_ARROW_M * np.cos(d), y + HEADING_ARROW_M * np.sin(d), 0.002), TARGET_BGR,
-             thick, arrow=True)
+        a0, a1 = scene.floor_points([(x, y), (x + HEADING_ARROW_M * np.cos(d), y + HEADING_ARROW_M * np.sin(d))])
+        line(a0, a1, TARGET_BGR, thick, arrow=True)
     f = np.array([s["push_fx"][k], s["push_fy"][k], s["push_fz"][k]])
     if np.abs(f).sum() > 0.0:
-        th = s["theta"][k]
-        top = np.array([x + track.body_top * np.sin(th) * np.cos(a), y + track.body_top * np.sin(th) * np.sin(a),
-                        track.body_top * np.cos(th)])
+        top = scene.body_points([(0.0, 0.0, track.body_top)], s["theta"][k], a, x, y, roll)[0]
         line(top - PUSH_M_PER_N * f, top, PUSH_BGR, thick + 1, arrow=True)
 
 

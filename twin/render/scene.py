@@ -36,14 +36,17 @@ import numpy as np
 
 from twin.errors import TwinError
 from twin.plant.bullet import WHEEL_JOINTS, TwinConfig, client_id, disconnect, initial_pose, quiet_native_output
-from twin.plant.urdf import robot_urdf
+from twin.plant.urdf import UNIT_CUBE_OBJ, robot_urdf
 from twin.rotations import body_quaternion, matrix_rows
 
 RENDERERS = ("auto", "egl", "tiny")
 RENDERER_ENV = "TWIN_RENDERER"
 MIN_SIZE = (32, 24)  # px, smallest frame (width, height)
 MAX_SIZE = (3840, 2160)  # px, largest frame of one panel
-_LIGHT_DIRECTION = (0.6, -1.0, 2.0)  # TinyRenderer only: the EGL plugin has its own light
+# Towards the light, world frame. The EGL plugin puts a point light at this position (m)
+# and TinyRenderer a directional light along it: both light the floor and the side the
+# default cameras see, and cast the robot's shadow away from them.
+_LIGHT_DIRECTION = (0.6, -1.0, 2.0)
 _FAR_AWAY = (0.0, 0.0, -1000.0)  # where a hidden robot goes: far below the floor
 
 
@@ -275,13 +278,14 @@ class Scene:
                 plane_q = (axis[0] * math.sin(h), axis[1] * math.sin(h), 0.0, math.cos(h))
             self.plane = c.loadURDF(os.path.join(pybullet_data.getDataPath(), "plane.urdf"), (0.0, 0.0, 0.0),
                                     plane_q, useFixedBase=True)
-            fd, path = tempfile.mkstemp(suffix=".urdf", prefix="mtwip-render-")
-            try:
-                with os.fdopen(fd, "w") as f:
-                    f.write(robot_urdf(p, d.payload, d.com_offset))
+            with tempfile.TemporaryDirectory(prefix="mtwip-render-") as tmp:
+                cube = os.path.join(tmp, "unit_cube.obj")
+                with open(cube, "w") as f:
+                    f.write(UNIT_CUBE_OBJ)
+                path = os.path.join(tmp, "robot.urdf")
+                with open(path, "w") as f:
+                    f.write(robot_urdf(p, d.payload, d.com_offset, box_mesh=cube))
                 self.robot = c.loadURDF(path, _FAR_AWAY, (0.0, 0.0, 0.0, 1.0), useFixedBase=True)
-            finally:
-                os.unlink(path)
             # PyBullet's base position is the body's centre of mass (its inertial frame)
             self._com_local = np.array((d.com_offset[0], d.com_offset[1], p.l + d.com_offset[2]))
             self._proj = c.computeProjectionMatrixFOV(camera.fov, self.width / self.height, 0.01, 60.0)
@@ -364,6 +368,23 @@ class Scene:
         c.resetJointState(self.robot, WHEEL_JOINTS[0], psi_l - theta, 0.0)
         c.resetJointState(self.robot, WHEEL_JOINTS[1], psi_r - theta, 0.0)
         return axle
+
+    def body_points(self, points, theta: float, alpha: float, x: float, y: float, roll: float = 0.0) -> np.ndarray:
+        """World coordinates (k, 3) m of ``points`` (k, 3) m given in the body frame (origin
+        the axle midpoint, x forward, z up the body) with the robot posed as :meth:`pose`
+        would pose it (pitch ``theta``, heading ``alpha``, roll ``roll`` rad, axle above
+        (``x``, ``y``) m on the floor)."""
+        axle, _ = initial_pose(self.config.params, self.config.ground, theta, alpha, x, y)
+        R = np.array(matrix_rows(body_quaternion(theta, alpha, roll)))
+        return np.asarray(axle) + np.atleast_2d(np.asarray(points, dtype=float)) @ R.T
+
+    def floor_points(self, xy, lift: float = 0.002) -> np.ndarray:
+        """World points (k, 3) m on the floor (sloped or not) at ``xy`` (k, 2) m, raised
+        ``lift`` m so that a marker drawn there is not taken for a floor tile's edge."""
+        xy = np.atleast_2d(np.asarray(xy, dtype=float))
+        g = self.config.ground
+        z = [g.height(float(px), float(py)) + lift for px, py in xy]
+        return np.column_stack([xy, z])
 
     def hide_robot(self) -> None:
         """Move the robot out of sight (far below the floor)."""

@@ -57,7 +57,8 @@ OPENH264_BITS_PER_PIXEL = 0.15  # libopenh264 has no CRF: a bit rate per pixel a
 MAX_FPS = 240.0
 MAX_WIDTH = 7680  # px, the whole side-by-side frame
 SEPARATOR = (40, 40, 40)  # BGR line between panels
-_TRACK = ("theta", "alpha", "x", "y", "psi_l", "psi_r", "roll", "distance")
+_TRACK = ("theta", "alpha", "x", "y", "psi_l", "psi_r", "roll", "distance", "psi")
+_GHOST = ("theta", "psi", "alpha")  # the estimates the ghost is posed with
 
 
 @dataclass(frozen=True)
@@ -141,12 +142,25 @@ class _Track:
         self.status = run.status
         self.push = np.asarray(run.push, dtype=float)  # (n, 3) N, world frame
         self.start = (float(self.cols["x"][0]), float(self.cols["y"][0]), float(self.cols["alpha"][0]))
-        self.body_top = 2.0 * run.config.params.l if run.config is not None else 0.2  # m above the axle
+        self.box = None  # the body box's lowest and highest corners, m, body frame
+        if run.config is not None:
+            from twin.plant.urdf import body_box
+
+            self.box = body_box(run.config.params)
+            self.r = run.config.params.r
+        self.body_top = self.box[1][2] if self.box is not None else 0.2  # m above the axle
+        # the estimator's θ, ψ, α, for the ghost (none with ideal sensing: it would be the body)
+        self.est = {}
+        if run.sensing != "ideal" and run.estimates is not None and self.box is not None:
+            from twin.runs import ESTIMATE_NAMES
+
+            self.est = {f"{n}_est": np.asarray(run.estimates[:, ESTIMATE_NAMES.index(f"{n}_est")], dtype=float)
+                        for n in _GHOST}
         self.faults = fault_windows(getattr(run.sensor_config, "faults", ()))
 
     def sample(self, times: np.ndarray) -> dict[str, np.ndarray]:
         tt = self.t[0] + np.minimum(times, self.duration)
-        out = {name: np.interp(tt, self.t, col) for name, col in self.cols.items()}
+        out = {name: np.interp(tt, self.t, col) for name, col in {**self.cols, **self.est}.items()}
         # a push is a pulse of a few control periods: the row in force at each frame, not a blend
         rows = np.clip(np.searchsorted(self.t, tt, side="right") - 1, 0, len(self.t) - 1)
         for i, name in enumerate(("push_fx", "push_fy", "push_fz")):
