@@ -613,3 +613,25 @@ def test_body_faces_are_evenly_shaded(egl_loads):
     v = hsv[..., 2][body].astype(float)
     assert body.sum() > 500
     assert np.percentile(v, 95) - np.percentile(v, 5) <= 8, np.percentile(v, [5, 50, 95])
+
+
+def test_floor_markers_are_hidden_where_the_robot_stands_in_front(egl_loads):
+    """The heading arrow pointing away from the camera runs behind the body: with the robot
+    in the picture most of it is hidden, without the robot all of it shows."""
+    from types import SimpleNamespace
+
+    from twin.plant.urdf import body_box
+    from twin.render.panels import draw_markers
+
+    config = TwinConfig()
+    track = SimpleNamespace(p_d=None, alpha_d=math.pi / 2, start=(0.0, 0.0, 0.0), r=config.params.r,
+                            box=body_box(config.params), body_top=body_box(config.params)[1][2])
+    s = {k: np.zeros(1) for k in ("x", "y", "alpha", "roll", "theta", "push_fx", "push_fy", "push_fz")}
+    counts = []
+    with Scene(config, (320, 240), "egl" if egl_loads else "tiny", Camera(yaw=0.0, follow_heading=False)) as scene:
+        for show in (True, False):
+            img = cv2.cvtColor(scene.render(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, show_robot=show), cv2.COLOR_RGB2BGR)
+            draw_markers(img, scene, track, s, 0)
+            counts.append(_green(img))
+    with_robot, without = counts
+    assert without > 60 and with_robot < 0.5 * without, counts

@@ -57,6 +57,10 @@ GHOST_BGR = CYAN  # the body where the estimator puts it (the HUD's estimate lin
 GHOST_FILL = 0.15  # opacity of the ghost's faces: the body shows through in its own colour
 PUSH_M_PER_N = 0.02  # m of arrow per N of push (12 N: 24 cm)
 HEADING_ARROW_M = 0.3  # m
+# a pixel whose surface stands higher than this above the floor hides a floor marker: 1 cm,
+# and 1 cm more per 2 m from the eye (TinyRenderer's depth is about 1 mm off at 1 m)
+FLOOR_TOLERANCE = 0.01  # m
+FLOOR_TOLERANCE_PER_M = 0.005  # m per m
 # the 12 edges of a box whose corners are numbered 4·ix + 2·iy + iz (i = 0 low, 1 high)
 _BOX_EDGES = [(a, a | bit) for a in range(8) for bit in (1, 2, 4) if not a & bit]
 
@@ -102,7 +106,9 @@ def draw_markers(img: np.ndarray, scene: Scene, track, s: dict, k: int) -> None:
     at the estimated pitch θ̂ and heading α̂, moved along the heading by r(ψ̂ − ψ), the error
     in travelled distance; translucent cyan) and a push acting now (an arrow into the top
     of the body along the force, its length proportional to it). Floor markers follow a
-    sloped floor."""
+    sloped floor and are hidden where the robot stands in front of them (the picture's
+    depth buffer says what each pixel shows); the ghost and the push arrow are drawn over
+    everything."""
     import cv2
 
     def line(a, b, colour, thick, arrow=False):
@@ -117,6 +123,9 @@ def draw_markers(img: np.ndarray, scene: Scene, track, s: dict, k: int) -> None:
 
     thick = max(2, int(round(img.shape[0] / 160)))
     x, y, a, roll = s["x"][k], s["y"][k], s["alpha"][k], s["roll"][k]
+    picture = img
+    if track.p_d is not None or track.alpha_d is not None:
+        img = img.copy()  # floor markers go on a layer, shown where the floor shows
     if track.p_d is not None and track.alpha_d is None:
         x0, y0, a0 = track.start
         q = np.linspace(0, 2 * np.pi, 25)
@@ -127,15 +136,23 @@ def draw_markers(img: np.ndarray, scene: Scene, track, s: dict, k: int) -> None:
             if np.isfinite(p0).all() and np.isfinite(p1).all():
                 cv2.line(img, (int(round(p0[0])), int(round(p0[1]))), (int(round(p1[0])), int(round(p1[1]))),
                          TARGET_BGR, thick, cv2.LINE_AA)
+    if track.alpha_d is not None:
+        d = track.alpha_d
+        a0, a1 = scene.floor_points([(x, y), (x + HEADING_ARROW_M * np.cos(d), y + HEADING_ARROW_M * np.sin(d))])
+        line(a0, a1, TARGET_BGR, thick, arrow=True)
+    drawn = np.nonzero((img != picture).any(axis=2)) if img is not picture else ((),)
+    if len(drawn[0]):
+        # what the picture shows at those pixels: the floor, or the robot standing in front
+        seen = scene.unproject(*drawn)
+        far = np.linalg.norm(seen - scene.eye(), axis=1)
+        on_floor = scene.above_floor(seen) < FLOOR_TOLERANCE + FLOOR_TOLERANCE_PER_M * far
+        picture[drawn[0][on_floor], drawn[1][on_floor]] = img[drawn[0][on_floor], drawn[1][on_floor]]
+    img = picture
     if "theta_est" in s:
         ahead = track.r * (s["psi_est"][k] - s["psi"][k])  # m, the estimate's error in distance travelled
         corners = scene.body_points(box_corners(track.box), s["theta_est"][k], s["alpha_est"][k],
                                     x + ahead * np.cos(a), y + ahead * np.sin(a), roll)
         draw_ghost(img, scene.project(corners), 1)
-    if track.alpha_d is not None:
-        d = track.alpha_d
-        a0, a1 = scene.floor_points([(x, y), (x + HEADING_ARROW_M * np.cos(d), y + HEADING_ARROW_M * np.sin(d))])
-        line(a0, a1, TARGET_BGR, thick, arrow=True)
     f = np.array([s["push_fx"][k], s["push_fy"][k], s["push_fz"][k]])
     if np.abs(f).sum() > 0.0:
         top = scene.body_points([(0.0, 0.0, track.body_top)], s["theta"][k], a, x, y, roll)[0]

@@ -405,10 +405,36 @@ class Scene:
         view = self.view_matrix(target, alpha)
         self._last_view = view
         with quiet_native_output():  # the EGL plugin prints its GL vendor on the first pictures
-            _, _, rgba, _, _ = c.getCameraImage(self.width, self.height, view, self._proj, shadow=1,
-                                                lightDirection=_LIGHT_DIRECTION, renderer=self._mode,
-                                                flags=self._flags)
+            _, _, rgba, depth, _ = c.getCameraImage(self.width, self.height, view, self._proj, shadow=1,
+                                                    lightDirection=_LIGHT_DIRECTION, renderer=self._mode,
+                                                    flags=self._flags)
+        self._last_depth = depth  # OpenGL window depth in [0, 1], (height, width); read by unproject
         return np.asarray(rgba, dtype=np.uint8).reshape(self.height, self.width, 4)[:, :, :3]
+
+    def unproject(self, rows, cols) -> np.ndarray:
+        """World points (k, 3) m that the last picture shows at the pixels (``rows``,
+        ``cols``) (k,): where the ray through each pixel's centre meets the first surface
+        drawn there (the sky gives points on the far plane)."""
+        rows, cols = np.asarray(rows), np.asarray(cols)
+        d = np.asarray(self._last_depth, dtype=float).reshape(self.height, self.width)[rows, cols]
+        V = np.asarray(self._last_view, dtype=float).reshape(4, 4).T
+        P = np.asarray(self._proj, dtype=float).reshape(4, 4).T
+        ndc = np.column_stack([2.0 * (cols + 0.5) / self.width - 1.0, 1.0 - 2.0 * (rows + 0.5) / self.height,
+                               2.0 * d - 1.0, np.ones(len(d))])
+        w = np.linalg.solve(P @ V, ndc.T).T
+        return w[:, :3] / w[:, 3:4]
+
+    def eye(self) -> np.ndarray:
+        """Where the camera of the last picture was (3,) m, world."""
+        V = np.asarray(self._last_view, dtype=float).reshape(4, 4).T
+        return -V[:3, :3].T @ V[:3, 3]
+
+    def above_floor(self, points) -> np.ndarray:
+        """Height (k,) m of world ``points`` (k, 3) above the floor's plane, along its normal."""
+        pts = np.atleast_2d(np.asarray(points, dtype=float))
+        g = self.config.ground
+        n = np.asarray(g.normal())
+        return pts @ n  # the floor's plane passes through the origin
 
     def project(self, points) -> np.ndarray:
         """Pixel coordinates (k, 2) (column, row) of world points ``points`` (k, 3) m in the
