@@ -126,18 +126,20 @@ No NaN or infinity leaves: a non-finite state or covariance restores the last go
 estimate with its covariance inflated, and the reason is logged in ``events``.
 
 Two implementations of one algorithm: the reference runs on filterpy's
-ExtendedKalmanFilter in Python; the compiled kernel ``estimation._ekf`` (built by setup.py
-where a C compiler is present; ``TWIN_PURE_PYTHON=1`` turns it off) does the same step in
-about 7 µs instead of 120–200 µs. tests/test_estimator_kernel.py holds them together.
+ExtendedKalmanFilter in Python (:class:`~estimation.twin_ekf.TwinEKF`); the compiled kernel
+``estimation._ekf`` (built by setup.py where a C compiler is present; ``TWIN_PURE_PYTHON=1``
+turns it off) does the same step in about 7 µs instead of 120–200 µs, with x and P kept on
+the Python side in a :class:`KernelState`. tests/test_estimator_kernel.py holds them
+together. Only the reference path imports filterpy (whose package imports scipy.stats, 0.8 s
+of a command's start-up), and the χ² gates come from :mod:`estimation.gates`.
 """
 from __future__ import annotations
 
 import math
 import os
 import numpy as np
-from filterpy.kalman import ExtendedKalmanFilter
-from scipy.stats import chi2
 
+from estimation.gates import chi2_gate
 from estimation.model import TORQUE_TOLERANCE, EstimatorModel
 from twin.errors import TwinError
 from twin.protocols import Estimate
@@ -226,35 +228,28 @@ def finite_reading(v) -> bool:
     return v is not None and (math.isfinite(sum(v)) or all(map(math.isfinite, v)))
 
 
-class TwinEKF(ExtendedKalmanFilter):
-    """filterpy's EKF whose nonlinear prediction is computed (with F and Q) beforehand, and
-    whose update leaves the consider states (``consider``, a (12,) mask) uncorrected."""
+def __getattr__(name: str):
+    # TwinEKF lives with filterpy in estimation.twin_ekf, imported on first use: the
+    # compiled path never needs filterpy, whose package imports scipy.stats (about 0.8 s)
+    if name == "TwinEKF":
+        from estimation.twin_ekf import TwinEKF
 
-    def __init__(self, consider=None):
-        super().__init__(dim_x=N, dim_z=2)
+        return TwinEKF
+    raise AttributeError(f"module 'estimation.ekf' has no attribute {name!r}")
+
+
+class KernelState:
+    """The Python side of the compiled path's filter state: x (12,), P (12, 12) and the
+    consider mask, as on :class:`~estimation.twin_ekf.TwinEKF` (which starts them the same
+    way), brought up to date from the kernel by ``EKFEstimator._sync``. The kernel does the
+    filter step, so filterpy (and its import) is not needed there."""
+
+    __slots__ = ("x", "P", "consider")
+
+    def __init__(self):
         self.x = np.zeros(N)
-        self._x_next = self.x
-        self.consider = np.zeros(N, dtype=bool) if consider is None else np.asarray(consider, dtype=bool)
-
-    def predict_x(self, u=0):
-        self.x = self._x_next
-
-    def update(self, z, HJacobian, Hx, R=None, args=(), hx_args=(), residual=np.subtract):
-        """filterpy's update (Joseph form) with the gain's rows of the consider states zeroed
-        (the Schmidt–Kalman update: the Joseph form is exact for any gain, so P keeps their
-        uncertainty and its correlations; only their estimates are never moved)."""
-        if not self.consider.any():
-            return super().update(z, HJacobian, Hx, R=R, args=args, hx_args=hx_args, residual=residual)
-        H = HJacobian(self.x)
-        PHT = self.P @ H.T
-        self.S = H @ PHT + R
-        self.SI = np.linalg.inv(self.S)
-        self.K = PHT @ self.SI
-        self.K[self.consider] = 0.0
-        self.y = residual(z, Hx(self.x))
-        self.x = self.x + self.K @ self.y
-        I_KH = self._I - self.K @ H
-        self.P = I_KH @ self.P @ I_KH.T + self.K @ R @ self.K.T
+        self.P = np.eye(N)
+        self.consider = np.zeros(N, dtype=bool)
 
 
 class EKFEstimator:
@@ -336,8 +331,8 @@ class EKFEstimator:
             self.H[i, TH] = -1.0
             self.H[i, AL] = sgn * self.b_r
             self.H[i, H0] = sgn
-        self.gates = {k: float(chi2.ppf(1.0 - gate_probability, k)) for k in (1, 2)}
-        self.imu_gates = {k: float(chi2.ppf(1.0 - 1e-9, k)) for k in (1, 2)}
+        self.gates = {k: chi2_gate(gate_probability, k) for k in (1, 2)}
+        self.imu_gates = {k: chi2_gate(1e-9, k) for k in (1, 2)}
         self._inside_gate = math.sqrt(self.imu_gates[1])  # σ: see _keep_inside
         self._inside_half = (0.5 + INSIDE_MARGIN) * self.delta  # rad: see _keep_inside
         g, a = model.imu.gyro, model.imu.accel
@@ -368,7 +363,12 @@ class EKFEstimator:
     def _new_run(self) -> None:
         """The state of one run, as before the first start(); start() calls it again when the
         filter is reused for another run, so that nothing of the previous one is kept."""
-        self.kf = TwinEKF()
+        if self._core_args is None:  # the reference path: filterpy's EKF does the steps
+            from estimation.twin_ekf import TwinEKF
+
+            self.kf = TwinEKF()
+        else:
+            self.kf = KernelState()
         self.holding = False  # the consider states are held (after learn_time)
         self.last_dof = 0
         self.k = -1
