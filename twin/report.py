@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from twin.figure import FAULT_COLOUR, PUSH_COLOUR  # noqa: F401 (named here too, where they always were)
 from twin.registry import label as kind_label
 from twin.runs import Run
 from twin.sensors.faults import fault_windows
@@ -25,14 +26,13 @@ def _pyplot():
     return plt
 
 
-PUSH_COLOUR, FAULT_COLOUR = "tab:red", "tab:purple"
-
-
 def plot_runs(runs: list, path: Path, title: str = "") -> Path:
     """The figure of a scenario's runs (:func:`figure_runs`), written to ``path`` (PNG)."""
-    plt = _pyplot()
-    fig = figure_runs(runs, title)
-    return _save(plt, fig, path)
+    from twin.figure import save_figure
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_figure(figure_runs(runs, title), path)
+    return path
 
 
 def figure_runs(runs: list, title: str = ""):
@@ -41,65 +41,41 @@ def figure_runs(runs: list, title: str = ""):
     given minus the truth) beside it; each wheel's delivered torque with the samples where
     the motor driver saturated marked; dψ/dt; the distance p = rψ and the heading α with
     their targets. Pushes and sensor-fault windows are shaded on every panel, and every
-    line is in a legend. A matplotlib Figure (axes titled by their quantity and unit).
+    line is in a legend. A matplotlib Figure (axes titled by their quantity and unit),
+    drawn by :mod:`twin.figure` from :func:`figure_data`.
 
     ``runs``: :class:`~twin.runs.Run` (from the twin or the analytic model)."""
-    import textwrap
+    from twin.figure import fill_figure, new_figure
 
-    plt = _pyplot()
-    fig, grid = plt.subplots(3, 2, figsize=(12, 10.5), sharex=True)
-    ax_th, ax_err, ax_tq, ax_psd, ax_p, ax_al = grid.ravel()
+    fig, axes = new_figure()
+    return fill_figure(fig, axes, figure_data(runs), title)
+
+
+def figure_data(runs: list) -> dict:
+    """What :func:`figure_runs` draws, as plain data (floats, strings, NumPy arrays; picklable
+    without the twin's classes, for :mod:`twin.figure_worker`): per run its name, colour,
+    settling time (s, NaN if never settled), sensing, and (t, y) pairs thinned by
+    :func:`_envelope` for θ, θ̂ − θ (None under ideal sensing), each wheel's torque and its
+    saturated samples (None if none), dψ/dt, p and α; the experiment's targets p_d, α_d
+    (None if it has none) and the shaded spans (:func:`_shaded_spans`)."""
+    out = []
     for i, r in enumerate(runs):
-        c = _COLOURS[i % len(_COLOURS)]
         name = kind_label(r.controller) or r.controller or f"run {i + 1}"
-        ax_th.plot(*_envelope(r.t, r.signal("theta")), color=c, lw=1.2, label=name)
-        ts = r.settling_time()
-        if math.isfinite(ts):
-            ax_th.axvline(ts, color=c, ls=":", lw=1.0, label=f"{name} settled, {ts:.2f} s")
+        d = {"name": name, "colour": _COLOURS[i % len(_COLOURS)], "settling_time": float(r.settling_time()),
+             "sensing": r.sensing, "theta": _envelope(r.t, r.signal("theta")), "error": None,
+             "psi_dot": _envelope(r.t, r.signal("psi_dot")), "distance": _envelope(r.t, r.distance),
+             "alpha": _envelope(r.t, r.signal("alpha"))}
         if r.estimates is not None and r.sensing != "ideal":
-            ax_err.plot(*_envelope(r.t, r.signal("theta_est") - r.signal("theta")), color=c, lw=1.0,
-                        label=f"{name} ({r.sensing})")
-        for side, ls in (("l", "-"), ("r", "--")):
+            d["error"] = _envelope(r.t, r.signal("theta_est") - r.signal("theta"))
+        for side in ("l", "r"):
             tq = r.signal(f"torque_{side}")
-            ax_tq.plot(*_envelope(r.t, tq), color=c, lw=1.0, ls=ls, label=f"{name} {'left' if side == 'l' else 'right'}")
+            d[f"torque_{side}"] = _envelope(r.t, tq)
             sat = r.signal(f"saturated_{side}") > 0.5
-            if sat.any():
-                ax_tq.plot(r.t[sat], tq[sat], ls="none", marker="x", ms=4, color=c,
-                           label=f"{name} {'left' if side == 'l' else 'right'} saturated")
-        ax_psd.plot(*_envelope(r.t, r.signal("psi_dot")), color=c, lw=1.2, label=name)
-        ax_p.plot(*_envelope(r.t, r.distance), color=c, lw=1.2, label=name)
-        ax_al.plot(*_envelope(r.t, r.signal("alpha")), color=c, lw=1.2, label=name)
+            d[f"saturated_{side}"] = (r.t[sat], tq[sat]) if sat.any() else None
+        out.append(d)
     exp = runs[0].experiment
-    if exp is not None:
-        if exp.p_d is not None:
-            ax_p.axhline(exp.p_d, color="k", ls="--", lw=0.8, label="target p_d")
-        if exp.alpha_d is not None:
-            ax_al.axhline(exp.alpha_d, color="k", ls="--", lw=0.8, label="target α_d")
-    if not ax_err.lines:
-        ax_err.text(0.5, 0.5, "ideal sensing: the controllers read the truth", ha="center", va="center",
-                    transform=ax_err.transAxes, fontsize=9, color="0.4")
-    spans = _shaded_spans(runs)
-    for ax, label in ((ax_th, "θ [rad]"), (ax_err, "estimator error θ̂ − θ [rad]"),
-                      (ax_tq, "delivered torque per wheel [N·m]"), (ax_psd, "dψ/dt [rad/s]"),
-                      (ax_p, "distance p = rψ [m]"), (ax_al, "heading α [rad]")):
-        for kind, a, b in spans:
-            ax.axvspan(a, b, color=PUSH_COLOUR if kind == "push" else FAULT_COLOUR, alpha=0.15, lw=0,
-                       label=kind)
-        ax.set_title(label, fontsize=9)  # centred: the axis' ×10ⁿ offset sits at the top left
-        ax.grid(alpha=0.3)
-        handles, labels = ax.get_legend_handles_labels()
-        keep = {}
-        for h, lab in zip(handles, labels):
-            keep.setdefault(lab, h)  # one entry per label: spans repeat theirs
-        if keep:
-            ax.legend(keep.values(), keep.keys(), loc="best", fontsize=7, ncol=2 if len(keep) > 4 else 1)
-    for ax in grid[-1]:
-        ax.set_xlabel("time [s]")
-    text = "\n".join(textwrap.fill(line, 140) for line in title.splitlines())
-    fig.suptitle(text, fontsize=10)
-    n_lines = max(1, text.count("\n") + 1)
-    fig.set_layout_engine("tight", rect=(0, 0, 1, 1 - 0.017 * n_lines))  # the title's room kept
-    return fig
+    return {"runs": out, "p_d": None if exp is None else exp.p_d, "alpha_d": None if exp is None else exp.alpha_d,
+            "spans": _shaded_spans(runs)}
 
 
 def _shaded_spans(runs: list) -> list:
