@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from twin import figure_worker
 from twin.errors import TwinError
 from twin.scenarios.scenario import Scenario
 
@@ -84,9 +85,7 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
     (trajectory.csv) or "csv.gz" (trajectory.csv.gz, gzip). Nothing is written unless every
     run finished (a run that falls is a result; a plugin that breaks its contract is an error).
     """
-    from twin.bullet_loop import check_log_every, simulate_twin
-    from twin.metrics import run_metrics
-
+    from twin.bullet_loop import check_log_every
     from twin.registry import check_kinds, parse_controllers
 
     every = check_log_every(log_every)
@@ -97,6 +96,21 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
     else:
         kinds = check_kinds("controller", controllers if controllers is not None else scenario.controllers,
                             "controllers")
+    # the figure's worker process starts now, to import matplotlib while the runs simulate
+    worker = figure_worker.start() if out is not None else None
+    try:
+        return _run_and_write(scenario, kinds, out, video, progress, every, log_format, worker)
+    finally:
+        if worker is not None:
+            worker.close()
+
+
+def _run_and_write(scenario, kinds, out, video, progress, every, log_format, worker) -> ScenarioResult:
+    """:func:`run_scenario` after its checks; ``worker`` a :class:`twin.figure_worker.FigureWorker`
+    for the figure, or None (drawn here)."""
+    from twin.bullet_loop import simulate_twin
+    from twin.metrics import run_metrics
+
     d = scenario.data
     exp = scenario.experiment()
     config = scenario.twin_config()
@@ -134,6 +148,10 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    title = f"{scenario.name}: {scenario.description}\nseed {scenario.seed}, " + (
+        "ideal sensing" if sensors is None else f"{scenario.estimator} estimator in the loop")
+    # the figure first: a worker draws it while the files below are written
+    handed = worker is not None and worker.submit(report.figure_data(runs), title, out / "figure.png")
     doc = {"scenario": scenario.record(), "source": scenario.source, "seed": scenario.seed, "runs": metrics}
     if plugins:
         doc["plugins"] = plugins
@@ -148,9 +166,12 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
         result.files.append(report.write_json(solved[0].to_json_dict(), out / "design.json"))
     else:
         (out / "design.json").unlink(missing_ok=True)  # an earlier run's, which these runs did not use
-    title = f"{scenario.name}: {scenario.description}\nseed {scenario.seed}, " + (
-        "ideal sensing" if sensors is None else f"{scenario.estimator} estimator in the loop")
-    result.files.append(report.plot_runs(runs, out / "figure.png", title))
+    failed = worker.finish() if handed else None
+    if failed is not None:
+        result.notes.append(f"{failed}; drew the figure in this process")
+    if not handed or failed is not None:
+        report.plot_runs(runs, out / "figure.png", title)
+    result.files.append(out / "figure.png")
     if video if video is not None else d["video"]["enabled"]:
         from twin.render import render_video
         from twin.render.scene import camera_mode
@@ -216,9 +237,20 @@ def write_trajectories_csv(runs, path: Path) -> Path:
             for run in runs:
                 own = list(run.signal_names())
                 where = [own.index(n) if n in own else None for n in names]
+                # the rows as csv.writer writes them, joined here (a third faster): a float's
+                # repr never needs quoting, so only the controller's name goes through csv
+                head = io.StringIO()
+                csv.writer(head).writerow([run.controller, ""])
+                prefix = head.getvalue()[:-2]  # "name," without the line's end ("\r\n")
+                every = where == list(range(len(own)))
                 for block in run.column_chunks():
-                    for row in block.tolist():
-                        w.writerow([run.controller] + ["" if j is None else repr(row[j]) for j in where])
+                    rows = block.tolist()
+                    if every:
+                        lines = [prefix + ",".join(map(repr, row)) for row in rows]
+                    else:
+                        lines = [prefix + ",".join(["" if j is None else repr(row[j]) for j in where]) for row in rows]
+                    lines.append("")
+                    fh.write("\r\n".join(lines))
         finally:
             fh.close()  # closes the gzip stream (its trailer) and the file
     return path

@@ -1,0 +1,150 @@
+"""A cached ``twin run`` keeps heavy imports off its path (issue 17, item 5), and the figure
+drawn by the worker process (twin.figure_worker) is the one drawn in-process. Timings are
+not tested here: benchmarks/bench_startup.py measures them."""
+import math
+import subprocess
+import sys
+import tempfile
+
+import numpy as np
+import pytest
+
+from twin import figure_worker
+from twin.scenarios import load_scenario
+from twin.scenarios.runner import run_scenario
+
+HEAVY = ("scipy.stats", "filterpy", "filterpy.stats", "cvxpy")
+
+RUN = """
+import sys
+from twin.cli import main
+sys.argv = ["twin", "run", "paper-exp3", "--duration", "1", "--no-video", "--controller", "it2", "--out", {out!r}]
+try:
+    main()
+except SystemExit as exc:
+    assert exc.code == 0, exc.code
+print("IMPORTED", ",".join(m for m in {heavy!r} if m in sys.modules) or "-")
+print("SCIPY", "scipy" in sys.modules)
+print("MATPLOTLIB", "matplotlib" in sys.modules)
+"""
+
+
+def _run(tmp_path, **env):
+    env = {**__import__("os").environ, "TWIN_CACHE_DIR": str(tmp_path / "cache"), **env}
+    r = subprocess.run([sys.executable, "-c", RUN.format(out=str(tmp_path / "out"), heavy=HEAVY)],
+                       capture_output=True, text=True, env=env, cwd=tempfile.gettempdir())
+    assert r.returncode == 0, r.stderr
+    return dict(line.split(" ", 1) for line in r.stdout.strip().splitlines()[-3:])
+
+
+def test_a_cached_run_imports_neither_scipy_stats_nor_filterpy(tmp_path):
+    cold = _run(tmp_path)
+    assert "cvxpy" in cold["IMPORTED"]  # solved, and stored
+    warm = _run(tmp_path)
+    assert warm["IMPORTED"] == "-", warm  # the EKF's compiled path needs no filterpy, its gates no scipy.stats
+    assert warm["SCIPY"] == "False"
+    assert warm["MATPLOTLIB"] == ("False" if figure_worker.wanted() else "True")  # drawn by the worker
+    assert (tmp_path / "out" / "figure.png").stat().st_size > 10_000
+    # the figure drawn here instead: matplotlib then, still no scipy.stats nor filterpy
+    here = _run(tmp_path, TWIN_FIGURE_WORKER="0")
+    assert here["IMPORTED"] == "-" and here["MATPLOTLIB"] == "True"
+
+
+def test_the_chi2_gates_are_scipys_bit_for_bit():
+    from scipy.stats import chi2
+
+    from estimation.gates import _TABLE, chi2_gate
+
+    for (p, dof), value in _TABLE.items():
+        assert value == float(chi2.ppf(1.0 - p, dof)), (p, dof)
+    assert chi2_gate(0.01, 2) == float(chi2.ppf(0.99, 2))  # not in the table: asked of scipy
+
+
+def test_the_reference_path_is_filterpys_ekf_and_the_compiled_one_needs_none():
+    from filterpy.kalman import ExtendedKalmanFilter
+
+    from estimation.ekf import EKFEstimator, KernelState, TwinEKF, _kernel
+    from estimation.model import EstimatorModel
+
+    model = EstimatorModel()
+    ref = EKFEstimator(model, compiled=False)
+    assert isinstance(ref.kf, TwinEKF) and isinstance(ref.kf, ExtendedKalmanFilter)
+    if _kernel is not None:
+        fast = EKFEstimator(model)
+        assert fast.compiled and isinstance(fast.kf, KernelState)
+        np.testing.assert_array_equal(fast.kf.P, ref.kf.P)  # both start at filterpy's P = I
+        np.testing.assert_array_equal(fast.kf.x, ref.kf.x)
+
+
+@pytest.fixture(scope="module")
+def ran(tmp_path_factory):
+    """paper-exp3 for 2 s, the figure by the worker and in this process."""
+    sc = load_scenario("paper-exp3", ["duration=2"])
+    out = {}
+    for name, env in (("worker", None), ("here", "0")):
+        mp = pytest.MonkeyPatch()
+        if env is not None:
+            mp.setenv("TWIN_FIGURE_WORKER", env)
+        else:
+            mp.delenv("TWIN_FIGURE_WORKER", raising=False)
+        d = tmp_path_factory.mktemp(name)
+        out[name] = (run_scenario(sc, ("it2",), out=d, video=False), d)
+        mp.undo()
+    return out
+
+
+def test_the_workers_figure_is_the_one_drawn_here(ran):
+    from PIL import Image
+
+    if not figure_worker.wanted():
+        pytest.skip("one CPU here: no worker is started")
+    (res_w, dir_w), (res_h, dir_h) = ran["worker"], ran["here"]
+    assert not res_w.notes and not res_h.notes
+    assert [p.name for p in res_w.files] == [p.name for p in res_h.files] == [
+        "metrics.json", "trajectory.csv", "design.json", "figure.png"]
+    a = np.asarray(Image.open(dir_w / "figure.png").convert("RGBA"))
+    b = np.asarray(Image.open(dir_h / "figure.png").convert("RGBA"))
+    assert a.shape == b.shape == (math.ceil(10.5 * 110), 12 * 110, 4)
+    assert np.array_equal(a, b)  # warmed up on the empty figure, drawn the same
+
+
+def test_a_failed_worker_leaves_the_figure_to_this_process(tmp_path, monkeypatch):
+    if not figure_worker.wanted():
+        pytest.skip("one CPU here: no worker is started")
+    started = []
+    real = figure_worker.FigureWorker
+
+    class Failing(real):
+        def __init__(self):
+            monkeypatch.setattr(figure_worker, "_CODE", "import sys; sys.stdin.readline(); sys.exit(3)")
+            super().__init__()
+            started.append(self)
+
+    monkeypatch.setattr(figure_worker, "FigureWorker", Failing)
+    res = run_scenario(load_scenario("paper-exp3", ["duration=1"]), ("it2",), out=tmp_path, video=False)
+    assert started and started[0]._proc.returncode == 3  # waited for: no process outlives the call
+    assert [n for n in res.notes if "figure worker failed (exit status 3)" in n], res.notes
+    assert (tmp_path / "figure.png").stat().st_size > 10_000
+
+
+def test_no_worker_outlives_a_run_that_raises(monkeypatch):
+    if not figure_worker.wanted():
+        pytest.skip("one CPU here: no worker is started")
+    started = []
+    real = figure_worker.FigureWorker
+
+    class Recorded(real):
+        def __init__(self):
+            super().__init__()
+            started.append(self)
+
+    monkeypatch.setattr(figure_worker, "FigureWorker", Recorded)
+    import twin.scenarios.runner as runner
+
+    def boom(*args, **kwargs):
+        raise RuntimeError("the simulation broke")
+
+    monkeypatch.setattr(runner, "_run_and_write", boom)
+    with pytest.raises(RuntimeError, match="broke"), tempfile.TemporaryDirectory() as tmp:
+        run_scenario(load_scenario("paper-exp3", ["duration=1"]), ("it2",), out=tmp, video=False)
+    assert started and started[0]._proc.returncode is not None

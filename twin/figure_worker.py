@@ -1,0 +1,151 @@
+"""The run figure drawn by a second process while the runs are simulated.
+
+Why: of a 20 s ``twin run`` process on the project's 2-core machine, matplotlib took about
+0.45 s to import and the figure 0.3-0.5 s to draw, one after the other after the
+simulation. A worker started when the scenario starts imports matplotlib, builds the empty
+figure and draws it once (fonts loaded, tick objects made: :func:`twin.figure.warm_up`) on
+the other core while this process simulates. When the runs end their figure data (plain
+arrays and strings, :func:`twin.report.figure_data`) is handed over, and the worker draws and
+writes figure.png while this process writes trajectory.csv and metrics.json.
+
+The command waits for the worker (:meth:`FigureWorker.finish`) and always ends it
+(:meth:`FigureWorker.close`): no process outlives the command, and figure.png is complete
+when the command returns. A worker that fails leaves the figure to this process, as before,
+with a one-line note. The worker costs about 0.15 s of CPU more than drawing here (a second
+interpreter and NumPy, the warm-up draw); on a machine whose CPUs are all busy the command
+takes about as long as without it. (It runs at the normal priority: at a lower one it
+would wait, on a half-busy machine, until the simulation ended, and the command would take
+longer than without it.) Used where this process may run on at least two CPUs;
+``TWIN_FIGURE_WORKER=0`` turns it off (the figure is then drawn here, the same picture).
+
+The hand-over: the data is pickled to a private temporary file whose name goes down the
+worker's stdin (one line, so the write never waits on a worker that is still warming up);
+EOF on stdin tells the worker that no figure is wanted.
+"""
+from __future__ import annotations
+
+import os
+import pickle
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+_ROOT = str(Path(__file__).resolve().parent.parent)  # the directory holding this twin package
+# the worker imports this very twin package (not another one on its path or in its cwd)
+_CODE = f"import sys; sys.path.insert(0, {_ROOT!r}); from twin.figure_worker import main; main()"
+
+
+def wanted() -> bool:
+    """True where a worker can draw on a CPU of its own and TWIN_FIGURE_WORKER is not "0"."""
+    if os.environ.get("TWIN_FIGURE_WORKER", "").strip() == "0":
+        return False
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not on Linux
+        cpus = os.cpu_count() or 1
+    return cpus >= 2
+
+
+def start() -> FigureWorker | None:
+    """A started worker, or None where none is wanted (:func:`wanted`) or it cannot start."""
+    if not wanted():
+        return None
+    try:
+        return FigureWorker()
+    except OSError:
+        return None
+
+
+class FigureWorker:
+    """One figure drawn in a child process: :meth:`submit` the data, :meth:`finish` to wait."""
+
+    def __init__(self):
+        self._stderr = tempfile.TemporaryFile()
+        self._proc = subprocess.Popen([sys.executable, "-c", _CODE], stdin=subprocess.PIPE,
+                                      stdout=subprocess.DEVNULL, stderr=self._stderr)
+        self._payload = None
+
+    def submit(self, data: dict, title: str, path: Path) -> bool:
+        """Hand over the figure's data (:func:`twin.report.figure_data`), its title and the
+        PNG's path; False if the worker is gone (then draw it here)."""
+        fd, self._payload = tempfile.mkstemp(prefix="mtwip-figure-", suffix=".pickle")
+        with os.fdopen(fd, "wb") as fh:
+            pickle.dump((str(path), title, data), fh, protocol=pickle.HIGHEST_PROTOCOL)
+        try:
+            self._proc.stdin.write(self._payload.encode("utf-8") + b"\n")
+            self._proc.stdin.close()
+        except OSError:
+            return False
+        return True
+
+    def finish(self, timeout: float = 600.0) -> str | None:
+        """Wait for the figure: None once written, else why not (one line)."""
+        try:
+            code = self._proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self.close()
+            return f"the figure worker took more than {timeout:g} s"
+        finally:
+            self._remove_payload()
+        self._stderr.seek(0)
+        err = self._stderr.read().decode("utf-8", "replace").strip()
+        self._stderr.close()
+        if code != 0:
+            return f"the figure worker failed (exit status {code}): {err.splitlines()[-1] if err else 'no message'}"
+        if err:  # warnings: shown as they would have been, had the figure been drawn here
+            print(err, file=sys.stderr)
+        return None
+
+    def close(self) -> None:
+        """End the worker if it still runs (EOF first, so that it can exit by itself)."""
+        if self._proc.poll() is None:
+            try:
+                if not self._proc.stdin.closed:
+                    self._proc.stdin.close()
+                self._proc.wait(2.0)
+            except (OSError, subprocess.TimeoutExpired):
+                self._proc.kill()
+                self._proc.wait()
+        self._remove_payload()
+        if not self._stderr.closed:
+            self._stderr.close()
+
+    def _remove_payload(self) -> None:
+        if self._payload is not None:
+            try:
+                os.unlink(self._payload)
+            except OSError:
+                pass
+            self._payload = None
+
+
+def _data_waiting() -> bool:
+    """True if the parent has already sent its line (no time left to warm up)."""
+    try:
+        import select
+
+        return bool(select.select([sys.stdin], [], [], 0.0)[0])
+    except (OSError, ValueError):  # pragma: no cover - no select on pipes (Windows)
+        return False
+
+
+def main() -> None:
+    """The worker: the empty figure, warmed up while nothing has arrived; then the data,
+    drawn and written."""
+    from twin.figure import fill_figure, new_figure, save_figure, warm_up
+
+    fig, axes = new_figure()
+    if not _data_waiting():
+        warm_up(fig)
+    line = sys.stdin.readline().strip()
+    if not line:  # EOF: the command ended without a figure to draw
+        return
+    with open(line, "rb") as fh:
+        path, title, data = pickle.load(fh)
+    fill_figure(fig, axes, data, title)
+    save_figure(fig, path)  # written and closed
+    # done: leave without the interpreter's teardown of matplotlib and NumPy (0.1 s, which the
+    # command would wait for); nothing is buffered (stdout is not used, stderr unbuffered)
+    sys.stderr.flush()
+    os._exit(0)
