@@ -60,7 +60,9 @@ class Triangle:
         """True if ``other`` ≤ ``self`` everywhere (other's support inside, peak-compatible)."""
         grid = np.linspace(min(self.peak, other.peak) - 3, max(self.peak, other.peak) + 3, 2001)
         finite = [v for v in (self.left, self.right, other.left, other.right) if math.isfinite(v)]
-        grid = np.union1d(grid, np.array(finite + [self.peak, other.peak]))
+        # the corners added to the grid (order and repeats do not matter to the test below;
+        # np.union1d would import numpy.ma, 20 ms of every command's start-up)
+        grid = np.concatenate([grid, finite, [self.peak, other.peak]])
         return bool(np.all(other(grid) <= self(grid) + 1e-12))
 
 
