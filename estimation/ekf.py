@@ -589,9 +589,10 @@ class EKFEstimator:
         ok = finite_reading
         gyro, accel, enc = meas.gyro, meas.accel, meas.encoders
         g_ok, a_ok, e_ok = ok(gyro), ok(accel), ok(enc)
-        for n, v, good in (("gyro", gyro, g_ok), ("accel", accel, a_ok), ("encoders", enc, e_ok)):
-            if v is not None and not good:
-                self.events.append((meas.t, f"non-finite {n} reading ignored"))
+        if not (g_ok and a_ok and e_ok):  # (the loop below only when a reading is missing or bad)
+            for n, v, good in (("gyro", gyro, g_ok), ("accel", accel, a_ok), ("encoders", enc, e_ok)):
+                if v is not None and not good:
+                    self.events.append((meas.t, f"non-finite {n} reading ignored"))
         if g_ok or a_ok:
             # each half on its own latency: they pair up by sample time in _advance
             g_new, a_new = (tuple(gyro) if g_ok else None), (tuple(accel) if a_ok else None)
@@ -644,14 +645,19 @@ class EKFEstimator:
         wy.append(float(gyro[1]) if gyro is not None else math.nan)
         c = self._commands.get(k - 1, (0.0, 0.0))
         wu.append(c[0] + c[1])
-        for name, arrived in (("gyro", gyro is not None), ("accel", a_ok)):
-            if arrived:
-                gap = k - self._last_arrival[name] - 1
-                if gap > 0:
-                    self._gaps[name].append((k, gap))
-                    if len(self._gaps[name]) > 8:
-                        del self._gaps[name][0]
-                self._last_arrival[name] = k
+        last = self._last_arrival
+        # (the common case, both halves arriving without a gap, without a loop: every period)
+        if gyro is None or not a_ok or last["gyro"] != k - 1 or last["accel"] != k - 1:
+            for name, arrived in (("gyro", gyro is not None), ("accel", a_ok)):
+                if arrived:
+                    gap = k - last[name] - 1
+                    if gap > 0:
+                        self._gaps[name].append((k, gap))
+                        if len(self._gaps[name]) > 8:
+                            del self._gaps[name][0]
+                    last[name] = k
+        else:
+            last["gyro"] = last["accel"] = k
         n = WATCH_WINDOW + WATCH_MAX_LAG + 5
         if len(wy) > n:
             del wy[0], wu[0]

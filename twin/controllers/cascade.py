@@ -90,7 +90,7 @@ class FuzzyCascade:
     def __call__(self, state, targets: Targets = Targets()) -> Command:
         """Wheel torques for ``state`` = [θ, θ̇, ψ, ψ̇, α, α̇] and ``targets`` p_d (m), α_d (rad)."""
         p_d, alpha_d = targets
-        theta, theta_dot, psi, psi_dot, alpha, alpha_dot = (float(v) for v in state[:6])
+        theta, theta_dot, psi, psi_dot, alpha, alpha_dot = map(float, state[:6])
         theta_off = 0.0
         psi_e = psi
         if self.position is not None and p_d is not None:

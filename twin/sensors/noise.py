@@ -64,7 +64,8 @@ class TriadNoise:
     @property
     def bias(self) -> tuple[float, float, float]:
         """Total bias (turn-on + drift) that the next sample carries, per axis."""
-        return tuple(a + b for a, b in zip(self.turn_on, self.drift))
+        on, d = self.turn_on, self.drift
+        return (on[0] + d[0], on[1] + d[1], on[2] + d[2])
 
     def sample(self, x0: float, x1: float, x2: float) -> tuple[float, float, float]:
         """One reading of the true values (x0, x1, x2): noisy, saturated and quantised."""
