@@ -6,13 +6,20 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
 import sys
 from pathlib import Path
 
-import click
+# One OpenBLAS thread unless the user says otherwise, set before NumPy loads: the twin's
+# matrices are 12 × 12 at most, which OpenBLAS computes on one thread anyway (the same
+# numbers), while starting its thread pool cost every command 60 ms of its start-up on the
+# project's 2-core machine; sweeps run one process per CPU already
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-from twin.errors import TwinError
+import click  # noqa: E402
+
+from twin.errors import TwinError  # noqa: E402
 
 EXPERIMENT_CHOICES = ("1", "2", "3", "paper-exp1", "paper-exp2", "paper-exp3")
 
