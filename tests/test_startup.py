@@ -40,10 +40,10 @@ def _run(tmp_path, **env):
 def test_a_cached_run_imports_neither_scipy_stats_nor_filterpy(tmp_path):
     cold = _run(tmp_path)
     assert "cvxpy" in cold["IMPORTED"]  # solved, and stored
-    warm = _run(tmp_path)
+    warm = _run(tmp_path, TWIN_FIGURE_WORKER="1")
     assert warm["IMPORTED"] == "-", warm  # the EKF's compiled path needs no filterpy, its gates no scipy.stats
     assert warm["SCIPY"] == "False"
-    assert warm["MATPLOTLIB"] == ("False" if figure_worker.wanted() else "True")  # drawn by the worker
+    assert warm["MATPLOTLIB"] == "False"  # drawn by the worker
     assert (tmp_path / "out" / "figure.png").stat().st_size > 10_000
     # the figure drawn here instead: matplotlib then, still no scipy.stats nor filterpy
     here = _run(tmp_path, TWIN_FIGURE_WORKER="0")
@@ -81,12 +81,9 @@ def ran(tmp_path_factory):
     """paper-exp3 for 2 s, the figure by the worker and in this process."""
     sc = load_scenario("paper-exp3", ["duration=2"])
     out = {}
-    for name, env in (("worker", None), ("here", "0")):
+    for name, env in (("worker", "1"), ("here", "0")):
         mp = pytest.MonkeyPatch()
-        if env is not None:
-            mp.setenv("TWIN_FIGURE_WORKER", env)
-        else:
-            mp.delenv("TWIN_FIGURE_WORKER", raising=False)
+        mp.setenv("TWIN_FIGURE_WORKER", env)
         d = tmp_path_factory.mktemp(name)
         out[name] = (run_scenario(sc, ("it2",), out=d, video=False), d)
         mp.undo()
@@ -96,8 +93,6 @@ def ran(tmp_path_factory):
 def test_the_workers_figure_is_the_one_drawn_here(ran):
     from PIL import Image
 
-    if not figure_worker.wanted():
-        pytest.skip("one CPU here: no worker is started")
     (res_w, dir_w), (res_h, dir_h) = ran["worker"], ran["here"]
     assert not res_w.notes and not res_h.notes
     assert [p.name for p in res_w.files] == [p.name for p in res_h.files] == [
@@ -109,8 +104,7 @@ def test_the_workers_figure_is_the_one_drawn_here(ran):
 
 
 def test_a_failed_worker_leaves_the_figure_to_this_process(tmp_path, monkeypatch):
-    if not figure_worker.wanted():
-        pytest.skip("one CPU here: no worker is started")
+    monkeypatch.setenv("TWIN_FIGURE_WORKER", "1")
     started = []
     real = figure_worker.FigureWorker
 
@@ -128,8 +122,7 @@ def test_a_failed_worker_leaves_the_figure_to_this_process(tmp_path, monkeypatch
 
 
 def test_no_worker_outlives_a_run_that_raises(monkeypatch):
-    if not figure_worker.wanted():
-        pytest.skip("one CPU here: no worker is started")
+    monkeypatch.setenv("TWIN_FIGURE_WORKER", "1")
     started = []
     real = figure_worker.FigureWorker
 
@@ -148,3 +141,19 @@ def test_no_worker_outlives_a_run_that_raises(monkeypatch):
     with pytest.raises(RuntimeError, match="broke"), tempfile.TemporaryDirectory() as tmp:
         run_scenario(load_scenario("paper-exp3", ["duration=1"]), ("it2",), out=tmp, video=False)
     assert started and started[0]._proc.returncode is not None
+
+
+def test_the_worker_is_wanted_only_with_a_cpu_to_spare(monkeypatch):
+    monkeypatch.setenv("TWIN_FIGURE_WORKER", "0")
+    assert not figure_worker.wanted()
+    monkeypatch.setenv("TWIN_FIGURE_WORKER", "1")
+    assert figure_worker.wanted()
+    monkeypatch.delenv("TWIN_FIGURE_WORKER")
+    monkeypatch.setattr(figure_worker.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    monkeypatch.setattr(figure_worker, "_running_elsewhere", lambda: 0)
+    assert figure_worker.wanted()
+    monkeypatch.setattr(figure_worker, "_running_elsewhere", lambda: 1)  # the other CPU is busy
+    assert not figure_worker.wanted()
+    monkeypatch.setattr(figure_worker.os, "sched_getaffinity", lambda pid: {0}, raising=False)
+    monkeypatch.setattr(figure_worker, "_running_elsewhere", lambda: 0)
+    assert not figure_worker.wanted()  # one CPU: nothing to run it on
