@@ -476,6 +476,10 @@ def test_camera_modes():
     from twin.plant.bullet import TwinConfig
     from twin.render.scene import CAMERA_MODES, camera_mode
 
+    # with a heading target the follow camera looks from the side of the heading halfway to it
+    assert camera_mode("follow", 0.2, alpha_d=1.5).yaw == pytest.approx(25.0 + math.degrees(0.85))
+    assert camera_mode("follow", 0.2).yaw == pytest.approx(25.0 + math.degrees(0.2))
+
     assert CAMERA_MODES == ("follow", "turning", "fixed", "top")
     follow = camera_mode("follow", alpha0=0.5)
     assert not follow.follow_heading and follow.yaw == pytest.approx(25.0 + math.degrees(0.5))

@@ -178,13 +178,16 @@ class Camera:
 CAMERA_MODES = ("follow", "turning", "fixed", "top")
 
 
-def camera_mode(mode: str, alpha0: float = 0.0, extent=None) -> Camera:
+def camera_mode(mode: str, alpha0: float = 0.0, extent=None, alpha_d: float | None = None) -> Camera:
     """The camera of ``video.camera`` = ``mode`` for a run starting at heading ``alpha0`` rad
-    whose axle stays inside ``extent`` = (x_min, x_max, y_min, y_max) m (for "fixed").
+    whose axle stays inside ``extent`` = (x_min, x_max, y_min, y_max) m (for "fixed"), with
+    the heading target ``alpha_d`` rad (None: none).
 
     * ``follow``: follows the robot at a bearing fixed in the world (the side view of its
-      starting heading), so that its turning shows as the robot turning and its travel
-      as the floor moving under it; the default.
+      starting heading, or with a heading target of the heading halfway to it, so that
+      the start and the end are seen equally from the side and the target's arrow is not
+      hidden behind the body), so that its turning shows as the robot turning and its
+      travel as the floor moving under it; the default.
     * ``turning``: follows the robot and turns with its heading (a side view throughout).
     * ``fixed``: does not move: aims at the middle of ``extent`` from far enough back to
       see all of it, from the starting side, looking down 25°.
@@ -192,7 +195,8 @@ def camera_mode(mode: str, alpha0: float = 0.0, extent=None) -> Camera:
     """
     side = 25.0 + math.degrees(alpha0)  # the turning camera's bearing at the start
     if mode == "follow":
-        return Camera(yaw=side, follow_heading=False)
+        middle = alpha0 if alpha_d is None else 0.5 * (alpha0 + alpha_d)
+        return Camera(yaw=25.0 + math.degrees(middle), follow_heading=False)
     if mode == "turning":
         return Camera()
     if mode == "top":

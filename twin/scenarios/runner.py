@@ -183,7 +183,9 @@ def _run_and_write(scenario, kinds, out, video, progress, every, log_format, wor
                                 f"to {v['fps']} frames/s: motion between logged rows is drawn as straight lines")
         cb = None if progress is None else (lambda done, total: progress("video", done, total))
         t0 = time.perf_counter()
-        camera = camera_mode(v["camera"], float(runs[0].signal("alpha")[0]), _extent(runs))
+        e = runs[0].experiment
+        camera = camera_mode(v["camera"], float(runs[0].signal("alpha")[0]), _extent(runs),
+                             None if e is None else e.alpha_d)
         result.video = render_video(runs, out / "video.mp4", fps=v["fps"], size=(v["width"], v["height"]), progress=cb,
                                     camera=camera)
         timings["video_s"] = time.perf_counter() - t0
