@@ -8,16 +8,18 @@ Where: ``$TWIN_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/mtwip-twin``, else
 ``~/.cache/mtwip-twin``; one file ``lmi-<key>.json`` per design.
 
 Key: SHA-256 of a canonical JSON of the robot parameters, the design options (ε, ρ,
-decay rate, gain bound, requested solver), the versions of cvxpy, Clarabel, SCS and numpy,
-the Python version and machine, this file's format number and a hash of the design code's
-source (lmi.py, ts_model.py, params.py): change any of them and the old entries are
-simply never looked up again.
+decay rate, gain bound, requested solver, damping ratio, the robust design's parameter
+box, whether every vertex closed loop is certified), the versions of cvxpy, Clarabel, SCS
+and numpy, the Python version and machine, this file's format number and a hash of the
+design code's source (lmi.py, lmi_regions.py, ts_model.py, params.py): change any of them
+and the old entries are simply never looked up again.
 
 Every float is stored as ``float.hex`` so that a cached design equals a fresh one bit for
 bit. An entry is used only if it parses, carries the key it was looked up by and the
 inputs it was made for, matches its own checksum, has arrays of the right shapes with
 finite values, a positive definite P with P Q = I, and gains that still make V = xᵀPx
-decrease at the design's rate on the TS model (checked here with numpy). Anything else is
+decrease at the design's rate on the TS model of every plant model the design certifies
+(and keep its damping ratio; checked here with numpy). Anything else is
 ignored with a one-line note on stderr and the design is solved again; the fresh design
 then replaces the bad file. Writes go to a temporary file renamed into place, so a
 reader never sees half a file.
@@ -38,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-FORMAT = 1  # bump when the file layout or what is stored changes
+FORMAT = 2  # bump when the file layout or what is stored changes (2: damping ratio, parameter box)
 _PREFIX = "lmi-"
 _SUFFIX = ".json"
 _SHAPES = {"gains": (2, 4), "P": (4, 4), "Q": (4, 4)}
@@ -122,7 +124,8 @@ def _versions() -> dict:
     if _versions_memo is None:
         here = Path(__file__).resolve().parent
         code = hashlib.sha256()
-        for f in (here / "lmi.py", here.parent / "plant" / "ts_model.py", here.parent / "params.py"):
+        for f in (here / "lmi.py", here / "lmi_regions.py", here.parent / "plant" / "ts_model.py",
+                  here.parent / "params.py"):
             try:
                 code.update(f.read_bytes())
             except OSError:  # pragma: no cover - source not on disk (zipped install): key on the package version
@@ -139,16 +142,23 @@ def _versions() -> dict:
     return _versions_memo
 
 
-def inputs_of(params, epsilon, rho, decay_rate, max_gain, solver) -> dict:
-    """What the design depends on, as canonical JSON-able values (floats as hex)."""
+def inputs_of(params, epsilon, rho, decay_rate, max_gain, solver, damping=0.0, uncertain=(),
+              all_vertices=False) -> dict:
+    """What the design depends on, as canonical JSON-able values (floats as hex).
+    ``uncertain`` is the checked box, ((name, relative half-range), ...) in Table III order."""
     return {
         "format": FORMAT,
         "function": "twin.controllers.lmi.design_balance_gains",
         "params": {f.name: _hex(getattr(params, f.name)) for f in fields(params)},
         "options": {"epsilon": _hex(epsilon), "rho": _hex(rho), "decay_rate": _hex(decay_rate),
-                    "max_gain": _hex(max_gain), "solver": solver},
+                    "max_gain": _hex(max_gain), "solver": solver, "damping": _hex(damping),
+                    "uncertain": _box_doc(uncertain), "all_vertices": bool(all_vertices)},
         "versions": _versions(),
     }
+
+
+def _box_doc(box) -> list:
+    return [[name, _hex(v)] for name, v in box]
 
 
 def _canonical(doc) -> bytes:
@@ -176,10 +186,13 @@ def _design_doc(d) -> dict:
         "epsilon": _hex(d.epsilon), "rho": _hex(d.rho), "decay_rate": _hex(d.decay_rate),
         "max_gain": _hex(d.max_gain), "peak_input": _hex(d.peak_input), "solve_time_s": _hex(d.solve_time_s),
         "solver": d.solver, "slowest_vertex_pole": _hex(d.slowest_vertex_pole),
+        "damping": _hex(d.damping), "uncertain": _box_doc(d.uncertain), "all_vertices": bool(d.all_vertices),
         # a list, not an object: the margins' order is part of the design (it is printed)
         "certificate": {"lmi_margins": [[k, _hex(v)] for k, v in c.lmi_margins.items()],
                         "lyapunov_margin": _hex(c.lyapunov_margin), "epsilon_margin": _hex(c.epsilon_margin),
-                        "rho_margin": _hex(c.rho_margin), "passed": bool(c.passed)},
+                        "rho_margin": _hex(c.rho_margin), "passed": bool(c.passed),
+                        "region_margin": _hex(c.region_margin), "models": c.models,
+                        "sampled_margin": _hex(c.sampled_margin), "sampled_plants": c.sampled_plants},
     }
 
 
@@ -227,6 +240,12 @@ def _float(v, what: str, finite: bool = True) -> float:
     return x
 
 
+def _count(v, what: str) -> int:
+    if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+        raise _Bad(f"{what} is not a count")
+    return v
+
+
 def _load_array(doc, name: str) -> np.ndarray:
     item = doc.get(name)
     if not isinstance(item, dict) or not isinstance(item.get("hex"), list):
@@ -253,7 +272,7 @@ def _parse(raw: bytes, key: str, inputs: dict, params):
     try:
         gains, P, Q = (_load_array(body, n) for n in ("gains", "P", "Q"))
         opts = inputs["options"]
-        for name in ("epsilon", "rho", "decay_rate", "max_gain"):
+        for name in ("epsilon", "rho", "decay_rate", "max_gain", "damping", "uncertain", "all_vertices"):
             if body.get(name) != opts[name]:
                 raise _Bad(f"{name} differs from the request")
         c = body["certificate"]
@@ -267,6 +286,10 @@ def _parse(raw: bytes, key: str, inputs: dict, params):
             epsilon_margin=_float(c["epsilon_margin"], "epsilon margin"),
             rho_margin=_float(c["rho_margin"], "rho margin"),
             passed=c["passed"] is True,
+            region_margin=None if c["region_margin"] is None else _float(c["region_margin"], "region margin"),
+            models=_count(c["models"], "models"),
+            sampled_margin=None if c["sampled_margin"] is None else _float(c["sampled_margin"], "sampled margin"),
+            sampled_plants=_count(c["sampled_plants"], "sampled plants"),
         )
         solver = body["solver"]
         if solver not in ("CLARABEL", "SCS"):
@@ -280,6 +303,9 @@ def _parse(raw: bytes, key: str, inputs: dict, params):
             solve_time_s=_float(body["solve_time_s"], "solve_time_s"),
             solver=solver, certificate=cert, params=params,
             slowest_vertex_pole=_float(body["slowest_vertex_pole"], "slowest_vertex_pole"),
+            damping=_float(body["damping"], "damping"),
+            uncertain=tuple((name, _float(v, f"range of {name}")) for name, v in body["uncertain"]),
+            all_vertices=body["all_vertices"] is True,
             from_cache=True,
         )
     except (KeyError, TypeError, AttributeError):
@@ -291,7 +317,7 @@ def _parse(raw: bytes, key: str, inputs: dict, params):
 def _check_design(d) -> None:
     """What the design claims, re-checked from its own numbers: a checksum only proves the
     file is as written, not that what was written is a working design."""
-    from twin.plant.ts_model import ts_matrices
+    from twin.controllers import lmi_regions
 
     if not d.certificate.passed or d.certificate.lyapunov_margin <= 0 or min(d.certificate.lmi_margins.values()) <= 0:
         raise _Bad("its certificate did not pass")
@@ -303,14 +329,18 @@ def _check_design(d) -> None:
         raise _Bad("P is not positive definite")
     if np.abs(d.P @ d.Q - np.eye(4)).max() > 1e-6:
         raise _Bad("P and Q are not inverses")
-    A, B = ts_matrices(d.params)
-    G, P, a = d.gains, d.P, d.decay_rate
-    for m1 in np.linspace(0.0, 1.0, 11):  # V = xᵀPx must fall at rate 2a for every weight mix
-        m = (m1, 1.0 - m1)
-        Acl = sum(m[i] * m[j] * (A[i] + B[i] @ G[j:j + 1]) for i in range(2) for j in range(2))
-        L = Acl.T @ P + P @ Acl + 2 * a * P
-        if np.linalg.eigvalsh(0.5 * (L + L.T)).max() >= 0:
-            raise _Bad("its gains do not make V = xᵀPx decrease at the design's rate")
+    if d.certificate.models != 1 + (2 ** len(d.uncertain) if d.uncertain else 0) or (
+            (d.damping > 0) != (d.certificate.region_margin is not None)):
+        raise _Bad("its certificate does not cover the plant models and region it was made for")
+    # V = xᵀPx must fall at rate 2a for every weight mix, on every certified plant model
+    # (and, with a damping ratio, every frozen mix keep its eigenvalues in the sector)
+    models = lmi_regions.models_of(lmi_regions.box_params(d.params, d.uncertain))
+    Acl = lmi_regions.closed_loops(models, d.gains, np.linspace(0.0, 1.0, 11), d.all_vertices)
+    lyap, sector = lmi_regions.frozen_margins(Acl, d.P, d.decay_rate, d.damping)
+    if not lyap > 0:
+        raise _Bad("its gains do not make V = xᵀPx decrease at the design's rate")
+    if sector is not None and not sector > 0:
+        raise _Bad("its gains do not keep the closed-loop poles in the design's sector")
 
 
 def load(key: str, inputs: dict, params):

@@ -25,6 +25,20 @@ independent of the solver's status: every LMI with a margin, plus the closed-loo
 Lyapunov inequality (Σ_ij m_i m_j (A_i + B_i G_j))ᵀ P + P (…) + 2aP ≺ 0 on a grid of
 weights m1 ∈ [0, 1], built from P and G alone.
 
+Beyond the decay rate (:mod:`twin.controllers.lmi_regions`, issue 18):
+
+* ``damping=ζ``: an LMI region, the decay rate together with a conic sector of half-angle
+  arccos ζ (every frozen closed-loop mix has damping ratio ≥ ζ), with the Y_ij relaxation
+  put in block form;
+* ``uncertain={name: range}``: a robust design, one P and one pair of gains certified for
+  the nominal model and every corner of a box of Table III parameters, and checked (not
+  certified) at plants sampled inside it;
+* ``all_vertices=True``: every vertex closed loop A_i + B_i G_j certified (any pair of model
+  and controller weights), instead of the IT2 PDC's own mixes that the Y_ij relaxation covers.
+
+These are solved by a program assembled directly for Clarabel (SCS as fallback); the
+design without them is the cvxpy program below, unchanged.
+
 What the certificate does *not* say, plainly:
 
 * it is about the TS model. Its invariant ellipsoid xᵀPx ≤ 1 reaches far beyond the
@@ -40,6 +54,7 @@ What the certificate does *not* say, plainly:
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 import warnings
@@ -47,6 +62,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from twin.controllers import lmi_regions as regions
 from twin.errors import InfeasibleDesign, TwinError
 from twin.params import NOMINAL, RobotParams
 from twin.plant.ts_model import rule1_weight, ts_matrices
@@ -87,14 +103,30 @@ class Certificate:
     epsilon_margin: float  # 1 − ε² λmax(P)
     rho_margin: float  # 1 − max_i sqrt(G_i Q G_iᵀ) / ρ
     passed: bool
+    # With a damping ratio: min over the weight grid and the certified models of the sector
+    # condition's normalised margin, from P and G (None: no sector requested).
+    region_margin: float | None = None
+    models: int = 1  # plant models certified (the nominal one; with a box, also its 2^K corners)
+    # With a box: the worst decay/sector margin, from P and G on the weight grid, at plants
+    # sampled inside the box. Checked, not certified: not part of ``passed``.
+    sampled_margin: float | None = None
+    sampled_plants: int = 0
 
     def summary(self) -> str:
         worst = min(self.lmi_margins.values())
-        return (
+        text = (
             f"certificate {'PASSED' if self.passed else 'FAILED'}: worst LMI margin {worst:.3e}, "
             f"Lyapunov margin {self.lyapunov_margin:.3e}, ε margin {self.epsilon_margin:.3e}, "
             f"ρ margin {self.rho_margin:.3e}"
         )
+        if self.region_margin is not None:
+            text += f", sector margin {self.region_margin:.3e}"
+        if self.models > 1:
+            text += f", over {self.models} plant models"
+        if self.sampled_margin is not None:
+            text += (f"; sampled check (not certified) {'PASSED' if self.sampled_margin > 0 else 'FAILED'}: "
+                     f"worst margin {self.sampled_margin:.3e} over {self.sampled_plants} plants inside the box")
+        return text
 
 
 @dataclass(frozen=True)
@@ -120,6 +152,12 @@ class BalanceDesign:
     certificate: Certificate
     params: RobotParams = field(repr=False, default=NOMINAL)
     slowest_vertex_pole: float = math.nan  # max Re λ(A_i + B_i G_i), 1/s
+    damping: float = 0.0  # minimum damping ratio ζ of the region (0: no sector)
+    # the box of the robust design: ((parameter, relative half-range), ...) in Table III
+    # order; () for a design on ``params`` alone
+    uncertain: tuple = ()
+    # True: every vertex closed loop A_i + B_i G_j is certified (any controller weights)
+    all_vertices: bool = False
     # where this object came from, not part of the design: not compared, not written out
     from_cache: bool = field(default=False, compare=False, repr=False)
 
@@ -137,14 +175,26 @@ class BalanceDesign:
             "max_gain": self.max_gain,
             "peak_input_nm": self.peak_input,
             "slowest_vertex_pole_per_s": self.slowest_vertex_pole,
+            "damping": self.damping,
+            "uncertain": dict(self.uncertain),
+            "all_vertices": self.all_vertices,
             "certificate": {
                 "passed": self.certificate.passed,
                 "lmi_margins": self.certificate.lmi_margins,
                 "lyapunov_margin": self.certificate.lyapunov_margin,
                 "epsilon_margin": self.certificate.epsilon_margin,
                 "rho_margin": self.certificate.rho_margin,
+                "region_margin": self.certificate.region_margin,
+                "models": self.certificate.models,
+                "sampled_margin": self.certificate.sampled_margin,
+                "sampled_plants": self.certificate.sampled_plants,
             },
         }
+
+    def certified_models(self) -> list[tuple[list[np.ndarray], list[np.ndarray]]]:
+        """(A_i, B_i) of every plant model the certificate covers: the nominal one, then the
+        box's corners (see :mod:`twin.controllers.lmi_regions`)."""
+        return regions.models_of(regions.box_params(self.params, self.uncertain))
 
 
 def _check_positive(name: str, value: float, allow_zero: bool = False, upper: float = math.inf) -> float:
@@ -224,50 +274,114 @@ def _solve(A, B, decay_rate, solver, T=None, feasibility_only=False):
     return status, np.array(Q.value), [np.array(Ni.value) for Ni in N], Yv, float(t.value), used
 
 
-def verify_certificate(A, B, Q, N, Y, epsilon, rho, decay_rate, T=None, weight_grid: int = 201) -> Certificate:
+def verify_certificate(A, B, Q, N, Y, epsilon, rho, decay_rate, T=None, weight_grid: int = 201, *,
+                       damping: float = 0.0, Z=None, model_names=None, any_weights: bool = False) -> Certificate:
     """Check an LMI solution with numpy alone (see the module docstring).
 
     ``Q, N, Y`` are in the coordinates z = T⁻¹ x of :func:`_solve` (T = 1 for the
     original ones); ``A, B`` are in x and are transformed here.
+
+    For one plant model ``A = [A1, A2]``, ``B = [B1, B2]`` and ``Y[i][j]``; for several
+    (the robust design) ``A[k]``, ``B[k]``, ``Y[k][i][j]`` per model k, with the common
+    Q, N. With ``damping`` ζ > 0, ``Z[i][j]`` (or ``Z[k][i][j]``) are the sector LMI's slack
+    blocks (2n×2n, see :mod:`twin.controllers.lmi_regions`); then every sector LMI is checked
+    and the sector condition itself, from P and G, on the weight grid of every model.
+    ``any_weights`` (a design with ``all_vertices``): the conditions from P and G are checked
+    for every pair of model and controller weights (a 21 × 21 grid), not only for equal ones.
     """
+    multi = np.ndim(A[0]) == 3
+    models = list(zip(A, B)) if multi else [(A, B)]
+    Ys = list(Y) if multi else [Y]
+    sector = damping > 0
+    Zs = (list(Z) if multi else [Z]) if sector else []
+    names = list(model_names) if model_names is not None else [f"model {k}" for k in range(len(models))]
+    tags = [f"{name}: " for name in names] if multi else [""]
     n = Q.shape[0]
-    r = len(A)
+    r = len(models[0][0])
     T = np.ones(n) if T is None else np.asarray(T, dtype=float)
-    A = [Ai * (1.0 / T)[:, None] * T[None, :] for Ai in A]
-    B = [Bi * (1.0 / T)[:, None] for Bi in B]
+    models = [([Ai * (1.0 / T)[:, None] * T[None, :] for Ai in Ak], [Bi * (1.0 / T)[:, None] for Bi in Bk])
+              for Ak, Bk in models]
     Q = 0.5 * (Q + Q.T)
     scale = max(np.linalg.norm(Q, 2), 1e-300)
     margins: dict[str, float] = {}
     margins["Q>0"] = float(np.linalg.eigvalsh(Q).min() / scale)
     margins["Q>=eps^2 I"] = float(np.linalg.eigvalsh(Q - np.diag(epsilon**2 / T**2)).min() / scale)
-    Ybig = np.block(Y)
-    Ybig = 0.5 * (Ybig + Ybig.T)
-    margins["Y>0"] = float(np.linalg.eigvalsh(Ybig).min() / scale)
+    # Each LMI's matrix, the scale its margin is relative to, and whether its largest
+    # (≺ 0 form) or smallest (≻ 0 form) eigenvalue matters; evaluated in batches below.
+    checks: list[tuple[str, np.ndarray, object, bool]] = []
+    for k, tag in enumerate(tags):
+        Ybig = np.block(Ys[k])
+        checks.append((f"{tag}Y>0", 0.5 * (Ybig + Ybig.T), scale, False))
+        if sector:
+            Zbig = np.block(Zs[k])
+            checks.append((f"{tag}Z>0", 0.5 * (Zbig + Zbig.T), scale, False))
+    inputs = {}
     for i in range(r):
-        for j in range(r):
-            phi = Q @ A[i].T + A[i] @ Q - N[j].T @ B[i].T - B[i] @ N[j] + 2 * decay_rate * Q + Y[i][j]
-            phi = 0.5 * (phi + phi.T)
-            s = max(np.linalg.norm(A[i] @ Q, 2), scale)
-            margins[f"Phi{i + 1}{j + 1}+Y{i + 1}{j + 1}<=0"] = float(-np.linalg.eigvalsh(phi).max() / s)
+        for k, (Ak, Bk) in enumerate(models):
+            AQ = Ak[i] @ Q
+            for j in range(r):
+                phi = Q @ Ak[i].T + AQ - N[j].T @ Bk[i].T - Bk[i] @ N[j] + 2 * decay_rate * Q + Ys[k][i][j]
+                checks.append((f"{tags[k]}Phi{i + 1}{j + 1}+Y{i + 1}{j + 1}<=0", 0.5 * (phi + phi.T), AQ, True))
+                if sector:
+                    S = regions.sector_of(AQ - Bk[i] @ N[j], damping) + Zs[k][i][j]
+                    checks.append((f"{tags[k]}S{i + 1}{j + 1}+Z{i + 1}{j + 1}<=0", 0.5 * (S + S.T), AQ, True))
         # Lemma 2's [[Q, N_iᵀ], [N_i, ρ²]] ⪰ 0 is, with Q ≻ 0, its Schur complement:
-        margins[f"input bound rule {i + 1}"] = float(1.0 - (N[i] @ np.linalg.solve(Q, N[i].T)).item() / rho**2)
+        inputs[len(checks)] = (f"input bound rule {i + 1}",
+                               float(1.0 - (N[i] @ np.linalg.solve(Q, N[i].T)).item() / rho**2))
+        checks.append(None)
+    # batched eigenvalues and norms: the same LAPACK calls, per matrix, as one at a time
+    values = [None] * len(checks)
+    by_size: dict[int, list[int]] = {}
+    for idx, c in enumerate(checks):
+        if c is not None:
+            by_size.setdefault(c[1].shape[0], []).append(idx)
+    for idxs in by_size.values():
+        eig = np.linalg.eigvalsh(np.stack([checks[x][1] for x in idxs]))
+        need = [x for x in idxs if not isinstance(checks[x][2], float)]
+        norms = dict(zip(need, np.linalg.norm(np.stack([checks[x][2] for x in need]), 2, axis=(1, 2)))) if need else {}
+        for row, x in enumerate(idxs):
+            name, _, s, upper = checks[x]
+            if upper:
+                values[x] = float(-eig[row].max() / max(float(norms[x]), scale))
+            else:
+                values[x] = float(eig[row].min() / s)
+    for idx, c in enumerate(checks):
+        if c is None:
+            name, v = inputs[idx]
+        else:
+            name, v = c[0], values[idx]
+        margins[name] = v
 
     P = np.linalg.inv(Q)
     P = 0.5 * (P + P.T)
     G = [-Ni @ P for Ni in N]
-    worst = np.inf
-    for m1 in np.linspace(0.0, 1.0, weight_grid):
-        m = (m1, 1.0 - m1)
-        Acl = sum(m[i] * m[j] * (A[i] + B[i] @ G[j]) for i in range(r) for j in range(r))
-        L = Acl.T @ P + P @ Acl + 2 * decay_rate * P
-        s = max(np.linalg.norm(P @ Acl, 2), 1e-300)
-        worst = min(worst, float(-np.linalg.eigvalsh(0.5 * (L + L.T)).max() / s))
+    region = None
+    batched = np.inf
+    if multi or sector or any_weights:
+        # every model at once (batched eigenvalues): the margins, from P and G alone
+        grid = np.linspace(0.0, 1.0, 21 if any_weights else weight_grid)
+        Acl = regions.closed_loops(models, np.vstack(G), grid, any_weights)
+        batched, region = regions.frozen_margins(Acl, P, decay_rate, damping)
+    worst = batched
+    if not multi:  # the one-model decay check exactly as it always was (its margin is recorded)
+        A, B = models[0]
+        worst = np.inf
+        for m1 in np.linspace(0.0, 1.0, weight_grid):
+            m = (m1, 1.0 - m1)
+            Acl = sum(m[i] * m[j] * (A[i] + B[i] @ G[j]) for i in range(r) for j in range(r))
+            L = Acl.T @ P + P @ Acl + 2 * decay_rate * P
+            s = max(np.linalg.norm(P @ Acl, 2), 1e-300)
+            worst = min(worst, float(-np.linalg.eigvalsh(0.5 * (L + L.T)).max() / s))
+        if any_weights:
+            worst = min(worst, batched)
     # x0ᵀ P_x x0 <= 1 for every ‖x0‖ <= ε, with P_x = T⁻¹ P T⁻¹ the Lyapunov matrix in x
     eps_margin = float(1.0 - epsilon**2 * np.linalg.eigvalsh(P / T[:, None] / T[None, :]).max())
     peak = max(float(np.sqrt(max((Gi @ Q @ Gi.T).item(), 0.0))) for Gi in G)
     rho_margin = 1.0 - peak / rho
-    passed = all(v > 0 for v in margins.values()) and worst > 0 and eps_margin >= 0 and rho_margin >= 0
-    return Certificate(margins, worst, eps_margin, rho_margin, bool(passed))
+    passed = (all(v > 0 for v in margins.values()) and worst > 0 and (region is None or region > 0)
+              and eps_margin >= 0 and rho_margin >= 0)
+    return Certificate(margins, worst, eps_margin, rho_margin, bool(passed), region_margin=region,
+                       models=len(models))
 
 
 def design_balance_gains(
@@ -278,6 +392,9 @@ def design_balance_gains(
     max_gain: float | None = None,
     solver: str | None = None,
     *,
+    damping: float = 0.0,
+    uncertain=None,
+    all_vertices: bool = False,
     cache: bool = False,
 ) -> BalanceDesign:
     """Solve Lemmas 1–2 with a decay rate for the IT2 PDC gains.
@@ -296,6 +413,21 @@ def design_balance_gains(
         Upper bound on the spectral norm of each G_i.
     solver : str, optional
         A cvxpy solver name; default Clarabel, then SCS as fallback.
+    damping : float
+        Minimum damping ratio ζ ∈ [0, 1) of every frozen closed loop's eigenvalues (the
+        conic sector of half-angle arccos ζ, with the decay rate: an LMI region; see
+        :mod:`twin.controllers.lmi_regions`). 0, the default, adds no sector.
+    uncertain : mapping, optional
+        The robust design's parameter box, Table III name → relative half-range in [0, 1)
+        (``{"m_b": 0.2}``: m_b within ±20 % of ``params.m_b``): one P and one pair of gains
+        certified for the nominal model and every corner of the box, and checked (not
+        certified) at plants sampled inside it. Names: those the balance model depends on,
+        :data:`twin.controllers.lmi_regions.UNCERTAIN_PARAMETERS`.
+    all_vertices : bool
+        Certify the region for every vertex closed loop A_i + B_i G_j (i ≠ j too), with the
+        common P, instead of only the IT2 PDC's own mixes Σ m_i m_j (A_i + B_i G_j) that the
+        paper's Y_ij relaxation covers: then it holds for any pair of model and controller
+        weights, the type-1 PDC's included (see :mod:`twin.controllers.lmi_regions`).
     cache : bool
         Look the design up in the on-disk cache (:mod:`twin.controllers.design_cache`)
         first and store a fresh one there. Off by default so that a library call solves;
@@ -306,8 +438,8 @@ def design_balance_gains(
     Raises
     ------
     InfeasibleDesign
-        With a one-line message naming the requirement (ρ, max_gain or decay rate)
-        that cannot be met and the value that can.
+        With a one-line message naming the requirement (ρ, max_gain, decay rate, damping
+        ratio or the parameter range) that cannot be met and the value that can.
     """
     epsilon = _check_positive("epsilon", epsilon, upper=_MAX_EPSILON)
     rho = _check_positive("rho", rho, upper=_MAX_RHO)
@@ -316,17 +448,26 @@ def design_balance_gains(
         max_gain = _check_positive("max gain", max_gain, upper=_MAX_GAIN)
     if solver is not None and not isinstance(solver, str):
         raise TwinError(f"solver must be a cvxpy solver name, got {solver!r}")
+    damping = regions.check_damping(damping)
+    box = regions.check_uncertain(uncertain)
+    if not isinstance(all_vertices, (bool, np.bool_)):
+        raise TwinError(f"all_vertices must be true or false, got {all_vertices!r}")
+    all_vertices = bool(all_vertices)
     if cache:
         from twin.controllers import design_cache
 
-        inputs = design_cache.inputs_of(params, epsilon, rho, decay_rate, max_gain, solver.upper() if solver else None)
+        inputs = design_cache.inputs_of(params, epsilon, rho, decay_rate, max_gain, solver.upper() if solver else None,
+                                        damping=damping, uncertain=box, all_vertices=all_vertices)
         key = design_cache.key_of(inputs)
         hit = design_cache.load(key, inputs, params)
         if hit is not None:
             return hit
-        d = design_balance_gains(params, epsilon, rho, decay_rate, max_gain, solver)
+        d = design_balance_gains(params, epsilon, rho, decay_rate, max_gain, solver, damping=damping, uncertain=box,
+                                 all_vertices=all_vertices)
         design_cache.store(key, inputs, d)
         return d
+    if damping > 0 or box or all_vertices:
+        return _design_region(params, epsilon, rho, decay_rate, max_gain, solver, damping, box, all_vertices)
     import cvxpy  # (imported before the clock starts: solve time excludes import)
 
     if solver is not None and solver.upper() not in cvxpy.installed_solvers():
@@ -340,23 +481,8 @@ def design_balance_gains(
     if isinstance(sol, str):
         _explain_decay(A, B, decay_rate, solver, sol)
     Q1, N1, Y1, T, used = sol
-    Qx1 = Q1 * T[:, None] * T[None, :]  # ε = 1, x coordinates
-    Px1 = np.linalg.inv(Qx1)
-    gains = np.vstack([-(Ni * T[None, :]) @ Px1 for Ni in N1])
-    # peak |u| over the invariant ellipsoid of the starts ‖x0‖ ≤ ε, from Q and G alone
-    peak = epsilon * max(math.sqrt(max(float(g @ Qx1 @ g), 0.0)) for g in gains)
-    if peak > rho:
-        raise InfeasibleDesign(
-            f"rho = {rho:g} N·m is too small for epsilon = {epsilon:g} and decay rate {decay_rate:g} 1/s: "
-            f"the smallest feasible rho is {_round_up(peak)} N·m (solver {used}); raise --rho, or lower --epsilon"
-            + (" or --decay-rate" if decay_rate > 0 else "")
-        )
-    gain_norm = float(np.linalg.norm(gains, axis=1).max())
-    if max_gain is not None and gain_norm > max_gain:
-        raise InfeasibleDesign(
-            f"max gain {max_gain:g} is below the designed gains' norm {_round_up(gain_norm)} at decay rate "
-            f"{decay_rate:g} 1/s; raise --max-gain" + (" or lower --decay-rate" if decay_rate > 0 else "")
-        )
+    gains, Qx1, Px1, peak = _gains_and_peak(Q1, N1, T, epsilon)
+    _check_rho_and_gain(peak, gains, epsilon, rho, decay_rate, max_gain, used)
     # Checked at ε = 1 with ρ/ε: the exact equivalent of (ε²Q, ε²N, ε²Y) with ρ, without
     # the rounding that multiplying by ε² = 1e-18 (say) would bring into the margins.
     cert = verify_certificate(A, B, Q1, N1, Y1, 1.0, rho / epsilon, decay_rate, T)
@@ -379,6 +505,36 @@ def design_balance_gains(
         params=params,
         slowest_vertex_pole=_slowest_vertex_pole(A, B, gains),
     )
+
+
+def _gains_and_peak(Q1, N1, T, epsilon):
+    """Gains, Q and P in x (ε = 1) and the peak |u| over the invariant ellipsoid of the
+    starts ‖x0‖ ≤ ε, from Q and G alone."""
+    Qx1 = Q1 * T[:, None] * T[None, :]  # ε = 1, x coordinates
+    Px1 = np.linalg.inv(Qx1)
+    gains = np.vstack([-(Ni * T[None, :]) @ Px1 for Ni in N1])
+    peak = epsilon * max(math.sqrt(max(float(g @ Qx1 @ g), 0.0)) for g in gains)
+    return gains, Qx1, Px1, peak
+
+
+def _check_rho_and_gain(peak, gains, epsilon, rho, decay_rate, max_gain, used, damping=0.0, box=()) -> None:
+    """ρ and the gain bound are checks on the design, not constraints (see :func:`_solve`)."""
+    also = (" or --decay-rate" if decay_rate > 0 else "") + (" or --damping" if damping > 0 else "") + (
+        " or narrow --uncertain" if box else "")
+    if peak > rho:
+        raise InfeasibleDesign(
+            f"rho = {rho:g} N·m is too small for epsilon = {epsilon:g} and decay rate {decay_rate:g} 1/s"
+            + (f", damping ratio {damping:g}" if damping > 0 else "") + (f", {regions.format_box(box)}" if box else "")
+            + f": the smallest feasible rho is {_round_up(peak)} N·m (solver {used}); raise --rho, or lower --epsilon"
+            + also
+        )
+    gain_norm = float(np.linalg.norm(gains, axis=1).max())
+    if max_gain is not None and gain_norm > max_gain:
+        raise InfeasibleDesign(
+            f"max gain {max_gain:g} is below the designed gains' norm {_round_up(gain_norm)} at decay rate "
+            f"{decay_rate:g} 1/s; raise --max-gain" + (" or lower --decay-rate" if decay_rate > 0 else "")
+            + (" or --damping" if damping > 0 else "") + (" or narrow --uncertain" if box else "")
+        )
 
 
 def _round_up(v: float) -> str:
@@ -432,6 +588,237 @@ def _explain_decay(A, B, decay_rate, solver, why) -> None:
     raise InfeasibleDesign(f"decay rate {decay_rate:g} 1/s cannot be certified for this plant: {what}; {advice}")
 
 
+
+
+# ---- LMI regions and the robust design (issue 18) --------------------------------------------
+_REGION_SOLVERS = ("CLARABEL", "SCS")
+_QUICK_ITERS = {"CLARABEL": 80, "SCS": 5000}
+
+
+def _design_region(params, epsilon, rho, decay_rate, max_gain, solver, damping, box, all_vertices) -> BalanceDesign:
+    """The design with a damping ratio and/or a parameter box: the SDP of
+    :mod:`twin.controllers.lmi_regions`, solved directly by Clarabel (SCS as fallback),
+    then the same ρ / gain checks and independent certificate as the nominal design, plus
+    the (uncertified) check at plants sampled inside the box."""
+    if solver is not None and solver.upper() not in _REGION_SOLVERS:
+        raise TwinError(f"solver {solver!r} is not available for a design with --damping or --uncertain; "
+                        f"allowed: {', '.join(_REGION_SOLVERS)}")
+    solver = solver.upper() if solver else None
+    plants = regions.box_params(params, box)  # may raise: a corner no rigid body can be
+    models = regions.models_of(plants)
+    import scipy.sparse  # noqa: F401 (imported before the clock starts, as cvxpy is for the nominal design)
+
+    try:
+        import clarabel  # noqa: F401
+    except ImportError:  # pragma: no cover - then SCS solves it
+        pass
+    t0 = time.perf_counter()
+    sol = _certified_models(models, decay_rate, damping, solver, all_vertices)
+    elapsed = time.perf_counter() - t0
+    if isinstance(sol, str):
+        _explain_region(params, box, decay_rate, damping, solver, sol, all_vertices)
+    gains, Qx1, Px1, peak = _gains_and_peak(sol.Q, sol.N, sol.T, epsilon)
+    _check_rho_and_gain(peak, gains, epsilon, rho, decay_rate, max_gain, sol.solver, damping, box)
+    cert = _verify_models(models, sol, 1.0, rho / epsilon, decay_rate, damping, all_vertices)
+    if not cert.passed:  # pragma: no cover - the ε = 1 solution passed and peak <= ρ was checked
+        raise InfeasibleDesign(f"the design failed the independent check ({cert.summary()}); relax rho")
+    if box:
+        samples = regions.models_of(regions.sample_params(params, box))
+        cert = dataclasses.replace(cert, sampled_margin=_sampled_margin(samples, gains, Px1, decay_rate, damping,
+                                                                        all_vertices),
+                                   sampled_plants=len(samples))
+    e2 = epsilon**2
+    Px = Px1 / e2
+    A, B = models[0]
+    return BalanceDesign(
+        gains=gains,
+        P=0.5 * (Px + Px.T),
+        Q=Qx1 * e2,
+        epsilon=epsilon,
+        rho=rho,
+        decay_rate=decay_rate,
+        max_gain=max_gain,
+        peak_input=peak,
+        solve_time_s=elapsed,
+        solver=sol.solver,
+        certificate=cert,
+        params=params,
+        slowest_vertex_pole=_slowest_vertex_pole(A, B, gains),
+        damping=damping,
+        uncertain=box,
+        all_vertices=all_vertices,
+    )
+
+
+@dataclass(frozen=True)
+class _ModelsSolution:
+    Q: np.ndarray
+    N: list
+    Y: list
+    Z: list | None
+    T: np.ndarray
+    solver: str
+
+
+def _verify_models(models, sol, epsilon, rho, decay_rate, damping, all_vertices=False) -> Certificate:
+    """:func:`verify_certificate` for one model or several (named nominal, corner 1, ...)."""
+    if len(models) == 1:
+        (A, B), = models
+        return verify_certificate(A, B, sol.Q, sol.N, sol.Y[0], epsilon, rho, decay_rate, sol.T, damping=damping,
+                                  Z=sol.Z[0] if sol.Z else None, any_weights=all_vertices)
+    names = ["nominal"] + [f"corner {k}" for k in range(1, len(models))]
+    return verify_certificate([m[0] for m in models], [m[1] for m in models], sol.Q, sol.N, sol.Y, epsilon, rho,
+                              decay_rate, sol.T, damping=damping, Z=sol.Z, model_names=names,
+                              any_weights=all_vertices)
+
+
+def _certified_models(models, decay_rate, damping, solver, all_vertices=False):
+    """As :func:`_certified_solution` for the region / robust SDP: a :class:`_ModelsSolution`
+    that passes the independent check, or a string saying why not."""
+    T = DEFAULT_SCALING
+    for attempt in range(2):
+        sol = regions.solve_program(models, decay_rate, damping, solver, T, _ROOM, all_vertices=all_vertices)
+        if sol.Q is None:
+            return f"solver status {sol.status}"
+        found = _ModelsSolution(sol.Q, sol.N, sol.Y, sol.Z, T, sol.solver)
+        cert = _verify_models(models, found, 1.0, math.inf, decay_rate, damping, all_vertices)
+        if cert.passed:
+            return found
+        T = T * np.sqrt(np.diag(sol.Q) / np.diag(sol.Q).min())
+    return f"{sol.solver} returned gains that fail the independent check ({cert.summary()})"
+
+
+def _sampled_margin(models, gains, Px, decay_rate, damping, any_weights=False, weight_grid: int = 21) -> float:
+    """Worst normalised margin of the decay (and sector) condition from P and G on the
+    weight grid, over plant models that are not certified (sampled inside the box); in
+    the scaled coordinates of the certificate, so that the margins compare."""
+    T = DEFAULT_SCALING
+    scaled = [([Ai * (1.0 / T)[:, None] * T[None, :] for Ai in A], [Bi * (1.0 / T)[:, None] for Bi in B])
+              for A, B in models]
+    Pz = Px * T[:, None] * T[None, :]
+    Acl = regions.closed_loops(scaled, gains * T[None, :], np.linspace(0.0, 1.0, 11 if any_weights else weight_grid),
+                               any_weights)
+    lyap, sector = regions.frozen_margins(Acl, Pz, decay_rate, damping)
+    return lyap if sector is None else min(lyap, sector)
+
+
+def _feasible(models, decay_rate, damping, solver, all_vertices=False) -> bool:
+    """A quick yes/no: does the region / robust SDP have a solution?"""
+    name = solver or "CLARABEL"
+    sol = regions.solve_program(models, decay_rate, damping, name, DEFAULT_SCALING, _ROOM, feasibility_only=True,
+                                quick_iters=_QUICK_ITERS.get(name), all_vertices=all_vertices)
+    return sol.Q is not None and sol.status == "optimal"
+
+
+def _largest(test, lo: float, hi: float, steps: int) -> float:
+    """Bisection for the largest value in [lo, hi] that passes ``test`` (``lo`` assumed to pass)."""
+    for _ in range(steps):
+        mid = 0.5 * (lo + hi)
+        if test(mid):
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+def _certified_below(value: float, certified) -> float | None:
+    """``value`` rounded down to 3 significant digits, lowered until ``certified`` (a full
+    design) accepts it, so that a reported value works when passed back; None if none did."""
+    v = value
+    for _ in range(5):
+        v = float(f"{v * (1 - 2e-4):.3g}")
+        if v > 0 and certified(v):
+            return v
+        v *= 0.9
+    return None
+
+
+def _explain_region(params, box, decay_rate, damping, solver, why, all_vertices=False) -> None:
+    """One line naming what to relax when the region / robust design fails: the decay rate,
+    the damping ratio, or which range of the box (found by trying them)."""
+    solver = solver or "CLARABEL"
+    nominal = regions.models_of([params])
+
+    def feasible(models, a, z) -> bool:
+        return _feasible(models, a, z, solver, all_vertices)
+
+    def certified(models, a, z) -> bool:
+        return not isinstance(_certified_models(models, a, z, solver, all_vertices), str)
+
+    if box and feasible(nominal, decay_rate, damping):
+        _explain_box(params, box, decay_rate, damping, why, feasible, certified)
+    where = "even for the nominal plant" if box else "for this plant"
+    if damping > 0 and feasible(nominal, decay_rate, 0.0):
+        zeta = _largest(lambda z: feasible(nominal, decay_rate, z), 0.0, damping, 10)
+        ok = _certified_below(zeta, lambda z: certified(nominal, decay_rate, z))
+        advice = (f"the largest certified at this decay rate is about {ok:.3g}" if ok is not None
+                  else "no certified damping ratio was found below it")
+        raise InfeasibleDesign(f"damping ratio {damping:g} with decay rate {decay_rate:g} 1/s cannot be certified "
+                               f"{where}: {_why(why)}; {advice}: lower --damping or --decay-rate")
+    if feasible(nominal, decay_rate, 0.0):  # pragma: no cover - a numerical failure, not infeasibility
+        raise InfeasibleDesign(f"the design could not be certified, a numerical limit ({why}); lower --decay-rate"
+                               + (" or --damping" if damping > 0 else ""))
+    # the decay rate alone is too much (as in _explain_decay, with this program)
+    rate = _largest(lambda a: feasible(nominal, a, 0.0), 0.0, decay_rate, 12)
+    ok = _certified_below(rate, lambda a: certified(nominal, a, 0.0))
+    advice = (f"the largest certified is about {ok:.4g} 1/s: lower --decay-rate" if ok is not None
+              else "no certified decay rate was found below it: lower --decay-rate")
+    raise InfeasibleDesign(f"decay rate {decay_rate:g} 1/s cannot be certified {where}: {_why(why)}; {advice}")
+
+
+def _why(why: str) -> str:
+    return ("the solver finds it infeasible" if "infeasible" in why
+            else f"the solver's answer failed the independent check, a numerical limit ({why})")
+
+
+def _explain_box(params, box, decay_rate, damping, why, feasible_models, certified_models) -> None:
+    """The nominal plant meets the region; the box does not: find which single range, when
+    narrowed, makes the design feasible (the widest such first), and how far."""
+    region = f"decay rate {decay_rate:g} 1/s" + (f" and damping ratio {damping:g}" if damping > 0 else "")
+
+    def feasible(b, a=decay_rate, z=damping) -> bool:
+        return feasible_models(regions.models_of(regions.box_params(params, b)), a, z)
+
+    def certified(b) -> bool:
+        return certified_models(regions.models_of(regions.box_params(params, b)), decay_rate, damping)
+
+    def replaced(name, value):
+        return tuple((n, value if n == name else v) for n, v in box if value > 0 or n != name)
+
+    if feasible(box):  # pragma: no cover - the quick solve says yes where the certified one failed
+        raise InfeasibleDesign(f"the design for {regions.format_box(box)} with {region} could not be certified, a "
+                               f"numerical limit ({why}); narrow --uncertain or lower --decay-rate"
+                               + (" or --damping" if damping > 0 else ""))
+    head = f"the parameter box ({regions.format_box(box)}) is too wide for one common Lyapunov matrix with {region}"
+    if (damping > 0 or decay_rate > 0) and not feasible(box, 0.0, 0.0):
+        region_note = "; no decay rate or damping ratio would do (not even 0)"
+        relax_region = ""
+    else:
+        region_note = ""
+        relax_region = " or lower --decay-rate" + (" or --damping" if damping > 0 else "")
+    by_width = sorted(box, key=lambda nv: -nv[1])
+    culprits = [name for name, _ in by_width if feasible(replaced(name, 0.0))]
+    if culprits:
+        name = culprits[0]
+        width = dict(box)[name]
+        best = _largest(lambda v: feasible(replaced(name, v)), 0.0, width, 7)
+        ok = _certified_below(best, lambda v: certified(replaced(name, v)))
+        how = f"to ±{100 * ok:.3g} %" if ok is not None else "to 0"
+        others = culprits[1:]
+        alone = " alone" if len(box) > 1 else ""
+        raise InfeasibleDesign(
+            f"{head}{region_note}: narrowing {name}{alone} {how} (from ±{100 * width:.3g} %) makes it feasible"
+            + (f" (narrowing {', '.join(others)} alone would also do)" if others else "")
+            + f"; narrow {name} in --uncertain{relax_region}")
+    widest, width = by_width[0]
+    scale = _largest(lambda f: feasible(tuple((n, f * v) for n, v in box)), 0.0, 1.0, 7)
+    ok = _certified_below(scale, lambda f: certified(tuple((n, f * v) for n, v in box)))
+    if ok is not None:
+        hint = f"all ranges scaled by {ok:.3g} ({regions.format_box(tuple((n, ok * v) for n, v in box))}) are feasible"
+    else:
+        hint = "no scaled-down box was certified"
+    raise InfeasibleDesign(f"{head}{region_note}: no single range alone is to blame; {hint}; the widest is {widest} "
+                           f"(±{100 * width:.3g} %): narrow the ranges in --uncertain{relax_region}")
 
 
 def decay_along_theta(design: BalanceDesign, controller_weight, n: int = 721) -> float:
