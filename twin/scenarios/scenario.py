@@ -171,9 +171,14 @@ class Scenario:
     def design_options(self) -> dict:
         return dict(self.data["design"])
 
+    def _design_key(self) -> tuple:
+        """The design options as a hashable key (the parameter box is a table)."""
+        return tuple(sorted((k, tuple(sorted(v.items())) if isinstance(v, dict) else v)
+                            for k, v in self.data["design"].items()))
+
     def design(self):
         """The LMI balance design (on the nominal model), solved once per set of options."""
-        key = tuple(sorted(self.data["design"].items()))
+        key = self._design_key()
         if key not in _DESIGNS:
             from twin.controllers import design_cache
             from twin.controllers.lmi import design_balance_gains
@@ -183,7 +188,8 @@ class Scenario:
             except TwinError as exc:
                 msg = str(exc)
                 for flag, name in (("--epsilon", "design.epsilon"), ("--rho", "design.rho"),
-                                   ("--decay-rate", "design.decay_rate"), ("--max-gain", "design.max_gain")):
+                                   ("--decay-rate", "design.decay_rate"), ("--max-gain", "design.max_gain"),
+                                   ("--damping", "design.damping"), ("--uncertain", "design.uncertain")):
                     msg = msg.replace(flag, name)
                 raise self._error(f"design: {msg}") from None
         return _DESIGNS[key]
@@ -191,7 +197,7 @@ class Scenario:
     def adopt_design(self, design) -> "Scenario":
         """Use ``design`` (solved elsewhere for these design options) instead of solving it
         again: a sweep's workers take the design the sweep solved once."""
-        _DESIGNS[tuple(sorted(self.data["design"].items()))] = design
+        _DESIGNS[self._design_key()] = design
         return self
 
     def cascade_options(self) -> dict:

@@ -16,6 +16,7 @@ from typing import Any
 
 from twin.controllers.cascade import DEFAULT_PSI_ERROR_LIMIT
 from twin.controllers.lmi import DEFAULT_DECAY_RATE, DEFAULT_EPSILON, DEFAULT_RHO
+from twin.controllers.lmi_regions import UNCERTAIN_PARAMETERS
 from twin.controllers.mamdani import DEFAULT_FOU, P_E_RANGE
 from twin.fuzzy.mamdani import TYPE_REDUCERS
 from twin.errors import TwinError
@@ -137,6 +138,16 @@ SCHEMA: dict[str, Key] = {
         "rho": _f(DEFAULT_RHO, 0.0, 1e3, "N·m", lo_open=True, doc="bound on the total wheel torque (Lemma 2)"),
         "decay_rate": _f(DEFAULT_DECAY_RATE, 0.0, 100.0, "1/s", doc="guaranteed decay rate"),
         "max_gain": _f(None, 0.0, 1e6, "", lo_open=True, nullable=True, doc="bound on each gain's norm"),
+        "damping": Key("float", 0.0, 0.0, 1.0, unit="1", hi_open=True, recorded_at_default=False,
+                       doc="minimum damping ratio ζ of the closed-loop poles, an LMI conic sector with the decay "
+                           "rate (0: none)"),
+        "uncertain": Key("map", {}, 0.0, 1.0, unit="1", hi_open=True, choices=UNCERTAIN_PARAMETERS,
+                         recorded_at_default=False,
+                         doc="robust design: Table III parameter → relative half-range of the box (0.2: ±20 %), "
+                             "certified at its corners and the nominal model, sampled inside"),
+        "all_vertices": Key("bool", False, recorded_at_default=False,
+                            doc="certify every vertex closed loop A_i + B_i G_j (any controller weights, type-1 "
+                                "included), not only the IT2 PDC's own mixes (the paper's Y_ij relaxation)"),
     }),
     "rates": Key("table", keys={
         "physics": _f(1000.0, 10.0, 100000.0, "Hz"),
