@@ -287,7 +287,7 @@ def verify_certificate(A, B, Q, N, Y, epsilon, rho, decay_rate, T=None, weight_g
     blocks (2n×2n, see :mod:`twin.controllers.lmi_regions`); then every sector LMI is checked
     and the sector condition itself, from P and G, on the weight grid of every model.
     ``any_weights`` (a design with ``all_vertices``): the conditions from P and G are checked
-    for every pair of model and controller weights (a 21 × 21 grid), not only for equal ones.
+    for every pair of model and controller weights (an 11 × 11 grid), not only for equal ones.
     """
     multi = np.ndim(A[0]) == 3
     models = list(zip(A, B)) if multi else [(A, B)]
@@ -359,7 +359,7 @@ def verify_certificate(A, B, Q, N, Y, epsilon, rho, decay_rate, T=None, weight_g
     batched = np.inf
     if multi or sector or any_weights:
         # every model at once (batched eigenvalues): the margins, from P and G alone
-        grid = np.linspace(0.0, 1.0, 21 if any_weights else weight_grid)
+        grid = np.linspace(0.0, 1.0, 11 if any_weights else weight_grid)
         Acl = regions.closed_loops(models, np.vstack(G), grid, any_weights)
         batched, region = regions.frozen_margins(Acl, P, decay_rate, damping)
     worst = batched
@@ -696,7 +696,7 @@ def _sampled_margin(models, gains, Px, decay_rate, damping, any_weights=False, w
     scaled = [([Ai * (1.0 / T)[:, None] * T[None, :] for Ai in A], [Bi * (1.0 / T)[:, None] for Bi in B])
               for A, B in models]
     Pz = Px * T[:, None] * T[None, :]
-    Acl = regions.closed_loops(scaled, gains * T[None, :], np.linspace(0.0, 1.0, 11 if any_weights else weight_grid),
+    Acl = regions.closed_loops(scaled, gains * T[None, :], np.linspace(0.0, 1.0, 6 if any_weights else weight_grid),
                                any_weights)
     lyap, sector = regions.frozen_margins(Acl, Pz, decay_rate, damping)
     return lyap if sector is None else min(lyap, sector)
