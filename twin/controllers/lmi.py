@@ -488,23 +488,19 @@ def design_balance_gains(
     cert = verify_certificate(A, B, Q1, N1, Y1, 1.0, rho / epsilon, decay_rate, T)
     if not cert.passed:  # pragma: no cover - the ε = 1 solution passed and peak <= ρ was checked
         raise InfeasibleDesign(f"the design failed the independent check ({cert.summary()}); relax rho")
+    return _design(params, A, B, gains, Px1, Qx1, epsilon, rho, decay_rate, max_gain, peak, elapsed, used, cert)
+
+
+def _design(params, A, B, gains, Px1, Qx1, epsilon, rho, decay_rate, max_gain, peak, elapsed, solver, cert,
+            **region) -> BalanceDesign:
+    """The :class:`BalanceDesign` of a solution found at ε = 1 (``Px1``, ``Qx1`` in x),
+    scaled to ``epsilon``; ``region`` its damping, box and all_vertices, where given."""
     e2 = epsilon**2
     Px = Px1 / e2
-    return BalanceDesign(
-        gains=gains,
-        P=0.5 * (Px + Px.T),
-        Q=Qx1 * e2,
-        epsilon=epsilon,
-        rho=rho,
-        decay_rate=decay_rate,
-        max_gain=max_gain,
-        peak_input=peak,
-        solve_time_s=elapsed,
-        solver=used,
-        certificate=cert,
-        params=params,
-        slowest_vertex_pole=_slowest_vertex_pole(A, B, gains),
-    )
+    return BalanceDesign(gains=gains, P=0.5 * (Px + Px.T), Q=Qx1 * e2, epsilon=epsilon, rho=rho,
+                         decay_rate=decay_rate, max_gain=max_gain, peak_input=peak, solve_time_s=elapsed,
+                         solver=solver, certificate=cert, params=params,
+                         slowest_vertex_pole=_slowest_vertex_pole(A, B, gains), **region)
 
 
 def _gains_and_peak(Q1, N1, T, epsilon):
@@ -627,27 +623,9 @@ def _design_region(params, epsilon, rho, decay_rate, max_gain, solver, damping, 
         cert = dataclasses.replace(cert, sampled_margin=_sampled_margin(samples, gains, Px1, decay_rate, damping,
                                                                         all_vertices),
                                    sampled_plants=len(samples))
-    e2 = epsilon**2
-    Px = Px1 / e2
     A, B = models[0]
-    return BalanceDesign(
-        gains=gains,
-        P=0.5 * (Px + Px.T),
-        Q=Qx1 * e2,
-        epsilon=epsilon,
-        rho=rho,
-        decay_rate=decay_rate,
-        max_gain=max_gain,
-        peak_input=peak,
-        solve_time_s=elapsed,
-        solver=sol.solver,
-        certificate=cert,
-        params=params,
-        slowest_vertex_pole=_slowest_vertex_pole(A, B, gains),
-        damping=damping,
-        uncertain=box,
-        all_vertices=all_vertices,
-    )
+    return _design(params, A, B, gains, Px1, Qx1, epsilon, rho, decay_rate, max_gain, peak, elapsed, sol.solver,
+                   cert, damping=damping, uncertain=box, all_vertices=all_vertices)
 
 
 @dataclass(frozen=True)
