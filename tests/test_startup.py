@@ -157,3 +157,11 @@ def test_the_worker_is_wanted_only_with_a_cpu_to_spare(monkeypatch):
     monkeypatch.setattr(figure_worker.os, "sched_getaffinity", lambda pid: {0}, raising=False)
     monkeypatch.setattr(figure_worker, "_running_elsewhere", lambda: 0)
     assert not figure_worker.wanted()  # one CPU: nothing to run it on
+
+
+def test_a_bad_figure_worker_setting_is_one_line(monkeypatch):
+    from twin.errors import TwinError
+
+    monkeypatch.setenv("TWIN_FIGURE_WORKER", "yes")
+    with pytest.raises(TwinError, match="TWIN_FIGURE_WORKER must be 1 .* got 'yes'"):
+        figure_worker.wanted()

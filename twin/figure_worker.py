@@ -42,6 +42,11 @@ def wanted() -> bool:
     flag = os.environ.get("TWIN_FIGURE_WORKER", "").strip()
     if flag in ("0", "1"):
         return flag == "1"
+    if flag:
+        from twin.errors import TwinError
+
+        raise TwinError(f"TWIN_FIGURE_WORKER must be 1 (draw the figure in a worker), 0 (draw it here) or unset "
+                        f"(decide by the free CPUs), got {flag!r}")
     try:
         cpus = len(os.sched_getaffinity(0))
     except AttributeError:  # pragma: no cover - not on Linux
