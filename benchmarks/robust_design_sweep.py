@@ -1,5 +1,6 @@
-"""Issue 18's judgement by the twin: the paper-exp3 Monte Carlo sweep with today's balance
-design and with a robust one, IT2, type-1 and LQR on identical samples.
+"""Issue 18's judgement by the twin: the paper-exp3 Monte Carlo sweep with the nominal balance
+design (the default before issue 18) and with the robust one (the default since), IT2, type-1
+and LQR on identical samples.
 
 Run from the repository root (two sweeps of 600 samples × 3 controllers, about 10 min each on
 2 cores; rerun to resume)::
@@ -11,7 +12,7 @@ Writes ``runs/robust-design/comparison.md`` (success against λ with Wilson inte
 λ = 0 the medians of settling time and IAE over the runs that stayed up) and
 ``docs/sweep-robust-design.png`` (success against λ, both designs, every controller).
 
-The robust design is certified (``twin design``) for the nominal model and the corners of
+The robust design (the scenarios' default ``[design]``) is certified (``twin design``) for the nominal model and the corners of
 m_b ±30 %, l ±15 % with decay rate 2 1/s and damping ratio 0.5 for every vertex closed loop
 (``all_vertices``); the sweep perturbs all nine non-geometric Table III parameters by up to
 ±λ, so what is certified covers only part of what is sampled. LQR's gains come from its own
@@ -28,9 +29,10 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "runs" / "robust-design"
-ROBUST = ["--set", "design.decay_rate=2", "--set", "design.damping=0.5",
-          "--set", "design.uncertain={m_b=0.3,l=0.15}", "--set", "design.all_vertices=true"]
-DESIGNS = {"today": [], "robust": ROBUST}
+# the nominal design: Lemmas 1–2 and a decay rate of 3 1/s on the nominal model alone
+NOMINAL = ["--set", "design.decay_rate=3", "--set", "design.damping=0",
+           "--set", "design.uncertain={}", "--set", "design.all_vertices=false"]
+DESIGNS = {"nominal": NOMINAL, "robust": []}
 LABEL = {"it2": "IT2", "t1": "type-1", "lqr": "LQR"}
 
 
@@ -59,7 +61,7 @@ def compare() -> str:
     data = {name: pd.read_csv(OUT / name / "sweep.csv") for name in DESIGNS}
     lqr = [d[d.controller == "lqr"].sort_values("sample")["success"].to_numpy() for d in data.values()]
     lqr_same = len(lqr[0]) == len(lqr[1]) and (lqr[0] == lqr[1]).all()
-    levels = sorted(data["today"].level.unique())
+    levels = sorted(data["nominal"].level.unique())
     lines = ["| controller | design | " + " | ".join(f"λ = {lv:g}" for lv in levels) + " |",
              "|---|---|" + "---|" * len(levels)]
     fig, ax = plt.subplots(figsize=(7.5, 4.2), dpi=120)
@@ -67,7 +69,7 @@ def compare() -> str:
     for c in ("it2", "t1", "lqr"):
         for name, d in data.items():
             if c == "lqr" and name == "robust":
-                continue  # the same runs as in "today"
+                continue  # the same runs as in "nominal"
             rates, cells = [], []
             for lv in levels:
                 s = d[(d.controller == c) & (d.level == lv)]["success"].astype(bool)
@@ -76,7 +78,7 @@ def compare() -> str:
                 rates.append((k / n, lo, hi))
                 cells.append(f"{k / n:.2f} [{lo:.2f}, {hi:.2f}]")
             label = LABEL[c] + (" (its own design)" if c == "lqr" else
-                                ", robust design" if name == "robust" else ", today's design")
+                                ", robust design (default)" if name == "robust" else ", nominal design")
             lines.append(f"| {LABEL[c]} | {'(its own)' if c == 'lqr' else name} | " + " | ".join(cells) + " |")
             r = list(zip(*rates))
             ax.errorbar(levels, r[0], yerr=[[max(a - b, 0.0) for a, b in zip(r[0], r[1])], [max(b - a, 0.0) for a, b in zip(r[0], r[2])]],
@@ -87,7 +89,7 @@ def compare() -> str:
     ax.set_ylim(0, 1.05)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="lower left")
-    ax.set_title("paper-exp3, 100 draws per level: today's LMI design against the robust one", fontsize=9)
+    ax.set_title("paper-exp3, 100 draws per level: the nominal LMI design against the robust one", fontsize=9)
     fig.tight_layout()
     fig.savefig(ROOT / "docs" / "sweep-robust-design.png")
     lines += ["", "At λ = 0, runs that stayed up (medians):", "",

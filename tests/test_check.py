@@ -169,9 +169,9 @@ def test_an_estimator_that_ignores_the_gyro_bias_fails(broken):
     status, out, err = twin("check", "paper-exp1", "--controller", "it2", "--workers", "1",
                             "--set", "sensors.estimator='broken_plugins:GyroOnly'")
     assert status == 1, out + err
-    (line,) = [l for l in err.splitlines() if l.startswith("FAIL paper-exp1 it2 seed 0: ")]
-    # measured 0.068 rad: the uncorrected gyro bias drifts the estimate; the EKF's is 0.0006
-    assert line.startswith("FAIL paper-exp1 it2 seed 0: estimator_theta_rmse_rad = ")
+    (line,) = [l for l in err.splitlines() if l.startswith("FAIL paper-exp1 it2 seed 0: estimator_theta_rmse_rad = ")]
+    # measured 0.41 rad: the uncorrected gyro bias drifts the estimate until the robot, balanced
+    # on it, falls (fell is a failure too); the EKF's is 0.0006
     assert float(line.split(" = ")[1].split()[0]) > 0.03 and line.endswith("bound estimator_theta_rmse_rad <= 0.01")
 
 

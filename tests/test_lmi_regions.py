@@ -3,7 +3,13 @@
 The region is checked here from the returned gains alone (numpy eigenvalues of every vertex
 closed loop A_i + B_i G_j, and of the weighted mixes), not from the module's certificate;
 the robust design is judged on equation (1) by simulation, as the issue asks.
+
+Every design here starts from the nominal design (``NOMINAL_DESIGN``: decay rate 3 1/s, no
+sector, no box, the IT2 PDC's mixes) and adds what the test names; the twin's default design
+(robust, issue 18) is the ``design`` fixture and is tested at the end.
 """
+from functools import partial
+
 import json
 import math
 import subprocess
@@ -15,7 +21,7 @@ import pytest
 
 from twin.analytic_loop import run_paper_experiment
 from twin.controllers import design_cache, lmi, lmi_regions
-from twin.controllers.lmi import design_balance_gains, verify_certificate
+from twin.controllers.lmi import NOMINAL_DESIGN, verify_certificate
 from twin.errors import InfeasibleDesign, TwinError
 from twin.params import NOMINAL
 from twin.plant.ts_model import rule1_weight, ts_matrices
@@ -26,6 +32,7 @@ EXAMPLE_BOX = {"m_b": 0.2, "l": 0.15, "n_yb": 0.2, "d_b": 0.5, "d_w": 0.5}
 # loop certified, today's ε and ρ.
 ROBUST = {"decay_rate": 2.0, "damping": 0.5, "uncertain": {"m_b": 0.2, "l": 0.15}, "all_vertices": True}
 PERTURBED = NOMINAL.perturbed(scale={"m_b": 1.2, "l": 1.15})
+design_balance_gains = partial(lmi.design_balance_gains, **NOMINAL_DESIGN)
 
 
 @pytest.fixture(scope="module")
@@ -85,11 +92,11 @@ def test_the_paper_relaxation_keeps_the_it2_pdc_closed_loop_inside_the_region(de
                       f"a = {decay_rate}, ζ = {damping}")
 
 
-def test_the_relaxation_does_not_cover_the_cross_vertices(design):
-    """Y_12 may be indefinite, so A_1 + B_1 G_2 alone can leave the region, today's default
+def test_the_relaxation_does_not_cover_the_cross_vertices():
+    """Y_12 may be indefinite, so A_1 + B_1 G_2 alone can leave the region, the nominal
     design included (−2.987 1/s against a decay rate of 3 1/s); all_vertices covers it."""
     A, B = ts_matrices(NOMINAL)
-    for d in (design, design_balance_gains(decay_rate=3.0, damping=0.5, rho=1e6)):
+    for d in (design_balance_gains(), design_balance_gains(decay_rate=3.0, damping=0.5, rho=1e6)):
         assert np.linalg.eigvals(A[0] + B[0] @ d.gains[1:2]).real.max() > -3.0
     d = design_balance_gains(decay_rate=3.0, damping=0.5, rho=1e6, all_vertices=True)
     assert np.linalg.eigvals(A[0] + B[0] @ d.gains[1:2]).real.max() < -3.0
@@ -171,7 +178,7 @@ def test_the_corners_are_what_is_certified_not_the_nominal_design():
 def test_robust_design_settles_the_perturbed_plant_on_equation_1(robust):
     """Issue 18's acceptance: robust to m_b ±20 % and l ±15 %, the IT2 PDC brings |θ| below
     0.01 rad within 3 s from θ0 = 0.48 rad on equation (1) with m_b ×1.2 and l ×1.15, and on
-    the nominal plant; today's default design does not on the perturbed one."""
+    the nominal plant; the nominal design (the default before issue 18) does not on the perturbed one."""
     for plant in (PERTURBED, NOMINAL):
         run = run_paper_experiment(1, "it2", robust, plant=plant, duration=5.0)
         theta = run.truth[:, 1]
@@ -298,9 +305,10 @@ def test_bad_region_inputs_are_one_line(kw, allowed):
     assert allowed in str(info.value) and "\n" not in str(info.value)
 
 
-def test_zero_ranges_and_zero_damping_are_todays_design(design):
+def test_zero_ranges_and_zero_damping_are_the_nominal_design():
+    nominal = design_balance_gains()
     same = design_balance_gains(damping=0.0, uncertain={"m_b": 0.0})
-    assert same.gains.tobytes() == design.gains.tobytes() and same.uncertain == ()
+    assert same.gains.tobytes() == nominal.gains.tobytes() and same.uncertain == ()
 
 
 # ---- the design cache -------------------------------------------------------------------------
@@ -339,17 +347,23 @@ def test_a_cached_design_whose_gains_leave_the_sector_is_solved_again(tmp_path, 
 
 
 # ---- the scenario keys ------------------------------------------------------------------------
-def test_scenario_keys_reach_the_design_and_stay_out_of_the_record_at_their_defaults():
+def test_scenario_keys_reach_the_design_and_the_record():
     from twin.scenarios import load_scenario
     from twin.scenarios.schema import ScenarioError, record
 
-    sc = load_scenario("paper-exp1", ["design.damping=0.5", "design.decay_rate=2", "design.uncertain.m_b=0.2",
-                                      "design.uncertain.l=0.15"])
+    sc = load_scenario("paper-exp1", ["design.damping=0.4", "design.decay_rate=2", "design.uncertain={m_b=0.2,l=0.15}",
+                                      "design.all_vertices=false"])
     d = sc.design()
-    assert d.damping == 0.5 and d.uncertain == (("m_b", 0.2), ("l", 0.15)) and d.certificate.models == 5
+    assert d.damping == 0.4 and d.uncertain == (("m_b", 0.2), ("l", 0.15)) and d.certificate.models == 5
+    assert not d.all_vertices
     assert record(sc.data)["design"]["uncertain"] == {"m_b": 0.2, "l": 0.15}
-    plain = load_scenario("paper-exp1", [])
-    assert "damping" not in record(plain.data)["design"] and "uncertain" not in record(plain.data)["design"]
+    # a run records the design it used, defaults included (they changed in issue 18)
+    plain = record(load_scenario("paper-exp1", []).data)["design"]
+    assert plain["damping"] == 0.5 and plain["uncertain"] == {"m_b": 0.3, "l": 0.15} and plain["all_vertices"] is True
+    nominal = load_scenario("paper-exp1", ["design.decay_rate=3", "design.damping=0", "design.uncertain={}",
+                                           "design.all_vertices=false"])
+    assert record(nominal.data)["design"]["uncertain"] == {}
+    assert nominal.design().gains.tobytes() == design_balance_gains().gains.tobytes()
     with pytest.raises(ScenarioError, match=r"design\.uncertain\.m_b: 1\.0 is out of range; allowed in \[0, 1\)"):
         load_scenario("paper-exp1", ["design.uncertain.m_b=1.0"])
     with pytest.raises(ScenarioError,
@@ -394,3 +408,19 @@ def test_cli_impossible_or_bad_requests_end_in_one_line(args, start, tmp_path):
     assert r.returncode == 2, r.stdout + r.stderr
     assert r.stderr.startswith(start), r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr and r.stdout == ""
+
+
+# ---- the default design (issue 18) -----------------------------------------------------------
+def test_the_default_design_is_the_robust_one_everywhere(design):
+    """The library's default, the scenarios' default [design] and the ``design`` fixture are one
+    design: m_b ±30 %, l ±15 %, decay 2 1/s, damping ratio 0.5, every vertex closed loop; and
+    its poles are inside that region at the nominal model and every corner (checked here)."""
+    from twin.scenarios import load_scenario
+
+    assert (design.decay_rate, design.damping, design.uncertain, design.all_vertices) == (
+        2.0, 0.5, (("m_b", 0.3), ("l", 0.15)), True)
+    assert design.certificate.passed and design.certificate.models == 5
+    assert load_scenario("paper-exp3", []).design().gains.tobytes() == design.gains.tobytes()
+    for p in (NOMINAL, *_corner_params(dict(design.uncertain))):
+        A, B = ts_matrices(p)
+        _assert_in_region(_vertex_poles(A, B, design.gains), 2.0, 0.5, "default design")

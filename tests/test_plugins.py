@@ -327,7 +327,9 @@ def test_a_reset_loop_reuses_its_estimator_as_if_new(kind):
 
     sensors = SensorConfig()
     ctx = BuildContext(sensors=sensors)
-    controller = build_controller("it2", None, ctx)  # gentle enough for the hobby filters (LQR is not)
+    # from 0.2 rad: gentle enough for the hobby filters (from 0.3 rad the default design's hard catch
+    # makes the complementary filter read the acceleration as tilt, and the robot falls; LQR's too)
+    controller = build_controller("it2", None, ctx)
 
     def episode(loop, seed):
         out = [tuple(loop.reset(seed).estimate)]
@@ -335,10 +337,10 @@ def test_a_reset_loop_reuses_its_estimator_as_if_new(kind):
             out.append(tuple(loop.step().estimate))
         return out, loop.estimator_stats()
 
-    with ClosedLoop(None, build_estimator(kind, None, ctx), controller, sensors, Targets(), theta0=0.3) as loop:
+    with ClosedLoop(None, build_estimator(kind, None, ctx), controller, sensors, Targets(), theta0=0.2) as loop:
         episode(loop, 5)
         again = episode(loop, 9)
-    with ClosedLoop(None, build_estimator(kind, None, ctx), controller, sensors, Targets(), theta0=0.3) as loop:
+    with ClosedLoop(None, build_estimator(kind, None, ctx), controller, sensors, Targets(), theta0=0.2) as loop:
         fresh = episode(loop, 9)
     assert again == fresh
 

@@ -13,7 +13,7 @@ from twin import figure_worker
 from twin.scenarios import load_scenario
 from twin.scenarios.runner import run_scenario
 
-HEAVY = ("scipy.stats", "filterpy", "filterpy.stats", "cvxpy")
+HEAVY = ("scipy.stats", "filterpy", "filterpy.stats", "cvxpy", "clarabel")
 
 RUN = """
 import sys
@@ -39,7 +39,7 @@ def _run(tmp_path, **env):
 
 def test_a_cached_run_imports_neither_scipy_stats_nor_filterpy(tmp_path):
     cold = _run(tmp_path)
-    assert "cvxpy" in cold["IMPORTED"]  # solved, and stored
+    assert "clarabel" in cold["IMPORTED"]  # solved (the default robust design goes to Clarabel directly), and stored
     warm = _run(tmp_path, TWIN_FIGURE_WORKER="1")
     assert warm["IMPORTED"] == "-", warm  # the EKF's compiled path needs no filterpy, its gates no scipy.stats
     assert warm["SCIPY"] == "False"

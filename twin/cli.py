@@ -82,7 +82,22 @@ def _design_options(f):
                      help="Bound on the total wheel torque |ul + ur|, N·m (Lemma 2).")(f)
     f = click.option("--epsilon", type=float, default=lmi.DEFAULT_EPSILON, show_default=True,
                      help="Radius of the certified set of initial states ‖x0‖ ≤ ε (Lemma 2).")(f)
+    f = click.option("--damping", type=float, default=lmi.DEFAULT_DAMPING, show_default=True,
+                     help="Minimum damping ratio ζ in [0, 1) of the closed-loop poles (an LMI conic sector with the "
+                          "decay rate; 0: none).")(f)
+    f = click.option("--uncertain", default=_format_uncertain(lmi.DEFAULT_UNCERTAIN), show_default=True,
+                     metavar="NAME=RANGE,...|none",
+                     help="Robust design over a parameter box: relative half-ranges of Table III parameters "
+                          "(m_b=0.2,l=0.15: m_b ±20 %, l ±15 %), certified at the box's corners and the nominal "
+                          "model; none: the nominal model alone.")(f)
+    f = click.option("--all-vertices/--pdc-mixes", default=lmi.DEFAULT_ALL_VERTICES, show_default=True,
+                     help="Certify every vertex closed loop A_i + B_i G_j (any controller weights, the type-1 "
+                          "PDC's included), or only the IT2 PDC's own rule mixes (the paper's Y_ij relaxation).")(f)
     return f
+
+
+def _format_uncertain(box) -> str:
+    return ",".join(f"{k}={v:g}" for k, v in box.items()) or "none"
 
 
 def _no_cache_option(f):
@@ -132,15 +147,6 @@ def cache_clear():
 
 @main.command()
 @_design_options
-@click.option("--damping", type=float, default=0.0, show_default=True,
-              help="Minimum damping ratio ζ in [0, 1) of the closed-loop poles (an LMI conic sector with the decay "
-                   "rate; 0: none).")
-@click.option("--uncertain", default=None, metavar="NAME=RANGE,...",
-              help="Robust design over a parameter box: relative half-ranges of Table III parameters, e.g. "
-                   "m_b=0.2,l=0.15 (m_b ±20 %, l ±15 %); certified at the box's corners and the nominal model.")
-@click.option("--all-vertices", is_flag=True,
-              help="Certify every vertex closed loop A_i + B_i G_j (any controller weights, the type-1 PDC's "
-                   "included), not only the IT2 PDC's own rule mixes (the paper's Y_ij relaxation).")
 @click.option("--solver", type=click.Choice(["CLARABEL", "SCS"], case_sensitive=False), default=None,
               help="cvxpy solver (default Clarabel, SCS as fallback).")
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), default=None,
@@ -153,13 +159,14 @@ def design(epsilon, rho, decay_rate, max_gain, damping, uncertain, all_vertices,
     in N·m), the independent certificate check and the solve time. With --damping, the
     closed-loop poles also keep a minimum damping ratio; with --uncertain, one pair of
     gains is certified for every corner of the parameter box (and checked, not
-    certified, at plants sampled inside it).
+    certified, at plants sampled inside it). The defaults are the twin's default design,
+    robust to m_b ±30 % and l ±15 % (chosen by the paper-exp3 sweep; see the README).
 
     \b
     Examples:
       twin design
-      twin design --epsilon 0.5 --rho 2 --decay-rate 4 --out gains.json
-      twin design --decay-rate 2 --damping 0.5 --uncertain m_b=0.2,l=0.15 --rho 3
+      twin design --decay-rate 2 --damping 0.5 --uncertain m_b=0.2,l=0.15 --rho 3 --out gains.json
+      twin design --decay-rate 3 --damping 0 --uncertain none --pdc-mixes    # the nominal design
     """
     from twin.controllers import design_cache
     from twin.controllers.lmi import design_balance_gains
@@ -177,9 +184,10 @@ def design(epsilon, rho, decay_rate, max_gain, damping, uncertain, all_vertices,
 
 
 def _parse_uncertain(text: str | None) -> dict | None:
-    """'m_b=0.2,l=0.15' → {'m_b': 0.2, 'l': 0.15}; names and ranges are checked by the design."""
-    if text is None:
-        return None
+    """'m_b=0.2,l=0.15' → {'m_b': 0.2, 'l': 0.15}, 'none' → {}; names and ranges are checked by
+    the design."""
+    if text is None or text.strip().lower() in ("none", ""):
+        return {}
     out = {}
     for item in text.split(","):
         name, eq, value = item.strip().partition("=")
@@ -241,17 +249,19 @@ def _print_region(d) -> None:
                    f"damping ratio ≥ {zeta_min:.3g}")
 
 
-def _load_design(path: Path | None, epsilon, rho, decay_rate, max_gain):
+def _load_design(path: Path | None, epsilon, rho, decay_rate, max_gain, damping, uncertain, all_vertices):
     from twin.controllers import design_cache
     from twin.controllers.lmi import design_balance_gains
 
     ctx = click.get_current_context()
-    given = [f"--{n.replace('_', '-')}" for n in ("epsilon", "rho", "decay_rate", "max_gain")
+    given = [f"--{n.replace('_', '-')}" for n in ("epsilon", "rho", "decay_rate", "max_gain", "damping", "uncertain",
+                                                  "all_vertices")
              if ctx.get_parameter_source(n) == click.core.ParameterSource.COMMANDLINE]
     if path is not None and given:
         raise TwinError(f"--gains uses a finished design; {', '.join(given)} would be ignored: give one or the other")
     if path is None:
         return design_balance_gains(epsilon=epsilon, rho=rho, decay_rate=decay_rate, max_gain=max_gain,
+                                    damping=damping, uncertain=_parse_uncertain(uncertain), all_vertices=all_vertices,
                                     cache=design_cache.enabled())
     from types import SimpleNamespace
 
@@ -286,7 +296,8 @@ def _experiment_options(default_out: str):
 
 @main.command()
 @_experiment_options("runs/analytic")
-def analytic(experiment, controller, out, duration, gains_file, epsilon, rho, decay_rate, max_gain):
+def analytic(experiment, controller, out, duration, gains_file, epsilon, rho, decay_rate, max_gain, damping,
+             uncertain, all_vertices):
     """Run a paper experiment on the analytic model (equation 1): figure, metrics, trajectories.
 
     EXPERIMENT is 1 (balance from θ0 = 0.48 rad), 2 (+ position, p_d = 0.7 m) or
@@ -298,7 +309,8 @@ def analytic(experiment, controller, out, duration, gains_file, epsilon, rho, de
       twin analytic 3 --controller both --out runs/exp3
       twin analytic 1 --controller t1 --duration 5
     """
-    _paper_experiment(experiment, controller, out, duration, gains_file, (epsilon, rho, decay_rate, max_gain))
+    _paper_experiment(experiment, controller, out, duration, gains_file,
+                      (epsilon, rho, decay_rate, max_gain, damping, uncertain, all_vertices))
 
 
 @main.command(hidden=True, context_settings={"ignore_unknown_options": True, "allow_extra_args": True})

@@ -120,6 +120,7 @@ from __future__ import annotations
 import itertools
 import math
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -162,7 +163,7 @@ def check_uncertain(uncertain) -> tuple[tuple[str, float], ...]:
             uncertain = dict(uncertain)
         except (TypeError, ValueError):
             raise TwinError(f"uncertain must map parameter names to relative ranges, got {uncertain!r}") from None
-    if not isinstance(uncertain, dict):
+    if not isinstance(uncertain, Mapping):
         raise TwinError(f"uncertain must map parameter names to relative ranges, got {uncertain!r}")
     allowed = ", ".join(UNCERTAIN_PARAMETERS)
     out = {}

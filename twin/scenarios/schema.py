@@ -15,7 +15,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from twin.controllers.cascade import DEFAULT_PSI_ERROR_LIMIT
-from twin.controllers.lmi import DEFAULT_DECAY_RATE, DEFAULT_EPSILON, DEFAULT_RHO
+from twin.controllers.lmi import (DEFAULT_ALL_VERTICES, DEFAULT_DAMPING, DEFAULT_DECAY_RATE, DEFAULT_EPSILON, DEFAULT_RHO,
+                                  DEFAULT_UNCERTAIN)
 from twin.controllers.lmi_regions import UNCERTAIN_PARAMETERS
 from twin.controllers.mamdani import DEFAULT_FOU, P_E_RANGE
 from twin.fuzzy.mamdani import TYPE_REDUCERS
@@ -138,14 +139,15 @@ SCHEMA: dict[str, Key] = {
         "rho": _f(DEFAULT_RHO, 0.0, 1e3, "N·m", lo_open=True, doc="bound on the total wheel torque (Lemma 2)"),
         "decay_rate": _f(DEFAULT_DECAY_RATE, 0.0, 100.0, "1/s", doc="guaranteed decay rate"),
         "max_gain": _f(None, 0.0, 1e6, "", lo_open=True, nullable=True, doc="bound on each gain's norm"),
-        "damping": Key("float", 0.0, 0.0, 1.0, unit="1", hi_open=True, recorded_at_default=False,
+        "damping": Key("float", DEFAULT_DAMPING, 0.0, 1.0, unit="1", hi_open=True,
                        doc="minimum damping ratio ζ of the closed-loop poles, an LMI conic sector with the decay "
                            "rate (0: none)"),
-        "uncertain": Key("map", {}, 0.0, 1.0, unit="1", hi_open=True, choices=UNCERTAIN_PARAMETERS,
-                         recorded_at_default=False,
+        "uncertain": Key("map", dict(DEFAULT_UNCERTAIN), 0.0, 1.0, unit="1", hi_open=True,
+                         choices=UNCERTAIN_PARAMETERS,
                          doc="robust design: Table III parameter → relative half-range of the box (0.2: ±20 %), "
-                             "certified at its corners and the nominal model, sampled inside"),
-        "all_vertices": Key("bool", False, recorded_at_default=False,
+                             "certified at its corners and the nominal model, sampled inside ({}: the nominal "
+                             "model alone)"),
+        "all_vertices": Key("bool", DEFAULT_ALL_VERTICES,
                             doc="certify every vertex closed loop A_i + B_i G_j (any controller weights, type-1 "
                                 "included), not only the IT2 PDC's own mixes (the paper's Y_ij relaxation)"),
     }),
@@ -388,8 +390,8 @@ def _table(raw, keys: dict[str, Key], path: str) -> dict:
             out[name] = _table({}, key.keys, p)
         elif key.default is REQUIRED:
             raise ScenarioError(f"{p}: missing; it is required")
-        else:
-            out[name] = key.default
+        else:  # (a copy: a table default such as design.uncertain is not shared between scenarios)
+            out[name] = copy.deepcopy(key.default) if isinstance(key.default, dict) else key.default
     return out
 
 
@@ -463,7 +465,14 @@ def describe() -> list[tuple[str, str, str, str]]:
                 kind = "table (any keys)"
             elif key.kind == "expect":
                 kind = "table of bounds"
-            default = "required" if key.default is REQUIRED else ("absent" if key.default is None else repr(key.default))
+            if key.default is REQUIRED:
+                default = "required"
+            elif key.default is None:
+                default = "absent"
+            elif isinstance(key.default, dict):  # as written in a scenario: a TOML inline table
+                default = "{" + ", ".join(f"{k} = {v!r}" for k, v in key.default.items()) + "}"
+            else:
+                default = repr(key.default)
             rows.append((p, kind, default, key.doc))
 
     walk(SCHEMA, "")

@@ -1,0 +1,117 @@
+"""The README's tables of single runs, measured again with the code as it is.
+
+Run from the repository root (about 2 minutes on 2 cores)::
+
+    python benchmarks/readme_tables.py [--set KEY=VALUE ...]
+
+Prints three markdown tables, each from the command the README names:
+
+* "Results on the analytic model": ``twin analytic N --controller both`` (N = 1, 2, 3);
+* "Measured on the twin": ``twin run paper-expN --set plant.scale={} --set sensors.sensing=ideal``
+  (nominal plant, default motors, controllers on ground truth);
+* "IT2, type-1 and LQR on this twin": ``twin run NAME --controller it2,t1,lqr`` for every
+  built-in scenario (seed 0, the EKF in the loop).
+
+``--set`` options are passed to every ``twin run`` (for example the nominal design of
+before issue 18: ``--set design.decay_rate=3 --set design.damping=0 --set 'design.uncertain={}'
+--set design.all_vertices=false``).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+BUILTINS = ("paper-exp1", "paper-exp2", "paper-exp3", "push-recovery", "sensor-faults", "slope-payload")
+LABEL = {"it2": "IT2", "t1": "type-1", "lqr": "LQR"}
+EXPERIMENTS = {1: "1: balance from θ0 = 0.48 rad", 2: "2: + position, p_d = 0.7 m",
+               3: "3: + direction, p_d = 1 m, α_d = 1.5 rad"}
+
+
+def twin(*args: str) -> None:
+    r = subprocess.run([sys.executable, "-m", "twin.cli", *args], cwd=ROOT, capture_output=True, text=True)
+    if r.returncode != 0:
+        sys.exit(f"twin {' '.join(args)} failed:\n{r.stderr}")
+
+
+def runs(out: Path) -> dict:
+    return json.loads((out / "metrics.json").read_text(encoding="utf-8"))["runs"]
+
+
+def mm(value) -> str:
+    return "–" if value is None else f"{value * 1e3:.1f}".replace("-", "−")
+
+
+def analytic(tmp: Path) -> str:
+    import numpy as np
+
+    lines = ["| experiment | controller | θ settles below 0.01 rad | max \\|ul + ur\\| | final position error | "
+             "final heading error |", "|---|---|---|---|---|---|"]
+    for n in (1, 2, 3):
+        out = tmp / f"analytic{n}"
+        twin("analytic", str(n), "--controller", "both", "--out", str(out))
+        doc = json.loads((out / "metrics.json").read_text(encoding="utf-8"))["controllers"]
+        for i, (kind, m) in enumerate(doc.items()):
+            data = np.genfromtxt(out / f"trajectory_{kind}.csv", delimiter=",", names=True)
+            total = np.abs(data["ul_cmd_N·m"] + data["ur_cmd_N·m"]).max()
+            pos = m.get("final_position_error_m")
+            head = m.get("final_heading_error_rad")
+            lines.append(f"| {EXPERIMENTS[n] if i == 0 else ''} | {'IT2' if kind == 'it2' else 'T1'} | "
+                         f"{m['settling_time_s']:.2f} s | {total:.3f} N·m | "
+                         f"{'–' if pos is None else f'{abs(pos) * 1e3:.2g} mm'} | "
+                         f"{'–' if head is None else f'{abs(head):.2g} rad'} |")
+    return "\n".join(lines)
+
+
+def nominal_twin(tmp: Path, extra: list[str]) -> str:
+    lines = ["| experiment (twin, default motors) | controller | θ settles below 0.01 rad | θ peak-to-peak, last 5 s | "
+             "max wheel torque (5 ms mean) | final position error | final heading error |",
+             "|---|---|---|---|---|---|---|"]
+    for n in (1, 2, 3):
+        out = tmp / f"nominal{n}"
+        twin("run", f"paper-exp{n}", "--no-video", "--set", "plant.scale={}", "--set", "sensors.sensing=ideal",
+             "--out", str(out), *extra)
+        for i, (kind, m) in enumerate(runs(out).items()):
+            head = m.get("final_heading_error_rad")
+            lines.append(f"| {EXPERIMENTS[n] if i == 0 else ''} | {'IT2' if kind == 'it2' else 'T1'} | "
+                         f"{m['settling_time_s']:.2f} s | {m['oscillation_peak_to_peak_rad']:.2g} rad | "
+                         f"{m['max_abs_torque_nm']:.3f} N·m | {mm(m.get('final_position_error_m'))}"
+                         f"{'' if m.get('final_position_error_m') is None else ' mm'} | "
+                         f"{'–' if head is None else f'{head:.2g} rad'.replace('-', '−')} |")
+    return "\n".join(lines)
+
+
+def builtins(tmp: Path, extra: list[str]) -> str:
+    lines = ["| scenario | controller | settling [s] | θ RMS after settling [mrad] | θ peak-to-peak, last 5 s [mrad] | "
+             "final position error [mm] | final heading error [mrad] | IAE θ [rad·s] | effort [N²m²s] | "
+             "peak torque [N·m] | estimator θ RMSE [mrad] |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for name in BUILTINS:
+        out = tmp / name
+        twin("run", name, "--controller", "it2,t1,lqr", "--no-video", "--out", str(out), *extra)
+        for i, (kind, m) in enumerate(runs(out).items()):
+            ts = m["settling_time_s"]
+            rms = f"{m['theta_rms_rad'] * 1e3:.3g}" + ("" if ts is not None else " (last 5 s)")
+            head = m.get("final_heading_error_rad")
+            lines.append(
+                f"| {name if i == 0 else ''} | {LABEL.get(kind, kind)} | {'never' if ts is None else f'{ts:.2f}'} | "
+                f"{rms} | {m['oscillation_peak_to_peak_rad'] * 1e3:.3g} | {mm(m.get('final_position_error_m'))} | "
+                f"{'–' if head is None else f'{head * 1e3:.1f}'.replace('-', '−')} | {m['iae_theta']:.3g} | "
+                f"{m['control_effort']:.3g} | {m['max_abs_torque_nm']:.2f} | "
+                f"{m['estimator_theta_rmse_rad'] * 1e3:.3g} |")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="passed to every 'twin run'")
+    a = ap.parse_args()
+    extra = [x for s in a.set for x in ("--set", s)]
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        print("Results on the analytic model\n\n" + analytic(tmp) + "\n")
+        print("Measured on the twin (nominal plant, ground truth)\n\n" + nominal_twin(tmp, extra) + "\n")
+        print("IT2, type-1 and LQR on this twin\n\n" + builtins(tmp, extra))
