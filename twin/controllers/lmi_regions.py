@@ -51,8 +51,8 @@ Which closed loops: the relaxation or every vertex
 --------------------------------------------------
 What the paper's relaxation certifies is the IT2 PDC's own closed loop Σ_ij m_i m_j
 (A_i + B_i G_j), whose weights are the model's: A_i + B_i G_i and every mix. A cross vertex
-A_i + B_i G_j (i ≠ j) alone is not covered, since Y_ij may be indefinite: with today's
-default design A_1 + B_1 G_2 has a pole at −2.987 1/s against the certified decay rate of
+A_i + B_i G_j (i ≠ j) alone is not covered, since Y_ij may be indefinite: with the nominal
+design (NOMINAL_DESIGN) A_1 + B_1 G_2 has a pole at −2.987 1/s against the certified decay rate of
 3 1/s. ``all_vertices=True`` drops the slack from the cross terms (Φ_ij ≺ 0 and S_ij ≺ 0 for
 i ≠ j, with the common Q), which certifies every vertex closed loop, hence Σ_ij m_i h_j
 (A_i + B_i G_j) for *any* model weights m and controller weights h: the type-1 PDC's, or a
