@@ -424,3 +424,23 @@ def test_the_default_design_is_the_robust_one_everywhere(design):
     for p in (NOMINAL, *_corner_params(dict(design.uncertain))):
         A, B = ts_matrices(p)
         _assert_in_region(_vertex_poles(A, B, design.gains), 2.0, 0.5, "default design")
+
+
+def test_cli_defaults_are_the_robust_design_and_the_nominal_one_is_four_options(tmp_path):
+    """`twin design` alone is the default design; `--decay-rate 3 --damping 0 --uncertain none
+    --pdc-mixes` is the nominal one, bit for bit as NOMINAL_DESIGN (the gains as written)."""
+    out = tmp_path / "default.json"
+    r = _twin("design", "--out", str(out), cache=tmp_path / "cache")
+    assert r.returncode == 0, r.stderr
+    assert "certified for the nominal model and the 4 corners of m_b ±30 %, l ±15 %" in r.stdout
+    assert "all vertex closed loops" in r.stdout
+    doc = json.loads(out.read_text())
+    assert doc["decay_rate"] == 2.0 and doc["damping"] == 0.5 and doc["all_vertices"] is True
+    out = tmp_path / "nominal.json"
+    r = _twin("design", "--decay-rate", "3", "--damping", "0", "--uncertain", "none", "--pdc-mixes", "--out", str(out),
+              cache=tmp_path / "cache")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(out.read_text())
+    assert doc["uncertain"] == {} and doc["damping"] == 0.0 and doc["all_vertices"] is False
+    assert np.array_equal(np.asarray(doc["gains"]), design_balance_gains().gains)
+    assert "corners" not in r.stdout
