@@ -28,6 +28,7 @@ import statistics
 import sys
 import time
 import warnings
+from functools import partial
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -98,8 +99,6 @@ def main() -> int:
     from scipy.linalg import solve_continuous_are
 
     from twin.controllers import lmi_regions
-    from functools import partial
-
     from twin.controllers.lmi import DEFAULT_SCALING, NOMINAL_DESIGN, _ROOM
     from twin.controllers.lmi import design_balance_gains as default_design
     from twin.params import NOMINAL

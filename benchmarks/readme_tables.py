@@ -12,7 +12,8 @@ Prints three markdown tables, each from the command the README names:
 * "IT2, type-1 and LQR on this twin": ``twin run NAME --controller it2,t1,lqr`` for every
   built-in scenario (seed 0, the EKF in the loop).
 
-``--set`` options are passed to every ``twin run`` (for example the nominal design of
+``--set`` options are passed to every ``twin run`` (not to ``twin analytic``, which has
+no scenario and always uses the default design) (for example the nominal design of
 before issue 18: ``--set design.decay_rate=3 --set design.damping=0 --set 'design.uncertain={}'
 --set design.all_vertices=false``).
 """
@@ -38,71 +39,88 @@ def twin(*args: str) -> None:
         sys.exit(f"twin {' '.join(args)} failed:\n{r.stderr}")
 
 
-def runs(out: Path) -> dict:
-    return json.loads((out / "metrics.json").read_text(encoding="utf-8"))["runs"]
+def runs(out: Path, key: str = "runs") -> dict:
+    """The metrics per controller in ``out/metrics.json`` (``twin analytic`` keys them "controllers")."""
+    return json.loads((out / "metrics.json").read_text(encoding="utf-8"))[key]
 
 
 def mm(value) -> str:
     return "–" if value is None else f"{value * 1e3:.1f}".replace("-", "−")
 
 
+def table(header: list[str], groups, cells) -> str:
+    """A markdown table: for each (label, {kind: metrics}) of ``groups`` one row per controller,
+    the label on its first row, then ``cells(kind, metrics)``."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for label, per_kind in groups:
+        for i, (kind, m) in enumerate(per_kind.items()):
+            lines.append("| " + " | ".join([label if i == 0 else "", *cells(kind, m)]) + " |")
+    return "\n".join(lines)
+
+
+def short(kind: str) -> str:
+    return "IT2" if kind == "it2" else "T1"
+
+
 def analytic(tmp: Path) -> str:
     import numpy as np
 
-    lines = ["| experiment | controller | θ settles below 0.01 rad | max \\|ul + ur\\| | final position error | "
-             "final heading error |", "|---|---|---|---|---|---|"]
-    for n in (1, 2, 3):
-        out = tmp / f"analytic{n}"
-        twin("analytic", str(n), "--controller", "both", "--out", str(out))
-        doc = json.loads((out / "metrics.json").read_text(encoding="utf-8"))["controllers"]
-        for i, (kind, m) in enumerate(doc.items()):
-            data = np.genfromtxt(out / f"trajectory_{kind}.csv", delimiter=",", names=True)
-            total = np.abs(data["ul_cmd_N·m"] + data["ur_cmd_N·m"]).max()
-            pos = m.get("final_position_error_m")
-            head = m.get("final_heading_error_rad")
-            lines.append(f"| {EXPERIMENTS[n] if i == 0 else ''} | {'IT2' if kind == 'it2' else 'T1'} | "
-                         f"{m['settling_time_s']:.2f} s | {total:.3f} N·m | "
-                         f"{'–' if pos is None else f'{abs(pos) * 1e3:.2g} mm'} | "
-                         f"{'–' if head is None else f'{abs(head):.2g} rad'} |")
-    return "\n".join(lines)
+    def groups():
+        for n in (1, 2, 3):
+            out = tmp / f"analytic{n}"
+            twin("analytic", str(n), "--controller", "both", "--out", str(out))
+            yield EXPERIMENTS[n], {k: (out, m) for k, m in runs(out, "controllers").items()}
+
+    def cells(kind, item):
+        out, m = item
+        data = np.genfromtxt(out / f"trajectory_{kind}.csv", delimiter=",", names=True)
+        total = np.abs(data["ul_cmd_N·m"] + data["ur_cmd_N·m"]).max()
+        pos, head = m.get("final_position_error_m"), m.get("final_heading_error_rad")
+        return [short(kind), f"{m['settling_time_s']:.2f} s", f"{total:.3f} N·m",
+                "–" if pos is None else f"{abs(pos) * 1e3:.2g} mm", "–" if head is None else f"{abs(head):.2g} rad"]
+
+    return table(["experiment", "controller", "θ settles below 0.01 rad", "max \\|ul + ur\\|", "final position error",
+                  "final heading error"], groups(), cells)
 
 
 def nominal_twin(tmp: Path, extra: list[str]) -> str:
-    lines = ["| experiment (twin, default motors) | controller | θ settles below 0.01 rad | θ peak-to-peak, last 5 s | "
-             "max wheel torque (5 ms mean) | final position error | final heading error |",
-             "|---|---|---|---|---|---|---|"]
-    for n in (1, 2, 3):
-        out = tmp / f"nominal{n}"
-        twin("run", f"paper-exp{n}", "--no-video", "--set", "plant.scale={}", "--set", "sensors.sensing=ideal",
-             "--out", str(out), *extra)
-        for i, (kind, m) in enumerate(runs(out).items()):
-            head = m.get("final_heading_error_rad")
-            lines.append(f"| {EXPERIMENTS[n] if i == 0 else ''} | {'IT2' if kind == 'it2' else 'T1'} | "
-                         f"{m['settling_time_s']:.2f} s | {m['oscillation_peak_to_peak_rad']:.2g} rad | "
-                         f"{m['max_abs_torque_nm']:.3f} N·m | {mm(m.get('final_position_error_m'))}"
-                         f"{'' if m.get('final_position_error_m') is None else ' mm'} | "
-                         f"{'–' if head is None else f'{head:.2g} rad'.replace('-', '−')} |")
-    return "\n".join(lines)
+    def groups():
+        for n in (1, 2, 3):
+            out = tmp / f"nominal{n}"
+            twin("run", f"paper-exp{n}", "--no-video", "--set", "plant.scale={}", "--set", "sensors.sensing=ideal",
+                 "--out", str(out), *extra)
+            yield EXPERIMENTS[n], runs(out)
+
+    def cells(kind, m):
+        pos, head = m.get("final_position_error_m"), m.get("final_heading_error_rad")
+        return [short(kind), f"{m['settling_time_s']:.2f} s", f"{m['oscillation_peak_to_peak_rad']:.2g} rad",
+                f"{m['max_abs_torque_nm']:.3f} N·m", mm(pos) + ("" if pos is None else " mm"),
+                "–" if head is None else f"{head:.2g} rad".replace("-", "−")]
+
+    return table(["experiment (twin, default motors)", "controller", "θ settles below 0.01 rad",
+                  "θ peak-to-peak, last 5 s", "max wheel torque (5 ms mean)", "final position error",
+                  "final heading error"], groups(), cells)
 
 
 def builtins(tmp: Path, extra: list[str]) -> str:
-    lines = ["| scenario | controller | settling [s] | θ RMS after settling [mrad] | θ peak-to-peak, last 5 s [mrad] | "
-             "final position error [mm] | final heading error [mrad] | IAE θ [rad·s] | effort [N²m²s] | "
-             "peak torque [N·m] | estimator θ RMSE [mrad] |", "|---|---|---|---|---|---|---|---|---|---|---|"]
-    for name in BUILTINS:
-        out = tmp / name
-        twin("run", name, "--controller", "it2,t1,lqr", "--no-video", "--out", str(out), *extra)
-        for i, (kind, m) in enumerate(runs(out).items()):
-            ts = m["settling_time_s"]
-            rms = f"{m['theta_rms_rad'] * 1e3:.3g}" + ("" if ts is not None else " (last 5 s)")
-            head = m.get("final_heading_error_rad")
-            lines.append(
-                f"| {name if i == 0 else ''} | {LABEL.get(kind, kind)} | {'never' if ts is None else f'{ts:.2f}'} | "
-                f"{rms} | {m['oscillation_peak_to_peak_rad'] * 1e3:.3g} | {mm(m.get('final_position_error_m'))} | "
-                f"{'–' if head is None else f'{head * 1e3:.1f}'.replace('-', '−')} | {m['iae_theta']:.3g} | "
-                f"{m['control_effort']:.3g} | {m['max_abs_torque_nm']:.2f} | "
-                f"{m['estimator_theta_rmse_rad'] * 1e3:.3g} |")
-    return "\n".join(lines)
+    def groups():
+        for name in BUILTINS:
+            out = tmp / name
+            twin("run", name, "--controller", "it2,t1,lqr", "--no-video", "--out", str(out), *extra)
+            yield name, runs(out)
+
+    def cells(kind, m):
+        ts, head = m["settling_time_s"], m.get("final_heading_error_rad")
+        return [LABEL.get(kind, kind), "never" if ts is None else f"{ts:.2f}",
+                f"{m['theta_rms_rad'] * 1e3:.3g}" + ("" if ts is not None else " (last 5 s)"),
+                f"{m['oscillation_peak_to_peak_rad'] * 1e3:.3g}", mm(m.get("final_position_error_m")),
+                "–" if head is None else f"{head * 1e3:.1f}".replace("-", "−"), f"{m['iae_theta']:.3g}",
+                f"{m['control_effort']:.3g}", f"{m['max_abs_torque_nm']:.2f}",
+                f"{m['estimator_theta_rmse_rad'] * 1e3:.3g}"]
+
+    return table(["scenario", "controller", "settling [s]", "θ RMS after settling [mrad]",
+                  "θ peak-to-peak, last 5 s [mrad]", "final position error [mm]", "final heading error [mrad]",
+                  "IAE θ [rad·s]", "effort [N²m²s]", "peak torque [N·m]", "estimator θ RMSE [mrad]"], groups(), cells)
 
 
 if __name__ == "__main__":

@@ -183,7 +183,7 @@ def design(epsilon, rho, decay_rate, max_gain, damping, uncertain, all_vertices,
         click.echo(f"wrote {out}")
 
 
-def _parse_uncertain(text: str | None) -> dict | None:
+def _parse_uncertain(text: str | None) -> dict:
     """'m_b=0.2,l=0.15' → {'m_b': 0.2, 'l': 0.15}, 'none' → {}; names and ranges are checked by
     the design."""
     if text is None or text.strip().lower() in ("none", ""):
