@@ -205,6 +205,13 @@ class BalanceDesign:
             },
         }
 
+    def digest(self) -> str:
+        """SHA-256 of the gains and P by their exact bits (:func:`twin.fingerprint.design_digest`):
+        equal digests, identical designs."""
+        from twin.fingerprint import design_digest
+
+        return design_digest(gains=self.gains, P=self.P)
+
     def certified_models(self) -> list[tuple[list[np.ndarray], list[np.ndarray]]]:
         """(A_i, B_i) of every plant model the certificate covers: the nominal one, then the
         box's corners (see :mod:`twin.controllers.lmi_regions`)."""
