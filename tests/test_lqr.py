@@ -359,3 +359,175 @@ def test_lqr_balances_the_paper_experiments_on_the_twin_with_the_ekf(number):
         assert abs(m["final_position_error_m"]) < 0.02
     if number == 3:
         assert abs(m["final_heading_error_rad"]) < 0.02
+
+
+# ---- the same bits on every CPU kernel (issue 25) ----------------------------------------------
+# OpenBLAS core types and the /proc/cpuinfo flags each needs (Prescott: any x86-64)
+_CORETYPES = {"Prescott": (), "SandyBridge": ("avx",), "Haswell": ("avx2", "fma"), "Zen": ("avx2", "fma"),
+              "SkylakeX": ("avx512f", "avx512bw", "avx512dq", "avx512vl")}
+# the child: both designs (sampled and continuous), every exposed matrix by its exact bits, and
+# which OpenBLAS kernel and numpy SIMD targets it actually ran with
+_CHILD = r"""
+import json
+import numpy as np
+try:
+    from numpy._core import _multiarray_umath as mu
+except ImportError:  # numpy 1.x
+    from numpy.core import _multiarray_umath as mu
+from threadpoolctl import threadpool_info
+from twin.controllers.lqr import LQRController
+
+def bits(a):
+    return None if a is None else [float(v).hex() for v in np.asarray(a, dtype=float).ravel()]
+
+out = {}
+for name, c in (("sampled", LQRController()), ("continuous", LQRController(control_period=None))):
+    out[name + " digest"] = c.design_digest()
+    for which, d in (("balance", c.balance_design), ("yaw", c.yaw_design)):
+        for m in ("K", "P", "Ad", "Bd", "Qd", "Rd", "Nd"):
+            out[f"{name} {which} {m}"] = bits(getattr(d, m))
+blas = [d.get("architecture") for d in threadpool_info() if d.get("internal_api") == "openblas"]
+print(json.dumps({"design": out, "blas": blas,
+                  "simd": sorted(f for f in mu.__cpu_dispatch__ if mu.__cpu_features__.get(f))}))
+"""
+
+
+def _cpu_flags() -> set | None:
+    try:
+        text = open("/proc/cpuinfo", encoding="ascii", errors="replace").read()
+    except OSError:
+        return None
+    for line in text.splitlines():
+        if line.startswith("flags"):
+            return set(line.split(":", 1)[1].split())
+    return None
+
+
+def _kernel_environments() -> dict[str, dict[str, str]]:
+    """The OpenBLAS kernels this CPU can run (x86-64 with /proc/cpuinfo only) and numpy's SIMD
+    targets narrowed step by step down to its baseline, each as environment variables."""
+    import platform
+
+    try:
+        from numpy._core import _multiarray_umath as mu
+    except ImportError:  # numpy 1.x
+        from numpy.core import _multiarray_umath as mu
+
+    envs: dict[str, dict[str, str]] = {}
+    flags = _cpu_flags() if platform.machine().lower() in ("x86_64", "amd64") else None
+    if flags is not None:
+        for core, needs in _CORETYPES.items():
+            if set(needs) <= flags:
+                envs[core] = {"OPENBLAS_CORETYPE": core}
+    active = [f for f in mu.__cpu_dispatch__ if mu.__cpu_features__.get(f)]
+    for i in range(len(active)):
+        envs[f"numpy without {' '.join(active[i:])}"] = {"NPY_DISABLE_CPU_FEATURES": " ".join(active[i:])}
+    if flags is not None and active:
+        envs["Prescott, numpy baseline"] = {"OPENBLAS_CORETYPE": "Prescott",
+                                            "NPY_DISABLE_CPU_FEATURES": " ".join(active)}
+    return envs
+
+
+def test_gains_are_bit_identical_under_every_blas_kernel_and_numpy_simd_target():
+    """Issue 25: the design runs in child processes under each OpenBLAS kernel this CPU supports
+    (OPENBLAS_CORETYPE) and with numpy's SIMD targets narrowed (NPY_DISABLE_CPU_FEATURES); the
+    gains and every matrix of both designs, sampled and continuous, must have the same bits.
+    With scipy's expm/solve_discrete_are the balance gains differed between Haswell, SkylakeX
+    and Prescott."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    envs = _kernel_environments()
+    if not envs:
+        pytest.skip("neither OpenBLAS kernels nor numpy SIMD targets to switch between on this machine")
+    import twin
+
+    # the children import the very code this process runs (and nothing from the working directory)
+    root = os.path.dirname(os.path.dirname(os.path.abspath(twin.__file__)))
+    base = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES")}
+    base["PYTHONPATH"] = os.pathsep.join([root] + ([base["PYTHONPATH"]] if base.get("PYTHONPATH") else []))
+    runs = {"this machine's default": {}, **envs}
+    procs = {name: subprocess.Popen([sys.executable, "-c", _CHILD], env={**base, **extra}, cwd=root,
+                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for name, extra in runs.items()}
+    results = {}
+    for name, p in procs.items():
+        out, err = p.communicate(timeout=300)
+        assert p.returncode == 0, f"{name}: {err.strip().splitlines()[-1:]}"
+        results[name] = json.loads(out.strip().splitlines()[-1])
+    ref = results["this machine's default"]
+    assert ref["design"]["sampled balance K"] and ref["design"]["continuous yaw P"]
+    for name, r in results.items():
+        differ = sorted(k for k in ref["design"] if r["design"][k] != ref["design"][k])
+        assert not differ, f"{name} (BLAS {r['blas']}, numpy SIMD {r['simd']}): {', '.join(differ)} differ"
+    # the variables took effect: the children ran more than one kernel / SIMD level
+    if any("OPENBLAS_CORETYPE" in e for e in envs.values()) and all(r["blas"] for r in results.values()):
+        assert len({tuple(r["blas"]) for r in results.values()}) > 1
+    if any("NPY_DISABLE_CPU_FEATURES" in e for e in envs.values()):
+        assert len({tuple(r["simd"]) for r in results.values()}) > 1
+
+
+def test_design_digest_is_the_gains_digest(ctrl):
+    from twin.fingerprint import design_digest
+
+    d = ctrl.design_digest()
+    assert d == design_digest(K=ctrl.K, K_yaw=ctrl.K_yaw) and len(d) == 64
+    assert LQRController().design_digest() == d  # the same design again: the same bits
+    assert LQRController(control_period=None).design_digest() != d
+
+
+def test_design_is_float64s_correctly_rounded_exact_design():
+    """50 digits are enough: the same design at 90 digits rounds to the same float64s."""
+    import decimal
+    from decimal import Decimal
+
+    from twin.controllers import decimal_linalg as dl
+
+    d = LQRController().balance_design
+    ctx = dl.context()
+    ctx.prec = 90
+    with decimal.localcontext(ctx):
+        parts = dl.van_loan(dl.dec(d.A), dl.dec(d.B), dl.dec(d.Q), dl.dec(d.R), Decimal(CONTROL_DT))
+        P, K = dl.solve_dare(*parts)
+    for name, M in zip(("Ad", "Bd", "Qd", "Rd", "Nd"), parts):
+        assert np.array_equal(dl.to_float(M), getattr(d, name)), name
+    assert np.array_equal(dl.to_float(P), d.P) and np.array_equal(dl.to_float(K), d.K)
+    # and scipy agrees to its own accuracy
+    P_scipy = scipy.linalg.solve_discrete_are(d.Ad, d.Bd, d.Qd, d.Rd, s=d.Nd)
+    np.testing.assert_allclose(d.P, P_scipy, rtol=1e-10)
+
+
+def test_continuous_design_agrees_with_scipy():
+    d = LQRController(control_period=None).balance_design
+    np.testing.assert_allclose(d.P, scipy.linalg.solve_continuous_are(d.A, d.B, d.Q, d.R), rtol=1e-10)
+
+
+def test_large_period_design_is_still_found():
+    # at 1 s scipy's solve_discrete_are gives up ("eigenvalues too close to the unit circle")
+    c = LQRController(control_period=1.0)
+    assert c.balance_design.riccati_residual() < 1e-9
+    assert np.max(np.abs(np.linalg.eigvals(c.balance_design.Ad - c.balance_design.Bd @ c.K))) < 1.0
+
+
+@pytest.mark.parametrize("args, match", [
+    ((np.eye(2), np.ones((3, 1)), np.eye(2), np.eye(1)), "shapes"),
+    ((np.eye(2), np.ones((2, 1)), np.eye(2), np.eye(2)), "shapes"),
+    ((np.eye(2) * np.nan, np.ones((2, 1)), np.eye(2), np.eye(1)), "finite"),
+    ((np.eye(2), np.ones((2, 1)), np.eye(2), -np.eye(1)), "Riccati"),
+])
+def test_lqr_design_rejects_bad_matrices_in_one_line(args, match):
+    with pytest.raises(TwinError, match=match) as err:
+        lqr_design(*args)
+    assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("T", [0.0, -0.005, float("nan"), float("inf"), "5 ms", None])
+def test_sampled_cost_rejects_a_bad_period_in_one_line(T):
+    A, B = yaw_model(NOMINAL)
+    with pytest.raises(TwinError, match="sampling period") as err:
+        sampled_cost(A, B, np.eye(2), np.eye(1), T)
+    assert "\n" not in str(err.value)
+    with pytest.raises(TwinError, match="control_period") as err:
+        lqr_design(A, B, np.eye(2), np.eye(1), T if T is not None else "none")

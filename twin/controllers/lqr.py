@@ -59,10 +59,40 @@ continuous design assumes a feedback the sampled loop does not have. So by defau
 gains minimise the *same continuous-time cost* ∫ (xᵀQx + uᵀRu) dt exactly over the
 sampled-data loop: (A, B) are discretised with a zero-order hold at the control period,
 the cost integrated over each period (Van Loan's method: Q_d, R_d and the cross term
-N_d), and :func:`scipy.linalg.solve_discrete_are` gives the optimal sampled feedback,
+N_d), and the discrete-time Riccati equation with that cross term (the one
+:func:`scipy.linalg.solve_discrete_are` solves) gives the optimal sampled feedback,
 which is stable for the loop as it actually runs. The slow poles agree with the
 continuous design to three digits; only the fast mode differs. ``control_period=None``
-gives the continuous design (:func:`scipy.linalg.solve_continuous_are`) for comparison.
+gives the continuous design (the equation of :func:`scipy.linalg.solve_continuous_are`)
+for comparison.
+
+The same gains on every machine, and how (issue 25)
+-----------------------------------------------------
+scipy's ``expm``, ``solve_discrete_are`` and numpy's ``solve`` run in the bundled
+OpenBLAS, whose kernel is chosen per CPU at load time; their results differed in the last
+bits between kernels (measured: all four balance gains and both yaw gains differed between
+OPENBLAS_CORETYPE=Haswell, SkylakeX and Prescott), and the twin's closed loop, with the
+wheels' stick/slip, amplifies such a difference into a visibly different trajectory. So
+the design is computed in :mod:`twin.controllers.decimal_linalg` instead: Python's
+:mod:`decimal` at 50 digits, every operation correctly rounded in an order fixed by the
+code (the General Decimal Arithmetic specification, in integer arithmetic: no FPU, SIMD
+or BLAS), from the exact decimal values of the float64 inputs to one correctly rounded
+conversion of each result back to float64. The equations are the ones above (Van Loan
+1978 for Ad, Bd, Qd, Rd, Nd; the same Riccati equations), solved by algorithms that need
+no floating-point start: for the sampled design the structure-preserving doubling
+algorithm (Chu, Fan, Lin & Wang, Int. J. Control 77(8), 2004), for the continuous one the
+matrix sign function (Roberts 1980, Byers 1987), each followed by Newton's method (Hewer
+1971; Kleinman 1968) until an update is below 10⁻³⁰ of P, then the residual and the
+closed loop's stability checked in the same arithmetic. A start from scipy's solution
+would converge to the same numbers only up to the working precision's last digits; a
+deterministic start makes K, K_yaw and every exposed matrix (P, Ad, Bd, Qd, Rd, Nd) a
+function of the input bits alone, whatever the CPU, BLAS kernel, numpy SIMD target or
+numpy/scipy version (tests/test_lqr.py runs the design under each OpenBLAS kernel and
+numpy SIMD level this CPU supports and compares the bits). With 50 digits the float64
+results are the correctly rounded values of the exact design (identical at 90 digits).
+The gains changed once, in their last bits, with this. Cost: constructing an
+:class:`LQRController` (both designs) takes about 10.5 ms (the continuous designs 5 ms)
+instead of 1-2 ms with single-threaded BLAS (measured on the project's 2-core machine).
 
 How fast it travels
 -------------------
@@ -80,13 +110,15 @@ analytic model from θ0 = 0.48 rad, 0.7 m is within 2 cm after 9.4 s and 1 m aft
 """
 from __future__ import annotations
 
+import decimal
 import math
 from dataclasses import dataclass
+from decimal import Decimal
 from typing import Sequence
 
 import numpy as np
-import scipy.linalg
 
+from twin.controllers import decimal_linalg as dl
 from twin.controllers.cascade import DEFAULT_PSI_ERROR_LIMIT
 from twin.controllers.lmi import DEFAULT_SCALING, DEFAULT_RHO
 from twin.controllers.mamdani import ALPHA_DOT_E_RANGE, ALPHA_E_RANGE, DEFAULT_U_ALPHA_MAX
@@ -186,38 +218,69 @@ def sampled_cost(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, T: 
     Returns (Ad, Bd, Qd, Rd, Nd) such that, for u held at uₖ over [kT, (k+1)T),
     x_{k+1} = Ad xₖ + Bd uₖ and ∫ over the period of xᵀQx + uᵀRu dt
     = xₖᵀQd xₖ + 2 xₖᵀNd uₖ + uₖᵀRd uₖ. Shapes (n, n), (n, m), (n, n), (m, m), (n, m).
+    Computed in 50-digit decimal arithmetic and rounded once (see the module docstring):
+    the same bits on every machine.
     """
-    n, m = B.shape
-    F = np.zeros((n + m, n + m))
-    F[:n, :n], F[:n, n:] = A, B
-    W = scipy.linalg.block_diag(Q, R)
-    M = np.block([[-F.T, W], [np.zeros_like(F), F]])
-    E = scipy.linalg.expm(M * T)
-    phi = E[n + m:, n + m:]  # expm(F T) = [[Ad, Bd], [0, I]]
-    cost = phi.T @ E[:n + m, n + m:]
-    cost = 0.5 * (cost + cost.T)
-    return phi[:n, :n], phi[:n, n:], cost[:n, :n], cost[n:, n:], cost[:n, n:]
+    A, B, Q, R = _checked(A, B, Q, R)
+    T = _period(T, "the sampling period")
+    with decimal.localcontext(dl.context()):
+        parts = dl.van_loan(dl.dec(A), dl.dec(B), dl.dec(Q), dl.dec(R), Decimal(T))
+    return tuple(dl.to_float(M) for M in parts)
+
+
+def _period(value, name: str) -> float:
+    """``value`` as a positive finite float (s), else a one-line TwinError naming ``name``."""
+    try:
+        T = float(value) if not isinstance(value, (bool, str)) else math.nan
+    except (TypeError, ValueError):
+        T = math.nan
+    if not (math.isfinite(T) and T > 0):
+        raise TwinError(f"{name} must be a positive finite number in s, got {value!r}")
+    return T
+
+
+def _checked(A, B, Q, R) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(A, B, Q, R) as float arrays of shapes (n, n), (n, m), (n, n), (m, m), finite; else TwinError."""
+    try:
+        A, B, Q, R = (np.asarray(M, dtype=float) for M in (A, B, Q, R))
+    except (TypeError, ValueError):
+        raise TwinError("the LQR design needs numeric matrices A, B, Q, R") from None
+    ok = A.ndim == 2 and B.ndim == 2 and Q.ndim == 2 and R.ndim == 2
+    n, m = (B.shape if B.ndim == 2 else (0, 0))
+    if not (ok and n > 0 and m > 0 and A.shape == (n, n) and Q.shape == (n, n) and R.shape == (m, m)):
+        raise TwinError(f"the LQR design needs A (n, n), B (n, m), Q (n, n), R (m, m); got shapes "
+                        f"{A.shape}, {B.shape}, {Q.shape}, {R.shape}")
+    if not all(np.all(np.isfinite(M)) for M in (A, B, Q, R)):
+        raise TwinError("the LQR design's matrices A, B, Q, R must be finite")
+    return A, B, Q, R
 
 
 def lqr_design(A, B, Q, R, control_period: float | None = DEFAULT_CONTROL_PERIOD) -> LQRDesign:
     """Optimal state feedback u = −K x for ẋ = A x + B u and the cost ∫ xᵀQx + uᵀRu dt.
 
-    ``control_period`` (s): minimise that cost over the zero-order-hold sampled loop
-    (:func:`scipy.linalg.solve_discrete_are` on :func:`sampled_cost`); None: the
-    continuous-time design (:func:`scipy.linalg.solve_continuous_are`).
+    ``control_period`` (s): minimise that cost over the zero-order-hold sampled loop (the
+    discrete Riccati equation of :func:`scipy.linalg.solve_discrete_are` on
+    :func:`sampled_cost`); None: the continuous-time design (the equation of
+    :func:`scipy.linalg.solve_continuous_are`). Both solved in 50-digit decimal arithmetic
+    (:mod:`twin.controllers.decimal_linalg`), every result rounded once to float64: the
+    same bits on every machine (see the module docstring).
     """
-    A, B, Q, R = (np.asarray(M, dtype=float) for M in (A, B, Q, R))
+    A, B, Q, R = _checked(A, B, Q, R)
+    if control_period is not None:
+        control_period = _period(control_period, "control_period (or None)")
     try:
-        if control_period is None:
-            P = scipy.linalg.solve_continuous_are(A, B, Q, R)
-            K = np.linalg.solve(R, B.T @ P)
-            return LQRDesign(A, B, Q, R, K, P)
-        Ad, Bd, Qd, Rd, Nd = sampled_cost(A, B, Q, R, control_period)
-        P = scipy.linalg.solve_discrete_are(Ad, Bd, Qd, Rd, s=Nd)
-        K = np.linalg.solve(Rd + Bd.T @ P @ Bd, Bd.T @ P @ Ad + Nd.T)
-    except (np.linalg.LinAlgError, ValueError) as exc:
-        raise TwinError(f"the LQR Riccati equation has no stabilising solution: {str(exc).splitlines()[0]}") from None
-    return LQRDesign(A, B, Q, R, K, P, float(control_period), Ad, Bd, Qd, Rd, Nd)
+        with decimal.localcontext(dl.context()):
+            a, b, q, r = dl.dec(A), dl.dec(B), dl.dec(Q), dl.dec(R)
+            if control_period is None:
+                P, K = dl.solve_care(a, b, q, r)
+                return LQRDesign(A, B, Q, R, dl.to_float(K), dl.to_float(P))
+            parts = dl.van_loan(a, b, q, r, Decimal(control_period))
+            P, K = dl.solve_dare(*parts)
+    except ArithmeticError as exc:  # NoSolution, or a decimal overflow/singularity on the way
+        raise TwinError(f"the LQR Riccati equation has no stabilising solution: "
+                        f"{(str(exc).splitlines() or [type(exc).__name__])[0]}") from None
+    Ad, Bd, Qd, Rd, Nd = (dl.to_float(M) for M in parts)
+    return LQRDesign(A, B, Q, R, dl.to_float(K), dl.to_float(P), control_period, Ad, Bd, Qd, Rd, Nd)
 
 
 def yaw_model(params: RobotParams) -> tuple[np.ndarray, np.ndarray]:
@@ -316,6 +379,13 @@ class LQRController:
         self._k = tuple(-float(v) for v in self.K[0])
         self._k_yaw = tuple(-float(v) for v in self.K_yaw[0])
         self._r = float(params.r)
+
+    def design_digest(self) -> str:
+        """SHA-256 (hex) of the gains' exact bits, K and K_yaw (:func:`twin.fingerprint.design_digest`):
+        equal digests, identical gains."""
+        from twin.fingerprint import design_digest
+
+        return design_digest(K=self.K, K_yaw=self.K_yaw)
 
     def closed_loop_poles(self) -> tuple[np.ndarray, np.ndarray]:
         """(balance poles (4,), yaw poles (2,)) in 1/s of the design models under these
