@@ -71,7 +71,7 @@ def test_certificate_check_fails_for_a_decay_rate_it_was_not_designed_for(design
 
     (A1, A2), (B1, B2) = ts_matrices(NOMINAL)
     sol = lmi._certified_solution([A1, A2], [B1, B2], 3.0, None)
-    Q, N, Y, T, _ = sol
+    Q, N, Y, T, _, _ = sol
     assert lmi.verify_certificate([A1, A2], [B1, B2], Q, N, Y, 1.0, 1e6, 3.0, T).passed
     cert = lmi.verify_certificate([A1, A2], [B1, B2], Q, N, Y, 1.0, 1e6, 10.0, T)
     assert not cert.passed and cert.lyapunov_margin < 0

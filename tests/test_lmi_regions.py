@@ -93,13 +93,14 @@ def test_the_paper_relaxation_keeps_the_it2_pdc_closed_loop_inside_the_region(de
 
 
 def test_the_relaxation_does_not_cover_the_cross_vertices():
-    """Y_12 may be indefinite, so A_1 + B_1 G_2 alone can leave the region, the nominal
-    design included (−2.987 1/s against a decay rate of 3 1/s); all_vertices covers it."""
+    """Y_12 may be indefinite, so A_1 + B_1 G_2 alone can leave the region (−1.988 1/s against
+    a decay rate of 2 1/s; −2.999 against 3 1/s with damping 0.5); all_vertices covers it."""
     A, B = ts_matrices(NOMINAL)
-    for d in (design_balance_gains(), design_balance_gains(decay_rate=3.0, damping=0.5, rho=1e6)):
-        assert np.linalg.eigvals(A[0] + B[0] @ d.gains[1:2]).real.max() > -3.0
-    d = design_balance_gains(decay_rate=3.0, damping=0.5, rho=1e6, all_vertices=True)
-    assert np.linalg.eigvals(A[0] + B[0] @ d.gains[1:2]).real.max() < -3.0
+    for rate, kw in ((2.0, {}), (3.0, {"damping": 0.5, "rho": 1e6})):
+        d = design_balance_gains(decay_rate=rate, **kw)
+        assert np.linalg.eigvals(A[0] + B[0] @ d.gains[1:2]).real.max() > -rate
+        d = design_balance_gains(decay_rate=rate, all_vertices=True, **kw)
+        assert np.linalg.eigvals(A[0] + B[0] @ d.gains[1:2]).real.max() < -rate
 
 
 def test_the_damping_ratio_changes_the_gains_where_the_decay_rate_alone_falls_short():
@@ -123,16 +124,19 @@ def test_the_sector_check_fails_for_a_damping_ratio_the_design_was_not_made_for(
 
 
 def test_direct_program_matches_the_cvxpy_one_where_they_overlap():
-    """Without a sector and a box the direct program is today's cvxpy program: same optimum."""
+    """Without a sector and a box the direct program is the cvxpy program: the same optimum,
+    and, from either solver's answer, the same design bit for bit (its unique point)."""
     A, B = ts_matrices(NOMINAL)
     status, Qc, Nc, _, tc, _ = lmi._solve(A, B, 3.0, "CLARABEL", lmi.DEFAULT_SCALING)
     sol = lmi_regions.solve_program([(A, B)], 3.0, 0.0, "CLARABEL", lmi.DEFAULT_SCALING, lmi._ROOM)
     assert status == "optimal" and sol.status in ("optimal", "optimal_inaccurate")
-    assert sol.t == pytest.approx(tc, rel=1e-6)
-    # (Q, N) at the optimum is not unique (Q differs by 2e-4 relative), the gains are
-    g_cvx = lmi._gains_and_peak(Qc, Nc, lmi.DEFAULT_SCALING, 0.5)[0]
-    g_direct = lmi._gains_and_peak(sol.Q, sol.N, lmi.DEFAULT_SCALING, 0.5)[0]
-    assert np.abs(g_direct - g_cvx).max() < 1e-5 * np.abs(g_cvx).max()
+    assert sol.t == pytest.approx(tc, rel=1e-5)
+    via_cvxpy = design_balance_gains()  # NOMINAL_DESIGN: the cvxpy program
+    direct = lmi._design_region(NOMINAL, lmi.DEFAULT_EPSILON, lmi.DEFAULT_RHO, 3.0, None, None, 0.0, (), False)
+    assert via_cvxpy.unique and direct.unique
+    for name in ("gains", "P", "Q"):
+        assert getattr(direct, name).tobytes() == getattr(via_cvxpy, name).tobytes(), name
+    assert direct.peak_input == via_cvxpy.peak_input
 
 
 def test_separate_sector_slack_is_certified_and_never_worse():

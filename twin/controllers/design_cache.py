@@ -7,12 +7,17 @@ that finds its design here never imports cvxpy.
 Where: ``$TWIN_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/mtwip-twin``, else
 ``~/.cache/mtwip-twin``; one file ``lmi-<key>.json`` per design.
 
-Key: SHA-256 of a canonical JSON of the robot parameters, the design options (ε, ρ,
-decay rate, gain bound, requested solver, damping ratio, the robust design's parameter
-box, whether every vertex closed loop is certified), the versions of cvxpy, Clarabel, SCS
-and numpy, the Python version and machine, this file's format number and a hash of the
-design code's source (lmi.py, lmi_regions.py, ts_model.py, params.py): change any of them
-and the old entries are simply never looked up again.
+Key: SHA-256 of a canonical JSON of what the design's numbers depend on, and nothing else:
+the robot parameters, the design options (ε, ρ, decay rate, gain bound, requested solver,
+damping ratio, the robust design's parameter box, whether every vertex closed loop is
+certified), this file's format number and a hash of the design code's source (lmi.py,
+lmi_regions.py, lmi_center.py, ts_model.py, params.py): change any of them and the old
+entries are simply never looked up again. Not the versions of cvxpy, Clarabel, SCS, numpy
+or Python, nor the machine: the design is the program's unique central point computed in
+exact decimal arithmetic (:mod:`twin.controllers.lmi_center`), so they do not change its
+numbers; a solver only says where the search for it starts. (Should that point not be
+found, a rare numerical limit, the solver's own answer is used and cached, with a note; it
+is then this machine's answer.)
 
 Every float is stored as ``float.hex`` so that a cached design equals a fresh one bit for
 bit. An entry is used only if it parses, carries the key it was looked up by and the
@@ -32,7 +37,6 @@ import hashlib
 import json
 import math
 import os
-import platform
 import sys
 import tempfile
 from dataclasses import fields
@@ -40,7 +44,8 @@ from pathlib import Path
 
 import numpy as np
 
-FORMAT = 2  # bump when the file layout or what is stored changes (2: damping ratio, parameter box)
+FORMAT = 3  # bump when the file layout or what is stored changes (2: damping ratio, parameter box; 3: the
+#            unique central point, keyed without package versions)
 _PREFIX = "lmi-"
 _SUFFIX = ".json"
 _SHAPES = {"gains": (2, 4), "P": (4, 4), "Q": (4, 4)}
@@ -93,52 +98,20 @@ def _hex(v) -> str | None:
 _versions_memo: dict | None = None
 
 
-def _dist_version(name: str) -> str:
-    """An installed distribution's version, found by its .dist-info directory on sys.path.
-
-    importlib.metadata would do, but importing it costs ~30 ms (the email package) on a
-    path whose point is to start fast; it remains the fallback."""
-    want = name.lower().replace("-", "_")
-    for entry in sys.path:
-        try:
-            names = os.listdir(entry or ".")
-        except OSError:
-            continue
-        for n in names:
-            if n.endswith(".dist-info"):
-                dist, _, version = n[:-len(".dist-info")].partition("-")
-                if dist.lower().replace("-", "_").replace(".", "_") == want and version:
-                    return version
-    try:
-        from importlib.metadata import PackageNotFoundError, version
-    except ImportError:  # pragma: no cover
-        return "unknown"
-    try:
-        return version(name)
-    except PackageNotFoundError:
-        return "absent"
-
-
 def _versions() -> dict:
     global _versions_memo
     if _versions_memo is None:
+        from twin.fingerprint import dist_version
+
         here = Path(__file__).resolve().parent
         code = hashlib.sha256()
-        for f in (here / "lmi.py", here / "lmi_regions.py", here.parent / "plant" / "ts_model.py",
-                  here.parent / "params.py"):
+        for f in (here / "lmi.py", here / "lmi_regions.py", here / "lmi_center.py",
+                  here.parent / "plant" / "ts_model.py", here.parent / "params.py"):
             try:
                 code.update(f.read_bytes())
             except OSError:  # pragma: no cover - source not on disk (zipped install): key on the package version
-                code.update(_dist_version("mtwip-twin").encode())
-        _versions_memo = {
-            "design_code_sha256": code.hexdigest(),
-            "cvxpy": _dist_version("cvxpy"),
-            "clarabel": _dist_version("clarabel"),
-            "scs": _dist_version("scs"),
-            "numpy": np.__version__,
-            "python": ".".join(map(str, sys.version_info[:3])),
-            "machine": platform.machine(),
-        }
+                code.update(dist_version("mtwip-twin").encode())
+        _versions_memo = {"design_code_sha256": code.hexdigest()}
     return _versions_memo
 
 
@@ -187,6 +160,7 @@ def _design_doc(d) -> dict:
         "max_gain": _hex(d.max_gain), "peak_input": _hex(d.peak_input), "solve_time_s": _hex(d.solve_time_s),
         "solver": d.solver, "slowest_vertex_pole": _hex(d.slowest_vertex_pole),
         "damping": _hex(d.damping), "uncertain": _box_doc(d.uncertain), "all_vertices": bool(d.all_vertices),
+        "unique": bool(d.unique),
         # a list, not an object: the margins' order is part of the design (it is printed)
         "certificate": {"lmi_margins": [[k, _hex(v)] for k, v in c.lmi_margins.items()],
                         "lyapunov_margin": _hex(c.lyapunov_margin), "epsilon_margin": _hex(c.epsilon_margin),
@@ -306,6 +280,7 @@ def _parse(raw: bytes, key: str, inputs: dict, params):
             damping=_float(body["damping"], "damping"),
             uncertain=tuple((name, _float(v, f"range of {name}")) for name, v in body["uncertain"]),
             all_vertices=body["all_vertices"] is True,
+            unique=body["unique"] is True,
             from_cache=True,
         )
     except (KeyError, TypeError, AttributeError):

@@ -172,10 +172,20 @@ class BalanceDesign:
     uncertain: tuple = ()
     # True: every vertex closed loop A_i + B_i G_j is certified (any controller weights)
     all_vertices: bool = False
+    # True: the numbers are the program's unique central point, computed to 50 digits and
+    # rounded once (twin.controllers.lmi_center): the same on every machine. False: the
+    # solver's own answer (the refinement failed), whose last digits depend on the BLAS kernel.
+    unique: bool = True
     # where this object came from, not part of the design: not compared, not written out
     from_cache: bool = field(default=False, compare=False, repr=False)
 
     def to_json_dict(self) -> dict:
+        """The design as design.json records it. The gains, P and the peak are the design's
+        own numbers, the same on every machine (``unique_point``); the certificate's margins
+        and the slowest pole are diagnostics from numpy's LAPACK, whose last bits depend on the
+        BLAS kernel, so they are written with 6 significant digits (a margin would have to lie
+        within ~1e-15 of a rounding boundary to be written differently elsewhere)."""
+        c = self.certificate
         return {
             "gains": self.gains.tolist(),
             "state": ["theta [rad]", "theta_dot [rad/s]", "psi [rad]", "psi_dot [rad/s]"],
@@ -188,20 +198,21 @@ class BalanceDesign:
             "decay_rate": self.decay_rate,
             "max_gain": self.max_gain,
             "peak_input_nm": self.peak_input,
-            "slowest_vertex_pole_per_s": self.slowest_vertex_pole,
+            "slowest_vertex_pole_per_s": _sig6(self.slowest_vertex_pole),
             "damping": self.damping,
             "uncertain": dict(self.uncertain),
             "all_vertices": self.all_vertices,
+            "unique_point": self.unique,
             "certificate": {
-                "passed": self.certificate.passed,
-                "lmi_margins": self.certificate.lmi_margins,
-                "lyapunov_margin": self.certificate.lyapunov_margin,
-                "epsilon_margin": self.certificate.epsilon_margin,
-                "rho_margin": self.certificate.rho_margin,
-                "region_margin": self.certificate.region_margin,
-                "models": self.certificate.models,
-                "sampled_margin": self.certificate.sampled_margin,
-                "sampled_plants": self.certificate.sampled_plants,
+                "passed": c.passed,
+                "lmi_margins": {k: _sig6(v) for k, v in c.lmi_margins.items()},
+                "lyapunov_margin": _sig6(c.lyapunov_margin),
+                "epsilon_margin": _sig6(c.epsilon_margin),
+                "rho_margin": _sig6(c.rho_margin),
+                "region_margin": _sig6(c.region_margin),
+                "models": c.models,
+                "sampled_margin": _sig6(c.sampled_margin),
+                "sampled_plants": c.sampled_plants,
             },
         }
 
@@ -216,6 +227,11 @@ class BalanceDesign:
         """(A_i, B_i) of every plant model the certificate covers: the nominal one, then the
         box's corners (see :mod:`twin.controllers.lmi_regions`)."""
         return regions.models_of(regions.box_params(self.params, self.uncertain))
+
+
+def _sig6(v):
+    """A diagnostic float with 6 significant digits (None stays None)."""
+    return None if v is None else float(f"{v:.6g}")
 
 
 def _check_positive(name: str, value: float, allow_zero: bool = False, upper: float = math.inf) -> float:
@@ -252,7 +268,7 @@ def _solve(A, B, decay_rate, solver, T=None, feasibility_only=False):
     r = len(A)
     I = np.eye(n)
     q_scale = float(eps_floor.max())
-    a_scale = max(np.linalg.norm(Ai, 2) for Ai in A)
+    a_scale = regions.a_scale_of([(A, B)])  # as the direct program's (deterministic Frobenius norm)
 
     def build(room: float):
         Q = cp.Variable((n, n), symmetric=True)
@@ -330,7 +346,9 @@ def verify_certificate(A, B, Q, N, Y, epsilon, rho, decay_rate, T=None, weight_g
     # Each LMI's matrix, the scale its margin is relative to, and whether its largest
     # (≺ 0 form) or smallest (≻ 0 form) eigenvalue matters; evaluated in batches below.
     checks: list[tuple[str, np.ndarray, object, bool]] = []
-    for k, tag in enumerate(tags):
+    # With every vertex certified there is no slack: each Φ_ij (and S_ij) ≺ 0 on its own.
+    slack = not any_weights
+    for k, tag in enumerate(tags if slack else []):
         Ybig = np.block(Ys[k])
         checks.append((f"{tag}Y>0", 0.5 * (Ybig + Ybig.T), scale, False))
         if sector:
@@ -341,11 +359,18 @@ def verify_certificate(A, B, Q, N, Y, epsilon, rho, decay_rate, T=None, weight_g
         for k, (Ak, Bk) in enumerate(models):
             AQ = Ak[i] @ Q
             for j in range(r):
-                phi = Q @ Ak[i].T + AQ - N[j].T @ Bk[i].T - Bk[i] @ N[j] + 2 * decay_rate * Q + Ys[k][i][j]
-                checks.append((f"{tags[k]}Phi{i + 1}{j + 1}+Y{i + 1}{j + 1}<=0", 0.5 * (phi + phi.T), AQ, True))
+                phi = Q @ Ak[i].T + AQ - N[j].T @ Bk[i].T - Bk[i] @ N[j] + 2 * decay_rate * Q
+                ij = f"{i + 1}{j + 1}"
+                if slack:
+                    phi = phi + Ys[k][i][j]
+                checks.append((f"{tags[k]}Phi{ij}" + (f"+Y{ij}" if slack else "") + "<=0", 0.5 * (phi + phi.T), AQ,
+                               True))
                 if sector:
-                    S = regions.sector_of(AQ - Bk[i] @ N[j], damping) + Zs[k][i][j]
-                    checks.append((f"{tags[k]}S{i + 1}{j + 1}+Z{i + 1}{j + 1}<=0", 0.5 * (S + S.T), AQ, True))
+                    S = regions.sector_of(AQ - Bk[i] @ N[j], damping)
+                    if slack:
+                        S = S + Zs[k][i][j]
+                    checks.append((f"{tags[k]}S{ij}" + (f"+Z{ij}" if slack else "") + "<=0", 0.5 * (S + S.T), AQ,
+                                   True))
         # Lemma 2's [[Q, N_iᵀ], [N_i, ρ²]] ⪰ 0 is, with Q ≻ 0, its Schur complement:
         inputs[len(checks)] = (f"input bound rule {i + 1}",
                                float(1.0 - (N[i] @ np.linalg.solve(Q, N[i].T)).item() / rho**2))
@@ -505,30 +530,71 @@ def design_balance_gains(
     A, B = ts_matrices(params)
     t0 = time.perf_counter()
     sol = _certified_solution(A, B, decay_rate, solver)
-    elapsed = time.perf_counter() - t0
     if isinstance(sol, str):
         _explain_decay(A, B, decay_rate, solver, sol)
-    Q1, N1, Y1, T, used = sol
-    gains, Qx1, Px1, peak = _gains_and_peak(Q1, N1, T, epsilon)
-    _check_rho_and_gain(peak, gains, epsilon, rho, decay_rate, max_gain, used)
+    Q1, N1, Y1, T, used, t1 = sol
+    found = _unique_point([(A, B)], decay_rate, 0.0, False, _ModelsSolution(Q1, N1, [Y1], None, T, used, t1),
+                          epsilon)
+    elapsed = time.perf_counter() - t0
+    _check_rho_and_gain(found.peak, found.gains, epsilon, rho, decay_rate, max_gain, used)
     # Checked at ε = 1 with ρ/ε: the exact equivalent of (ε²Q, ε²N, ε²Y) with ρ, without
     # the rounding that multiplying by ε² = 1e-18 (say) would bring into the margins.
-    cert = verify_certificate(A, B, Q1, N1, Y1, 1.0, rho / epsilon, decay_rate, T)
+    s = found.solution
+    cert = verify_certificate(A, B, s.Q, s.N, s.Y[0], 1.0, rho / epsilon, decay_rate, s.T)
     if not cert.passed:  # pragma: no cover - the ε = 1 solution passed and peak <= ρ was checked
         raise InfeasibleDesign(f"the design failed the independent check ({cert.summary()}); relax rho")
-    return _design(params, A, B, gains, Px1, Qx1, epsilon, rho, decay_rate, max_gain, peak, elapsed, used, cert)
+    return _design(params, A, B, found, epsilon, rho, decay_rate, max_gain, elapsed, used, cert)
 
 
-def _design(params, A, B, gains, Px1, Qx1, epsilon, rho, decay_rate, max_gain, peak, elapsed, solver, cert,
+@dataclass(frozen=True)
+class _Found:
+    """A design's numbers: the solution in z = T⁻¹ x (for the independent check), the gains,
+    P and Q in x for the design's ε, the certified peak |u| (N·m), and whether they are the
+    unique point of :mod:`twin.controllers.lmi_center` (the same on every machine)."""
+
+    solution: "_ModelsSolution"
+    gains: np.ndarray
+    P: np.ndarray
+    Q: np.ndarray
+    peak: float
+    unique: bool
+
+
+def _unique_point(models, decay_rate, damping, all_vertices, sol: "_ModelsSolution", epsilon) -> _Found:
+    """The design's unique point from the solver's answer (see :mod:`twin.controllers.lmi_center`).
+    Should it not be found (a numerical limit, near the edge of feasibility), the solver's
+    own answer is used, with a one-line note: it is certified all the same, but its last
+    digits depend on this machine's BLAS kernel."""
+    from twin.controllers import lmi_center
+
+    try:
+        ref = lmi_center.refine(models, decay_rate, damping, all_vertices, sol.Q, sol.N, sol.Y, sol.t, sol.T,
+                                epsilon, DEFAULT_SCALING)
+    except InfeasibleDesign as exc:
+        import sys
+
+        print(f"note: LMI design: {exc}; using the solver's answer, whose last digits depend on this machine's "
+              f"BLAS kernel", file=sys.stderr)
+        gains, Qx1, Px1, peak = _gains_and_peak(sol.Q, sol.N, sol.T, epsilon)
+        e2 = epsilon**2
+        Px = Px1 / e2
+        return _Found(sol, gains, 0.5 * (Px + Px.T), Qx1 * e2, peak, False)
+    Z = None
+    if damping > 0:
+        s_phi = regions.sector_sin_cos(damping)[0]
+        Z = [[[np.kron(np.eye(2), s_phi * Yk[i][j]) for j in range(len(Yk))] for i in range(len(Yk))]
+             for Yk in ref.Y]
+    return _Found(_ModelsSolution(ref.Qz, ref.N, ref.Y, Z, ref.T, sol.solver, ref.t), ref.gains, ref.P, ref.Q,
+                  ref.peak, True)
+
+
+def _design(params, A, B, found: _Found, epsilon, rho, decay_rate, max_gain, elapsed, solver, cert,
             **region) -> BalanceDesign:
-    """The :class:`BalanceDesign` of a solution found at ε = 1 (``Px1``, ``Qx1`` in x),
-    scaled to ``epsilon``; ``region`` its damping, box and all_vertices, where given."""
-    e2 = epsilon**2
-    Px = Px1 / e2
-    return BalanceDesign(gains=gains, P=0.5 * (Px + Px.T), Q=Qx1 * e2, epsilon=epsilon, rho=rho,
-                         decay_rate=decay_rate, max_gain=max_gain, peak_input=peak, solve_time_s=elapsed,
+    """The :class:`BalanceDesign` of ``found``; ``region`` its damping, box and all_vertices, where given."""
+    return BalanceDesign(gains=found.gains, P=found.P, Q=found.Q, epsilon=epsilon, rho=rho,
+                         decay_rate=decay_rate, max_gain=max_gain, peak_input=found.peak, solve_time_s=elapsed,
                          solver=solver, certificate=cert, params=params,
-                         slowest_vertex_pole=_slowest_vertex_pole(A, B, gains), **region)
+                         slowest_vertex_pole=_slowest_vertex_pole(A, B, found.gains), unique=found.unique, **region)
 
 
 def _gains_and_peak(Q1, N1, T, epsilon):
@@ -563,7 +629,13 @@ def _check_rho_and_gain(peak, gains, epsilon, rho, decay_rate, max_gain, used, d
 
 def _round_up(v: float) -> str:
     """v with 4 significant digits, never below v (so that passing it back works)."""
-    return f"{v * (1 + 2e-4):.4g}"
+    if not (math.isfinite(v) and v > 0):
+        return f"{v:.4g}"
+    q = 10.0 ** (math.floor(math.log10(v)) - 3)  # the 4th significant digit's unit
+    text = f"{math.ceil(v / q) * q:.4g}"
+    while float(text) < v:  # the division or the product rounded down
+        text = f"{float(text) + q:.4g}"
+    return text
 
 
 def _slowest_vertex_pole(A, B, gains) -> float:
@@ -574,15 +646,15 @@ def _slowest_vertex_pole(A, B, gains) -> float:
 
 def _certified_solution(A, B, decay_rate, solver):
     """Solve for ε = 1 and check the certificate; on failure rescale by the solution's own
-    spread and try once more. Returns (Q̃, Ñ, Ỹ, T, solver) or a string saying why not."""
+    spread and try once more. Returns (Q̃, Ñ, Ỹ, T, solver, t) or a string saying why not."""
     T = DEFAULT_SCALING
     for attempt in range(2):
-        status, Q, N, Y, _, used = _solve(A, B, decay_rate, solver, T)
+        status, Q, N, Y, t, used = _solve(A, B, decay_rate, solver, T)
         if Q is None:
             return f"solver status {status}"
         cert = verify_certificate(A, B, Q, N, Y, 1.0, math.inf, decay_rate, T)
         if cert.passed:
-            return Q, N, Y, T, used
+            return Q, N, Y, T, used, t
         T = T * np.sqrt(np.diag(Q) / np.diag(Q).min())
     return f"{used} returned gains that fail the independent check ({cert.summary()})"
 
@@ -638,12 +710,13 @@ def _design_region(params, epsilon, rho, decay_rate, max_gain, solver, damping, 
         pass
     t0 = time.perf_counter()
     sol = _certified_models(models, decay_rate, damping, solver, all_vertices)
-    elapsed = time.perf_counter() - t0
     if isinstance(sol, str):
         _explain_region(params, box, decay_rate, damping, solver, sol, all_vertices)
-    gains, Qx1, Px1, peak = _gains_and_peak(sol.Q, sol.N, sol.T, epsilon)
-    _check_rho_and_gain(peak, gains, epsilon, rho, decay_rate, max_gain, sol.solver, damping, box)
-    cert = _verify_models(models, sol, 1.0, rho / epsilon, decay_rate, damping, all_vertices)
+    found = _unique_point(models, decay_rate, damping, all_vertices, sol, epsilon)
+    elapsed = time.perf_counter() - t0
+    gains, Px1 = found.gains, found.P * epsilon**2
+    _check_rho_and_gain(found.peak, gains, epsilon, rho, decay_rate, max_gain, sol.solver, damping, box)
+    cert = _verify_models(models, found.solution, 1.0, rho / epsilon, decay_rate, damping, all_vertices)
     if not cert.passed:  # pragma: no cover - the ε = 1 solution passed and peak <= ρ was checked
         raise InfeasibleDesign(f"the design failed the independent check ({cert.summary()}); relax rho")
     if box:
@@ -652,7 +725,7 @@ def _design_region(params, epsilon, rho, decay_rate, max_gain, solver, damping, 
                                                                         all_vertices),
                                    sampled_plants=len(samples))
     A, B = models[0]
-    return _design(params, A, B, gains, Px1, Qx1, epsilon, rho, decay_rate, max_gain, peak, elapsed, sol.solver,
+    return _design(params, A, B, found, epsilon, rho, decay_rate, max_gain, elapsed, sol.solver,
                    cert, damping=damping, uncertain=box, all_vertices=all_vertices)
 
 
@@ -664,6 +737,7 @@ class _ModelsSolution:
     Z: list | None
     T: np.ndarray
     solver: str
+    t: float = math.nan  # the objective: the squared peak-input bound at ε = 1
 
 
 def _verify_models(models, sol, epsilon, rho, decay_rate, damping, all_vertices=False) -> Certificate:
@@ -686,7 +760,7 @@ def _certified_models(models, decay_rate, damping, solver, all_vertices=False):
         sol = regions.solve_program(models, decay_rate, damping, solver, T, _ROOM, all_vertices=all_vertices)
         if sol.Q is None:
             return f"solver status {sol.status}"
-        found = _ModelsSolution(sol.Q, sol.N, sol.Y, sol.Z, T, sol.solver)
+        found = _ModelsSolution(sol.Q, sol.N, sol.Y, sol.Z, T, sol.solver, sol.t)
         cert = _verify_models(models, found, 1.0, math.inf, decay_rate, damping, all_vertices)
         if cert.passed:
             return found

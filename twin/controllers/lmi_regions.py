@@ -52,12 +52,13 @@ Which closed loops: the relaxation or every vertex
 What the paper's relaxation certifies is the IT2 PDC's own closed loop Σ_ij m_i m_j
 (A_i + B_i G_j), whose weights are the model's: A_i + B_i G_i and every mix. A cross vertex
 A_i + B_i G_j (i ≠ j) alone is not covered, since Y_ij may be indefinite: with the nominal
-design (NOMINAL_DESIGN) A_1 + B_1 G_2 has a pole at −2.987 1/s against the certified decay rate of
-3 1/s. ``all_vertices=True`` drops the slack from the cross terms (Φ_ij ≺ 0 and S_ij ≺ 0 for
-i ≠ j, with the common Q), which certifies every vertex closed loop, hence Σ_ij m_i h_j
+design at a decay rate of 2 1/s, A_1 + B_1 G_2 has a pole at −1.988 1/s (and at −2.999 1/s
+against 3 1/s with damping ratio 0.5). ``all_vertices=True`` drops the slack altogether
+(Φ_ij ≺ 0 and S_ij ≺ 0 for every i, j, with the common Q), which certifies every vertex
+closed loop, hence Σ_ij m_i h_j
 (A_i + B_i G_j) for *any* model weights m and controller weights h: the type-1 PDC's, or a
 controller that computes its weights from an estimated θ. In that form the Y_ij slack adds
-nothing (every Φ_ij ≺ 0 already gives the relaxed conditions with Y_12 = 0), so it is an
+nothing (every Φ_ij ≺ 0 already gives the relaxed conditions with Y = 0), so it is an
 alternative to the paper's relaxation, not a refinement of it. Its price, measured: the
 optimal peak-input bound t is 1–9 % higher (nominal 1–2 %, the example box 2–9 %), and the
 same requests were feasible or infeasible with both in the 12 cases tried (three boxes,
@@ -337,9 +338,14 @@ class _Program:
         self.rows, self.cols, self.vals, self.b, self.sizes = [], [], [], [], []
         self._row = 0
         self._svec = {}
+        # the same constraints in matrix form, for the central-point refinement
+        # (twin.controllers.lmi_center): [(const (m, m), [(idx (k,), coef (k, m, m)), ...]), ...]
+        self.blocks = []
 
     def psd(self, const: np.ndarray, terms) -> None:
         """Add const + Σ x[idx] · coef ⪰ 0 for ``terms`` = [(idx (k,), coef (k, m, m)), ...]."""
+        self.blocks.append((np.array(const, dtype=float), [(np.asarray(i), np.asarray(c, dtype=float))
+                                                           for i, c in terms]))
         m = const.shape[0]
         if m not in self._svec:
             self._svec[m] = _svec_index(m)
@@ -385,10 +391,9 @@ def solve_program(models, decay_rate: float, damping: float, solver: str | None,
     """Solve the decay + sector LMIs for every model (ε = 1, objective min t as in
     :func:`twin.controllers.lmi._solve`) with Clarabel, else SCS; in z = T⁻¹ x coordinates.
 
-    ``all_vertices``: the cross terms i ≠ j without slack (Φ_ij ≺ 0, S_ij ≺ 0), so that every
-    vertex closed loop A_i + B_i G_j is in the region with the common Q; the returned
-    off-diagonal slack blocks are then zero (Y = diag(Y_11, Y_22) ≻ 0 still satisfies the
-    relaxed conditions, which the independent check verifies as before)."""
+    ``all_vertices``: no slack at all (Φ_ij ≺ 0, S_ij ≺ 0 for every i, j), so that every
+    vertex closed loop A_i + B_i G_j is in the region with the common Q; the returned slack
+    blocks are then zero, and the independent check verifies each Φ_ij and S_ij on its own."""
     names = [solver] if solver else ["CLARABEL", "SCS"]
     last = Solution("not solved")
     for name in names:
@@ -404,8 +409,41 @@ def solve_program(models, decay_rate: float, damping: float, solver: str | None,
     return last
 
 
-def _solve_with(name, models, decay_rate, damping, T, room, feasibility_only, quick_iters, slack,
-                all_vertices) -> Solution:
+@dataclass
+class Layout:
+    """Where each matrix variable sits in the decision vector x of a :class:`_Program`."""
+
+    n: int  # states
+    r: int  # rules
+    iq: np.ndarray  # Q (symmetric n×n) in the basis EQ
+    iN: list  # N_j (1×n) for each rule j
+    it: int  # t, the objective
+    iY: list  # Y^k (symmetric rn×rn) per model in the basis EY
+    iZ: list  # Z^k (symmetric 2rn×2rn) per model in the basis EZ (separate slack only)
+    EQ: np.ndarray
+    EY: np.ndarray
+    EZ: np.ndarray
+    sector: bool
+    separate: bool
+    s_phi: float
+    all_vertices: bool
+
+
+def a_scale_of(models) -> float:
+    """max_i ‖A_i‖_F over the (scaled) models: the scale of the LMIs' room. The Frobenius norm
+    (not the spectral one, an SVD whose last bits depend on the BLAS kernel) summed exactly
+    with math.fsum, so that the program's numbers are the same on every machine."""
+    return max(math.sqrt(math.fsum(float(v) * float(v) for v in np.asarray(Ai).ravel()))
+               for A, _ in models for Ai in A)
+
+
+def build_program(models, decay_rate: float, damping: float, T, room: float, slack: str = "shared",
+                  all_vertices: bool = False) -> tuple["_Program", Layout]:
+    """The decay + sector LMIs of every model and the objective's blocks (ε = 1, in the
+    z = T⁻¹ x coordinates), each with ``room`` relative to its scale; see :func:`solve_program`.
+
+    Every number of the program is computed by elementwise IEEE operations (and
+    :func:`a_scale_of`), never by BLAS, so the program is the same on every machine."""
     n = models[0][0][0].shape[0]
     r = len(models[0][0])
     T = np.asarray(T, dtype=float)
@@ -413,8 +451,7 @@ def _solve_with(name, models, decay_rate, damping, T, room, feasibility_only, qu
               for A, B in models]
     eps_floor = np.diag(1.0 / T**2)
     q_scale = float(eps_floor.max())
-    a_scale = max(np.linalg.norm(Ai, 2) for A, _ in models for Ai in A)
-    delta = room * q_scale * a_scale
+    delta = room * q_scale * a_scale_of(models)
     sector = damping > 0
     s_phi, c_phi = sector_sin_cos(damping)
     if slack not in SLACKS:
@@ -429,6 +466,8 @@ def _solve_with(name, models, decay_rate, damping, T, room, feasibility_only, qu
     nxt = it + 1
     iY, iZ = [], []
     for _ in models:
+        if all_vertices:  # no slack at all: every vertex LMI on its own (see solve_program)
+            continue
         iY.append(nxt + np.arange(len(EY)))
         nxt += len(EY)
         if sector and separate:
@@ -445,7 +484,7 @@ def _solve_with(name, models, decay_rate, damping, T, room, feasibility_only, qu
         return idx[keep], blk[keep]
 
     prog.psd(-(1 + room) * eps_floor, [(iq, EQ)])  # Q ⪰ (1 + room) ε² T⁻²
-    for k in range(len(models)):
+    for k in range(0 if all_vertices else len(models)):
         prog.psd(-room * q_scale * np.eye(r * n), [(iY[k], EY)])  # Y^k ≻ 0
         if sector and separate:
             prog.psd(-room * q_scale * np.eye(2 * r * n), [(iZ[k], EZ)])  # Z^k ≻ 0
@@ -461,7 +500,7 @@ def _solve_with(name, models, decay_rate, damping, T, room, feasibility_only, qu
                 dQ_S, dN_S = sector_of(dQ_M, damping), sector_of(dN_M, damping)
             for j in range(r):
                 lvl = 1.0 if i == j else 0.1  # Φ_ii + Y_ii ≺ 0 strictly; Φ_ij + Y_ij ⪯ 0 with less room
-                bare = all_vertices and i != j  # the vertex closed loop itself, no slack
+                bare = all_vertices  # the vertex closed loop itself, no slack
                 # −(Φ_ij + sym Y_ij) − δ I ⪰ 0
                 prog.psd(-lvl * delta * I, [(iq, -dQ_phi), (iN[j], -dN_phi)]
                          + ([] if bare else [(ix, -c) for ix, c in [block_terms(iY[k], EY, i, j, n)]]))
@@ -486,32 +525,45 @@ def _solve_with(name, models, decay_rate, damping, T, room, feasibility_only, qu
         big_t[0, n, n] = 1.0
         prog.psd(np.zeros((n + 1, n + 1)), [(iq, big_q), (iN[i], big_n), (np.array([it]), big_t)])
 
+    return prog, Layout(n, r, iq, iN, it, iY, iZ, EQ, EY, EZ, sector, separate, s_phi, all_vertices)
+
+
+def _solve_with(name, models, decay_rate, damping, T, room, feasibility_only, quick_iters, slack,
+                all_vertices) -> Solution:
+    prog, lay = build_program(models, decay_rate, damping, T, room, slack, all_vertices)
     A_mat, b = prog.matrices()
     c = np.zeros(prog.n)
     if not feasibility_only:
-        c[it] = 1.0
+        c[lay.it] = 1.0
     x, status = (_clarabel if name == "CLARABEL" else _scs if name == "SCS" else _unknown)(
         A_mat, b, c, prog.sizes, feasibility_only, quick_iters)
     if x is None:
         return Solution(status, solver=name)
+    sol = solution_of(x, lay, len(models))
+    sol.status, sol.solver = status, name
+    return sol
+
+
+def solution_of(x, lay: Layout, n_models: int) -> Solution:
+    """The matrices of a decision vector ``x`` laid out by ``lay`` (status and solver unset)."""
+    n, r, EQ, EY, EZ = lay.n, lay.r, lay.EQ, lay.EY, lay.EZ
+    iq, iN, it, iY, iZ = lay.iq, lay.iN, lay.it, lay.iY, lay.iZ
+    sector, separate, s_phi, all_vertices = lay.sector, lay.separate, lay.s_phi, lay.all_vertices
     Q = np.einsum("k,kab->ab", x[iq], EQ)
     N = [x[iN[j]][None, :] for j in range(r)]
     Y, Z = [], []
-    for k in range(len(models)):
+    for k in range(n_models):
+        if all_vertices:  # no slack variables: zero blocks (every vertex LMI holds on its own)
+            Y.append([[np.zeros((n, n)) for _ in range(r)] for _ in range(r)])
+            continue
         Yb = np.einsum("k,kab->ab", x[iY[k]], EY)
         Y.append([[Yb[i * n:(i + 1) * n, j * n:(j + 1) * n] for j in range(r)] for i in range(r)])
         if sector and separate:
             Zb = np.einsum("k,kab->ab", x[iZ[k]], EZ)
             Z.append([[Zb[2 * i * n:2 * (i + 1) * n, 2 * j * n:2 * (j + 1) * n] for j in range(r)] for i in range(r)])
-    if all_vertices:  # the cross blocks were not used: zero is a valid choice (see the docstring)
-        for blocks in Y + Z:
-            for i in range(r):
-                for j in range(r):
-                    if i != j:
-                        blocks[i][j] = np.zeros_like(blocks[i][j])
     if sector and not separate:
         Z = [[[np.kron(np.eye(2), s_phi * Yk[i][j]) for j in range(r)] for i in range(r)] for Yk in Y]
-    return Solution(status, Q, N, Y, Z if sector else None, float(x[it]), name)
+    return Solution("", Q, N, Y, Z if sector else None, float(x[it]), "")
 
 
 def _unknown(*_):

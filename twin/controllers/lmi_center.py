@@ -1,0 +1,356 @@
+"""The LMI design's one answer: a unique point of the semidefinite program, computed to
+~40 digits with correctly rounded arithmetic, so the gains are the same on every machine.
+
+Why this exists
+---------------
+The SDP solvers (Clarabel, SCS) stop at a tolerance of about 1e-8 somewhere on the optimal
+face of the program, and the optimal face is not a point: many (Q, N) reach the smallest
+peak-input bound t. Where exactly a solver stops depends on the last bits of every BLAS
+call it makes, and OpenBLAS picks its kernel per CPU (Haswell, SkylakeX, ...): measured,
+the default design's gains differed at 1e-5 relative between kernels, and the wheels'
+stick and slip in the catch amplify that into different trajectories. Tightening the
+solver does not help (Clarabel stalls, "AlmostSolved", at the same spread), and rounding
+the solver's answer to a few digits cannot help either: a value within the spread of a
+rounding boundary rounds both ways.
+
+What is computed instead
+------------------------
+The design is defined as a point that is unique and depends smoothly on the data: the
+point of the program's *central path* whose duality gap is :data:`KAPPA` (1 %) of its
+objective. For the program's constraints F_k(x) ⪰ 0 (every LMI of
+:func:`twin.controllers.lmi_regions.build_program`, with the room :data:`ROOM`) it is the
+minimiser of the strictly convex
+
+    φ_μ(x) = t / μ − Σ_k log det F_k(x),   with μ = KAPPA · t / ν   (ν = Σ_k size of F_k),
+
+so that the gap ν μ (Boyd & Vandenberghe, *Convex Optimization*, 2004, §11.2 and §11.6) is
+KAPPA · t: the objective is within 1 % of its optimum (the peak-input bound √t within
+strictly, with a margin the barrier keeps. Being the minimiser of a strictly convex
+function, the point does not depend on where it is approached from: the solver's answer is
+only where the search starts.
+
+How: damped Newton steps on φ_μ in float64 (numpy; these may differ in their last bits
+from machine to machine, which only changes the path), following μ down from 1e-2 of t to
+the target; then Newton steps whose *gradient* is evaluated in :mod:`decimal` arithmetic
+at :data:`DIGITS` significant digits (correctly rounded, the same everywhere) with the
+float64 Hessian, until the step is below 1e-30 relative. The float64 Hessian's error only
+slows the contraction (by about cond(H) · 1e-16 per step); the fixed point is where the
+exact gradient vanishes. The design's numbers (Q, P, the gains) are then computed from
+that point in the same arithmetic and rounded once to float64: two machines agree unless
+a number lies within 1e-30 of a rounding boundary of float64.
+
+What it costs: about 0.1–0.3 s on top of the solve for the default design (measured in
+benchmarks/bench_lmi.py); a cached design (twin.controllers.design_cache) costs nothing.
+"""
+from __future__ import annotations
+
+import decimal
+import math
+from dataclasses import dataclass
+from decimal import Decimal
+
+import numpy as np
+
+from twin.errors import InfeasibleDesign
+
+KAPPA = 1e-2  # relative duality gap of the design's central point
+ROOM = 0.25e-5  # the refined program's room: a quarter of the solve's (lmi._ROOM["CLARABEL"])
+DIGITS = 50  # significant decimal digits of the refinement's arithmetic
+_STEP_TOL = 1e-26  # relative Newton step below which the point is final (the next would be ~1e-30)
+_KAPPA_START = 1e-2
+_MAX_NEWTON = 60  # per stage of the float64 path
+_CTX = decimal.Context(prec=DIGITS, rounding=decimal.ROUND_HALF_EVEN, Emin=-999999, Emax=999999)
+
+
+@dataclass
+class _Block:
+    C: np.ndarray  # (m, m)
+    idx: np.ndarray  # (k,) variable indices
+    M: np.ndarray  # (k, m, m) coefficients: F(x) = C + Σ x[idx[v]] M[v]
+    # the same in Decimal: C as rows, and per variable its nonzero entries (a, b, value)
+    Cd: list
+    Md: list
+
+
+def _blocks(prog) -> list[_Block]:
+    out = []
+    for const, terms in prog.blocks:
+        coef: dict[int, np.ndarray] = {}
+        for idx, c in terms:
+            for v, cv in zip(np.asarray(idx).tolist(), c):
+                coef[v] = coef[v] + cv if v in coef else np.array(cv)
+        keep = [v for v in sorted(coef) if np.any(coef[v] != 0.0)]
+        M = np.stack([coef[v] for v in keep]) if keep else np.zeros((0,) + const.shape)
+        Cd = [[Decimal(float(v)) for v in row] for row in const]
+        Md = [[(a, b, Decimal(float(M[q, a, b]))) for a, b in zip(*np.nonzero(M[q]))] for q in range(len(keep))]
+        out.append(_Block(np.array(const), np.array(keep, dtype=int), M, Cd, Md))
+    return out
+
+
+def _groups(blocks) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The blocks stacked by shape, for batched float64 work: [(C (B, m, m), idx (B, k),
+    M (B, k, m, m)), ...]."""
+    by: dict[tuple, list] = {}
+    for b in blocks:
+        by.setdefault((b.C.shape[0], len(b.idx)), []).append(b)
+    return [(np.stack([b.C for b in bs]), np.stack([b.idx for b in bs]), np.stack([b.M for b in bs]))
+            for bs in by.values()]
+
+
+def _float_derivatives(groups, x, it, mu, n):
+    """Gradient and Hessian of φ_μ at x in float64, or None if x is outside the domain."""
+    g = np.zeros(n)
+    H = np.zeros((n, n))
+    for C, idx, M in groups:
+        F = C + np.einsum("bv,bvij->bij", x[idx], M)
+        try:
+            L = np.linalg.cholesky(0.5 * (F + np.swapaxes(F, 1, 2)))
+        except np.linalg.LinAlgError:
+            return None
+        Linv = np.linalg.inv(L)
+        W = np.swapaxes(Linv, 1, 2) @ Linv
+        WM = np.einsum("bij,bvjk->bvik", W, M)
+        np.add.at(g, idx, -np.einsum("bvii->bv", WM))
+        hb = np.einsum("bvij,bwji->bvw", WM, WM)
+        np.add.at(H, (idx[:, :, None], idx[:, None, :]), hb)
+    g[it] += 1.0 / mu
+    return g, H
+
+
+def _feasible(groups, x) -> bool:
+    for C, idx, M in groups:
+        F = C + np.einsum("bv,bvij->bij", x[idx], M)
+        try:
+            np.linalg.cholesky(0.5 * (F + np.swapaxes(F, 1, 2)))
+        except np.linalg.LinAlgError:
+            return False
+    return True
+
+
+def _newton_float(groups, x, it, mu, tol):
+    """Damped Newton on φ_μ for a fixed μ until the Newton decrement is below ``tol``;
+    returns (x, H, steps) or raises."""
+    for k in range(_MAX_NEWTON):
+        d = _float_derivatives(groups, x, it, mu, len(x))
+        if d is None:  # pragma: no cover - steps keep x inside
+            raise InfeasibleDesign("the design's refinement left the feasible set (a numerical limit); "
+                                   "lower --decay-rate or --damping")
+        g, H = d
+        dx = _solve(H, -g)
+        lam = math.sqrt(max(float(-g @ dx), 0.0))
+        if lam < tol:
+            return x, H, k
+        # the damped step of a self-concordant function stays inside its domain (Boyd &
+        # Vandenberghe §9.6.4); the check below only guards against rounding
+        step = 1.0 if lam < 0.25 else 1.0 / (1.0 + lam)
+        while not _feasible(groups, x + step * dx):
+            step *= 0.5
+            if step < 1e-12:  # pragma: no cover
+                raise InfeasibleDesign("the design's refinement stalled at the edge of the feasible set (a "
+                                       "numerical limit); lower --decay-rate or --damping")
+        x = x + step * dx
+    raise InfeasibleDesign(f"the design's refinement did not converge in {_MAX_NEWTON} Newton steps (a numerical "
+                           f"limit); lower --decay-rate or --damping")
+
+
+def _solve(H, rhs):
+    # Jacobi scaling: the variables (Q, N, t, Y) span decades
+    s = 1.0 / np.sqrt(np.maximum(np.abs(np.diag(H)), 1e-300))
+    return s * np.linalg.solve(H * s[:, None] * s[None, :], rhs * s)
+
+
+# ---- the exact part ---------------------------------------------------------------------------
+def _inverse_decimal(F: list, ctx) -> list:
+    """Inverse of a symmetric positive definite matrix (rows of Decimal) by Gauss–Jordan
+    without pivoting (every pivot of an SPD matrix is positive); None if a pivot is not."""
+    m = len(F)
+    A = [row[:] + [Decimal(1) if i == j else Decimal(0) for j in range(m)] for i, row in enumerate(F)]
+    for c in range(m):
+        p = A[c][c]
+        if p <= 0:
+            return None
+        inv = ctx.divide(Decimal(1), p)
+        rowc = [ctx.multiply(v, inv) for v in A[c]]
+        A[c] = rowc
+        for r in range(m):
+            if r != c:
+                f = A[r][c]
+                if f:
+                    A[r] = [ctx.subtract(a, ctx.multiply(f, b)) for a, b in zip(A[r], rowc)]
+    return [row[m:] for row in A]
+
+
+def _gradient_decimal(blocks, xd, it, nu, kappa, ctx) -> list:
+    """∇φ_μ at ``xd`` (Decimal), μ = kappa·t/ν, every operation correctly rounded."""
+    g = [Decimal(0)] * len(xd)
+    for b in blocks:
+        F = [row[:] for row in b.Cd]
+        for q, v in enumerate(b.idx):
+            xv = xd[v]
+            for a, c, val in b.Md[q]:
+                F[a][c] = ctx.add(F[a][c], ctx.multiply(xv, val))
+        W = _inverse_decimal(F, ctx)
+        if W is None:
+            raise InfeasibleDesign("the design's refinement left the feasible set in exact arithmetic (a numerical "
+                                   "limit); lower --decay-rate or --damping")
+        for q, v in enumerate(b.idx):
+            acc = Decimal(0)
+            for a, c, val in b.Md[q]:
+                acc = ctx.add(acc, ctx.multiply(W[c][a], val))
+            g[v] = ctx.subtract(g[v], acc)
+    mu = ctx.divide(ctx.multiply(Decimal(repr(kappa)), xd[it]), Decimal(nu))
+    g[it] = ctx.add(g[it], ctx.divide(Decimal(1), mu))
+    return g
+
+
+@dataclass(frozen=True)
+class Center:
+    """The design's point: ``x`` (Decimal, DIGITS digits) laid out as the program's decision
+    vector, and how it was reached."""
+
+    x: list
+    float_steps: int
+    exact_steps: int
+
+
+def central_point(prog, x0, it: int) -> Center:
+    """The unique point of ``prog`` (a :class:`twin.controllers.lmi_regions._Program` built
+    with :data:`ROOM`) described in the module docstring, found from the solver's answer ``x0``
+    (its objective ``x0[it]`` is raised a little: the solver stops on the boundary)."""
+    blocks = _blocks(prog)
+    groups = _groups(blocks)
+    nu = sum(b.C.shape[0] for b in blocks)
+    x = np.array(x0, dtype=float)
+    x[it] = x[it] * (1.0 + 1e-3) + 1e-9
+    if not _feasible(groups, x):
+        raise InfeasibleDesign("the solver's answer does not meet the design's LMIs with room (a numerical limit); "
+                               "lower --decay-rate or --damping")
+    steps = 0
+    kappa = _KAPPA_START
+    while True:  # follow the central path down to the target gap, μ fixed in each stage
+        # (a float64 Newton decrement below ~1e-8 is rounding noise: the exact steps finish)
+        x, H, k = _newton_float(groups, x, it, kappa * x[it] / nu, 1e-6)
+        steps += k
+        if kappa <= KAPPA:
+            break
+        kappa = max(kappa * 0.1, KAPPA)
+    # The exact system: r(x) = ∇φ_μ(x) with μ = KAPPA·t/ν, whose Jacobian is the barrier's
+    # Hessian H minus ν/(KAPPA t²) on the (t, t) entry (μ moves with t).
+    ctx = _CTX.copy()
+    xd = [Decimal(float(v)) for v in x]
+    scale = max(1.0, float(np.abs(x).max()))
+    for k in range(12):
+        g = _gradient_decimal(blocks, xd, it, nu, KAPPA, ctx)
+        if k:  # the Hessian where the point now is (rounded to float64): the barrier's curvature
+            # changes fast near the tight constraints, and a stale one slows the contraction
+            xf = np.array([float(v) for v in xd])
+            H = _float_derivatives(groups, xf, it, KAPPA * xf[it] / nu, len(xf))[1]
+        J = H.copy()
+        J[it, it] -= nu / (KAPPA * float(xd[it]) ** 2)
+        dx = _solve(J, -np.array([float(v) for v in g]))
+        xd = [ctx.add(a, Decimal(float(d))) for a, d in zip(xd, dx)]
+        if float(np.abs(dx).max()) <= _STEP_TOL * scale:
+            return Center(xd, steps, k + 1)
+    raise InfeasibleDesign("the design's refinement did not settle in exact arithmetic (a numerical limit); "
+                           "lower --decay-rate or --damping")
+
+
+# ---- the design's numbers from the point -----------------------------------------------------
+def start_vector(lay, Q, N, Y, t: float, T, T0) -> np.ndarray:
+    """A solver's answer (Q, N_j, Y^k blocks, t in the coordinates z = T⁻¹ x) as the decision
+    vector of a program laid out by ``lay`` in the coordinates of ``T0``."""
+    T, T0 = np.asarray(T, dtype=float), np.asarray(T0, dtype=float)
+    ratio = T / T0  # z0 = T0⁻¹ x = (T / T0) z: Q0 = D Q D, N0 = N D with D = diag(T / T0)
+    x = np.zeros(lay.it + 1 + sum(len(i) for i in lay.iY) + sum(len(i) for i in lay.iZ))
+    Q0 = Q * ratio[:, None] * ratio[None, :]
+    x[lay.iq] = [Q0[a, b] for a, b in _basis_pairs(lay.n)]
+    for j, idx in enumerate(lay.iN):
+        x[idx] = np.ravel(N[j]) * ratio
+    x[lay.it] = t
+    if lay.iY:
+        big = np.kron(np.ones((lay.r, lay.r)), np.outer(ratio, ratio))
+        for k, idx in enumerate(lay.iY):
+            Yb = np.block(Y[k]) * big
+            x[idx] = [Yb[a, b] for a, b in _basis_pairs(lay.r * lay.n)]
+    return x
+
+
+def _basis_pairs(m: int) -> list[tuple[int, int]]:
+    """(a, b) of each element of lmi_regions._sym_basis(m), in its order."""
+    return [(a, b) for b in range(m) for a in range(b + 1)]
+
+
+@dataclass(frozen=True)
+class Refined:
+    """A design's numbers from its central point, each rounded once from DIGITS digits.
+
+    ``Qz, N, Y, t`` in the coordinates z = T⁻¹ x of the program (for the independent
+    check); ``gains`` (r, n), ``P`` and ``Q`` (n, n) in x for the design's ε; ``peak`` the
+    certified peak |u| (N·m)."""
+
+    Qz: np.ndarray
+    N: list
+    Y: list
+    t: float
+    T: np.ndarray
+    gains: np.ndarray
+    P: np.ndarray
+    Q: np.ndarray
+    peak: float
+    center: Center
+
+
+def refine(models, decay_rate: float, damping: float, all_vertices: bool, Q, N, Y, t: float, T, epsilon: float,
+           T0) -> Refined:
+    """The design's central point from a solver's answer (``Q, N, Y, t`` in z = T⁻¹ x), and
+    its numbers for ε = ``epsilon``; raises InfeasibleDesign if it cannot be found."""
+    from twin.controllers import lmi_regions as regions
+
+    prog, lay = regions.build_program(models, decay_rate, damping, T0, ROOM, "shared", all_vertices)
+    center = central_point(prog, start_vector(lay, Q, N, Y, t, T, T0), lay.it)
+    ctx = _CTX.copy()
+    xd = center.x
+    n, r = lay.n, lay.r
+    T0d = [Decimal(float(v)) for v in np.asarray(T0, dtype=float)]
+    Qz = [[Decimal(0)] * n for _ in range(n)]
+    for (a, b), v in zip(_basis_pairs(n), lay.iq):
+        Qz[a][b] = Qz[b][a] = xd[v]
+    Nz = [[xd[v] for v in idx] for idx in lay.iN]
+    # x coordinates at ε = 1: Q = T Q̃ T, N = Ñ T, P = Q⁻¹, G_j = −N_j P
+    Qx = [[ctx.multiply(ctx.multiply(T0d[a], Qz[a][b]), T0d[b]) for b in range(n)] for a in range(n)]
+    Px = _inverse_decimal(Qx, ctx)
+    if Px is None:  # pragma: no cover - Q ≻ 0 is one of the program's constraints
+        raise InfeasibleDesign("the design's Q is not positive definite (a numerical limit)")
+    Px = [[ctx.divide(ctx.add(Px[a][b], Px[b][a]), Decimal(2)) for b in range(n)] for a in range(n)]
+    Nx = [[ctx.multiply(Nz[j][c], T0d[c]) for c in range(n)] for j in range(r)]
+    G = [[-_dot([Nx[j][c] for c in range(n)], [Px[c][b] for c in range(n)], ctx) for b in range(n)]
+         for j in range(r)]
+    # peak |u| over the ellipsoid xᵀPx ≤ 1 of the starts ‖x0‖ ≤ ε: ε max_j sqrt(G_j Q G_jᵀ)
+    quad = [_dot(G[j], [_dot(Qx[a], G[j], ctx) for a in range(n)], ctx) for j in range(r)]
+    eps = Decimal(float(epsilon))
+    e2 = ctx.multiply(eps, eps)
+    peak = ctx.multiply(eps, max(q for q in quad).max(Decimal(0)).sqrt(ctx))
+    f = np.vectorize(float, otypes=[float])
+    Yf = []
+    if lay.iY:
+        m = r * n
+        for idx in lay.iY:
+            Yb = np.zeros((m, m))
+            for (a, b), v in zip(_basis_pairs(m), idx):
+                Yb[a, b] = Yb[b, a] = float(xd[v])
+            Yf.append([[Yb[i * n:(i + 1) * n, j * n:(j + 1) * n] for j in range(r)] for i in range(r)])
+    else:
+        Yf = [[[np.zeros((n, n)) for _ in range(r)] for _ in range(r)] for _ in models]
+    return Refined(
+        Qz=f(np.array(Qz, dtype=object)), N=[f(np.array([row], dtype=object)) for row in Nz], Y=Yf,
+        t=float(xd[lay.it]), T=np.asarray(T0, dtype=float), gains=f(np.array(G, dtype=object)),
+        P=f(np.array([[ctx.divide(v, e2) for v in row] for row in Px], dtype=object)),
+        Q=f(np.array([[ctx.multiply(v, e2) for v in row] for row in Qx], dtype=object)),
+        peak=float(peak), center=center)
+
+
+def _dot(a, b, ctx) -> Decimal:
+    acc = Decimal(0)
+    for u, v in zip(a, b):
+        acc = ctx.add(acc, ctx.multiply(u, v))
+    return acc
