@@ -262,3 +262,35 @@ def test_a_different_sweep_in_the_same_directory_is_refused(reference, tmp_path)
     assert len(lines) == 1 and lines[0].startswith("error: ") and "holds a different sweep" in lines[0], stderr
     assert "root_seed" in lines[0]
     assert not (out / "samples.jsonl").exists()
+
+
+# ---- the environment ----------------------------------------------------------------------------------
+
+def test_sweep_json_records_the_environment_and_the_designs(reference):
+    from twin import fingerprint
+
+    doc = json.loads((reference / "sweep.json").read_text())
+    assert list(doc)[-1] == "environment" and "resumed_in" not in doc
+    env, here = doc["environment"], fingerprint.environment()
+    assert env["blas"]["kernel"] == here["blas"]["kernel"] and env["packages"] == here["packages"]
+    assert env["designs"]["balance"] == load_scenario("paper-exp2", OVERRIDES).design().digest()
+
+
+def test_a_sweep_resumed_in_another_environment_says_so_and_records_it(reference, tmp_path):
+    out = tmp_path / "moved"
+    out.mkdir()
+    doc = json.loads((reference / "sweep.json").read_text())
+    here = doc["environment"]["blas"]["kernel"]
+    other = "Haswell" if here != "Haswell" else "SkylakeX"
+    doc["environment"]["blas"]["kernel"] = other  # as if its samples had run on another machine
+    (out / "sweep.json").write_text(json.dumps(doc, indent=1) + "\n")
+    (out / "samples.jsonl").write_bytes((reference / "samples.jsonl").read_bytes())
+    for _ in range(2):  # the second time, this environment is already listed
+        r = sweep_cli(out, "--workers", "1")
+        assert r.returncode == 0, r.stderr
+        assert f"note: resumed in another environment than the first samples' (BLAS kernel {here}, the " \
+               f"reference's {other})" in r.stdout, r.stdout
+        after = json.loads((out / "sweep.json").read_text())
+        assert after["environment"]["blas"]["kernel"] == other  # the first samples' environment is kept
+        assert [e["blas"]["kernel"] for e in after["resumed_in"]] == [here]
+    assert (out / "sweep.csv").read_bytes() == (reference / "sweep.csv").read_bytes()

@@ -274,7 +274,16 @@ def _load_design(path: Path | None, epsilon, rho, decay_rate, max_gain, damping,
         raise TwinError(f"{path}: not a design file from 'twin design --out' ({exc})") from None
     if gains.shape != (2, 4) or not np.all(np.isfinite(gains)):
         raise TwinError(f"{path}: 'gains' must be 2 lists of 4 finite numbers, got shape {gains.shape}")
-    return SimpleNamespace(gains=gains, to_json_dict=lambda: data)
+
+    def digest():  # JSON keeps a float's every bit: a file with P has the digest of the design it holds
+        from twin.fingerprint import design_digest
+
+        try:
+            return design_digest(gains=gains, P=np.asarray(data["P"], dtype=float))
+        except (KeyError, TypeError, ValueError):
+            return design_digest(gains=gains)
+
+    return SimpleNamespace(gains=gains, to_json_dict=lambda: data, digest=digest)
 
 
 def _experiment_options(default_out: str):
@@ -339,12 +348,20 @@ def _paper_experiment(experiment, controller, out, duration, gains_file, design_
     d = _load_design(gains_file, *design_options)
     exp = PAPER_EXPERIMENTS[number]
     description = "analytic model, nominal"
-    context = BuildContext(200.0, targets=exp.targets, design=lambda: d)  # the analytic loop's 5 ms control period
+    used = []  # whether a controller asked for the design (its digest is then recorded)
+
+    def design():
+        used.append(True)
+        return d
+
+    context = BuildContext(200.0, targets=exp.targets, design=design)  # the analytic loop's 5 ms control period
     plugins = [p for p in (provenance("controller", k) for k in kinds) if p is not None]
     _echo_plugins(plugins)
-    runs, metrics = [], {}
+    runs, metrics, controllers = [], {}, []
     for kind in kinds:  # every run first: nothing is written unless all of them finish
-        run = simulate(build_controller(kind, None, context), exp, duration=duration, controller_name=kind)
+        built = build_controller(kind, None, context)
+        controllers.append((kind, built))
+        run = simulate(built, exp, duration=duration, controller_name=kind)
         runs.append(run)
         metrics[kind] = run_metrics(run)
     names = {k: f"trajectory_{re.sub(r'[^A-Za-z0-9_-]+', '_', k)}.csv" for k in kinds}
@@ -353,6 +370,9 @@ def _paper_experiment(experiment, controller, out, duration, gains_file, design_
     doc = {"experiment": exp.name, "description": exp.description, "plant": description, "controllers": metrics}
     if plugins:
         doc["plugins"] = plugins
+    from twin.fingerprint import digests, record
+
+    doc["environment"] = record(digests(d if used else None, controllers))  # last: what precedes it is unchanged
     report.write_json(doc, out / "metrics.json")
     report.write_json(d.to_json_dict(), out / "design.json")
     report.plot_runs(runs, out / "figure.png", f"{exp.name}: {exp.description}\n{description}")
@@ -559,6 +579,9 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
                    "to finish the rest", err=True)
         sys.exit(130)
     bar.close()
+    if result.environment_changes:
+        click.echo(f"  note: resumed in another environment than the first samples' ({'; '.join(result.environment_changes)}); "
+                   "the samples run now may differ from the others in the last digits (sweep.json: resumed_in)")
     sims = len(kinds) * result.ran
     click.echo(f"  ran {result.ran} samples ({sims} runs) in {result.wall_s:.1f} s"
                + (f", {60 * result.ran / result.wall_s:.1f} samples/min" if result.ran and result.wall_s > 0 else "")

@@ -179,6 +179,26 @@ def design_digest(**arrays) -> str:
     return h.hexdigest()
 
 
+def digests(balance=None, controllers=()) -> dict:
+    """The ``designs`` of a result: ``balance``, the LMI balance design's digest (pass the design
+    only if the run used it), then each (kind, controller) whose controller has a callable
+    ``design_digest()``, under its kind."""
+    out = {}
+    if balance is not None and callable(getattr(balance, "digest", None)):
+        out["balance"] = str(balance.digest())
+    for kind, controller in controllers:
+        own = getattr(controller, "design_digest", None)
+        if callable(own):
+            out[kind] = str(own())
+    return out
+
+
+def record(designs: dict | None = None) -> dict:
+    """What a result file records under "environment": :func:`environment` and its ``designs``
+    (name → digest, from :func:`digests`)."""
+    return {**environment(), "designs": dict(designs or {})}
+
+
 # The items whose difference can change a result's numbers, and how a difference is named.
 _WHAT = (
     (("machine",), "architecture"),
@@ -231,4 +251,4 @@ def _short(v) -> str:
     return s[:12] if len(s) == 64 or len(s) == 40 else s  # digests and commits, shortened
 
 
-__all__ = ["PACKAGES", "design_digest", "differences", "dist_version", "environment", "kernels"]
+__all__ = ["PACKAGES", "design_digest", "differences", "digests", "dist_version", "environment", "kernels", "record"]

@@ -51,6 +51,13 @@ class ScenarioResult:
     plugins: list = field(default_factory=list)
     design: object = None
     notes: list = field(default_factory=list)
+    designs: dict = field(default_factory=dict)  # name → digest of each design the runs used
+
+    def environment(self) -> dict:
+        """What these runs ran on, with their designs' digests (metrics.json's "environment")."""
+        from twin.fingerprint import record
+
+        return record(self.designs)
 
 
 def controllers_of(choice: str | None, scenario: Scenario | None = None) -> tuple[str, ...]:
@@ -127,9 +134,10 @@ def _run_and_write(scenario, kinds, out, video, progress, every, log_format, wor
 
     context = scenario.build_context(design)
     plugins = plugins_of(scenario, kinds)
-    runs, metrics = [], {}
+    runs, metrics, controllers = [], {}, []
     for kind in kinds:
         controller = scenario.build_controller(kind, context)
+        controllers.append((kind, controller))
         cb = None if progress is None else (lambda done, total, k=kind: progress(f"run {k}", done, total))
         t0 = time.perf_counter()
         run = simulate_twin(controller, exp, config, duration=scenario.duration, controller_name=kind,
@@ -140,8 +148,11 @@ def _run_and_write(scenario, kinds, out, video, progress, every, log_format, wor
         timings[f"run_{kind}_s"] = time.perf_counter() - t0
         runs.append(run)
         metrics[kind] = run_metrics(run)
+    from twin.fingerprint import digests
+
     result = ScenarioResult(scenario, runs, metrics, timings=timings, plugins=plugins,
-                            design=solved[0] if solved else None)
+                            design=solved[0] if solved else None,
+                            designs=digests(solved[0] if solved else None, controllers))
     if out is None:
         return result
     from twin import report
@@ -158,6 +169,7 @@ def _run_and_write(scenario, kinds, out, video, progress, every, log_format, wor
     name = "trajectory." + log_format
     if every > 1 or log_format != "csv":  # at the defaults metrics.json stays as it always was
         doc["log"] = log_record(runs, every, log_format, name)
+    doc["environment"] = result.environment()  # last: what precedes it is as it always was
     result.files += [report.write_json(doc, out / "metrics.json"), write_trajectories_csv(runs, out / name)]
     for other in LOG_FORMATS:  # an earlier run's trajectory in the other format would not show these runs
         if other != log_format:

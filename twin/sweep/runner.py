@@ -2,8 +2,9 @@
 
 Outputs in the sweep directory:
 
-- ``sweep.json``, ``samples.jsonl``: the manifest and the finished samples (see
-  :mod:`twin.sweep.store`); a rerun with the same command resumes from them;
+- ``sweep.json``, ``samples.jsonl``: the manifest (with the environment the samples ran
+  in and the designs' digests) and the finished samples (see :mod:`twin.sweep.store`); a
+  rerun with the same command resumes from them;
 - ``sweep.csv``: one row per sample and controller (:mod:`twin.sweep.table`);
 - ``summary.md``, ``summary.json``: success rates and metric quantiles with confidence
   intervals per level and controller, and the paired tests of each controller against
@@ -45,6 +46,7 @@ class SweepResult:
     ran: int = 0           # samples run by this call
     resumed: int = 0       # samples found finished in the directory
     wall_s: float = 0.0    # time spent running samples in this call
+    environment_changes: list = field(default_factory=list)  # this call's environment against the first samples'
 
 
 def replay_command(manifest: dict, sample: int) -> str:
@@ -116,6 +118,7 @@ def run_sweep(scenario: Scenario, draws: int, out: Path, scenario_arg: str | Non
                 "overrides": [o for o in scenario.overrides if not o.startswith("seed=")],
                 "root_seed": scenario.seed, "controllers": list(kinds), "draws": draws}
     design = scenario.design() if any(uses_design(k) for k in kinds) else None
+    manifest["environment"] = environment_of(scenario, kinds, design)
     paths = plugin_dirs([("controller", k) for k in kinds] + [("estimator", scenario.estimator)])
     job = SweepJob(scenario.data, scenario.source, scenario.overrides, scenario.seed, design, kinds, paths)
     with SweepStore(out, manifest) as store:
@@ -141,9 +144,29 @@ def run_sweep(scenario: Scenario, draws: int, out: Path, scenario_arg: str | Non
         wall = time.perf_counter() - t0
         records = [store.records[k] for k in range(total)]
         manifest = store.manifest
+        changes = store.environment_changes
     result = write_report(out, manifest, records, scenario, reference)
     result.ran, result.resumed, result.wall_s = len(todo), resumed, wall
+    result.environment_changes = changes
     return result
+
+
+def environment_of(scenario: Scenario, kinds, design) -> dict:
+    """sweep.json's ``environment``: this process's, with the digest of each design the
+    controllers use (the LMI balance design when one of them asks for it, and each
+    controller's own ``design_digest()``). The controllers are built here for that, once:
+    every sample's controllers are designed on the same nominal model."""
+    from twin.fingerprint import digests, record
+
+    asked = []
+
+    def ask():
+        asked.append(True)
+        return scenario.design()
+
+    context = scenario.build_context(ask)
+    built = [(k, scenario.build_controller(k, context)) for k in kinds]
+    return record(digests(design if design is not None else scenario.design() if asked else None, built))
 
 
 def write_report(out: Path, manifest: dict, records, scenario: Scenario, reference: str | None = None) -> SweepResult:

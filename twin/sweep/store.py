@@ -2,7 +2,11 @@
 
 - ``sweep.json``: the manifest, everything that determines the samples (the complete
   scenario, its source and ``--set`` items, the root seed). A rerun in the same
-  directory must match it, except for the number of draws, which may grow.
+  directory must match it, except for the number of draws, which may grow. Last, the
+  ``environment`` the first samples ran in, with the designs' digests
+  (:func:`twin.fingerprint.record`); a rerun in another environment (another machine,
+  BLAS kernel or commit) may resume the sweep, and its environment is added to
+  ``resumed_in``: its samples may differ from the others' in the last digits.
 - ``samples.jsonl``: one JSON line per finished sample, appended, flushed and synced to
   disk as each finishes, in finishing order. An interruption can at worst leave a torn
   last line, which the next run drops (its sample simply runs again).
@@ -18,6 +22,7 @@ from pathlib import Path
 from twin.errors import TwinError
 
 FORMAT = 1
+ENV, RESUMED = "environment", "resumed_in"  # where the samples ran: recorded, not required to match
 
 
 def _differences(a, b, prefix="") -> list[str]:
@@ -47,6 +52,7 @@ class SweepStore:
         except BlockingIOError:
             self._lock.close()
             raise TwinError(f"{self.out}: another sweep is writing this directory; wait for it or use another --out")
+        self.environment_changes: list[str] = []  # what this run's environment differs in from the first samples'
         manifest = _jsonable({"format": FORMAT, **manifest})
         path = self.out / "sweep.json"
         if path.exists():
@@ -55,17 +61,36 @@ class SweepStore:
             except ValueError as exc:
                 self.close()
                 raise TwinError(f"{path}: not a sweep manifest ({exc}); use another --out") from None
-            diff = [d for d in _differences(old, manifest) if d != "draws"]
+            diff = [d for d in _differences(old, manifest)
+                    if d != "draws" and d.split(".")[0] not in (ENV, RESUMED)]
             if diff:
                 self.close()
                 raise TwinError(f"{self.out} holds a different sweep (differs in: {', '.join(diff[:6])}"
                                 f"{', …' if len(diff) > 6 else ''}); rerun it as it was, or use another --out")
             manifest["draws"] = max(manifest["draws"], old["draws"])
+            self._resume_environment(old, manifest)
         path.write_text(json.dumps(manifest, indent=1) + "\n", encoding="utf-8")
         self.manifest = manifest
         self.path = self.out / "samples.jsonl"
         self.records = self._read()
         self._fh = open(self.path, "a", encoding="utf-8")
+
+    def _resume_environment(self, old: dict, manifest: dict) -> None:
+        """Keep the first samples' environment; add this one to ``resumed_in`` if it differs
+        (once: each environment the sweep ran in is listed one time)."""
+        if ENV not in manifest:
+            return
+        from twin.fingerprint import differences
+
+        here, first = manifest[ENV], old.get(ENV)  # first None: a sweep begun before environments were recorded
+        resumed = list(old.get(RESUMED, []))
+        changed = ["the first samples' environment is not recorded"] if first is None else differences(here, first)
+        if changed and all(differences(here, r) for r in resumed):
+            resumed.append(here)
+        manifest[ENV] = first
+        if resumed:
+            manifest[RESUMED] = resumed
+        self.environment_changes = changed
 
     def _read(self) -> dict[int, dict]:
         if not self.path.exists():
