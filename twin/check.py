@@ -12,11 +12,12 @@ from __future__ import annotations
 import multiprocessing
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from twin.errors import TwinError
-from twin.expectations import evaluate, failed, parse_expect
+from twin.expectations import GOLDEN, evaluate, failed, parse_expect
+from twin.tolerances import known_signals
 
 
 @dataclass(frozen=True)
@@ -34,8 +35,10 @@ class CheckTask:
     trajectory: bool = False  # also return the run's signals (for golden trajectories)
 
 
-def run_task(task: CheckTask) -> tuple[dict | None, str, object]:
-    """(metrics, "", trajectory or None) of one run, or (None, error message, None) if it raised."""
+def run_task(task: CheckTask) -> tuple[dict | None, str, object, dict | None]:
+    """(metrics, "", trajectory or None, environment) of one run, or (None, error message, None,
+    None) if it raised; the environment is the one it ran in, with its designs' digests
+    (:func:`twin.fingerprint.record`)."""
     from twin.registry import use_plugin_dirs
     from twin.scenarios.runner import run_scenario
     from twin.scenarios.scenario import Scenario
@@ -47,13 +50,13 @@ def run_task(task: CheckTask) -> tuple[dict | None, str, object]:
     try:
         result = run_scenario(sc, (task.kind,))
     except Exception as exc:  # noqa: BLE001 -- a run that errors fails its check, with its message
-        return None, f"{type(exc).__name__}: {' '.join(str(exc).split())}", None
+        return None, f"{type(exc).__name__}: {' '.join(str(exc).split())}", None, None
     traj = None
     if task.trajectory:
         from twin.golden import Trajectory
 
         traj = Trajectory.of(result.runs[0])
-    return result.metrics[task.kind], "", traj
+    return result.metrics[task.kind], "", traj, result.environment()
 
 
 @dataclass
@@ -71,6 +74,7 @@ class CaseResult:
     failures: list
     golden: dict = field(default_factory=dict)  # seed → Departure, or a message (no reference), or None (agrees)
     has_seed_bounds: bool = False  # the scenario has [expect.seeds] bounds
+    environment: dict | None = None  # what the first run ran on, with its designs' digests
 
     @property
     def departures(self) -> dict:
@@ -130,27 +134,38 @@ def collect(targets, overrides=()) -> tuple[list, list[str]]:
 
 
 def run_checks(scenarios, controllers=None, seeds: int = 1, workers: int = 1, progress=None,
-               record: Path | None = None, golden: Path | None = None) -> CheckResult:
+               record: Path | None = None, golden: Path | None = None, tolerances=None) -> CheckResult:
     """Run every scenario with each controller (None: each scenario's ``controller.kinds``) on
     ``seeds`` seeds, on ``workers`` processes, and judge the runs by the ``[expect]`` tables;
     ``record``: store each run as a golden trajectory under this directory; ``golden``:
-    compare each run with the one stored there (:mod:`twin.golden`)."""
+    compare each run with the one stored there (:mod:`twin.golden`), with ``tolerances``
+    (a :class:`twin.tolerances.Tolerances`, the command line's) over each scenario's
+    ``[expect.golden]``."""
     from twin.registry import check_kinds, plugin_dirs, uses_design
+    from twin.tolerances import Tolerances
 
     if not (isinstance(seeds, int) and 1 <= seeds <= 10_000):
         raise TwinError(f"--seeds must be an integer from 1 to 10000, got {seeds!r}")
     if not (isinstance(workers, int) and 1 <= workers <= 1024):
         raise TwinError(f"--workers must be an integer from 1 to 1024, got {workers!r}")
-    plan = []
+    plan, tolerance_of, logged = [], {}, []
+    given = tolerances if tolerances is not None else Tolerances()
     for sc in scenarios:
         kinds = check_kinds("controller", controllers if controllers is not None else sc.controllers, "controllers")
         design = sc.design() if any(uses_design(k) for k in kinds) else None
         paths = plugin_dirs([("controller", k) for k in kinds] + [("estimator", sc.estimator)])
+        extra = []
         for kind in kinds:
-            sc.build_controller(kind)  # a plugin that cannot be built is a user error: before anything runs
+            # a plugin that cannot be built is a user error: before anything runs
+            extra += getattr(sc.build_controller(kind), "signals", ())
             plan.append((sc, kind, tuple(CheckTask(sc.data, sc.source, sc.overrides, design, kind, sc.seed + i,
                                                    paths, record is not None or golden is not None)
                                          for i in range(seeds))))
+        logged += extra
+        if golden is not None:  # tolerances naming a signal no run logs are a typo: said before anything runs
+            tolerance_of[sc.name] = given.over(_scenario_tolerances(sc, extra))
+    if golden is not None:
+        given.check_signals(known_signals(logged), "--tolerance")
     tasks = [t for _, _, ts in plan for t in ts]
     t0 = time.perf_counter()
     outcomes = iter(_run(tasks, workers, progress))
@@ -158,22 +173,37 @@ def run_checks(scenarios, controllers=None, seeds: int = 1, workers: int = 1, pr
     cases, recorded = [], 0
     for sc, kind, ts in plan:
         done = [(t.seed, next(outcomes)) for t in ts]
-        metrics = {seed: m for seed, (m, _, _) in done if m is not None}
-        errors = {seed: e for seed, (_, e, _) in done if e}
+        metrics = {seed: m for seed, (m, _, _, _) in done if m is not None}
+        errors = {seed: e for seed, (_, e, _, _) in done if e}
         bounds = parse_expect(sc.data["expect"])
         verdicts = evaluate(bounds, kind, metrics) if metrics else []
         case = CaseResult(sc.name, sc.source, kind, tuple(t.seed for t in ts), metrics, errors, verdicts,
-                          failed(verdicts, bounds), has_seed_bounds=bool(bounds.get("seeds")))
-        for seed, (_, _, traj) in done:
+                          failed(verdicts, bounds), has_seed_bounds=bool(bounds.get("seeds")),
+                          environment=next((env for _, (_, _, _, env) in done if env is not None), None))
+        for seed, (m, _, traj, env) in done:
             if traj is not None:
-                recorded += _golden(case, sc, kind, seed, traj, record, golden)
+                recorded += _golden(case, sc, kind, seed, traj, m, env, record, golden, tolerance_of.get(sc.name))
         cases.append(case)
     return CheckResult(cases, wall, len(tasks), recorded=recorded)
 
 
-def _golden(case: CaseResult, sc, kind: str, seed: int, traj, record, golden) -> int:
-    """Compare with the reference and/or record the run; the number of files written."""
+def _scenario_tolerances(sc, extra):
+    """The scenario's ``[expect.golden]`` tolerances, their signals checked against those its runs log."""
+    from twin.tolerances import Tolerances, parse_table
+
+    table = sc.data["expect"].get(GOLDEN)
+    if table is None:
+        return Tolerances()
+    tol = parse_table(table, f"{sc.source}: expect.{GOLDEN}")  # valid: the scenario was validated on loading
+    tol.check_signals(known_signals(extra), f"{sc.source}: expect.{GOLDEN}.signals")
+    return tol
+
+
+def _golden(case: CaseResult, sc, kind: str, seed: int, traj, metrics, env, record, golden, tolerances) -> int:
+    """Compare with the reference (with ``tolerances``) and/or record the run; the number of
+    files written."""
     from twin import golden as g
+    from twin.fingerprint import differences
 
     if golden is not None:
         try:
@@ -182,11 +212,15 @@ def _golden(case: CaseResult, sc, kind: str, seed: int, traj, record, golden) ->
             case.golden[seed] = str(exc)
         else:
             here = g.build()
-            case.golden[seed] = g.compare(traj, ref, exact=meta["build"] == here and here != "mixed")
+            dep = g.compare(traj, ref, meta.get("build") == here and here != "mixed", tolerances)
+            if dep is not None:  # say whether the environment or a design changed, or neither did
+                dep = replace(dep, environment=tuple(differences(env, meta.get("environment"))))
+            case.golden[seed] = dep
     if record is None:
         return 0
     g.record(g.path_for(record, sc.name, kind, seed), traj,
-             {"scenario": sc.name, "source": sc.source, "controller": kind, "seed": seed})
+             {"scenario": sc.name, "source": sc.source, "controller": kind, "seed": seed, "metrics": metrics,
+              "environment": env})
     return 1
 
 
@@ -271,8 +305,14 @@ def failure_lines(result: CheckResult) -> list[str]:
         for seed, error in case.errors.items():
             out.append(f"FAIL {case.scenario} {case.controller} seed {seed}: {error}")
         for seed, dep in case.departures.items():
-            out.append(f"FAIL {case.scenario} {case.controller} seed {seed}: golden trajectory {dep}")
+            out.append(f"FAIL {case.scenario} {case.controller} seed {seed}: {golden_text(dep)}")
     return out
+
+
+def golden_text(departure) -> str:
+    """"golden trajectory departs at ...", or "golden trajectory: <why>" (another length, no reference, ...)."""
+    text = str(departure)
+    return f"golden trajectory {text}" if text.startswith("departs at") else f"golden trajectory: {text}"
 
 
 def _worst(verdicts):
@@ -286,10 +326,23 @@ def _worst(verdicts):
     return (max if b.op in ("<=", "<") else min)(verdicts, key=lambda v: float(v.measured))
 
 
+def _flatten(doc, prefix: str):
+    """(dotted name, text) of every leaf of a JSON-like tree: JUnit properties are flat strings."""
+    if isinstance(doc, dict):
+        for k, v in doc.items():
+            yield from _flatten(v, f"{prefix}.{k}")
+    elif isinstance(doc, list):
+        yield prefix, ",".join(map(str, doc))
+    else:
+        yield prefix, "" if doc is None else str(doc).lower() if isinstance(doc, bool) else str(doc)
+
+
 def write_junit(result: CheckResult, path: Path) -> Path:
     """JUnit XML: a test suite per scenario, a test case per controller and seed (its per-run
     bounds) and one per controller over the seeds (the ``[expect.seeds]`` bounds), with the
-    failing bounds, measured values and bounds in each failure."""
+    failing bounds, measured values and bounds in each failure; each suite's properties are
+    the environment its runs ran in and their designs' digests (``environment.blas.kernel``,
+    ``environment.designs.balance``, ...)."""
     import xml.etree.ElementTree as ET
 
     root = ET.Element("testsuites", name="twin check", tests="0", failures="0", time=f"{result.wall_s:.3f}")
@@ -310,12 +363,22 @@ def write_junit(result: CheckResult, path: Path) -> Path:
             error = case.errors.get(seed) if seed is not None else None
             if seed is not None and case.departures.get(seed) is not None:
                 error = "; ".join(filter(None, [error, *(f"{v.bound}: measured {v.measured_text()}" for v in bad),
-                                                f"golden trajectory {case.departures[seed]}"]))
+                                                golden_text(case.departures[seed])]))
             if bad or error:
                 fails += 1
                 suite.set("failures", str(int(suite.get("failures")) + 1))
                 text = error or "; ".join(f"{v.bound}: measured {v.measured_text()}" for v in bad)
                 ET.SubElement(tc, "failure", message=text[:500]).text = text
+    for source, suite in suites.items():  # <properties> comes first in a suite (the JUnit schema)
+        envs = [c.environment for c in result.cases if c.source == source and c.environment]
+        if envs:
+            props = ET.Element("properties")
+            designs = {}
+            for env in envs:  # the designs of every controller of the scenario
+                designs.update(env.get("designs") or {})
+            for name, value in _flatten({**envs[0], "designs": designs}, "environment"):
+                ET.SubElement(props, "property", name=name, value=value)
+            suite.insert(0, props)
     root.set("tests", str(total))
     root.set("failures", str(fails))
     path = Path(path)

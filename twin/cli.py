@@ -113,6 +113,28 @@ def _no_cache_option(f):
                              "(see 'twin cache'), and do not store it.")(f)
 
 
+def _tolerance_options(what: str):
+    """--atol, --rtol and --tolerance SIGNAL=ATOL[,RTOL] (twin.tolerances), for ``what``."""
+    def decorate(f):
+        f = click.option("--tolerance", multiple=True, metavar="SIGNAL=ATOL[,RTOL]",
+                         help="Tolerance of one signal (repeatable), e.g. theta=1e-6 or torque_l=1e-3,1e-6; "
+                              "overrides --atol/--rtol for it.")(f)
+        f = click.option("--rtol", type=float, default=None, metavar="FRACTION",
+                         help=f"Relative tolerance of every signal in {what}: |a − b| ≤ ATOL + RTOL·|b| "
+                              "(default 0).")(f)
+        f = click.option("--atol", type=float, default=None, metavar="ATOL",
+                         help=f"Absolute tolerance of every signal in {what}, in the signal's SI unit (default 0: "
+                              "bit for bit; at least 1e-9 between compiled and pure-Python builds).")(f)
+        return f
+    return decorate
+
+
+def _tolerances(atol, rtol, items):
+    from twin.tolerances import parse_options
+
+    return parse_options(atol, rtol, items)
+
+
 @main.group()
 def cache():
     """The design cache: LMI designs stored by their inputs, so that a run need not solve them.
@@ -615,17 +637,22 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
               help="Store every run as a golden trajectory under DIR (compressed).")
 @click.option("--golden", type=click.Path(file_okay=False, path_type=Path), default=None, metavar="DIR",
               help="Compare every run with the golden trajectory stored under DIR; report where it departs.")
-def check(targets, controller, seeds, workers, overrides, junit, record, golden):
+@_tolerance_options("the golden trajectories (with --golden)")
+def check(targets, controller, seeds, workers, overrides, junit, record, golden, atol, rtol, tolerance):
     """Check scenarios against their [expect] bounds: exit 0 if all hold, 1 if any fails.
 
     Runs every scenario, controller and seed (in parallel on local cores) and prints each
     bound with the measured value. A directory contributes its .toml files that have an
-    [expect] table. Exit status 2 on a user error (a bad file, key or kind).
+    [expect] table. With --golden, each run must also follow its recorded trajectory: bit
+    for bit unless --atol, --rtol, --tolerance or the scenario's [expect.golden] allow
+    more; a departure says whether the environment or a design differs from the
+    reference's. Exit status 2 on a user error (a bad file, key or kind).
 
     \b
     Examples:
       twin check paper-exp1 paper-exp2 paper-exp3
       twin check scenarios/ --controller my_filters:Tuned,it2 --seeds 20 --junit check.xml
+      twin check paper-exp1 --golden gold/ --atol 1e-6 --tolerance theta=1e-8
     """
     from twin.check import collect, failure_lines, format_table, run_checks, write_junit
     from twin.sweep.backends import default_workers
@@ -635,6 +662,10 @@ def check(targets, controller, seeds, workers, overrides, junit, record, golden)
                         "give one of them")
     if golden is not None and not golden.is_dir():
         raise TwinError(f"--golden {golden}: no such directory; record references first with --record {golden}")
+    tolerances = _tolerances(atol, rtol, tolerance)
+    if tolerances.is_set and golden is None:
+        raise TwinError("--atol, --rtol and --tolerance set how closely a run must follow its golden trajectory; "
+                        "give --golden DIR with them")
 
     kinds = None
     if controller is not None:
@@ -648,7 +679,7 @@ def check(targets, controller, seeds, workers, overrides, junit, record, golden)
         raise TwinError("no scenario with an [expect] table to check")
     bar = _SweepBar("runs")
     result = run_checks(scenarios, kinds, seeds, workers or default_workers(), progress=bar.update, record=record,
-                        golden=golden)
+                        golden=golden, tolerances=tolerances)
     bar.close()
     click.echo(format_table(result))
     n_bad = sum(not c.passed for c in result.cases)

@@ -15,6 +15,10 @@ The TOML form reads like the bound it states, one key per bound::
     pass_rate = ">= 0.95"                     # fraction of seeds on which every bound above holds
     "p95(iae_theta)" = "<= 0.8"               # a statistic over the seeds: mean, median, min, max, pNN
 
+    [expect.golden]                           # tolerances of 'twin check --golden' (twin.tolerances)
+    atol = 1e-6                               # in each signal's SI unit
+    signals = { theta = { atol = 1e-5 } }
+
 Why this form: the key is the quantity (a metric of :func:`twin.metrics.run_metrics`,
 optionally ``|…|`` and a statistic over seeds) and the value is the comparison
 (``<=``, ``<``, ``>=``, ``>``, ``==`` and a number, or true/false for ``fell``), so a
@@ -47,6 +51,7 @@ METRICS = {
 OPS = {"<=": operator.le, "<": operator.lt, ">=": operator.ge, ">": operator.gt, "==": operator.eq}
 ALL = "*"  # the scope of the bounds that apply to every controller
 SEEDS = "seeds"  # the table of bounds over seeds
+GOLDEN = "golden"  # the tolerances of golden comparisons (twin.tolerances), not bounds
 _KEY = re.compile(r"^(?:(?P<stat>mean|median|min|max|p\d{1,2})\()?(?P<bar>\|)?(?P<metric>[a-z_]+)(?P<bar2>\|)?"
                   r"(?P<close>\))?$")
 _VALUE = re.compile(r"^\s*(?P<op><=|>=|==|<|>)\s*(?P<num>[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?)\s*$")
@@ -133,21 +138,30 @@ def parse_bound(key: str, value, where: str, over_seeds: bool) -> Bound:
 
 def parse_expect(table, path: str = "expect") -> dict[str, tuple[Bound, ...]]:  # noqa: C901
     """The ``[expect]`` table as scope → bounds: :data:`ALL` for every controller, a kind for one,
-    :data:`SEEDS` for the statistics over seeds (and ``pass_rate``)."""
+    :data:`SEEDS` for the statistics over seeds (and ``pass_rate``). ``[expect.golden]`` holds
+    tolerances, not bounds: validated here, read by :mod:`twin.check`."""
     from twin.registry import check_kind
 
     if not isinstance(table, dict):
         raise ExpectError(f"{path}: must be a table of bounds, e.g. fell = false, settling_time_s = \"<= 9\"")
     out: dict[str, list[Bound]] = {}
     for key, value in table.items():
+        if key == GOLDEN:
+            from twin.tolerances import parse_table
+
+            try:
+                parse_table(value, f"{path}.{GOLDEN}")
+            except TwinError as exc:
+                raise ExpectError(str(exc)) from None
+            continue
         if isinstance(value, dict):
             over = key == SEEDS
             if not over:
                 try:
                     check_kind("controller", key)
                 except TwinError as exc:
-                    raise ExpectError(f"{path}.{key}: a sub-table is [expect.seeds] or [expect.KIND] for one "
-                                      f"controller; {exc}") from None
+                    raise ExpectError(f"{path}.{key}: a sub-table is [expect.seeds], [expect.golden] or "
+                                      f"[expect.KIND] for one controller; {exc}") from None
             for k, v in value.items():
                 out.setdefault(key, []).append(parse_bound(k, v, f"{path}.{key}.{k}", over))
         else:
@@ -225,5 +239,5 @@ def failed(verdicts: list[Verdict], bounds: dict[str, tuple[Bound, ...]]) -> lis
     return [v for v in verdicts if not v.holds and (v.seed is None or not has_rate)]
 
 
-__all__ = ["ALL", "Bound", "ExpectError", "METRICS", "SEEDS", "Verdict", "evaluate", "failed", "parse_bound",
+__all__ = ["ALL", "Bound", "ExpectError", "GOLDEN", "METRICS", "SEEDS", "Verdict", "evaluate", "failed", "parse_bound",
            "parse_expect"]

@@ -3,39 +3,44 @@
 ``twin check --record DIR`` stores every checked run (scenario, controller, seed) as
 ``DIR/<scenario>/<controller>/seed-<S>.npz`` (numpy's compressed archive): the time
 vector, every logged signal (ground truth, estimates, commands, actuation, pushes; the
-columns of ``trajectory.csv``), their names and units, the run's status, and the build
-it came from (whether the compiled kernels ran). ``twin check --golden DIR`` compares a
-new run with it, signal by signal, and reports the first time and signal where they part.
+columns of ``trajectory.csv``), their names and units, the run's status and metrics, the
+build it came from (whether the compiled kernels ran) and its environment with a digest
+of each design it used (:mod:`twin.fingerprint`). ``twin check --golden DIR`` compares a
+new run with it, signal by signal, and reports the first time and signal where they part,
+and whether the environment or a design differs from the reference's.
 
 What is compared how, and why:
 
 * **The same build** (the compiled kernels on both sides, or the pure-Python paths on
-  both): every value **bit for bit**. The twin is deterministic (one seeded generator, one
-  physics server per run, sums in a fixed order), so any difference at all is a change in
-  the code, the scenario or the libraries, and the first one is reported where it appears.
+  both): every value **bit for bit**, unless tolerances are set (:mod:`twin.tolerances`).
+  The twin is deterministic (one seeded generator, one physics server per run, sums in a
+  fixed order), so any difference at all is a change in the code, the scenario, the
+  libraries or the machine's arithmetic (another BLAS kernel), and the first one is
+  reported where it appears, with what the environments differ in.
 * **Another build**: the compiled and pure-Python paths of the fuzzy engine, the EKF and
   the physics agree to about 1e-13, not bit for bit, and the estimates and commands differ
   by that much. Every signal is then compared with the tolerance
-  ``|run − reference| ≤ ATOL + RTOL · |reference|`` (ATOL = 1e-9 in the signal's SI unit,
-  RTOL = 1e-9): four orders above the paths' disagreement, far below any physical change
-  (a 1 % heavier body moves θ by about 1e-4 rad within 0.1 s).
-* Either way the row count and the status ("ok", "fell", "diverged") must match exactly:
-  a run that falls earlier departs where the shorter one ends.
+  ``|run − reference| ≤ ATOL + RTOL · |reference|``, each at least ATOL = 1e-9 in the
+  signal's SI unit and RTOL = 1e-9: four orders above the paths' disagreement, far below
+  any physical change (a 1 % heavier body moves θ by about 1e-4 rad within 0.1 s).
+* A run of another length or status ("ok", "fell", "diverged") is reported as such, with
+  its rows, last time and status beside the reference's, and where the rows both have
+  first part.
 """
 from __future__ import annotations
 
 import json
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from twin.errors import TwinError
+from twin.tolerances import BUILD_ATOL, BUILD_RTOL, Tolerances
 
-ATOL = 1e-9  # in each signal's SI unit
-RTOL = 1e-9
-FORMAT = 1
+ATOL, RTOL = BUILD_ATOL, BUILD_RTOL  # the tolerance between builds (in each signal's SI unit; a fraction)
+FORMAT = 2  # 2: the meta records the environment and the design digests (twin.fingerprint)
 
 
 def build() -> str:
@@ -82,26 +87,67 @@ def record(path: Path, traj: Trajectory, meta: dict) -> Path:
 
 
 def load(path: Path) -> tuple[Trajectory, dict]:
-    """The reference at ``path`` and its metadata; a one-line error if it is missing or not one."""
+    """The reference at ``path`` and its metadata; a one-line error naming the file if it is
+    missing, is not a golden trajectory (another file, a foreign or damaged archive) or is
+    of an older format."""
     path = Path(path)
+    if not path.is_file():
+        why = "a directory, not a file" if path.is_dir() else "no golden trajectory here"
+        raise TwinError(f"{path}: {why}; record one with 'twin check --record DIR'")
+    not_ours = f"{path}: not a golden trajectory of 'twin check --record'"
     try:
-        with np.load(path, allow_pickle=False) as z:
+        with open(path, "rb") as fh:
+            head = fh.read(6)
+    except OSError as exc:
+        raise TwinError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    if head.startswith(b"\x93NUMPY"):
+        raise TwinError(f"{not_ours} (a single .npy array, not an .npz archive)")
+    if not head.startswith(b"PK"):  # every zip archive, .npz included, starts so
+        raise TwinError(f"{not_ours} (not an .npz archive, nor any zip file)")
+    damaged = f"{not_ours} (a damaged or truncated .npz archive"
+    try:
+        z = np.load(path, allow_pickle=False)
+    except Exception as exc:  # noqa: BLE001 -- whatever numpy makes of a broken archive, it is one line here
+        raise TwinError(f"{damaged}: {_one_line(exc)})") from None
+    try:
+        with z:
+            missing = [k for k in ("meta", "names", "units", "data") if k not in z.files]
+            if missing:
+                raise TwinError(f"{not_ours} (an .npz archive without {', '.join(missing)})")
             meta = json.loads(str(z["meta"]))
-            traj = Trajectory(tuple(str(n) for n in z["names"]), tuple(str(u) for u in z["units"]),
-                              np.array(z["data"], dtype=float), meta["status"])
-    except FileNotFoundError:
-        raise TwinError(f"{path}: no golden trajectory here; record one with 'twin check --record DIR'") from None
-    except (OSError, ValueError, KeyError) as exc:
-        raise TwinError(f"{path}: not a golden trajectory of 'twin check --record' ({exc})") from None
+            names, units = tuple(str(n) for n in z["names"]), tuple(str(u) for u in z["units"])
+            data = np.array(z["data"], dtype=float)
+    except TwinError:
+        raise
+    except Exception as exc:  # noqa: BLE001 -- zipfile, zlib, json and numpy's errors on a damaged member
+        if "allow_pickle" in str(exc):
+            raise TwinError(f"{not_ours} (it holds Python objects, which are not read)") from None
+        raise TwinError(f"{damaged}: {_one_line(exc)})") from None
+    if not isinstance(meta, dict):
+        raise TwinError(f"{not_ours} (its meta is not a JSON object)")
     if meta.get("format") != FORMAT:
-        raise TwinError(f"{path}: golden format {meta.get('format')!r}, this version reads {FORMAT}; record it again")
-    return traj, meta
+        raise TwinError(f"{path}: golden format {meta.get('format')!r} (an older mtwip-twin's), this version reads "
+                        f"format {FORMAT}; record it again with 'twin check --record DIR'")
+    if data.ndim != 2 or data.shape[1] != len(names) or len(units) != len(names) or "t" not in names:
+        raise TwinError(f"{not_ours} (data of shape {data.shape} for {len(names)} signals)")
+    if "status" not in meta:
+        raise TwinError(f"{not_ours} (its meta has no status)")
+    return Trajectory(names, units, data, str(meta["status"])), meta
+
+
+def _one_line(exc: BaseException) -> str:
+    name = type(exc).__name__
+    name = f"{type(exc).__module__} error" if name == "error" else name  # zlib.error, say
+    return " ".join(f"{name}: {exc}".split())
 
 
 @dataclass(frozen=True)
 class Departure:
     """Where a run first parts from its reference: ``t`` s, ``signal`` (with ``unit``), the two
-    values and the tolerance used (0: bit for bit); ``why`` for a structural difference."""
+    values and the tolerance there (``atol + rtol·|reference|``; 0: bit for bit); ``why`` for a
+    structural difference (other signals, another length or status), with or without a value
+    departure over the rows both have; ``environment``: what the run's environment and
+    designs differ in from the reference's (() none, None not compared)."""
 
     t: float
     signal: str
@@ -110,44 +156,103 @@ class Departure:
     reference: float
     tolerance: float
     why: str = ""
+    environment: tuple | None = None
+
+    def value_text(self) -> str:
+        how = "bit for bit" if self.tolerance == 0 else f"tolerance {self.tolerance:.3g} {self.unit}"
+        return (f"departs at t = {self.t:.3f} s in {self.signal}: {self.run!r} against the reference's "
+                f"{self.reference!r} {self.unit} (difference {self.run - self.reference:.3g} {self.unit}, {how})")
 
     def __str__(self) -> str:
         if self.why:
-            return f"departs at t = {self.t:.3f} s: {self.why}"
-        how = "bit for bit" if self.tolerance == 0 else f"tolerance {self.tolerance:.3g} {self.unit}"
-        return (f"departs at t = {self.t:.3f} s in {self.signal}: {self.run!r} against the reference's "
-                f"{self.reference!r} {self.unit} ({how})")
+            text = self.why + (f"; over the rows both have it {self.value_text()}" if self.signal else "")
+        else:
+            text = self.value_text()
+        if self.environment is not None:
+            text += "; " + environment_text(self.environment)
+        return text
 
 
-def compare(run: Trajectory, ref: Trajectory, exact: bool) -> Departure | None:
-    """The first departure of ``run`` from ``ref`` (None: they agree); see the module docstring."""
-    if run.names != ref.names:
-        differ = sorted(set(ref.names) ^ set(run.names))
-        why = (f"the logged signals differ ({', '.join(differ[:5])})" if differ else
-               "the logged signals are the same but in another order")
-        return Departure(0.0, "", "", 0.0, 0.0, 0.0, why)
-    n = min(len(run.data), len(ref.data))
-    a, b = run.data[:n], ref.data[:n]
-    if exact:
-        bad = ~((a == b) | (np.isnan(a) & np.isnan(b)))
-        tol = np.zeros_like(b)
-    else:
-        tol = ATOL + RTOL * np.abs(b)
-        with np.errstate(invalid="ignore"):
-            # equal values (inf included) and NaN on both sides agree, as they do bit for bit
-            bad = ~((a == b) | (np.isnan(a) & np.isnan(b)) | (np.abs(a - b) <= tol))
-    rows = np.nonzero(bad.any(axis=1))[0]
-    t_col = run.names.index("t")
-    if len(rows):
-        i = int(rows[0])
-        j = int(np.nonzero(bad[i])[0][0])
-        return Departure(float(b[i, t_col]), run.names[j], run.units[j], float(a[i, j]), float(b[i, j]),
-                         float(tol[i, j]))
-    if len(run.data) != len(ref.data) or run.status != ref.status:
-        t = float(b[-1, t_col]) if n else 0.0
-        return Departure(t, "", "", 0.0, 0.0, 0.0, f"the run ends {run.status!r} after {len(run.data)} rows, the "
-                                                   f"reference {ref.status!r} after {len(ref.data)}")
-    return None
+def environment_text(differences) -> str:
+    """What a run's environment and designs differ in from its reference's, for a departure."""
+    if not differences:
+        return "environment and designs identical to the reference's (so the code or the scenario changed)"
+    return "differs from the reference in: " + "; ".join(differences)
 
 
-__all__ = ["ATOL", "RTOL", "Departure", "Trajectory", "build", "compare", "load", "path_for", "record"]
+def common_rows(a: Trajectory, b: Trajectory) -> int:
+    """The rows two trajectories' values can be compared on: those both have, less the shorter
+    one's last row when their lengths differ (a run's last row logs no actuation: nothing was
+    applied after it, so there it differs from a longer run's by construction)."""
+    n = min(len(a.data), len(b.data))
+    return n - 1 if len(a.data) != len(b.data) and n else n
+
+
+def first_departures(run: Trajectory, ref: Trajectory, same_build: bool = True,
+                     tolerances: Tolerances | None = None) -> list[Departure]:
+    """Each signal's first departure of ``run`` from ``ref`` over their :func:`common_rows`, in
+    the order of time (then of the signals); signals only one of them logs are left out."""
+    tolerances = tolerances or Tolerances()
+    names = [n for n in ref.names if n in run.names]
+    n = common_rows(run, ref)
+    a = run.data[:n, [run.names.index(k) for k in names]]
+    b = ref.data[:n, [ref.names.index(k) for k in names]]
+    atol, rtol = tolerances.arrays(names, same_build)
+    with np.errstate(invalid="ignore"):  # 0 · inf: an infinite reference agrees only with itself
+        tol = atol + rtol * np.abs(b)
+        # equal values (inf included) and NaN on both sides agree
+        bad = ~((a == b) | (np.isnan(a) & np.isnan(b)) | (np.abs(a - b) <= tol))
+    t = b[:, names.index("t")] if "t" in names else np.arange(n, dtype=float)
+    out = []
+    for j in np.nonzero(bad.any(axis=0))[0]:
+        i = int(np.argmax(bad[:, j]))
+        out.append(Departure(float(t[i]), names[j], ref.units[ref.names.index(names[j])], float(a[i, j]),
+                             float(b[i, j]), float(tol[i, j])))
+    out.sort(key=lambda d: (d.t, names.index(d.signal)))
+    return out
+
+
+def ends_text(a: Trajectory, b: Trajectory, names=("the run", "the reference")) -> str | None:
+    """How two trajectories end, if they end otherwise (rows, last time, status); None if alike."""
+    if len(a.data) == len(b.data) and a.status == b.status:
+        return None
+
+    def end(tr):
+        return float(tr.data[-1, tr.names.index("t")]) if len(tr.data) else 0.0
+
+    return (f"{names[0]} has {len(a.data)} rows (ends at t = {end(a):.3f} s, status {a.status}), "
+            f"{names[1]} {len(b.data)} rows (t = {end(b):.3f} s, status {b.status})")
+
+
+def signals_text(a: Trajectory, b: Trajectory, names=("the run", "the reference")) -> str | None:
+    """How two trajectories' logged signals differ, if they do; None if alike."""
+    if a.names == b.names:
+        return None
+    only_a, only_b = [n for n in a.names if n not in b.names], [n for n in b.names if n not in a.names]
+    if not only_a and not only_b:
+        return "the logged signals are the same but in another order"
+    return "the logged signals differ (" + "; ".join(
+        f"only {who} logs {', '.join(only)}" for who, only in zip(names, (only_a, only_b)) if only) + ")"
+
+
+def compare(run: Trajectory, ref: Trajectory, same_build: bool = True,
+            tolerances: Tolerances | None = None) -> Departure | None:
+    """The first departure of ``run`` from ``ref`` (None: they agree); see the module docstring.
+    ``same_build``: both from the same build (compiled kernels, or pure-Python paths, on both
+    sides); ``tolerances``: per signal (none set: bit for bit on one build)."""
+    structural = signals_text(run, ref)
+    if structural is not None:
+        return Departure(0.0, "", "", 0.0, 0.0, 0.0, structural)
+    found = first_departures(run, ref, same_build, tolerances)
+    first = found[0] if found else None
+    ends = ends_text(run, ref)
+    if ends is not None:  # another length or status: said first, as it is the larger difference
+        if first is not None:
+            return replace(first, why=ends)
+        how = (tolerances or Tolerances()).describe(same_build)
+        return Departure(0.0, "", "", 0.0, 0.0, 0.0, f"{ends}; the rows both have agree ({how})")
+    return first
+
+
+__all__ = ["ATOL", "RTOL", "Departure", "Trajectory", "build", "common_rows", "compare", "ends_text", "environment_text",
+           "first_departures", "load", "path_for", "record", "signals_text"]
