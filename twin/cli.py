@@ -68,6 +68,7 @@ def main():
       twin scenarios
       twin kinds
       twin surface position --out runs/surfaces
+      twin compare runs/before runs/after
     """
 
 
@@ -692,6 +693,47 @@ def check(targets, controller, seeds, workers, overrides, junit, record, golden,
     for line in failure_lines(result):
         click.echo(line, err=True)
     return 0 if result.passed else 1
+
+
+@main.command("compare")
+@click.argument("a", type=click.Path(path_type=Path), metavar="A")
+@click.argument("b", type=click.Path(path_type=Path), metavar="B")
+@_tolerance_options("the trajectories")
+@click.option("--figure", "figure_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              metavar="PATH", help="Write the figure (θ, torque, dψ/dt, distance; A solid, B dashed) as PNG here.")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None, metavar="DIR",
+              help="Write comparison.png and comparison.json (the report as data) into DIR.")
+def compare_(a, b, atol, rtol, tolerance, figure_path, out):
+    """Compare two results side by side: exit 0 if they agree, 1 if they differ.
+
+    A and B are run directories of 'twin run' (metrics.json and trajectory.csv or
+    trajectory.csv.gz) or golden trajectories of 'twin check --record' (.npz); A is the
+    reference. Prints each controller's metrics with B − A, what the environments and the
+    designs differ in, and the first departure of each signal under the tolerances
+    (default: bit for bit). Controllers only one side holds are named, not compared.
+    Exit status 2 on bad input.
+
+    \b
+    Examples:
+      twin compare runs/before runs/after
+      twin compare runs/seed0 runs/seed1 --atol 1e-6 --tolerance theta=1e-4 --figure cmp.png
+      twin compare gold/paper-exp1/it2/seed-0.npz runs/paper-exp1 --out runs/cmp
+    """
+    from twin import compare as cmp
+
+    if figure_path is not None and out is not None:
+        raise TwinError("--figure PATH and --out DIR both say where the figure goes; give one of them")
+    tolerances = _tolerances(atol, rtol, tolerance)
+    result = cmp.compare(cmp.load(a), cmp.load(b), tolerances)
+    click.echo(cmp.report(result))
+    if out is not None:
+        from twin.report import write_json
+
+        figure_path = out / "comparison.png"
+        click.echo(f"wrote {write_json(cmp.as_json(result), out / 'comparison.json')}")
+    if figure_path is not None:
+        click.echo(f"wrote {cmp.figure(result, figure_path)}")
+    return 0 if result.agree else 1
 
 
 def _success_table(summary) -> str:

@@ -164,3 +164,39 @@ def plot_surface(g1, g2, z, path: Path, labels: tuple[str, str, str], title: str
     ax.set_ylabel(labels[1])
     ax.set_title(title, fontsize=10)
     return _save(plt, fig, path)
+
+
+_COMPARISON_PANELS = (("theta", "θ [rad]"), ("torque", "total wheel torque τ_l + τ_r [N·m]"),
+                      ("psi_dot", "dψ/dt [rad/s]"), ("distance", "distance p = rψ [m]"))
+
+
+def plot_comparison(series: list, path: Path, title: str = "") -> Path:
+    """Two results overlaid (``twin compare``): θ, the total wheel torque, dψ/dt and the
+    distance over time, A solid and B dashed (drawn over A's, so identical runs show as one
+    dashed line on a solid one), a colour per controller, and each controller's first
+    departure as a dotted vertical line. ``series``: per controller a dict with ``name``,
+    ``a`` and ``b`` (panel → (t, y), y None where not logged) and ``departs`` (s, or None)."""
+    plt = _pyplot()
+    fig, grid = plt.subplots(2, 2, figsize=(11, 7), sharex=True)
+    for ax, (key, label) in zip(grid.ravel(), _COMPARISON_PANELS):
+        for i, s in enumerate(series):
+            colour = _COLOURS[i % len(_COLOURS)]
+            name = kind_label(s["name"]) or s["name"]
+            for side, style, width in (("a", "-", 1.6), ("b", "--", 1.2)):
+                t, y = s[side][key]
+                if y is not None:
+                    ax.plot(*_envelope(t, y), style, color=colour, lw=width, label=f"{name}, {side.upper()}")
+            if s["departs"] is not None:
+                ax.axvline(s["departs"], color=colour, ls=":", lw=1.0,
+                           label=f"{name}: B departs at {s['departs']:.3f} s")
+        ax.set_title(label, fontsize=9)
+        ax.grid(True, alpha=0.3)
+    for ax in grid[1]:
+        ax.set_xlabel("t [s]")
+    handles, labels = grid[0, 0].get_legend_handles_labels()
+    # a column per controller (the legend fills columns first): A, B and its departure under each other
+    rows = -(-len(labels) // max(len(series), 1))
+    fig.legend(handles, labels, loc="lower center", ncol=max(len(series), 1), fontsize=8, frameon=False)
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout(rect=(0, 0.01 + 0.026 * rows, 1, 1))
+    return _save(plt, fig, Path(path))
