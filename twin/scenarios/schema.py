@@ -229,8 +229,8 @@ SCHEMA: dict[str, Key] = {
     }),
     "expect": Key("expect", {}, recorded_at_default=False, recorded=False,
                   doc="bounds on the run's metrics that 'twin check' verifies, e.g. fell = false, "
-                      "settling_time_s = \"<= 9\"; [expect.KIND] for one controller, [expect.seeds] over seeds "
-                      "(see the README, 'twin check')"),
+                      "settling_time_s = \"<= 9\"; [expect.KIND] for one controller, [expect.seeds] over seeds, "
+                      "[expect.golden] the tolerances of golden trajectories (see the README, 'twin check')"),
     "video": Key("table", keys={
         "enabled": Key("bool", True),
         "fps": Key("int", 30, 1, 120),
