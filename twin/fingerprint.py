@@ -195,8 +195,15 @@ def digests(balance=None, controllers=()) -> dict:
 
 def record(designs: dict | None = None) -> dict:
     """What a result file records under "environment": :func:`environment` and its ``designs``
-    (name → digest, from :func:`digests`)."""
-    return {**environment(), "designs": dict(designs or {})}
+    (name → digest, from :func:`digests`).
+
+    Without the BLAS thread count: it is a setting of the process, not of the machine (the
+    ``twin`` command sets one thread, a Python session keeps OpenBLAS's default), it does not
+    change the twin's numbers (its matrices are too small for OpenBLAS to split), and with it
+    the same run written from the command line and from Python would differ."""
+    env = environment()
+    env["blas"].pop("threads", None)
+    return {**env, "designs": dict(designs or {})}
 
 
 # The items whose difference can change a result's numbers, and how a difference is named.
