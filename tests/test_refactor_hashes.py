@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from kernels_child import metrics_bytes
 from twin import golden
 from twin.scenarios import load_scenario
 from twin.scenarios.runner import run_scenario
@@ -34,5 +35,8 @@ def test_outputs_are_byte_identical_to_before_the_refactor(case, tmp_path):
     sc = load_scenario(spec["scenario"], spec["set"])
     run_scenario(sc, ("it2", "t1"), out=tmp_path, video=False)
     for name, expected in spec[path].items():
-        got = hashlib.sha256((tmp_path / name).read_bytes()).hexdigest()
+        # metrics.json's environment fingerprint names this machine's BLAS kernel and the
+        # commit: it is left out (tests/test_across_kernels.py checks the rest on every kernel)
+        data = metrics_bytes(tmp_path / name) if name == "metrics.json" else (tmp_path / name).read_bytes()
+        got = hashlib.sha256(data).hexdigest()
         assert got == expected, f"{case}: {name} differs from the pre-refactor output ({path} path)"

@@ -1,0 +1,80 @@
+"""One child process of tests/test_across_kernels.py: under the BLAS kernel and numpy SIMD
+targets its environment selects, with an empty design cache, solve the designs, run the
+acceptance scenarios and the refactor-hash cases, and record or check golden trajectories;
+print one JSON object of digests on the last line of stdout.
+
+Usage: python tests/kernels_child.py OUT_DIR GOLDEN_DIR (record|check)
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import sys
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+SCENARIOS = ("paper-exp1", "paper-exp3", "push-recovery")
+CONTROLLERS = ("it2", "lqr")
+
+
+def sha(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def metrics_bytes(path: Path) -> bytes:
+    """metrics.json without its environment fingerprint (which names the kernel by design),
+    serialised as twin.report.write_json does."""
+    doc = json.loads(path.read_text(encoding="utf-8"))
+    doc.pop("environment", None)
+    return (json.dumps(doc, indent=2, ensure_ascii=False) + "\n").encode("utf-8")
+
+
+def outputs(directory: Path) -> dict:
+    return {"trajectory.csv": sha((directory / "trajectory.csv").read_bytes()),
+            "metrics.json": sha(metrics_bytes(directory / "metrics.json"))}
+
+
+def main() -> None:
+    out, golden, mode = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3]
+    from twin import fingerprint
+    from twin.controllers.lmi import NOMINAL_DESIGN, design_balance_gains
+    from twin.controllers.lqr import LQRController
+    from twin.params import NOMINAL
+    from twin.scenarios import load_scenario
+    from twin.scenarios.runner import run_scenario
+
+    env = fingerprint.environment()
+    result = {"kernel": env["blas"].get("kernel"), "numpy_simd": env["numpy_simd"]["dispatched"],
+              "build": "".join("c" if v else "p" for v in env["kernels"].values())}
+    default = design_balance_gains(cache=True)
+    result["designs"] = {"default": default.digest(), "default_unique": default.unique,
+                         "nominal": design_balance_gains(**NOMINAL_DESIGN, cache=True).digest(),
+                         "lqr": LQRController(NOMINAL).design_digest()}
+    runs = {}
+    for name in SCENARIOS:
+        d = out / name
+        run_scenario(load_scenario(name, ["seed=0"]), CONTROLLERS, out=d, video=False)
+        runs[name] = outputs(d)
+    result["scenarios"] = runs
+    cases = json.loads((HERE / "data" / "refactor_hashes.json").read_text(encoding="utf-8"))["cases"]
+    hashes = {}
+    for case, spec in sorted(cases.items()):
+        d = out / "refactor" / case
+        run_scenario(load_scenario(spec["scenario"], spec["set"]), ("it2", "t1"), out=d, video=False)
+        hashes[case] = outputs(d)
+    result["refactor"] = hashes
+    from twin.cli import main as twin_main
+
+    args = ["check", "paper-exp1", "--controller", ",".join(CONTROLLERS),
+            "--record" if mode == "record" else "--golden", str(golden)]
+    try:
+        twin_main(args)
+        code = 0
+    except SystemExit as exc:
+        code = exc.code
+    result["golden_" + mode] = code
+    print(json.dumps(result, sort_keys=True))
+
+
+if __name__ == "__main__":
+    main()
