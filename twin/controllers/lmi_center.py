@@ -160,46 +160,72 @@ def _solve(H, rhs):
 
 
 # ---- the exact part ---------------------------------------------------------------------------
-def _inverse_decimal(F: list, ctx) -> list:
-    """Inverse of a symmetric positive definite matrix (rows of Decimal) by Gauss–Jordan
-    without pivoting (every pivot of an SPD matrix is positive); None if a pivot is not."""
+def _inverse_decimal(F: list, ctx) -> list | None:
+    """Inverse of a symmetric matrix (rows of Decimal) by LDLᵀ, in the context ``ctx``; None
+    if it is not positive definite (a pivot d_k ≤ 0). W = L⁻ᵀ D⁻¹ L⁻¹ costs about m³/2
+    operations, half of Gauss–Jordan's."""
     m = len(F)
-    A = [row[:] + [Decimal(1) if i == j else Decimal(0) for j in range(m)] for i, row in enumerate(F)]
-    for c in range(m):
-        p = A[c][c]
-        if p <= 0:
-            return None
-        inv = ctx.divide(Decimal(1), p)
-        rowc = [ctx.multiply(v, inv) for v in A[c]]
-        A[c] = rowc
-        for r in range(m):
-            if r != c:
-                f = A[r][c]
-                if f:
-                    A[r] = [ctx.subtract(a, ctx.multiply(f, b)) for a, b in zip(A[r], rowc)]
-    return [row[m:] for row in A]
+    zero, one = Decimal(0), Decimal(1)
+    with decimal.localcontext(ctx):
+        L = [[zero] * m for _ in range(m)]
+        d = [zero] * m
+        for k in range(m):
+            Lk = L[k]
+            for j in range(k):  # L_kj = (F_kj − Σ_{i<j} L_ki L_ji d_i) / d_j
+                Lj = L[j]
+                acc = F[k][j]
+                for i in range(j):
+                    acc -= Lk[i] * Lj[i] * d[i]
+                Lk[j] = acc / d[j]
+            acc = F[k][k]
+            for i in range(k):
+                acc -= Lk[i] * Lk[i] * d[i]
+            if acc <= 0:
+                return None
+            d[k] = acc
+            Lk[k] = one
+        # X = L⁻¹ (unit lower triangular), column by column
+        X = [[zero] * m for _ in range(m)]
+        for c in range(m):
+            X[c][c] = one
+            for r in range(c + 1, m):
+                acc = zero
+                Lr = L[r]
+                for i in range(c, r):
+                    acc -= Lr[i] * X[i][c]
+                X[r][c] = acc
+        inv_d = [one / v for v in d]
+        W = [[zero] * m for _ in range(m)]
+        for a in range(m):
+            for b in range(a, m):
+                acc = zero
+                for k in range(b, m):  # X_ka = 0 for k < a, X_kb = 0 for k < b
+                    acc += X[k][a] * X[k][b] * inv_d[k]
+                W[a][b] = W[b][a] = acc
+    return W
 
 
 def _gradient_decimal(blocks, xd, it, nu, kappa, ctx) -> list:
-    """∇φ_μ at ``xd`` (Decimal), μ = kappa·t/ν, every operation correctly rounded."""
+    """∇φ_μ at ``xd`` (Decimal), μ = kappa·t/ν, every operation correctly rounded in ``ctx``."""
     g = [Decimal(0)] * len(xd)
-    for b in blocks:
-        F = [row[:] for row in b.Cd]
-        for q, v in enumerate(b.idx):
-            xv = xd[v]
-            for a, c, val in b.Md[q]:
-                F[a][c] = ctx.add(F[a][c], ctx.multiply(xv, val))
-        W = _inverse_decimal(F, ctx)
-        if W is None:
-            raise InfeasibleDesign("the design's refinement left the feasible set in exact arithmetic (a numerical "
-                                   "limit); lower --decay-rate or --damping")
-        for q, v in enumerate(b.idx):
-            acc = Decimal(0)
-            for a, c, val in b.Md[q]:
-                acc = ctx.add(acc, ctx.multiply(W[c][a], val))
-            g[v] = ctx.subtract(g[v], acc)
-    mu = ctx.divide(ctx.multiply(Decimal(repr(kappa)), xd[it]), Decimal(nu))
-    g[it] = ctx.add(g[it], ctx.divide(Decimal(1), mu))
+    with decimal.localcontext(ctx):
+        for b in blocks:
+            F = [row[:] for row in b.Cd]
+            for q, v in enumerate(b.idx):
+                xv = xd[v]
+                for a, c, val in b.Md[q]:
+                    F[a][c] += xv * val
+            W = _inverse_decimal(F, ctx)
+            if W is None:
+                raise InfeasibleDesign("the design's refinement left the feasible set in exact arithmetic (a "
+                                       "numerical limit); lower --decay-rate or --damping")
+            for q, v in enumerate(b.idx):
+                acc = Decimal(0)
+                for a, c, val in b.Md[q]:
+                    acc += W[c][a] * val
+                g[v] -= acc
+        mu = Decimal(repr(kappa)) * xd[it] / Decimal(nu)
+        g[it] += 1 / mu
     return g
 
 
