@@ -20,6 +20,11 @@ the gains do not depend on ε; ρ (|u| ≤ ρ) and ``max_gain`` (‖G_i‖ ≤ m
 checks on the design (the peak bound and the gains' norms), and an infeasible request
 names the value that works. Only the decay rate can make the problem itself infeasible.
 
+The solver's answer is not the design: it lands somewhere on the optimal face, at a place
+that depends on the BLAS kernel. The design is the program's unique central point at a 1 %
+duality gap, found from the solver's answer and computed in 50-digit decimal arithmetic
+(:mod:`twin.controllers.lmi_center`), so its gains are the same on every machine.
+
 After solving, :func:`verify_certificate` re-checks everything with numpy eigenvalues,
 independent of the solver's status: every LMI with a margin, plus the closed-loop
 Lyapunov inequality (Σ_ij m_i m_j (A_i + B_i G_j))ᵀ P + P (…) + 2aP ≺ 0 on a grid of

@@ -1,5 +1,5 @@
 """The LMI design's one answer: a unique point of the semidefinite program, computed to
-~40 digits with correctly rounded arithmetic, so the gains are the same on every machine.
+~50 digits with correctly rounded arithmetic, so the gains are the same on every machine.
 
 Why this exists
 ---------------
@@ -9,9 +9,9 @@ peak-input bound t. Where exactly a solver stops depends on the last bits of eve
 call it makes, and OpenBLAS picks its kernel per CPU (Haswell, SkylakeX, ...): measured,
 the default design's gains differed at 1e-5 relative between kernels, and the wheels'
 stick and slip in the catch amplify that into different trajectories. Tightening the
-solver does not help (Clarabel stalls, "AlmostSolved", at the same spread), and rounding
-the solver's answer to a few digits cannot help either: a value within the spread of a
-rounding boundary rounds both ways.
+solver does not help (Clarabel stalls, "AlmostSolved", at the same spread of 1e-5), and
+rounding the solver's answer to a few digits cannot help either: a value within the spread
+of a rounding boundary rounds both ways on two machines.
 
 What is computed instead
 ------------------------
@@ -23,24 +23,40 @@ minimiser of the strictly convex
 
     φ_μ(x) = t / μ − Σ_k log det F_k(x),   with μ = KAPPA · t / ν   (ν = Σ_k size of F_k),
 
-so that the gap ν μ (Boyd & Vandenberghe, *Convex Optimization*, 2004, §11.2 and §11.6) is
-KAPPA · t: the objective is within 1 % of its optimum (the peak-input bound √t within
-strictly, with a margin the barrier keeps. Being the minimiser of a strictly convex
-function, the point does not depend on where it is approached from: the solver's answer is
-only where the search starts.
+so that the gap ν μ (Boyd & Vandenberghe, *Convex Optimization*, 2004, §11.2) is KAPPA · t:
+the objective t (the squared peak-input bound) is within 1 % of its minimum, the bound
+itself within 0.5 %, and every constraint holds strictly with a margin the barrier keeps
+(the design is pushed a little inside the feasible set rather than onto its edge). Being
+the minimiser of a strictly convex function, the point does not depend on where it is
+approached from: the solver's answer is only where the search starts, so the design is
+also the same whichever solver (Clarabel, SCS, cvxpy's formulation or the direct one)
+found the start, and whatever their versions.
+
+Why 1 % and not less: the barrier's Hessian grows ill-conditioned as the gap shrinks
+(cond ~ 1/KAPPA²; measured on the default design 6e8 at 1 %, 6e10 at 0.01 %), and the
+exact steps below contract only while cond(H) · 1e-16 ≪ 1. At 1 % every design tried
+converges (the paper's relaxation over the five-parameter example box, 1207 variables,
+included); at 0.1 % that one did not.
 
 How: damped Newton steps on φ_μ in float64 (numpy; these may differ in their last bits
-from machine to machine, which only changes the path), following μ down from 1e-2 of t to
-the target; then Newton steps whose *gradient* is evaluated in :mod:`decimal` arithmetic
-at :data:`DIGITS` significant digits (correctly rounded, the same everywhere) with the
-float64 Hessian, until the step is below 1e-30 relative. The float64 Hessian's error only
-slows the contraction (by about cond(H) · 1e-16 per step); the fixed point is where the
-exact gradient vanishes. The design's numbers (Q, P, the gains) are then computed from
-that point in the same arithmetic and rounded once to float64: two machines agree unless
-a number lies within 1e-30 of a rounding boundary of float64.
+from machine to machine, which only changes the path; Boyd & Vandenberghe §9.6), then
+Newton steps whose *gradient* is evaluated in :mod:`decimal` arithmetic at :data:`DIGITS`
+significant digits (correctly rounded, the same everywhere) with a float64 Hessian, until
+the step is below 1e-26 relative (the next would be ~1e-30). The float64 Hessian's error
+only slows the contraction (to about 1e-4 per step here); the fixed point is where the
+exact gradient vanishes. The design's numbers (Q, P, the gains, the peak input) are then
+computed from that point in the same arithmetic and rounded once to float64: two machines
+agree unless a number lies within ~1e-30 of a rounding boundary of float64. The program's
+own numbers are the same everywhere too: they are built by elementwise IEEE operations
+only (:func:`twin.controllers.lmi_regions.build_program`).
 
-What it costs: about 0.1–0.3 s on top of the solve for the default design (measured in
-benchmarks/bench_lmi.py); a cached design (twin.controllers.design_cache) costs nothing.
+Should the point not be found (a numerical limit near the edge of feasibility),
+:func:`refine` raises and the design falls back to the solver's answer with a one-line
+note (``BalanceDesign.unique`` is then False).
+
+What it costs (benchmarks/bench_design_cost.py): the default design's first solve in a
+process about 0.1 s more than the solver's answer alone; a cached design
+(:mod:`twin.controllers.design_cache`) nothing.
 """
 from __future__ import annotations
 
