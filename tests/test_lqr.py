@@ -362,9 +362,6 @@ def test_lqr_balances_the_paper_experiments_on_the_twin_with_the_ekf(number):
 
 
 # ---- the same bits on every CPU kernel (issue 25) ----------------------------------------------
-# OpenBLAS core types and the /proc/cpuinfo flags each needs (Prescott: any x86-64)
-_CORETYPES = {"Prescott": (), "SandyBridge": ("avx",), "Haswell": ("avx2", "fma"), "Zen": ("avx2", "fma"),
-              "SkylakeX": ("avx512f", "avx512bw", "avx512dq", "avx512vl")}
 # the child: both designs (sampled and continuous), every exposed matrix by its exact bits, and
 # which OpenBLAS kernel and numpy SIMD targets it actually ran with
 _CHILD = r"""
@@ -392,42 +389,6 @@ print(json.dumps({"design": out, "blas": blas,
 """
 
 
-def _cpu_flags() -> set | None:
-    try:
-        text = open("/proc/cpuinfo", encoding="ascii", errors="replace").read()
-    except OSError:
-        return None
-    for line in text.splitlines():
-        if line.startswith("flags"):
-            return set(line.split(":", 1)[1].split())
-    return None
-
-
-def _kernel_environments() -> dict[str, dict[str, str]]:
-    """The OpenBLAS kernels this CPU can run (x86-64 with /proc/cpuinfo only) and numpy's SIMD
-    targets narrowed step by step down to its baseline, each as environment variables."""
-    import platform
-
-    try:
-        from numpy._core import _multiarray_umath as mu
-    except ImportError:  # numpy 1.x
-        from numpy.core import _multiarray_umath as mu
-
-    envs: dict[str, dict[str, str]] = {}
-    flags = _cpu_flags() if platform.machine().lower() in ("x86_64", "amd64") else None
-    if flags is not None:
-        for core, needs in _CORETYPES.items():
-            if set(needs) <= flags:
-                envs[core] = {"OPENBLAS_CORETYPE": core}
-    active = [f for f in mu.__cpu_dispatch__ if mu.__cpu_features__.get(f)]
-    for i in range(len(active)):
-        envs[f"numpy without {' '.join(active[i:])}"] = {"NPY_DISABLE_CPU_FEATURES": " ".join(active[i:])}
-    if flags is not None and active:
-        envs["Prescott, numpy baseline"] = {"OPENBLAS_CORETYPE": "Prescott",
-                                            "NPY_DISABLE_CPU_FEATURES": " ".join(active)}
-    return envs
-
-
 def test_gains_are_bit_identical_under_every_blas_kernel_and_numpy_simd_target():
     """Issue 25: the design runs in child processes under each OpenBLAS kernel this CPU supports
     (OPENBLAS_CORETYPE) and with numpy's SIMD targets narrowed (NPY_DISABLE_CPU_FEATURES); the
@@ -439,7 +400,9 @@ def test_gains_are_bit_identical_under_every_blas_kernel_and_numpy_simd_target()
     import subprocess
     import sys
 
-    envs = _kernel_environments()
+    from cpu_kernels import kernel_environments
+
+    envs = kernel_environments()
     if not envs:
         pytest.skip("neither OpenBLAS kernels nor numpy SIMD targets to switch between on this machine")
     import twin
