@@ -136,6 +136,21 @@ turns it off) does the same step in about 7 µs instead of 120–200 µs, with x
 the Python side in a :class:`KernelState`. tests/test_estimator_kernel.py holds them
 together. Only the reference path imports filterpy (whose package imports scipy.stats, 0.8 s
 of a command's start-up), and the χ² gates come from :mod:`estimation.gates`.
+
+The same bits on every CPU (issue 25): no matrix product or solve here goes through numpy's
+BLAS/LAPACK (``@``, ``np.dot``, ``np.linalg``), whose last bits depend on the kernel OpenBLAS
+picks for the CPU. The Python code (the reference path's steps, the coasting steps and
+the latency watch of both paths) uses :mod:`estimation.detlinalg`, which adds every sum's
+products in ascending order, as the kernel's C loops do; the encoder update of the
+reference path (:class:`~estimation.twin_ekf.TwinEKF`) and its innovation, NIS and
+truncation quantities follow the kernel's association term for term. Measured: every
+OPENBLAS_CORETYPE (Prescott … SkylakeX) and numpy SIMD level give byte-identical runs on
+both paths (before, the reference path parted after 0.02 s and the compiled one at its
+first coasting step). The transcendental functions (sin, cos, tan, exp, erfc, atan2) are
+libm's, scalar, in both paths (as in the plant and PyBullet): glibc picks its FMA or its
+SSE2 variant of each per CPU (measured, glibc 2.36: about 1 argument in 1000 rounds
+differently), so runs are bit-identical among CPUs with FMA (x86-64-v3: Haswell, Zen and
+later) and among CPUs without, not between the two.
 """
 from __future__ import annotations
 
@@ -143,6 +158,7 @@ import math
 import os
 import numpy as np
 
+from estimation.detlinalg import affine, dot, mm, mm3, mv, quad_inv, solve
 from estimation.gates import chi2_gate
 from estimation.model import TORQUE_TOLERANCE, EstimatorModel
 from twin.errors import TwinError
@@ -473,7 +489,7 @@ class EKFEstimator:
             xp[j] += h
             xm[j] -= h
             J[:, j] = (self.state6(xp) - self.state6(xm)) / (2.0 * h)
-        C = J @ self.kf.P @ J.T
+        C = mm3(J, self.kf.P, J.T)
         th = x[TH]
         dz = -self.xi * math.sin(th) + self.zi * math.cos(th)
         q_y, q_z = 1.0 / (1.0 + x[SY]), 1.0 / ((1.0 + x[SZ]) * math.cos(th))
@@ -691,8 +707,9 @@ class EKFEstimator:
             Z, yy = dk[_WATCH_INDEX[:, ok]], y2[ok]
         yy = yy - yy.mean()
         Z -= Z.sum(axis=1, keepdims=True) / used  # as Z.mean(axis=1): the sum, divided
-        den = np.sqrt((yy @ yy) * np.einsum("ij,ij->i", Z, Z))
-        rho = self._torque_sign * (Z @ yy) / np.where(den > 0, den, math.inf)
+        # dot/mv, not @: BLAS products differ in their last bits between CPU kernels (issue 25)
+        den = np.sqrt(dot(yy, yy) * mv(Z * Z, np.ones(Z.shape[1])))
+        rho = self._torque_sign * mv(Z, yy) / np.where(den > 0, den, math.inf)
         best = int(np.argmax(rho))
         self._watch_last = (t, best, float(rho[best]), float(rho[self.d_gyro]))
         if best != self.d_gyro and rho[best] >= WATCH_RHO and rho[best] - rho[self.d_gyro] >= WATCH_MARGIN:
@@ -817,8 +834,8 @@ class EKFEstimator:
             self._sync()
         x, P = self.kf.x.copy(), self.kf.P.copy()
         off = np.array([self.b_r * self.alpha0, -self.b_r * self.alpha0])
-        y = np.asarray(enc, dtype=float) - (self.H @ x + off)
-        S = self.H @ P @ self.H.T + np.eye(2) * self.delta ** 2 / 12.0
+        y = np.asarray(enc, dtype=float) - (mv(self.H, x) + off)
+        S = mm3(self.H, P, self.H.T) + np.eye(2) * self.delta ** 2 / 12.0
         x[C0] += 0.5 * (y[0] + y[1])
         x[H0] += 0.5 * (y[1] - y[0])
         for i in (C0, H0):
@@ -931,7 +948,7 @@ class EKFEstimator:
 
         def update(em):
             z, off, H, R = em
-            kf.update(z, lambda x: H, lambda x: H @ x + off, R=R)
+            kf.update(z, lambda x: H, lambda x: affine(off, H, x), R=R)
 
         self._encoder_step(enc, m, t, True, update)
         self._finish(t)
@@ -1015,10 +1032,10 @@ class EKFEstimator:
             D[:, j] = (sample(zp) - sample(zm)) / (2.0 * h)
         J = np.zeros((N + 4, N + 4))
         J[:N, :N] = F
-        J[:N] += L @ D
+        J[:N] += mm(L, D)
         J[N:N + 2] = D[:2]
         J[N + 2, N] = J[N + 3, N + 1] = 1.0
-        Pa = J @ Pa @ J.T
+        Pa = mm3(J, Pa, J.T)
         Pa[:N, :N] += Q
         Pa[N, N] += syn[1][0]
         Pa[N + 1, N + 1] += syn[1][1]
@@ -1032,14 +1049,14 @@ class EKFEstimator:
             Ha[:, :N] = H
             za = np.concatenate([kf.x, self._w, self._w_prev])
             Pa = self._aug
-            PHt = Pa @ Ha.T
-            S = Ha @ PHt + R
-            K = np.linalg.solve(S, PHt.T).T
+            PHt = mm(Pa, Ha.T)
+            S = mm(Ha, PHt) + R
+            K = solve(S, PHt.T).T
             if self.holding:
                 K[:N][self._consider_mask] = 0.0  # Schmidt, as TwinEKF.update
-            za = za + K @ (zm_ - (H @ kf.x + off))
-            IKH = np.eye(N + 4) - K @ Ha
-            Pa = IKH @ Pa @ IKH.T + K @ R @ K.T
+            za = za + mv(K, zm_ - (mv(H, kf.x) + off))
+            IKH = np.eye(N + 4) - mm(K, Ha)
+            Pa = mm3(IKH, Pa, IKH.T) + mm3(K, R, K.T)
             self._aug = 0.5 * (Pa + Pa.T)
             kf.x, kf.P = za[:N], self._aug[:N, :N].copy()
             self._w, self._w_prev = (za[N], za[N + 1]), (za[N + 2], za[N + 3])
@@ -1107,8 +1124,8 @@ class EKFEstimator:
             x, P = self.kf.x, self.kf.P
             h = self.H[i]
             off = -(2 * i - 1) * self.b_r * self.alpha0
-            w = float(h @ x) + off
-            s2 = float(h @ P @ h)
+            w = float(affine([off], h[None, :], x)[0])
+            s2 = dot(h, mv(P, h))
             half = self._inside_half
             pm = truncated_measurement(w, s2, enc[i] - half, enc[i] + half, self._inside_gate)
             if pm is None:
@@ -1153,7 +1170,7 @@ class EKFEstimator:
             x, Pp, (wy, wz) = self.kf.x, self.kf.P, self._w
         else:
             x, F, Q, (wy, wz) = pred
-            Pp = F @ P @ F.T + Q
+            Pp = mm3(F, P, F.T) + Q
         T = (m - self._last_enc_m) * self.model.dt
         dlt, b_r = self.delta, self.b_r
         th = x[TH]
@@ -1178,9 +1195,9 @@ class EKFEstimator:
             R.append(min(d * d / 12.0 + var_q * T * T / 3.0, dlt * dlt / 12.0))
         H = self.H[list(rows)]
         z, off, R = np.array(z), np.array(off), np.diag(R)
-        y = z - (H @ x + off)
-        S = H @ Pp @ H.T + R
-        return (z, off, H, R), float(y @ np.linalg.solve(S, y))
+        y = z - affine(off, H, x)
+        S = mm(H, mm(Pp, H.T)) + R
+        return (z, off, H, R), quad_inv(y, S)
 
     def _gate(self, em, t: float, eps: float) -> bool:
         """The χ² gate for encoder measurement ``em`` whose NIS is ``eps``: True to use it."""
@@ -1259,7 +1276,7 @@ class EKFEstimator:
         var = np.array([self._g_var, self._g_var, self._a_var, self._a_var])
         if extra is not None:
             var += extra
-        Q = (L * var) @ L.T
+        Q = mm(L * var, L.T)
         Q[BY, BY] += self._bias_q
         Q[BZ, BZ] += self._bias_q
         if with_L:
