@@ -42,25 +42,24 @@ from __future__ import annotations
 import numpy as np
 
 
+def _f64(a) -> np.ndarray:
+    return a if type(a) is np.ndarray and a.dtype == np.float64 else np.asarray(a, dtype=np.float64)
+
+
 def mm(A, B) -> np.ndarray:
     """A @ B for 2-d A (n, K), B (K, m), each entry summed in ascending K (see the module docstring)."""
-    A = np.asarray(A, dtype=float)
-    B = np.asarray(B, dtype=float)
+    A, B = _f64(A), _f64(B)
     n, K = A.shape
-    K2, m = B.shape
-    if K != K2:
+    if B.shape[0] != K:
         raise ValueError(f"mm: shapes {A.shape} and {B.shape} do not fit")
+    m = B.shape[1]
     if K == 0:
         return np.zeros((n, m))
-    if n * m == 1:  # one entry: numpy would sum it pairwise (a 1-d reduction); add in order here
-        a, b = A[0].tolist(), B[:, 0].tolist()
-        s = a[0] * b[0]
-        for k in range(1, K):
-            s += a[k] * b[k]
-        return np.array([[s]])
+    if n * m == 1:
+        # one entry: a 1-d reduction would be pairwise; accumulate is sequential by definition
+        return np.add.accumulate(A[0] * B[:, 0])[-1:].reshape(1, 1)
     # (K, n, m) in C order: the reduced axis is the slowest, so each entry's sum runs over K in turn
-    prod = np.multiply(A.T[:, :, None], B[:, None, :], order="C")
-    return np.add.reduce(prod, axis=0)
+    return np.add.reduce(np.multiply(A.T[:, :, None], B[:, None, :], order="C"), axis=0)
 
 
 def mv(A, x) -> np.ndarray:
@@ -86,10 +85,23 @@ def dot(x, y) -> float:
 def affine(c, A, x) -> np.ndarray:
     """c + A @ x for 1-d c (n,), 2-d A (n, K), 1-d x (K,), each entry summed from cᵢ on in
     ascending K (as a C loop ``s = c[i]; s += A[i][k] * x[k]``)."""
-    c = np.asarray(c, dtype=float)
-    A = np.asarray(A, dtype=float)
-    x = np.asarray(x, dtype=float)
-    return mm(np.hstack([c[:, None], A]), np.concatenate(([1.0], x))[:, None])[:, 0]
+    c, A, x = _f64(c), _f64(A), _f64(x)
+    n, K = A.shape
+    W = np.empty((K + 1, n))
+    W[0] = c
+    np.multiply(A.T, x[:, None], out=W[1:])
+    if n == 1:  # a 1-d reduction would be pairwise; accumulate is sequential by definition
+        return np.add.accumulate(W[:, 0])[-1:]
+    return np.add.reduce(W, axis=0)  # C order, the summed axis the slowest: in turn
+
+
+def rowsums(A) -> np.ndarray:
+    """Σⱼ aᵢⱼ of each row of a 2-d A, added one at a time in ascending j."""
+    A = _f64(A)
+    if A.shape[0] == 1:  # a 1-d reduction would be pairwise; accumulate is sequential by definition
+        return np.add.accumulate(A[0])[-1:] if A.shape[1] else np.zeros(1)
+    # (m, n) in C order: the summed axis is the slowest, so each row's sum runs over j in turn
+    return np.add.reduce(np.ascontiguousarray(A.T), axis=0) if A.shape[1] else np.zeros(A.shape[0])
 
 
 def mm3(A, B, C) -> np.ndarray:
@@ -164,4 +176,4 @@ def quad_inv(y, S) -> float:
     return dot(y, solve(S, np.array(y)))
 
 
-__all__ = ["affine", "dot", "inv", "mm", "mm3", "mv", "quad_inv", "solve", "vm"]
+__all__ = ["affine", "dot", "inv", "mm", "mm3", "mv", "quad_inv", "rowsums", "solve", "vm"]

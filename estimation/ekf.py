@@ -132,7 +132,7 @@ estimate with its covariance inflated, and the reason is logged in ``events``.
 Two implementations of one algorithm: the reference runs on filterpy's
 ExtendedKalmanFilter in Python (:class:`~estimation.twin_ekf.TwinEKF`); the compiled kernel
 ``estimation._ekf`` (built by setup.py where a C compiler is present; ``TWIN_PURE_PYTHON=1``
-turns it off) does the same step in about 7 µs instead of 120–200 µs, with x and P kept on
+turns it off) does the same step in about 7 µs instead of 150–260 µs, with x and P kept on
 the Python side in a :class:`KernelState`. tests/test_estimator_kernel.py holds them
 together. Only the reference path imports filterpy (whose package imports scipy.stats, 0.8 s
 of a command's start-up), and the χ² gates come from :mod:`estimation.gates`.
@@ -146,7 +146,9 @@ reference path (:class:`~estimation.twin_ekf.TwinEKF`) and its innovation, NIS a
 truncation quantities follow the kernel's association term for term. Measured: every
 OPENBLAS_CORETYPE (Prescott … SkylakeX) and numpy SIMD level give byte-identical runs on
 both paths (before, the reference path parted after 0.02 s and the compiled one at its
-first coasting step). The transcendental functions (sin, cos, tan, exp, erfc, atan2) are
+first coasting step). Cost (benchmarks/bench_estimator.py, median per control step): the
+reference path 203 → 259 µs (numpy calls of a few µs each instead of ~1 µs BLAS
+products), the compiled path 13.4 → 13.9 µs (its latency watch). The transcendental functions (sin, cos, tan, exp, erfc, atan2) are
 libm's, scalar, in both paths (as in the plant and PyBullet): glibc picks its FMA or its
 SSE2 variant of each per CPU (measured, glibc 2.36: about 1 argument in 1000 rounds
 differently), so runs are bit-identical among CPUs with FMA (x86-64-v3: Haswell, Zen and
@@ -158,7 +160,7 @@ import math
 import os
 import numpy as np
 
-from estimation.detlinalg import affine, dot, mm, mm3, mv, quad_inv, solve
+from estimation.detlinalg import affine, dot, mm, mm3, mv, quad_inv, rowsums, solve
 from estimation.gates import chi2_gate
 from estimation.model import TORQUE_TOLERANCE, EstimatorModel
 from twin.errors import TwinError
@@ -239,6 +241,21 @@ def _median(a: np.ndarray) -> float:
         return float(np.partition(a, k)[k])
     p = np.partition(a, (k - 1, k))
     return float((p[k - 1] + p[k]) / 2.0)  # as np.mean of the two: their sum, halved
+
+
+_F_ROWS = [TH, AL, V, PS]  # the rows of the strapdown step's F that are not the identity's
+
+
+def cov_predict(F, P, Q) -> np.ndarray:
+    """F P Fᵀ + Q for the strapdown step's F (:meth:`EKFEstimator._propagate`: the identity but
+    in rows θ, α, v, ψ), as the compiled kernel's ``cov_predict``: only those rows of F P and
+    those columns of (F P) Fᵀ are sums, in ascending order (:mod:`estimation.detlinalg`); the
+    others are P's own entries, which the full product would give too (x·1 plus zeros)."""
+    A = P.copy()
+    A[_F_ROWS] = mm(F[_F_ROWS], P)
+    out = A.copy()
+    out[:, _F_ROWS] = mm(A, F[_F_ROWS].T)
+    return out + Q
 
 
 def finite_reading(v) -> bool:
@@ -707,9 +724,12 @@ class EKFEstimator:
             Z, yy = dk[_WATCH_INDEX[:, ok]], y2[ok]
         yy = yy - yy.mean()
         Z -= Z.sum(axis=1, keepdims=True) / used  # as Z.mean(axis=1): the sum, divided
-        # dot/mv, not @: BLAS products differ in their last bits between CPU kernels (issue 25)
-        den = np.sqrt(dot(yy, yy) * mv(Z * Z, np.ones(Z.shape[1])))
-        rho = self._torque_sign * mv(Z, yy) / np.where(den > 0, den, math.inf)
+        # Σ z y, Σ z², Σ y² in one fixed-order sum each (not @: BLAS products differ in their
+        # last bits between CPU kernels, issue 25)
+        R = len(Z)
+        sums = rowsums(np.vstack([Z * yy, Z * Z, (yy * yy)[None, :]]))
+        den = np.sqrt(sums[2 * R] * sums[R:2 * R])
+        rho = self._torque_sign * sums[:R] / np.where(den > 0, den, math.inf)
         best = int(np.argmax(rho))
         self._watch_last = (t, best, float(rho[best]), float(rho[self.d_gyro]))
         if best != self.d_gyro and rho[best] >= WATCH_RHO and rho[best] - rho[self.d_gyro] >= WATCH_MARGIN:
@@ -1170,7 +1190,7 @@ class EKFEstimator:
             x, Pp, (wy, wz) = self.kf.x, self.kf.P, self._w
         else:
             x, F, Q, (wy, wz) = pred
-            Pp = mm3(F, P, F.T) + Q
+            Pp = cov_predict(F, P, Q)
         T = (m - self._last_enc_m) * self.model.dt
         dlt, b_r = self.delta, self.b_r
         th = x[TH]

@@ -17,8 +17,8 @@ from __future__ import annotations
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 
-from estimation.detlinalg import inv, mm, mm3
-from estimation.ekf import N
+from estimation.detlinalg import inv, mm
+from estimation.ekf import N, cov_predict
 
 
 class TwinEKF(ExtendedKalmanFilter):
@@ -35,9 +35,10 @@ class TwinEKF(ExtendedKalmanFilter):
         self.x = self._x_next
 
     def predict(self, u=0):
-        """filterpy's predict, P = F P Fᵀ + Q, with the fixed-order products."""
+        """filterpy's predict, P = F P Fᵀ + Q, summed as the compiled kernel does
+        (:func:`estimation.ekf.cov_predict`: F is the strapdown step's)."""
         self.predict_x(u)
-        self.P = mm3(self.F, self.P, self.F.T) + self.Q
+        self.P = cov_predict(self.F, self.P, self.Q)
         self.x_prior = np.copy(self.x)
         self.P_prior = np.copy(self.P)
 

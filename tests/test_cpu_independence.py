@@ -50,6 +50,8 @@ def test_mm_sums_every_entry_in_ascending_order(n, K, m):
         c = rng.standard_normal(n)
         assert np.array_equal(dl.affine(c, A, B[:, 0]), _loop_mm(np.hstack([c[:, None], A]),
                                                                  np.concatenate(([1.0], B[:, 0]))[:, None])[:, 0])
+        assert np.array_equal(dl.rowsums(A), _loop_mm(A, np.ones((K, 1)))[:, 0])
+        assert np.array_equal(dl.affine(c[:1], A[:1], B[:, 0]), dl.affine(c, A, B[:, 0])[:1])
     # and a sum whose order matters: 1 + 1e-16 + ... is not 1e-16 + ... + 1
     A = np.array([[1.0, 1e-16, 1e-16, -1.0]])
     assert dl.mm(A, np.ones((4, 1)))[0, 0] == 0.0 and dl.mm(A[:, ::-1], np.ones((4, 1)))[0, 0] == 2.0 ** -52
