@@ -148,11 +148,12 @@ OPENBLAS_CORETYPE (Prescott … SkylakeX) and numpy SIMD level give byte-identic
 both paths (before, the reference path parted after 0.02 s and the compiled one at its
 first coasting step). Cost (benchmarks/bench_estimator.py, median per control step): the
 reference path 203 → 259 µs (numpy calls of a few µs each instead of ~1 µs BLAS
-products), the compiled path 13.4 → 13.9 µs (its latency watch). The transcendental functions (sin, cos, tan, exp, erfc, atan2) are
-libm's, scalar, in both paths (as in the plant and PyBullet): glibc picks its FMA or its
-SSE2 variant of each per CPU (measured, glibc 2.36: about 1 argument in 1000 rounds
-differently), so runs are bit-identical among CPUs with FMA (x86-64-v3: Haswell, Zen and
-later) and among CPUs without, not between the two.
+products), the compiled path 13.4 → 13.9 µs (its latency watch). The transcendental
+functions (sin, cos, tan, exp, erfc, atan2) are libm's, scalar, in both paths (as in the
+plant and PyBullet): glibc picks its FMA or its SSE2 variant of each per CPU (measured,
+glibc 2.36: about 1 argument in 1000 rounds differently), so runs are bit-identical among
+CPUs with FMA (x86-64-v3: Haswell, Zen and later) and among CPUs without, not between
+the two.
 """
 from __future__ import annotations
 
