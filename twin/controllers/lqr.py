@@ -90,6 +90,11 @@ function of the input bits alone, whatever the CPU, BLAS kernel, numpy SIMD targ
 numpy/scipy version (tests/test_lqr.py runs the design under each OpenBLAS kernel and
 numpy SIMD level this CPU supports and compares the bits). With 50 digits the float64
 results are the correctly rounded values of the exact design (identical at 90 digits).
+The design calls no libm function either (Bryson's squares are products), so glibc's
+choice between its FMA and SSE2 variants of pow/exp/sin per CPU does not reach it; its
+inputs A, B do go through libm's pow (the ``**2`` of :mod:`twin.params` and
+:mod:`twin.plant.ts_model`), which gives the same bits on both variants for the nominal
+robot (measured with GLIBC_TUNABLES=glibc.cpu.hwcaps=-AVX2,-FMA: the same digests).
 The gains changed once, in their last bits, with this. Cost: constructing an
 :class:`LQRController` (both designs) takes about 10.5 ms (the continuous designs 5 ms)
 instead of 1-2 ms with single-threaded BLAS (measured on the project's 2-core machine).
@@ -207,9 +212,14 @@ class LQRDesign:
 
 
 def bryson_weights(state_scales: Sequence[float], input_scale: float) -> tuple[np.ndarray, np.ndarray]:
-    """Bryson's rule: Q = diag(1 / s_i²), R = [[1 / ρ²]]; shapes (n, n), (1, 1)."""
+    """Bryson's rule: Q = diag(1 / s_i²), R = [[1 / ρ²]]; shapes (n, n), (1, 1).
+
+    Squares as products, not ``**``: Python's float ``**`` is libm's pow, which glibc computes
+    differently on CPUs with and without FMA (measured: x**2 ≠ x·x for about 1 argument
+    in 1000, differently on the two); a product is correctly rounded everywhere."""
     s = np.asarray(state_scales, dtype=float)
-    return np.diag(1.0 / s**2), np.array([[1.0 / float(input_scale) ** 2]])
+    rho = float(input_scale)
+    return np.diag(1.0 / (s * s)), np.array([[1.0 / (rho * rho)]])
 
 
 def sampled_cost(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, T: float):
