@@ -45,6 +45,7 @@ def main() -> None:
 
     env = fingerprint.environment()
     result = {"kernel": env["blas"].get("kernel"), "numpy_simd": env["numpy_simd"]["dispatched"],
+              "libm": env["libm"],
               "build": "".join("c" if v else "p" for v in env["kernels"].values())}
     default = design_balance_gains(cache=True)
     result["designs"] = {"default": default.digest(), "default_unique": default.unique,
@@ -67,12 +68,18 @@ def main() -> None:
 
     args = ["check", "paper-exp1", "--controller", ",".join(CONTROLLERS),
             "--record" if mode == "record" else "--golden", str(golden)]
-    try:
-        twin_main(args)
-        code = 0
-    except SystemExit as exc:
-        code = exc.code
+    import contextlib
+    import io
+
+    text = io.StringIO()
+    with contextlib.redirect_stdout(text), contextlib.redirect_stderr(text):
+        try:
+            twin_main(args)
+            code = 0
+        except SystemExit as exc:
+            code = exc.code
     result["golden_" + mode] = code
+    result["golden_output"] = text.getvalue()[-4000:]
     print(json.dumps(result, sort_keys=True))
 
 

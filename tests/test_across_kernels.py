@@ -11,6 +11,13 @@ One more child runs the first kernel with numpy's own SIMD dispatch narrowed to 
 baseline (NPY_DISABLE_CPU_FEATURES), as on an older CPU. Every child must give identical
 designs, identical trajectory.csv and metrics.json (its environment fingerprint aside,
 which names the kernel), the recorded refactor hashes, and golden checks that pass.
+
+What is not the same everywhere, and is checked to be said so: glibc's maths functions
+(sin, cos, exp, pow, ...) run FMA code on CPUs with AVX2 and FMA and SSE2 code elsewhere,
+and PyBullet calls them every physics step. A last child masks those features
+(GLIBC_TUNABLES=glibc.cpu.hwcaps=-AVX2,-FMA,-FMA4), as an older CPU or a virtual machine
+that hides them would: its designs must still be identical (they use no libm but sqrt),
+and where its runs part from the golden files the departure must name the libm paths.
 """
 from __future__ import annotations
 
@@ -74,19 +81,30 @@ def test_every_kernel_gives_the_same_designs_trajectories_metrics_and_golden_che
     variants = {k: {"OPENBLAS_CORETYPE": k} for k in kernels[1:]}
     variants[f"{first}+numpy-baseline"] = {"OPENBLAS_CORETYPE": first,
                                            "NPY_DISABLE_CPU_FEATURES": _numpy_baseline_only()}
+    from twin.fingerprint import libm
+
+    sse2 = f"{first}+libm-sse2"
+    if libm().get("x86_paths") == "fma":
+        variants[sse2] = {"OPENBLAS_CORETYPE": first, "GLIBC_TUNABLES": "glibc.cpu.hwcaps=-AVX2,-FMA,-FMA4"}
     with ThreadPoolExecutor(max_workers=2) as pool:
         futures = {tag: pool.submit(_child, tmp_path, tag, gold, "check", extra) for tag, extra in variants.items()}
         results.update({tag: f.result() for tag, f in futures.items()})
     # each child ran the kernel it was asked for (OpenBLAS reports its pick; some builds run
     # Zen with the Haswell kernels)
     for tag, extra in variants.items():
-        if "NPY_DISABLE_CPU_FEATURES" in extra:  # (OpenBLAS then reports an older name: Katmai)
+        if "NPY_DISABLE_CPU_FEATURES" in extra or "GLIBC_TUNABLES" in extra:  # (may report older names: Katmai)
             continue
         asked = extra["OPENBLAS_CORETYPE"].lower()
         assert str(results[tag]["kernel"]).lower() in (asked, ALIASES.get(asked)), (tag, results[tag]["kernel"])
     assert results[f"{first}+numpy-baseline"]["numpy_simd"] == []
     ref = results[first]
     assert ref["designs"]["default_unique"] is True
+    if sse2 in results:
+        res = results.pop(sse2)
+        assert res["libm"]["x86_paths"] == "sse2"
+        assert res["designs"] == ref["designs"], "the designs differ with glibc's SSE2 maths paths"
+        if res["golden_check"] != 0:
+            assert "libm code paths sse2, the reference's fma" in res["golden_output"], res["golden_output"]
     for tag, res in results.items():
         assert res["designs"] == ref["designs"], f"{tag}: designs differ from {first}'s"
         for name in ref["scenarios"]:

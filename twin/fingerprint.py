@@ -16,7 +16,11 @@ What is recorded, and why each item can change a result:
 * ``numpy_simd``: the SIMD targets numpy dispatches its own loops to on this CPU (its
   baseline and the enabled ones of AVX2/AVX-512/...; ``NPY_DISABLE_CPU_FEATURES`` narrows them);
 * ``kernels``: which of the optional compiled kernels run (the fuzzy engine, the EKF, the
-  physics fast path); the compiled and pure-Python paths agree to ~1e-13, not bit for bit;
+  physics fast path); the compiled and pure-Python paths agree to ~1e-12, not bit for bit;
+* ``libm``: the C library and, on x86-64 with glibc, which code paths its maths functions
+  run (``x86_paths``: "fma" on CPUs with AVX2 and FMA, "fma4" on AMD's that have FMA4 only,
+  "sse2" elsewhere): PyBullet's physics calls them every step, and the paths differ in last
+  bits (see :func:`libm`);
 * ``designs`` (added by the caller): a digest of each design used, from
   :func:`design_digest`.
 
@@ -153,8 +157,45 @@ def environment() -> dict:
             "blas": _blas(),
             "numpy_simd": _numpy_simd(),
             "kernels": kernels(),
+            "libm": libm(),
         }
     return _copy(_memo)
+
+
+def _cpu_flags() -> set:
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            for line in f:
+                if line.startswith("flags"):
+                    return set(line.split(":", 1)[1].split())
+    except OSError:
+        pass
+    return set()
+
+
+def libm() -> dict:
+    """The C library whose maths functions (sin, cos, exp, pow, ...) the physics engine and the
+    twin call, and, on x86-64 with glibc, which of its code paths this CPU gets: glibc picks
+    FMA versions on CPUs with AVX2 and FMA (x86-64-v3 and later), FMA4 versions on AMD CPUs
+    that have only FMA4, and SSE2 versions elsewhere, and they differ in the last bit for a fraction of the arguments (sin: about 1 in 1200),
+    which is enough for a twin run to part within seconds. ``GLIBC_TUNABLES`` can mask the
+    features (glibc.cpu.hwcaps=-AVX2,-FMA), as a virtual machine that hides them does."""
+    lib, version = platform.libc_ver()
+    out = {"library": f"{lib} {version}".strip() or "unknown"}
+    if platform.machine() in ("x86_64", "AMD64") and lib == "glibc":
+        flags = _cpu_flags()
+        masked = set()
+        for tunable in os.environ.get("GLIBC_TUNABLES", "").split(":"):  # name=value:name=value
+            name, _, value = tunable.partition("=")
+            if name.strip() == "glibc.cpu.hwcaps":
+                masked |= {v.strip()[1:].upper() for v in value.split(",") if v.strip().startswith("-")}
+        if {"fma", "avx2"} <= flags and not ({"FMA", "AVX2"} & masked):
+            out["x86_paths"] = "fma"
+        elif "fma4" in flags and "FMA4" not in masked:  # AMD's 2011–2014 CPUs have a third path
+            out["x86_paths"] = "fma4"
+        else:
+            out["x86_paths"] = "sse2"
+    return out
 
 
 def _copy(doc):
@@ -214,6 +255,8 @@ _WHAT = (
     (("blas", "version"), "BLAS version"),
     (("numpy_simd", "dispatched"), "numpy SIMD targets"),
     (("kernels",), "compiled kernels"),
+    (("libm", "library"), "C library"),
+    (("libm", "x86_paths"), "libm code paths"),
     (("python",), "Python"),
     (("platform",), "platform"),
     (("project", "version"), "mtwip-twin version"),

@@ -106,10 +106,13 @@ class RobotParams:
                                     f"of the {body} at most the sum of the other two (triangle inequality)")
 
     # ---- derived quantities (paper-notes, "Derived") -------------------------------
+    # Squares are products, not x**2: Python's float power calls the C library's pow(),
+    # which glibc computes with other code on CPUs with and without FMA, and a design's inputs
+    # must be the same numbers on every machine (x * x is one correctly rounded operation).
     @property
     def m11(self) -> float:
         """(m_b + 2 m_w) r² + 2 n_wa, kg·m²: wheel-rotation inertia."""
-        return (self.m_b + 2.0 * self.m_w) * self.r**2 + 2.0 * self.n_wa
+        return (self.m_b + 2.0 * self.m_w) * (self.r * self.r) + 2.0 * self.n_wa
 
     @property
     def m12(self) -> float:
@@ -119,7 +122,7 @@ class RobotParams:
     @property
     def m22(self) -> float:
         """m_b l² + n_yb, kg·m²: body pitch inertia about the axle."""
-        return self.m_b * self.l**2 + self.n_yb
+        return self.m_b * (self.l * self.l) + self.n_yb
 
     @property
     def g_b(self) -> float:
@@ -129,21 +132,23 @@ class RobotParams:
     @property
     def m33(self) -> float:
         """n_zb + 2 n_wd + (2b²/r²)(n_wa + m_w r²), kg·m²: yaw inertia at θ = 0."""
-        return self.n_zb + 2.0 * self.n_wd + (2.0 * self.b**2 / self.r**2) * (self.n_wa + self.m_w * self.r**2)
+        r2 = self.r * self.r
+        return self.n_zb + 2.0 * self.n_wd + (2.0 * (self.b * self.b) / r2) * (self.n_wa + self.m_w * r2)
 
     @property
     def n_bla(self) -> float:
         """m_b l² + n_xb − n_zb, kg·m²: how the yaw inertia grows with tilt."""
-        return self.m_b * self.l**2 + self.n_xb - self.n_zb
+        return self.m_b * (self.l * self.l) + self.n_xb - self.n_zb
 
     def J(self, theta: float) -> float:
         """Yaw inertia J(θ) = m33 + n_bla sin²θ in kg·m²; ``theta`` in rad."""
-        return self.m33 + self.n_bla * math.sin(theta) ** 2
+        s = math.sin(theta)
+        return self.m33 + self.n_bla * (s * s)
 
     @property
     def yaw_damping(self) -> float:
         """(2b²/r²)(d_b + d_w), N·m·s/rad: viscous yaw resistance."""
-        return (2.0 * self.b**2 / self.r**2) * (self.d_b + self.d_w)
+        return (2.0 * (self.b * self.b) / (self.r * self.r)) * (self.d_b + self.d_w)
 
     # ---- uncertainty --------------------------------------------------------------
     def perturbed(

@@ -15,6 +15,9 @@ import numpy as np
 from twin.params import RobotParams
 
 THETA_DOMAIN = math.pi / 6  # rad: the fuzzy model's domain [-π/6, π/6]
+# β = cos(π/6) = √3/2 of rule 2, by a square root (correctly rounded everywhere) rather than the C
+# library's cos(), whose last bit may depend on the CPU: the design's inputs are the same everywhere.
+COS_DOMAIN = math.sqrt(3.0) / 2.0
 LOWER_HALF_WIDTH = math.pi / 7  # rad: lower MF of rule 1 reaches 0 here
 UPPER_HALF_WIDTH = math.pi / 6  # rad: upper MF of rule 1 reaches 0 here
 
@@ -26,7 +29,8 @@ def local_model(params: RobotParams, beta: float) -> tuple[np.ndarray, np.ndarra
     ``beta = cos(π/6)`` rule 2. Shapes (4, 4) and (4, 1).
     """
     m11, m12, m22, g_b, d_b, d_w = params.m11, params.m12, params.m22, params.g_b, params.d_b, params.d_w
-    delta = m11 * m22 - (m12 * beta) ** 2
+    mb = m12 * beta
+    delta = m11 * m22 - mb * mb
     mb1 = m11 + m12 * beta
     mb2 = m12 * beta + m22
     A = np.array(
@@ -34,7 +38,7 @@ def local_model(params: RobotParams, beta: float) -> tuple[np.ndarray, np.ndarra
             [0.0, 1.0, 0.0, 0.0],
             [m11 * g_b * beta / delta, -2 * d_b * mb1 / delta, 0.0, 2 * (m12 * d_w * beta + d_b * mb1) / delta],
             [0.0, 0.0, 0.0, 1.0],
-            [-m12 * g_b * beta**2 / delta, 2 * d_b * mb2 / delta, 0.0, -2 * (m22 * d_w + d_b * mb2) / delta],
+            [-m12 * g_b * (beta * beta) / delta, 2 * d_b * mb2 / delta, 0.0, -2 * (m22 * d_w + d_b * mb2) / delta],
         ]
     )
     B = np.array([[0.0], [-mb1 / delta], [0.0], [mb2 / delta]])
@@ -44,7 +48,7 @@ def local_model(params: RobotParams, beta: float) -> tuple[np.ndarray, np.ndarra
 def ts_matrices(params: RobotParams) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """([A1, A2], [B1, B2]) of the two rules."""
     A1, B1 = local_model(params, 1.0)
-    A2, B2 = local_model(params, math.cos(math.pi / 6))
+    A2, B2 = local_model(params, COS_DOMAIN)
     return [A1, A2], [B1, B2]
 
 
