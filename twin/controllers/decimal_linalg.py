@@ -200,40 +200,39 @@ def inv(A: Matrix) -> Matrix:
     return solve(A, eye(len(A)))
 
 
-def det_abs_ln(A: Matrix) -> Decimal:
-    """ln |det A| by the same elimination (for the sign iteration's scaling)."""
+def _pivots(A: Matrix, pivoting: bool):
+    """The pivots of Gaussian elimination on A (rows swapped for the largest pivot when
+    ``pivoting``), one at a time; a caller may stop early."""
     n = len(A)
     M = [list(r) for r in A]
-    total = ZERO
     for k in range(n):
-        p = max(range(k, n), key=lambda i: abs(M[i][k]))
-        if M[p][k] == 0:
-            raise NoSolution("singular matrix")
-        M[k], M[p] = M[p], M[k]
-        total += abs(M[k][k]).ln()
+        if pivoting:
+            p = max(range(k, n), key=lambda i: abs(M[i][k]))
+            M[k], M[p] = M[p], M[k]
+        yield M[k][k]
+        if M[k][k] == 0:
+            return
         inv_p = ONE / M[k][k]
         for i in range(k + 1, n):
             f = M[i][k] * inv_p
             if f:
                 for j in range(k + 1, n):
                     M[i][j] -= f * M[k][j]
+
+
+def det_abs_ln(A: Matrix) -> Decimal:
+    """ln |det A| by the same elimination (for the sign iteration's scaling)."""
+    total = ZERO
+    for pivot in _pivots(A, pivoting=True):
+        if pivot == 0:
+            raise NoSolution("singular matrix")
+        total += abs(pivot).ln()
     return total
 
 
 def is_positive_definite(A: Matrix) -> bool:
     """Whether the symmetric A is positive definite (every pivot of its LDLᵀ is > 0)."""
-    n = len(A)
-    M = [list(r) for r in A]
-    for k in range(n):
-        if not M[k][k] > 0:
-            return False
-        inv_p = ONE / M[k][k]
-        for i in range(k + 1, n):
-            f = M[i][k] * inv_p
-            if f:
-                for j in range(k + 1, n):
-                    M[i][j] -= f * M[k][j]
-    return True
+    return all(pivot > 0 for pivot in _pivots(A, pivoting=False))
 
 
 # ---- matrix functions --------------------------------------------------------------------------
@@ -377,32 +376,44 @@ def solve_dare(A: Matrix, B: Matrix, Q: Matrix, R: Matrix, N: Matrix | None = No
             break
     else:
         raise NoSolution(f"the doubling iteration did not converge in {_MAX_DOUBLING} steps")
-    P = Hk
     # Newton's method (Hewer): P_{j+1} = Acl_jᵀ P_{j+1} Acl_j + Q − N K − Kᵀ Nᵀ + Kᵀ R K
-    for _ in range(_MAX_NEWTON):
+    def hewer(P):
         K = dare_gain(A, B, R, N, P)
         Acl = sub(A, matmul(B, K))
         NK = matmul(N, K)
-        C = sym(add(sub(sub(Q, NK), transpose(NK)), matmul(matmul(transpose(K), R), K)))
-        P_next = solve_stein(Acl, C)
+        return solve_stein(Acl, sym(add(sub(sub(Q, NK), transpose(NK)), matmul(matmul(transpose(K), R), K))))
+
+    P = _newton(hewer, Hk)
+    K = dare_gain(A, B, R, N, P)
+    # stabilising: the closed loop's Stein equation with right-hand side I has a positive
+    # definite solution exactly when every eigenvalue of Acl is inside the unit circle
+    _check_solution(dare_residual(A, B, Q, R, N, P), P, solve_stein, sub(A, matmul(B, K)))
+    return P, K
+
+
+def _newton(step, P: Matrix) -> Matrix:
+    """Iterate P ← step(P) until the update is below NEWTON_TOL relative (or raise)."""
+    for _ in range(_MAX_NEWTON):
+        P_next = step(P)
         done = _rel(sub(P_next, P), P_next) <= NEWTON_TOL
         P = P_next
         if done:
-            break
-    else:
-        raise NoSolution(f"Newton's method did not converge in {_MAX_NEWTON} steps")
-    K = dare_gain(A, B, R, N, P)
-    if _rel(dare_residual(A, B, Q, R, N, P), P) > NEWTON_TOL:
+            return P
+    raise NoSolution(f"Newton's method did not converge in {_MAX_NEWTON} steps")
+
+
+def _check_solution(residual: Matrix, P: Matrix, lyapunov, Acl: Matrix) -> None:
+    """Raise NoSolution unless ``residual`` is negligible against P and the closed loop Acl
+    is stable: its Lyapunov (or Stein) equation ``lyapunov(Acl, I)`` has a positive definite
+    solution."""
+    if _rel(residual, P) > NEWTON_TOL:
         raise NoSolution("the solution found does not solve the equation")
-    # stabilising: the closed loop's Stein equation with right-hand side I has a positive
-    # definite solution exactly when every eigenvalue of Acl is inside the unit circle
     try:
-        X = solve_stein(sub(A, matmul(B, K)), I)
+        X = lyapunov(Acl, eye(len(Acl)))
     except NoSolution:
         X = None
     if X is None or not is_positive_definite(X):
         raise NoSolution("the closed loop of the solution found is not stable")
-    return P, K
 
 
 def care_residual(A, B, Q, R, P) -> Matrix:
@@ -443,25 +454,14 @@ def solve_care(A: Matrix, B: Matrix, Q: Matrix, R: Matrix) -> tuple[Matrix, Matr
     Mt = transpose(M)
     P = sym(scale(-ONE, solve(matmul(Mt, M), matmul(Mt, rhs))))
     # Newton's method (Kleinman): Acl_jᵀ P_{j+1} + P_{j+1} Acl_j + Q + K_jᵀ R K_j = 0
-    for _ in range(_MAX_NEWTON):
+    def kleinman(P):
         K = solve(R, matmul(Bt, P))
         Acl = sub(A, matmul(B, K))
-        P_next = solve_lyapunov(Acl, sym(add(Q, matmul(matmul(transpose(K), R), K))))
-        done = _rel(sub(P_next, P), P_next) <= NEWTON_TOL
-        P = P_next
-        if done:
-            break
-    else:
-        raise NoSolution(f"Newton's method did not converge in {_MAX_NEWTON} steps")
+        return solve_lyapunov(Acl, sym(add(Q, matmul(matmul(transpose(K), R), K))))
+
+    P = _newton(kleinman, P)
     K = solve(R, matmul(Bt, P))
-    if _rel(care_residual(A, B, Q, R, P), P) > NEWTON_TOL:
-        raise NoSolution("the solution found does not solve the equation")
-    try:
-        X = solve_lyapunov(sub(A, matmul(B, K)), I)
-    except NoSolution:
-        X = None
-    if X is None or not is_positive_definite(X):
-        raise NoSolution("the closed loop of the solution found is not stable")
+    _check_solution(care_residual(A, B, Q, R, P), P, solve_lyapunov, sub(A, matmul(B, K)))
     return P, K
 
 
