@@ -50,6 +50,9 @@ def main() -> None:
     default = design_balance_gains(cache=True)
     result["designs"] = {"default": default.digest(), "default_unique": default.unique,
                          "nominal": design_balance_gains(**NOMINAL_DESIGN, cache=True).digest(),
+                         # a region and a box with the paper's relaxation (slack variables)
+                         "relaxed_region_box": design_balance_gains(decay_rate=2.5, damping=0.4, all_vertices=False,
+                                                                    uncertain={"l": 0.1, "m_b": 0.1}).digest(),
                          "lqr": LQRController(NOMINAL).design_digest()}
     runs = {}
     for name in SCENARIOS:
