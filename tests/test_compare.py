@@ -103,10 +103,16 @@ def test_a_decimated_run_is_compared_on_its_rows_and_said_to_be(runs, tmp_path):
 def test_a_run_directory_whose_files_differ_from_its_metrics_is_refused(runs, tmp_path):
     import shutil
 
+    from twin import rundir
+
     broken = shutil.copytree(runs["a"], tmp_path / "mixed")
     doc = json.loads((broken / "metrics.json").read_text())
     del doc["runs"]["lqr"]
     (broken / "metrics.json").write_text(json.dumps(doc))
+    # changed after its manifest was written: refused as such, whatever the change
+    status, out, err = twin("compare", runs["a"], broken)
+    assert_one_line_error(status, out, err, f"{broken / 'metrics.json'}: not the file {broken / 'manifest.json'} lists")
+    rundir.seal(broken, "twin run")  # and with a manifest over the mixed files, the mix is named
     status, out, err = twin("compare", runs["a"], broken)
     assert_one_line_error(status, out, err, f"{broken}: metrics.json and trajectory.csv hold other controllers (lqr")
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from twin import fingerprint, golden
+from twin import fingerprint, golden, rundir
 from twin.cli import main
 from twin.errors import TwinError
 from twin.golden import ATOL, Trajectory, compare
@@ -112,9 +112,17 @@ def test_a_one_percent_heavier_body_departs_and_an_unchanged_rerun_passes(tmp_pa
     assert " in " in line and "bit for bit" in line  # the time and the signal where it parts
 
 
-def test_a_missing_reference_fails_the_check(tmp_path):
-    status, out, err = twin("check", "paper-exp1", "--controller", "lqr", "--workers", "1", "--golden", tmp_path)
+def test_a_missing_reference_fails_the_check(short):
+    f, gold = short  # a complete record of IT2 alone
+    status, out, err = twin("check", f, "--controller", "lqr", "--workers", "1", "--golden", gold)
     assert status == 1 and "no golden trajectory here" in err, out + err
+
+
+def test_a_golden_directory_without_a_manifest_is_refused_as_incomplete(tmp_path):
+    from test_scenarios import assert_one_line_error
+
+    status, out, err = twin("check", "paper-exp1", "--controller", "lqr", "--workers", "1", "--golden", tmp_path)
+    assert_one_line_error(status, out, err, f"{tmp_path}: an incomplete golden directory: no manifest.json")
 
 
 def test_the_pure_python_build_passes_a_compiled_reference_within_tolerance(tmp_path):
@@ -200,6 +208,7 @@ def test_a_departure_names_the_environment_and_design_that_differ(short, tmp_pat
     here = fingerprint.environment()["blas"]["kernel"]
     other = "Haswell" if here != "Haswell" else "SkylakeX"
     _doctor(doctored / "short" / "it2" / "seed-0.npz", other, "0" * 64)
+    rundir.seal(doctored, rundir.RECORD_COMMAND)  # as that machine's record would list it
     status, out, lines = _check(f, doctored)
     assert status == 1 and len(lines) == 1, (out, lines)
     assert lines[0].startswith("FAIL short it2 seed 0: golden trajectory departs at t = 0.025 s in theta: ")

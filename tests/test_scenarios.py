@@ -423,7 +423,8 @@ def test_same_seed_is_byte_identical_and_another_seed_differs(tmp_path):
 def test_output_files_have_units_a_controller_column_and_every_metric(tmp_path):
     out = tmp_path / "A"
     metrics_bytes, csv_bytes = _run_exp2(out, 3)
-    assert sorted(p.name for p in out.iterdir()) == ["design.json", "figure.png", "metrics.json", "trajectory.csv"]
+    assert sorted(p.name for p in out.iterdir()) == ["design.json", "figure.png", "manifest.json", "metrics.json",
+                                                     "trajectory.csv"]
     lines = csv_bytes.decode("utf-8").splitlines()
     header = lines[0].split(",")
     assert header[0] == "controller"

@@ -96,7 +96,7 @@ def test_the_workers_figure_is_the_one_drawn_here(ran):
     (res_w, dir_w), (res_h, dir_h) = ran["worker"], ran["here"]
     assert not res_w.notes and not res_h.notes
     assert [p.name for p in res_w.files] == [p.name for p in res_h.files] == [
-        "metrics.json", "trajectory.csv", "design.json", "figure.png"]
+        "metrics.json", "trajectory.csv", "design.json", "figure.png", "manifest.json"]
     a = np.asarray(Image.open(dir_w / "figure.png").convert("RGBA"))
     b = np.asarray(Image.open(dir_h / "figure.png").convert("RGBA"))
     assert a.shape == b.shape == (math.ceil(10.5 * 110), 12 * 110, 4)

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from twin.errors import TwinError
+from twin.rundir import MANIFEST, RECORD_COMMAND, FileBatch, kept, test_point
 from twin.expectations import GOLDEN, evaluate, failed, parse_expect
 from twin.tolerances import known_signals
 
@@ -167,10 +168,11 @@ def run_checks(scenarios, controllers=None, seeds: int = 1, workers: int = 1, pr
     if golden is not None:
         given.check_signals(known_signals(logged), "--tolerance")
     tasks = [t for _, _, ts in plan for t in ts]
+    batch = FileBatch(record, RECORD_COMMAND) if record is not None else None  # refused now if in use
     t0 = time.perf_counter()
-    outcomes = iter(_run(tasks, workers, progress))
+    outcomes = iter(_run(tasks, workers, _with_test_point(progress, len(tasks))))
     wall = time.perf_counter() - t0
-    cases, recorded = [], 0
+    cases, to_record = [], []
     for sc, kind, ts in plan:
         done = [(t.seed, next(outcomes)) for t in ts]
         metrics = {seed: m for seed, (m, _, _, _) in done if m is not None}
@@ -182,9 +184,50 @@ def run_checks(scenarios, controllers=None, seeds: int = 1, workers: int = 1, pr
                           environment=next((env for _, (_, _, _, env) in done if env is not None), None))
         for seed, (m, _, traj, env) in done:
             if traj is not None:
-                recorded += _golden(case, sc, kind, seed, traj, m, env, record, golden, tolerance_of.get(sc.name))
+                _golden(case, sc, kind, seed, traj, env, golden, tolerance_of.get(sc.name))
+                if record is not None:
+                    to_record.append((sc, kind, seed, traj, m, env))
         cases.append(case)
-    return CheckResult(cases, wall, len(tasks), recorded=recorded)
+    result = CheckResult(cases, wall, len(tasks))
+    if batch is not None:
+        result.recorded = _record(batch, to_record, 0 if result.passed else 1)
+    return result
+
+
+def _with_test_point(progress, total: int):
+    """``progress`` with the kill tests' point "check-run" after the first of several runs."""
+    def update(done, n):
+        if 0 < done < total:
+            test_point("check-run")
+        if progress is not None:
+            progress(done, n)
+    return update
+
+
+def _record(batch, items, exit_status: int) -> int:
+    """Store every run of ``items`` as a golden trajectory, as one unit (:class:`twin.rundir.FileBatch`):
+    an interrupt or an error while they are written leaves the directory as it was; the
+    number stored."""
+    from twin import golden as g
+
+    try:
+        with batch:
+            for i, (sc, kind, seed, traj, metrics, env) in enumerate(items):
+                relative = g.path_for(".", sc.name, kind, seed).as_posix()
+                g.record(batch.temp(relative), traj, {"scenario": sc.name, "source": sc.source, "controller": kind,
+                                                      "seed": seed, "metrics": metrics, "environment": env})
+                if i == 0:
+                    test_point("record")
+            return batch.commit(exit_status)
+    except BaseException as exc:
+        if batch.committed:  # an interrupt held during the commit, delivered after it
+            kept(exc, f"the record is complete: {batch.root} holds all {len(items)} references ({MANIFEST})")
+        elif isinstance(exc, OSError):  # a full disk, say: one line
+            raise kept(TwinError(f"cannot record into {batch.root}: {exc.strerror or exc}"),
+                       f"nothing recorded: {batch.root} is as it was") from exc
+        else:
+            kept(exc, f"nothing recorded: {batch.root} is as it was")
+        raise
 
 
 def _scenario_tolerances(sc, extra):
@@ -199,29 +242,23 @@ def _scenario_tolerances(sc, extra):
     return tol
 
 
-def _golden(case: CaseResult, sc, kind: str, seed: int, traj, metrics, env, record, golden, tolerances) -> int:
-    """Compare with the reference (with ``tolerances``) and/or record the run; the number of
-    files written."""
+def _golden(case: CaseResult, sc, kind: str, seed: int, traj, env, golden, tolerances) -> None:
+    """Compare the run with its reference under ``golden`` (with ``tolerances``), if given."""
     from twin import golden as g
     from twin.fingerprint import differences
 
-    if golden is not None:
-        try:
-            ref, meta = g.load(g.path_for(golden, sc.name, kind, seed))
-        except TwinError as exc:
-            case.golden[seed] = str(exc)
-        else:
-            here = g.build()
-            dep = g.compare(traj, ref, meta.get("build") == here and here != "mixed", tolerances)
-            if dep is not None:  # say whether the environment or a design changed, or neither did
-                dep = replace(dep, environment=tuple(differences(env, meta.get("environment"))))
-            case.golden[seed] = dep
-    if record is None:
-        return 0
-    g.record(g.path_for(record, sc.name, kind, seed), traj,
-             {"scenario": sc.name, "source": sc.source, "controller": kind, "seed": seed, "metrics": metrics,
-              "environment": env})
-    return 1
+    if golden is None:
+        return
+    try:
+        ref, meta = g.load(g.path_for(golden, sc.name, kind, seed))
+    except TwinError as exc:
+        case.golden[seed] = str(exc)
+    else:
+        here = g.build()
+        dep = g.compare(traj, ref, meta.get("build") == here and here != "mixed", tolerances)
+        if dep is not None:  # say whether the environment or a design changed, or neither did
+            dep = replace(dep, environment=tuple(differences(env, meta.get("environment"))))
+        case.golden[seed] = dep
 
 
 def _run(tasks, workers: int, progress) -> list:

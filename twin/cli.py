@@ -25,32 +25,64 @@ EXPERIMENT_CHOICES = ("1", "2", "3", "paper-exp1", "paper-exp2", "paper-exp3")
 
 
 class _Group(click.Group):
-    """Turns usage errors, TwinError and file errors into one line and exit status 2."""
+    """Turns usage errors, TwinError and file errors into one line and exit status 2, and
+    SIGINT and SIGTERM into one line saying what was kept and exit status 130 or 143."""
 
     def main(self, args=None, prog_name=None, **extra):
-        try:
-            rv = super().main(args=args, prog_name=prog_name, standalone_mode=False, **extra)
-        except click.UsageError as exc:
-            hint = f" (see 'twin {exc.ctx.info_name if exc.ctx and exc.ctx.parent else ''} --help')".replace("  ", " ")
-            click.echo(f"error: {' '.join(exc.format_message().split())}{hint}", err=True)
-            sys.exit(2)
-        except click.ClickException as exc:
-            click.echo(f"error: {exc.format_message()}", err=True)
-            sys.exit(exc.exit_code)
-        except click.Abort:
-            click.echo("error: aborted", err=True)
-            sys.exit(1)
+        from twin import rundir
+
+        # SIGTERM (a CI runner's timeout, a container stopping, kill) otherwise ends the
+        # process where it stands: no clean-up, no message; SIGINT's KeyboardInterrupt became
+        # "error: aborted" and exit status 1, a failed bound's. Both now raise Interrupted,
+        # which every command's clean-up sees, and end here with 128 + the signal's number.
+        with rundir.interrupts_raise():
+            try:
+                rv = super().main(args=args, prog_name=prog_name, standalone_mode=False, **extra)
+            except click.UsageError as exc:
+                hint = f" (see 'twin {exc.ctx.info_name if exc.ctx and exc.ctx.parent else ''} --help')".replace("  ", " ")
+                click.echo(f"error: {' '.join(exc.format_message().split())}{hint}", err=True)
+                sys.exit(2)
+            except click.ClickException as exc:
+                click.echo(f"error: {exc.format_message()}", err=True)
+                sys.exit(exc.exit_code)
+            except click.Abort as exc:
+                cause = exc.__cause__ or exc.__context__
+                if isinstance(cause, KeyboardInterrupt):  # while click parsed the arguments
+                    _interrupted(cause)
+                click.echo("error: aborted", err=True)
+                sys.exit(1)
+            except KeyboardInterrupt as exc:  # after click's own handling (while it prints, say)
+                _interrupted(exc)
         sys.exit(rv if isinstance(rv, int) else 0)
 
     def invoke(self, ctx):
         try:
             return super().invoke(ctx)
+        except KeyboardInterrupt as exc:
+            _interrupted(exc)
         except TwinError as exc:
-            click.echo(f"error: {exc}", err=True)
+            click.echo(f"error: {_with_kept(str(exc), exc)}", err=True)
             sys.exit(2)
         except OSError as exc:
-            click.echo(f"error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": "), err=True)
+            text = f"{exc.strerror or exc}: {exc.filename or ''}".rstrip(": ")
+            click.echo(f"error: {_with_kept(text, exc)}", err=True)
             sys.exit(2)
+
+
+def _with_kept(text: str, exc: BaseException) -> str:
+    from twin import rundir
+
+    kept = rundir.kept_text(exc)
+    return f"{text}; {kept}" if kept else text
+
+
+def _interrupted(exc: BaseException):
+    """One line on stderr, what was kept and the signal, then exit 130 (SIGINT) or 143 (SIGTERM)."""
+    from twin import rundir
+
+    kept = rundir.kept_text(exc)
+    click.echo(f"interrupted: {rundir.signal_name(exc)}" + (f"; {kept}" if kept else ""), err=True)
+    sys.exit(rundir.exit_status_of(exc))
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
@@ -356,16 +388,32 @@ def physics(experiment):
 
 
 def _paper_experiment(experiment, controller, out, duration, gains_file, design_options):
-    """Run paper experiment N with one or both controllers on the analytic model and write the outputs."""
-    from twin import report
+    """Run paper experiment N with one or both controllers on the analytic model and write the outputs
+    (as a unit: :class:`twin.rundir.StagedDirectory`)."""
+    from twin import rundir
+
+    if duration is not None and not (math.isfinite(duration) and 0 < duration <= 3600):
+        raise TwinError(f"--duration must be in (0, 3600] s, got {duration:g}")
+    staged = rundir.StagedDirectory(out, "twin analytic", "paper experiment")  # refused before anything runs
+    try:
+        _paper_experiment_in(staged, experiment, controller, out, duration, gains_file, design_options)
+    except KeyboardInterrupt as exc:
+        rundir.kept(exc, staged.unchanged())
+        raise
+    finally:
+        staged.discard()
+
+
+def _paper_experiment_in(staged, experiment, controller, out, duration, gains_file, design_options):
+    """:func:`_paper_experiment` after its checks, written into ``staged``."""
+    from twin import report, rundir
     from twin.analytic_loop import simulate
     from twin.experiments import PAPER_EXPERIMENTS
     from twin.metrics import run_metrics
 
-    number = int(experiment[-1])
-    if duration is not None and not (math.isfinite(duration) and 0 < duration <= 3600):
-        raise TwinError(f"--duration must be in (0, 3600] s, got {duration:g}")
     from twin.registry import BuildContext, build_controller, label, parse_controllers, provenance
+
+    number = int(experiment[-1])
 
     kinds = parse_controllers(controller)
     d = _load_design(gains_file, *design_options)
@@ -388,24 +436,39 @@ def _paper_experiment(experiment, controller, out, duration, gains_file, design_
         runs.append(run)
         metrics[kind] = run_metrics(run)
     names = {k: f"trajectory_{re.sub(r'[^A-Za-z0-9_-]+', '_', k)}.csv" for k in kinds}
-    for kind, run in zip(kinds, runs):
-        report.write_trajectory_csv(run, out / names[kind])
     doc = {"experiment": exp.name, "description": exp.description, "plant": description, "controllers": metrics}
     if plugins:
         doc["plugins"] = plugins
     from twin.fingerprint import digests, record
 
     doc["environment"] = record(digests(d if used else None, controllers))  # last: what precedes it is unchanged
-    report.write_json(doc, out / "metrics.json")
-    report.write_json(d.to_json_dict(), out / "design.json")
-    report.plot_runs(runs, out / "figure.png", f"{exp.name}: {exp.description}\n{description}")
+    # written as a unit (twin.rundir): the whole directory, or the earlier one untouched
+    writing = None
+    try:
+        where = staged.path
+        for kind, run in zip(kinds, runs):
+            writing = names[kind]
+            report.write_trajectory_csv(run, where / writing)
+        for writing, obj in (("metrics.json", doc), ("design.json", d.to_json_dict())):
+            report.write_json(obj, where / writing)
+        writing = "figure.png"
+        report.plot_runs(runs, where / writing, f"{exp.name}: {exp.description}\n{description}")
+        writing = rundir.MANIFEST
+        staged.commit(0)
+    except BaseException as exc:
+        staged.discard()
+        if isinstance(exc, OSError):  # a full disk, say: the file as the user will know it
+            raise rundir.kept(TwinError(f"cannot write {out / writing if writing else out}: "
+                                        f"{exc.strerror or exc}"), staged.unchanged()) from exc
+        raise rundir.kept(exc, staged.unchanged())
     click.echo(f"{exp.name}: {exp.description} ({description})")
     keys = ("settling_time_s", "theta_rms_rad", "final_theta_rad", "final_position_error_m", "final_heading_error_rad",
             "iae_theta", "control_effort", "max_abs_torque_nm")
     click.echo(f"  {'metric':28}" + "".join(f"{label(k)[:11]:>12}" for k in kinds))
     for k in keys:
         click.echo(f"  {k:28}" + "".join(f"{_fmt(metrics[c][k]):>12}" for c in kinds))
-    click.echo(f"wrote {out}/figure.png, metrics.json, design.json, " + ", ".join(names[k] for k in kinds))
+    click.echo(f"wrote {out}/figure.png, metrics.json, design.json, " + ", ".join(names[k] for k in kinds)
+               + f", {rundir.MANIFEST}")
 
 
 @main.command()
@@ -453,23 +516,32 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample, log
     from twin.registry import label
     from twin.scenarios.runner import controllers_of, plugins_of, run_scenario
 
+    from twin import rundir
+
     every = _log_every(log_every)
     sc = _load(scenario, overrides, seed, duration)
-    out = out if out is not None else Path("runs") / (sc.name if sample is None else f"{sc.name}-sample{sample}")
-    kinds = controllers_of(controller, sc)
-    _check_plugins(sc, kinds)
-    if sample is not None:
-        from twin.sweep import sample_scenario
+    if out is None:  # the scenario's name must not lead the outputs out of runs/ (a shared file may say "../..")
+        out = rundir.child_of(Path("runs"), sc.name if sample is None else f"{sc.name}-sample{sample}",
+                              "the scenario's name")
+    target = rundir.StagedDirectory(out, "twin run")  # a directory the run may not replace: said before anything runs
+    try:
+        kinds = controllers_of(controller, sc)
+        _check_plugins(sc, kinds)
+        if sample is not None:
+            from twin.sweep import sample_scenario
 
-        s = sample_scenario(sc, sc.seed, sample)
-        click.echo(f"sample {s.index} of a sweep (root seed {sc.seed}): level λ = {s.level:g}, draw {s.draw}, "
-                   f"seed {s.seed}")
-        sc = s.scenario
-    click.echo(_title(sc))
-    _echo_plugins(plugins_of(sc, kinds))
-    with _Progress() as bar:
-        result = run_scenario(sc, kinds, out=out, video=video, progress=bar.update, log_every=every,
-                              log_format=log_format)
+            s = sample_scenario(sc, sc.seed, sample)
+            click.echo(f"sample {s.index} of a sweep (root seed {sc.seed}): level λ = {s.level:g}, draw {s.draw}, "
+                       f"seed {s.seed}")
+            sc = s.scenario
+        click.echo(_title(sc))
+        _echo_plugins(plugins_of(sc, kinds))
+        with _Progress() as bar:
+            result = run_scenario(sc, kinds, out=out, video=video, progress=bar.update, log_every=every,
+                                  log_format=log_format)
+    except KeyboardInterrupt as exc:  # what the run kept, if it got that far, stands
+        rundir.kept(exc, target.unchanged())
+        raise
     keys = ("status", "settling_time_s", "theta_rms_rad", "oscillation_peak_to_peak_rad", "final_position_error_m",
             "final_heading_error_rad", "iae_theta", "control_effort", "max_abs_torque_nm", "estimator_theta_rmse_rad",
             "rejected_measurements")
@@ -577,6 +649,7 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
       twin sweep push-recovery --samples 20 --workers 2 --set sweep.push_count=2
       twin sweep paper-exp2 --samples 100 --backend ray --ray-address auto
     """
+    from twin import rundir
     from twin.scenarios.runner import controllers_of, plugins_of
     from twin.sweep import run_sweep
     from twin.sweep.runner import sweep_controllers
@@ -584,7 +657,9 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
     if ray_address is not None and backend != "ray":
         raise TwinError("--ray-address needs --backend ray")
     sc = _load(scenario, overrides, seed, duration)
-    out = out if out is not None else Path("runs") / f"sweep-{sc.name}"
+    if out is None:
+        out = rundir.child_of(Path("runs"), f"sweep-{sc.name}", "the scenario's name")
+    rundir.refuse_if_in_use(out)
     levels = sc.data["sweep"]["levels"]
     kinds, reference = sweep_controllers(sc, controllers_of(controller, sc), reference)
     _check_plugins(sc, kinds)
@@ -596,11 +671,11 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
     try:
         result = run_sweep(sc, draws, out, scenario_arg=scenario, workers=workers, backend=backend,
                            address=ray_address, progress=bar.update, controllers=kinds, reference=reference)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         bar.close()
-        click.echo(f"interrupted: {bar.done} of {bar.total} samples are stored in {out}; rerun the same command "
-                   "to finish the rest", err=True)
-        sys.exit(130)
+        rundir.kept(exc, f"{bar.done} of {bar.total} samples are stored in {out}; rerun the same command to finish "
+                         "the rest")
+        raise
     bar.close()
     if result.environment_changes:
         click.echo(f"  note: resumed in another environment than the first samples' ({'; '.join(result.environment_changes)}); "
@@ -663,6 +738,11 @@ def check(targets, controller, seeds, workers, overrides, junit, record, golden,
                         "give one of them")
     if golden is not None and not golden.is_dir():
         raise TwinError(f"--golden {golden}: no such directory; record references first with --record {golden}")
+    from twin import rundir
+
+    if golden is not None:  # references of a record that did not finish are not judged against
+        rundir.read_manifest(golden, (rundir.RECORD_COMMAND,), "golden directory",
+                             f"record it again with 'twin check ... --record {golden}'")
     tolerances = _tolerances(atol, rtol, tolerance)
     if tolerances.is_set and golden is None:
         raise TwinError("--atol, --rtol and --tolerance set how closely a run must follow its golden trajectory; "
@@ -679,9 +759,15 @@ def check(targets, controller, seeds, workers, overrides, junit, record, golden,
     if not scenarios:
         raise TwinError("no scenario with an [expect] table to check")
     bar = _SweepBar("runs")
-    result = run_checks(scenarios, kinds, seeds, workers or default_workers(), progress=bar.update, record=record,
-                        golden=golden, tolerances=tolerances)
-    bar.close()
+    try:
+        result = run_checks(scenarios, kinds, seeds, workers or default_workers(), progress=bar.update, record=record,
+                            golden=golden, tolerances=tolerances)
+    except BaseException as exc:
+        if record is not None:  # the record's own clause, where it got that far, stands
+            rundir.kept(exc, f"nothing recorded: {record} is as it was")
+        raise
+    finally:
+        bar.close()
     click.echo(format_table(result))
     n_bad = sum(not c.passed for c in result.cases)
     click.echo(f"  {len(result.cases)} checks ({result.runs} runs) in {result.wall_s:.1f} s: "
@@ -724,6 +810,10 @@ def compare_(a, b, atol, rtol, tolerance, figure_path, out):
     if figure_path is not None and out is not None:
         raise TwinError("--figure PATH and --out DIR both say where the figure goes; give one of them")
     tolerances = _tolerances(atol, rtol, tolerance)
+    if out is not None:
+        from twin.rundir import refuse_if_in_use
+
+        refuse_if_in_use(out)
     result = cmp.compare(cmp.load(a), cmp.load(b), tolerances)
     click.echo(cmp.report(result))
     if out is not None:
@@ -874,6 +964,9 @@ def surface(which, controller, points, out):
     from twin import report
     from twin.controllers import mamdani
 
+    from twin.rundir import refuse_if_in_use
+
+    refuse_if_in_use(out)
     fls = mamdani.position_controller(controller) if which == "position" else mamdani.direction_controller(controller)
     g1, g2, z = fls.surface(points)
     labels = {"position": ("p_e [m]", "θ̇ [rad/s]", "θ_off [rad]"),

@@ -1,7 +1,9 @@
 """Two results side by side (``twin compare A B``): metrics, environments and trajectories.
 
 A result is a run directory of ``twin run`` (``metrics.json`` and ``trajectory.csv`` or
-``trajectory.csv.gz``) or a golden trajectory of ``twin check --record`` (``.npz``). A is
+``trajectory.csv.gz``, with the ``manifest.json`` that lists them, :mod:`twin.rundir`) or a
+golden trajectory of ``twin check --record`` (``.npz``). A directory without a manifest,
+or whose files are not the ones it lists, is refused as incomplete (one line). A is
 taken as the reference and B as the run compared with it, as in ``twin check --golden``:
 
 * for each controller both hold: its metrics, with B − A and (B − A)/|A| where that means
@@ -50,6 +52,7 @@ class Result:
     environment: dict | None
     build: str | None
     log_every: int = 1
+    note: str | None = None  # said beside the comparison (a run directory kept from an unfinished run)
 
 
 def load(path) -> Result:
@@ -77,22 +80,37 @@ def _load_golden(path: Path) -> Result:
 
 
 def _load_run(path: Path) -> Result:
+    from twin import rundir
+
     mfile = path / "metrics.json"
-    if not mfile.is_file():
+    if not mfile.is_file() and not (path / rundir.MANIFEST).is_file():
         raise TwinError(f"{path}: not a run directory of 'twin run' (no metrics.json)")
+    # the manifest first: a directory an interrupted or failed command left is said to be one,
+    # rather than read as if its files belonged together
+    manifest = rundir.read_manifest(path, None, "run directory", "run 'twin run' again")
+    if manifest.get("command") == "twin analytic":
+        raise TwinError(f"{mfile}: not the metrics.json of 'twin run' (a paper experiment's of 'twin analytic'); "
+                        "twin compare reads run directories of 'twin run' and golden .npz files")
+    rundir.check_all_present(path, manifest)
     try:
-        doc = json.loads(mfile.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
+        raw = mfile.read_bytes()
+    except OSError as exc:
+        raise TwinError(f"{mfile}: not readable ({exc.strerror or exc})") from None
+    rundir.check_listed(path, manifest, "metrics.json", raw)
+    try:
+        doc = json.loads(raw.decode("utf-8"))
+    except ValueError as exc:
         raise TwinError(f"{mfile}: not readable as JSON ({' '.join(str(exc).split())})") from None
     if not isinstance(doc, dict) or not isinstance(doc.get("runs"), dict):
         other = " (a paper experiment's of 'twin analytic')" if isinstance(doc, dict) and "controllers" in doc else ""
         raise TwinError(f"{mfile}: not the metrics.json of 'twin run'{other}; twin compare reads run directories "
                         "of 'twin run' and golden .npz files")
     log = doc.get("log") or {}
-    files = [path / n for n in ("trajectory.csv", "trajectory.csv.gz") if (path / n).is_file()]
+    files = [path / n for n in ("trajectory.csv", "trajectory.csv.gz") if n in manifest["files"]]
     if not files:
         raise TwinError(f"{path}: no trajectory.csv or trajectory.csv.gz beside metrics.json")
-    tfile = path / log["file"] if log.get("file") and (path / log["file"]).is_file() else files[0]
+    tfile = path / log["file"] if log.get("file") and log["file"] in manifest["files"] else files[0]
+    rundir.check_listed(path, manifest, tfile.name)
     trajectories = _read_trajectories(tfile, {k: (m or {}).get("status", "ok") for k, m in doc["runs"].items()})
     missing = sorted(set(doc["runs"]) ^ set(trajectories))
     if missing:
@@ -100,8 +118,13 @@ def _load_run(path: Path) -> Result:
                         "only one of them); the directory mixes two runs")
     env = doc.get("environment")
     scenario = doc.get("scenario", {}).get("name") if isinstance(doc.get("scenario"), dict) else None
+    note = None
+    if not manifest.get("complete", True):  # the data of a run whose figure or video was cut short: complete
+        note = (f"{path} holds what an unfinished 'twin run' kept ({manifest.get('stopped') or 'stopped'}; exit "
+                f"status {manifest.get('exit_status')}): its metrics and trajectories are complete, "
+                f"{' and '.join(manifest.get('missing') or [])} missing")
     return Result(path, "run directory", scenario, doc.get("seed"), trajectories, dict(doc["runs"]), env,
-                  _build_of(env), int(log.get("every", 1)))
+                  _build_of(env), int(log.get("every", 1)), note)
 
 
 def _build_of(env) -> str | None:
@@ -200,7 +223,7 @@ def compare(a: Result, b: Result, tolerances: Tolerances | None = None) -> Compa
     # unknown builds (files written before builds were recorded) are taken as one: bit for bit by default
     same_build = a.build is None or b.build is None or (a.build == b.build and a.build != "mixed")
     env = [_as_a_b(d) for d in differences(*_designs_compared(b.environment, a.environment, common))]
-    notes, step_a, step_b = [], 1, 1
+    notes, step_a, step_b = [r.note for r in (a, b) if r.note], 1, 1
     if a.log_every != b.log_every:
         lo, hi = sorted((a.log_every, b.log_every))
         kept = f"A's trajectory keeps every {_nth(a.log_every)}control step, B's every {_nth(b.log_every)}control step"

@@ -31,7 +31,9 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import re
+import tempfile
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -54,10 +56,32 @@ def build() -> str:
     return "compiled" if all(built) else "pure" if not any(built) else "mixed"
 
 
+def _part(name: str) -> str:
+    """A name as one path component: characters other than letters, digits, '_', '.' and '-'
+    become '_', and a name of dots alone ('.', '..') or none is made of '_' (it would name the
+    directory itself or its parent)."""
+    safe = re.sub(r"[^A-Za-z0-9_.-]+", "_", str(name))
+    return safe if safe.strip(".") else "_" * max(len(safe), 1)
+
+
 def path_for(root: Path, scenario: str, controller: str, seed: int) -> Path:
-    """Where the reference of (scenario, controller, seed) lives under ``root``."""
-    safe = re.sub(r"[^A-Za-z0-9_.-]+", "_", controller)
-    return Path(root) / re.sub(r"[^A-Za-z0-9_.-]+", "_", scenario) / safe / f"seed-{seed}.npz"
+    """Where the reference of (scenario, controller, seed) lives under ``root``: always inside
+    it, whatever the names are."""
+    return Path(root) / _part(scenario) / _part(controller) / f"seed-{int(seed)}.npz"
+
+
+RECORD_AGAIN = "record it again with 'twin check --record DIR'"
+
+
+def _in_record(path: Path, meta: dict) -> bool:
+    """Whether ``path`` sits where a record puts the reference ``meta`` describes
+    (ROOT/<scenario>/<controller>/seed-<S>.npz), so that ROOT's manifest must list it; a
+    reference copied elsewhere on its own is read on its own (each is written whole, by a
+    rename, and its archive's checksums catch damage)."""
+    try:
+        return path == path_for(path.parents[2], meta["scenario"], meta["controller"], meta["seed"])
+    except (KeyError, IndexError, TypeError, ValueError):
+        return False
 
 
 @dataclass(frozen=True)
@@ -77,20 +101,32 @@ class Trajectory:
 
 def record(path: Path, traj: Trajectory, meta: dict) -> Path:
     """Store ``traj`` (with ``meta``: scenario, controller, seed, ...) at ``path``, compressed."""
+    from twin.rundir import PARTIAL
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     info = {"format": FORMAT, "build": build(), "status": traj.status, **meta}
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez_compressed(tmp, data=traj.data, names=np.array(traj.names), units=np.array(traj.units),
-                        meta=np.array(json.dumps(info, sort_keys=True)))
-    tmp.replace(path)
+    # under a hidden name, renamed when complete: the reference at ``path`` is always whole
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}{PARTIAL}", suffix=".npz", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            np.savez_compressed(fh, data=traj.data, names=np.array(traj.names), units=np.array(traj.units),
+                                meta=np.array(json.dumps(info, sort_keys=True)))
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp made it private; a reference is an ordinary file
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
     return path
 
 
 def load(path: Path) -> tuple[Trajectory, dict]:
     """The reference at ``path`` and its metadata; a one-line error naming the file if it is
-    missing, is not a golden trajectory (another file, a foreign or damaged archive) or is
-    of an older format."""
+    missing, is not a golden trajectory (another file, a foreign or damaged archive), is
+    of an older format, or sits in a record directory whose manifest does not list it as it
+    is (the record was interrupted, or the file changed since)."""
     path = Path(path)
     if not path.is_file():
         why = "a directory, not a file" if path.is_dir() else "no golden trajectory here"
@@ -109,7 +145,8 @@ def load(path: Path) -> tuple[Trajectory, dict]:
     try:
         # from memory: np.load(path) leaves its file open when the archive is damaged
         # (a ResourceWarning later), and a reference is small (~0.5 MB for 15 s)
-        z = np.load(io.BytesIO(path.read_bytes()), allow_pickle=False)
+        raw = path.read_bytes()
+        z = np.load(io.BytesIO(raw), allow_pickle=False)
     except Exception as exc:  # noqa: BLE001 -- whatever numpy makes of a broken archive, it is one line here
         raise TwinError(f"{damaged}: {_one_line(exc)})") from None
     try:
@@ -135,6 +172,12 @@ def load(path: Path) -> tuple[Trajectory, dict]:
         raise TwinError(f"{not_ours} (data of shape {data.shape} for {len(names)} signals)")
     if "status" not in meta:
         raise TwinError(f"{not_ours} (its meta has no status)")
+    if _in_record(path, meta):
+        from twin import rundir
+
+        root = path.parents[2]
+        doc = rundir.read_manifest(root, (rundir.RECORD_COMMAND,), "golden directory", RECORD_AGAIN)
+        rundir.check_listed(root, doc, path.relative_to(root).as_posix(), raw)
     return Trajectory(names, units, data, str(meta["status"])), meta
 
 

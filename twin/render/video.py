@@ -294,8 +294,11 @@ class _FfmpegWriter:
         # stderr to a file, not a pipe: an undrained pipe could fill and stall ffmpeg
         self._stderr = tempfile.TemporaryFile()
         try:
+            # a session of its own: a Ctrl-C at the terminal reaches this process alone, which
+            # then ends ffmpeg itself (kill()), instead of racing ffmpeg's own exit into an
+            # "ffmpeg failed" error; if this process dies, ffmpeg reads EOF and exits too
             self._proc = subprocess.Popen(args, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
-                                          stderr=self._stderr)
+                                          stderr=self._stderr, start_new_session=True)
         except OSError as exc:
             self._stderr.close()
             raise TwinError(f"ffmpeg {exe!r} does not start ({exc.strerror or exc})") from None
@@ -322,6 +325,11 @@ class _FfmpegWriter:
             except BrokenPipeError:
                 pass
         return self._proc.wait()
+
+    def kill(self) -> None:
+        """End ffmpeg now (the video is being abandoned: nothing it would still encode is wanted)."""
+        if self._proc.poll() is None:
+            self._proc.kill()
 
     def release(self) -> None:
         """Close the input, wait for ffmpeg; TwinError if it exited with an error."""
@@ -393,6 +401,18 @@ class _Encoder:
         if self.error is not None:
             raise self.error
         self._queue.put(frame)
+
+    def abort(self) -> None:
+        """Abandon the video (an error or an interrupt): end ffmpeg first, so that neither the
+        frames queued nor those in its pipe are encoded, then stop the thread; errors are
+        not raised (the one that stopped the video is)."""
+        kill = getattr(self.writer, "kill", None)
+        if kill is not None:
+            kill()
+        try:
+            self.close()
+        except BaseException:  # noqa: BLE001 -- a broken pipe, or the killed ffmpeg's exit status
+            pass
 
     def close(self) -> None:
         """Encode what is queued, then release the writer (also after an error)."""
@@ -532,10 +552,7 @@ def render_video(runs, path, fps: float = 30, size=(640, 480),
         os.replace(tmp, path)
     except BaseException:
         if encoder is not None:
-            try:
-                encoder.close()
-            except BaseException:
-                pass
+            encoder.abort()
         tmp.unlink(missing_ok=True)
         raise
     finally:

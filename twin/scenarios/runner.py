@@ -14,7 +14,12 @@ Outputs in the run directory:
 - ``figure.png``: θ, torque, dψ/dt, distance and α over time (the paper's Figs. 6–8),
   the controllers overlaid;
 - ``video.mp4``: offscreen rendering, the controllers side by side (optional);
-- ``design.json``: the LMI design the balance controllers used.
+- ``design.json``: the LMI design the balance controllers used;
+- ``manifest.json``, written last: every file with its size and SHA-256, the command's exit
+  status and whether every output is there (:mod:`twin.rundir`).
+
+The directory is written as a unit: staged beside the target and put in its place when
+complete, so it never mixes this run's files with an earlier run's.
 
 Nothing here depends on the wall clock: the same scenario and seed give byte-identical
 ``metrics.json`` and ``trajectory.csv``.
@@ -25,12 +30,12 @@ import csv
 import gzip
 import io
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-from twin import figure_worker
+from twin import figure_worker, rundir
 from twin.errors import TwinError
 from twin.scenarios.scenario import Scenario
 
@@ -85,8 +90,10 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
     ``controller.kinds``) on identical conditions: same true plant, sensor seed,
     estimator kind, pushes and faults.
 
-    ``out``: the run directory (None: write nothing); ``video``: render the MP4 (None: as the
-    scenario says); ``progress(stage, done, total)``: called as the runs and the video advance;
+    ``out``: the run directory (None: write nothing), written as a unit with its manifest
+    (:class:`twin.rundir.StagedDirectory`: the directory is the earlier one until this one is
+    complete; see :func:`_write` for what an error or interrupt keeps); ``video``: render the
+    MP4 (None: as the scenario says); ``progress(stage, done, total)``: called as the runs and the video advance;
     ``log_every`` N: keep and write every N-th control step only (the metrics still come
     from every step; see :func:`twin.bullet_loop.simulate_twin`); ``log_format``: "csv"
     (trajectory.csv) or "csv.gz" (trajectory.csv.gz, gzip). Nothing is written unless every
@@ -103,18 +110,31 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
     else:
         kinds = check_kinds("controller", controllers if controllers is not None else scenario.controllers,
                             "controllers")
-    # the figure's worker process starts now, to import matplotlib while the runs simulate
-    worker = figure_worker.start() if out is not None else None
+    # checked before the runs simulate, so that a directory that cannot take them is said at once
+    staged = rundir.StagedDirectory(out, "twin run") if out is not None else None
     try:
-        return _run_and_write(scenario, kinds, out, video, progress, every, log_format, worker)
+        # the figure's worker process starts now, to import matplotlib while the runs simulate
+        worker = figure_worker.start() if out is not None else None
+        try:
+            return _run_and_write(scenario, kinds, staged, video, progress, every, log_format, worker)
+        finally:
+            if worker is not None:  # ended before its staging goes: it may be writing figure.png there
+                worker.close()
+    except BaseException as exc:
+        if staged is not None:
+            staged.discard()
+            if staged.started or isinstance(exc, KeyboardInterrupt):  # an error before any writing says enough
+                rundir.kept(exc, staged.unchanged())
+        raise
     finally:
-        if worker is not None:
-            worker.close()
+        if staged is not None:
+            staged.discard()
 
 
-def _run_and_write(scenario, kinds, out, video, progress, every, log_format, worker) -> ScenarioResult:
-    """:func:`run_scenario` after its checks; ``worker`` a :class:`twin.figure_worker.FigureWorker`
-    for the figure, or None (drawn here)."""
+def _run_and_write(scenario, kinds, staged, video, progress, every, log_format, worker) -> ScenarioResult:
+    """:func:`run_scenario` after its checks; ``staged`` a :class:`twin.rundir.StagedDirectory`
+    (None: write nothing); ``worker`` a :class:`twin.figure_worker.FigureWorker` for the
+    figure, or None (drawn here)."""
     from twin.bullet_loop import simulate_twin
     from twin.metrics import run_metrics
 
@@ -153,60 +173,135 @@ def _run_and_write(scenario, kinds, out, video, progress, every, log_format, wor
     result = ScenarioResult(scenario, runs, metrics, timings=timings, plugins=plugins,
                             design=solved[0] if solved else None,
                             designs=digests(solved[0] if solved else None, controllers))
-    if out is None:
+    if staged is None:
         return result
+    _write(result, staged, video, progress, every, log_format, worker, sensors, config)
+    return result
+
+
+def _write(result, staged, video, progress, every, log_format, worker, sensors, config) -> None:
+    """Write the run directory of ``result`` as a unit (:class:`twin.rundir.StagedDirectory`).
+
+    The data (metrics.json, the trajectory, design.json) is the result; the figure and the
+    video are pictures of it. Until the data is written, an error or an interrupt leaves the
+    target as it was. Once it is written, it is kept: an error or an interrupt while the
+    figure or the video is made commits the data (and the figure, if finished) with a manifest
+    that says what is missing, what stopped the command and its exit status, rather than
+    throwing away a simulation that may have taken an hour."""
     from twin import report
 
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    scenario, runs, metrics, solved = result.scenario, result.runs, result.metrics, result.design
+    d = scenario.data
+    out = staged.path
     title = f"{scenario.name}: {scenario.description}\nseed {scenario.seed}, " + (
         "ideal sensing" if sensors is None else f"{scenario.estimator} estimator in the loop")
-    # the figure first: a worker draws it while the files below are written
-    handed = worker is not None and worker.submit(report.figure_data(runs), title, out / "figure.png")
-    doc = {"scenario": scenario.record(), "source": scenario.source, "seed": scenario.seed, "runs": metrics}
-    if plugins:
-        doc["plugins"] = plugins
-    name = "trajectory." + log_format
-    if every > 1 or log_format != "csv":  # at the defaults metrics.json stays as it always was
-        doc["log"] = log_record(runs, every, log_format, name)
-    doc["environment"] = result.environment()  # last: what precedes it is as it always was
-    result.files += [report.write_json(doc, out / "metrics.json"), write_trajectories_csv(runs, out / name)]
-    for other in LOG_FORMATS:  # an earlier run's trajectory in the other format would not show these runs
-        if other != log_format:
-            (out / f"trajectory.{other}").unlink(missing_ok=True)
-    if solved:
-        result.files.append(report.write_json(solved[0].to_json_dict(), out / "design.json"))
-    else:
-        (out / "design.json").unlink(missing_ok=True)  # an earlier run's, which these runs did not use
-    failed = worker.finish() if handed else None
-    if failed is not None:
-        result.notes.append(f"{failed}; drew the figure in this process")
-    if not handed or failed is not None:
-        report.plot_runs(runs, out / "figure.png", title)
-    result.files.append(out / "figure.png")
-    if video if video is not None else d["video"]["enabled"]:
-        from twin.render import render_video
-        from twin.render.scene import camera_mode
+    want_video = video if video is not None else d["video"]["enabled"]
+    stage, drawn, writing = "data", False, None
+    try:
+        # the figure first: a worker draws it while the files below are written
+        handed = worker is not None and worker.submit(report.figure_data(runs), title, out / "figure.png")
+        doc = {"scenario": scenario.record(), "source": scenario.source, "seed": scenario.seed, "runs": metrics}
+        if result.plugins:
+            doc["plugins"] = result.plugins
+        name = "trajectory." + log_format
+        if every > 1 or log_format != "csv":  # at the defaults metrics.json stays as it always was
+            doc["log"] = log_record(runs, every, log_format, name)
+        doc["environment"] = result.environment()  # last: what precedes it is as it always was
+        writing = "metrics.json"
+        report.write_json(doc, out / writing)
+        writing = name
+        write_trajectories_csv(runs, out / name)
+        if solved is not None:
+            writing = "design.json"
+            report.write_json(solved.to_json_dict(), out / writing)
+        stage, writing = "figure", "figure.png"
+        failed = worker.finish() if handed else None
+        if failed is not None:
+            result.notes.append(f"{failed}; drew the figure in this process")
+        if not handed or failed is not None:
+            report.plot_runs(runs, out / "figure.png", title)
+        drawn = True
+        if want_video:
+            stage, writing = "video", "video.mp4"
+            _video(result, out, progress, every, config)
+        stage, writing = "commit", rundir.MANIFEST
+        staged.commit(0)
+        written = ["metrics.json", name] + ["design.json"] * (solved is not None) + ["figure.png"] + \
+            ["video.mp4"] * bool(want_video) + [rundir.MANIFEST]  # in the order they were written
+        result.files += [staged.shown / n for n in written]
+    except BaseException as exc:
+        err = exc
+        if isinstance(exc, OSError):  # a full disk, say: one line, naming the file as the user will know it
+            where = staged.shown / writing if writing else staged.shown
+            err = TwinError(f"cannot write {where}: {exc.strerror or exc}")
+        if stage == "data" or (stage == "commit" and staged.committed):
+            rundir.kept(err, staged.unchanged())
+        else:
+            _keep_data(err, staged, worker, stage, drawn, want_video)
+        if err is exc:
+            raise
+        raise err from exc
+    if result.video is not None:
+        result.video = replace(result.video, path=staged.shown / "video.mp4")
 
-        v = d["video"]
-        rate = config.control_rate / every
-        if rate < v["fps"]:
-            result.notes.append(f"the video interpolates the trajectory logged at {rate:g} Hz (--log-every {every}) "
-                                f"to {v['fps']} frames/s: motion between logged rows is drawn as straight lines")
-        cb = None if progress is None else (lambda done, total: progress("video", done, total))
-        t0 = time.perf_counter()
-        e = runs[0].experiment
-        camera = camera_mode(v["camera"], float(runs[0].signal("alpha")[0]), _extent(runs),
-                             None if e is None else e.alpha_d)
-        result.video = render_video(runs, out / "video.mp4", fps=v["fps"], size=(v["width"], v["height"]), progress=cb,
-                                    camera=camera)
-        timings["video_s"] = time.perf_counter() - t0
-        if result.video.note:  # H.264 by ffmpeg was not available: say what wrote the video instead, and why
-            result.notes.append(result.video.note)
-        result.files.append(out / "video.mp4")
-    else:
-        (out / "video.mp4").unlink(missing_ok=True)  # an earlier run's video would not show these runs
-    return result
+
+def _keep_data(exc, staged, worker, stage: str, drawn: bool, want_video: bool) -> None:
+    """After ``exc`` stopped the figure, the video or the commit: commit what is complete (the
+    data at least), with a manifest saying what is missing, why and the exit status, and say
+    so on ``exc``; if even that fails (the disk is full for the manifest too), the target is
+    left as it was."""
+    if worker is not None:
+        worker.close()  # a figure still being drawn into the staging is not one
+    out = staged.path
+    missing = []
+    if stage != "commit":
+        if not drawn:
+            missing.append("figure.png")
+        if want_video:
+            missing.append("video.mp4")
+    for name in missing:
+        (out / name).unlink(missing_ok=True)
+    how = (f"{rundir.signal_name(exc)} during the {stage}" if isinstance(exc, KeyboardInterrupt)
+           else f"error during the {stage}: {' '.join(str(exc).split())}")
+    try:
+        staged.commit(rundir.exit_status_of(exc), missing, how)
+    except BaseException:  # noqa: BLE001 -- whatever stops the commit, the original error is the one said
+        if not staged.committed:
+            staged.discard()
+            rundir.kept(exc, staged.unchanged())
+            return
+    names = [p.name for p in staged.files() if p.name != rundir.MANIFEST]
+    rundir.kept(exc, f"kept {', '.join(names[:-1])} and {names[-1]} in {staged.shown}"
+                     + (f", without {' and '.join(missing)}" if missing else " (complete)")
+                     + f"; its {rundir.MANIFEST} says so, with exit status {rundir.exit_status_of(exc)}")
+
+
+def _video(result, out: Path, progress, every: int, config) -> None:
+    """Render video.mp4 of ``result``'s runs into ``out``."""
+    from twin.render import render_video
+    from twin.render.scene import camera_mode
+
+    runs, v = result.runs, result.scenario.data["video"]
+    rate = config.control_rate / every
+    if rate < v["fps"]:
+        result.notes.append(f"the video interpolates the trajectory logged at {rate:g} Hz (--log-every {every}) "
+                            f"to {v['fps']} frames/s: motion between logged rows is drawn as straight lines")
+
+    def cb(done, total):
+        if done == 1:
+            rundir.test_point("video")
+        if progress is not None:
+            progress("video", done, total)
+
+    t0 = time.perf_counter()
+    e = runs[0].experiment
+    camera = camera_mode(v["camera"], float(runs[0].signal("alpha")[0]), _extent(runs),
+                         None if e is None else e.alpha_d)
+    result.video = render_video(runs, out / "video.mp4", fps=v["fps"], size=(v["width"], v["height"]), progress=cb,
+                                camera=camera)
+    result.timings["video_s"] = time.perf_counter() - t0
+    if result.video.note:  # H.264 by ffmpeg was not available: say what wrote the video instead, and why
+        result.notes.append(result.video.note)
 
 
 def log_record(runs, every: int, log_format: str, name: str) -> dict:
@@ -265,6 +360,7 @@ def write_trajectories_csv(runs, path: Path) -> Path:
                         lines = [prefix + ",".join(["" if j is None else repr(row[j]) for j in where]) for row in rows]
                     lines.append("")
                     fh.write("\r\n".join(lines))
+                    rundir.test_point("trajectory")  # a no-op unless a kill test asks (see there)
         finally:
             fh.close()  # closes the gzip stream (its trailer) and the file
     return path
