@@ -345,7 +345,11 @@ class EKFEstimator:
         # the gyro's second difference follows the commands' differences at its latency
         m0 = model
         self._torque_sign = -1.0 if (m0.m11 + m0.m12) / (m0.m11 * m0.m22 - m0.m12 ** 2) > 0 else 1.0
-        self._watch = self.every == 1  # the kernel below assumes one IMU sample per period
+        # the kernel below assumes one IMU sample per period, and it compares the assumed
+        # latency with the others it looks at (0 … WATCH_MAX_LAG periods): a gyro assumed
+        # later than that (over 100 ms at 200 Hz, over 4 ms at 5 kHz) has nothing to compare
+        # with, so it is not watched
+        self._watch = self.every == 1 and self.d_imu <= WATCH_MAX_LAG
         self.dt = self.every * model.dt
         self.alpha0 = float(alpha0)
         # an IMU sample is called an outlier only on much stronger evidence (1 − 1e-9):
