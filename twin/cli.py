@@ -366,7 +366,8 @@ def analytic(experiment, controller, out, duration, gains_file, epsilon, rho, de
 
     EXPERIMENT is 1 (balance from θ0 = 0.48 rad), 2 (+ position, p_d = 0.7 m) or
     3 (+ direction, p_d = 1 m, α_d = 1.5 rad). Writes figure.png, metrics.json,
-    trajectory_<controller>.csv and design.json into --out.
+    trajectory_<controller>.csv, design.json and manifest.json into --out, as a whole:
+    --out is the earlier directory until the new one is complete.
 
     \b
     Examples:
@@ -498,9 +499,11 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample, log
     """Run a scenario on the PyBullet twin: trajectory, metrics, figure and video.
 
     SCENARIO is a built-in name (see 'twin scenarios') or a scenario .toml file. Writes
-    trajectory.csv (or trajectory.csv.gz), metrics.json, figure.png, design.json and
-    video.mp4 into --out. The same scenario and seed give identical metrics.json and
-    trajectory.csv.
+    trajectory.csv (or trajectory.csv.gz), metrics.json, figure.png, design.json,
+    video.mp4 and manifest.json (every file's size and SHA-256) into --out, as a whole:
+    --out is the earlier run until the new one is complete, and an interrupt (exit
+    status 130 or 143) keeps the data if only the figure or the video was missing. The
+    same scenario and seed give identical metrics.json and trajectory.csv.
 
     \b
     Examples:
