@@ -402,6 +402,12 @@ def test_a_full_disk_while_recording_leaves_the_golden_directory_as_it_was(gold,
     assert (copy / rundir.MANIFEST).read_bytes() == before and _hidden(copy) == []
 
 
+def test_a_mount_point_is_refused_as_an_output_directory(small_disk):
+    disk = small_disk(64)
+    status, out, err = twin(*RUN, "--no-video", "--out", disk)
+    assert_one_line_error(status, out, err, f"{disk}: is a mount point", f"--out {disk / 'run'}")
+
+
 def test_a_write_error_is_one_line_and_the_target_as_it_was_mocked(earlier, tmp_path, monkeypatch):
     """The full disk of the tests above, without a tmpfs: the trajectory's writer fails half-way."""
     from twin.scenarios import runner

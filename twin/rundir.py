@@ -514,6 +514,9 @@ class StagedDirectory:
         if cwd is not None and (cwd == t or t in cwd.parents):
             raise TwinError(f"{self.shown}: is the current directory or holds it; a {self.what} replaces its "
                             f"directory as a whole: give a directory of its own, e.g. --out runs/NAME")
+        if os.path.ismount(t):  # it cannot be swapped, and the staging beside it would be on another disk
+            raise TwinError(f"{self.shown}: is a mount point; a {self.what} replaces its directory as a whole: give "
+                            f"a directory inside it, e.g. --out {self.shown / 'run'}")
         if t.is_dir():
             refuse_if_in_use(t)
             foreign = self._foreign()
