@@ -196,6 +196,20 @@ def test_an_interrupt_after_everything_was_written_keeps_it_all(earlier, tmp_pat
     assert "video.mp4" not in doc["files"]  # the earlier run's video went with it
 
 
+def test_an_interrupt_during_the_swap_is_held_until_it_is_done(earlier, tmp_path):
+    target = _copy(earlier, tmp_path)
+    code, _, err, _ = _stop([*RUN, "--seed", "1", "--no-video", "--out", "R"], tmp_path, "exchanged", signal.SIGTERM)
+    assert code == 143
+    _one_line(err, "interrupted: SIGTERM; this run was complete: R holds it, with its manifest.json")
+    doc = _complete(target)
+    assert doc["exit_status"] == 0 and _seed(target) == 1 and _hidden(tmp_path) == []
+    # killed there: the new run is in place, the earlier one hidden beside it until the next command
+    code, *_ = _stop([*RUN, "--seed", "2", "--no-video", "--out", "R"], tmp_path, "exchanged", signal.SIGKILL)
+    assert code == -signal.SIGKILL and _seed(target) == 2 and _complete(target)["complete"]
+    assert len(_hidden(tmp_path)) >= 1
+    assert twin(*RUN, "--no-video", "--out", tmp_path / "R")[0] == 0 and _hidden(tmp_path) == []
+
+
 def test_an_interrupt_before_anything_is_written_says_so_and_exits_130_not_1(tmp_path):
     # SIGINT used to end in "error: aborted" and exit status 1, a failed bound's
     code, _, err, sid = _stop([*RUN, "--no-video", "--out", "fresh"], tmp_path, "trajectory", signal.SIGINT)

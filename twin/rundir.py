@@ -593,6 +593,7 @@ class StagedDirectory:
                         os.rename(old, self.target)
                         raise
                     staging = old
+                test_point("exchanged")
                 self.committed = True
                 self._staging = staging  # now the earlier directory (or the empty one lock() made)
                 shutil.rmtree(staging, ignore_errors=True)
@@ -614,7 +615,7 @@ class StagedDirectory:
     def unchanged(self) -> str:
         """What an interrupted or failed command leaves, as a clause: nothing of its own."""
         if self.committed:
-            return f"{self.shown} holds it, complete ({MANIFEST})"
+            return f"this {self.what} was complete: {self.shown} holds it, with its {MANIFEST}"
         return (f"nothing of this {self.what} was written: {self.shown} is as it was" if self.existed else
                 f"nothing of this {self.what} was written ({self.shown} was not created)")
 
