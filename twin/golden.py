@@ -9,6 +9,12 @@ of each design it used (:mod:`twin.fingerprint`). ``twin check --golden DIR`` co
 new run with it, signal by signal, and reports the first time and signal where they part,
 and whether the environment or a design differs from the reference's.
 
+A record is written as a unit (:class:`twin.rundir.FileBatch`): ``DIR/manifest.json`` lists
+every reference with its size and SHA-256. :func:`load` refuses a reference that sits in a
+record directory whose manifest is missing or does not list it as it is (a record that was
+killed, or a file changed since); a reference copied out of its directory is read on its
+own (it was written whole, by a rename, and its archive's checksums catch damage).
+
 What is compared how, and why:
 
 * **The same build** (the compiled kernels on both sides, or the pure-Python paths on
