@@ -26,7 +26,7 @@ def test_design_writes_json(tmp_path):
 
 @pytest.mark.parametrize("args, message", [
     (["design", "--rho", "0.1"], "rho = 0.1 N·m is too small"),
-    (["design", "--epsilon", "-2"], "epsilon must be a finite number in (0, 100]"),
+    (["design", "--epsilon", "-2"], "epsilon must be a finite number in [1e-06, 100]"),
     (["design", "--decay-rate", "500"], "decay rate must be a finite number in [0, 100]"),
     (["design", "--rho", "1e300"], "rho must be a finite number in (0, 1e+06]"),
     (["design", "--max-gain", "0.5"], "max gain 0.5 is below the designed gains' norm"),

@@ -9,6 +9,7 @@ see the true state here (the estimator comes with the sensor models).
 from __future__ import annotations
 
 import math
+from time import perf_counter
 
 import numpy as np
 
@@ -16,16 +17,17 @@ from twin.controllers.cascade import build_cascade
 from twin.controllers.lmi import BalanceDesign, design_balance_gains
 from twin.errors import PluginError, TwinError
 from twin.experiments import PAPER_EXPERIMENTS, Experiment
+from twin.limits import MEMORY_EVERY, PluginLimits, RunGuard
 from twin.params import NOMINAL, RobotParams
 from twin.plant.analytic import STATE_NAMES, rk4_step, wheel_angles
-from twin.protocols import describe_object
+from twin.protocols import describe_object, one_line
 from twin.runs import COMMAND_UNITS, Run
 from twin.timing import steps_per_control
 
 
 def simulate(controller, experiment: Experiment, params: RobotParams = NOMINAL,
              duration: float | None = None, physics_dt: float = 0.001, control_dt: float = 0.005,
-             x0=None, disturbance=None, controller_name: str = "") -> Run:
+             x0=None, disturbance=None, controller_name: str = "", limits: PluginLimits | None = None) -> Run:
     """Run ``controller`` (a :class:`twin.protocols.Controller`) on the analytic plant ``params``
     (the "true plant"), reading the true state; returns a :class:`twin.runs.Run` like the twin's.
 
@@ -33,6 +35,8 @@ def simulate(controller, experiment: Experiment, params: RobotParams = NOMINAL,
     experiment's initial state [θ0, 0, …]. Logged at the control rate: the truth columns
     from the state (ψ_l, ψ_r by rolling without slip, roll 0), the estimates equal to the
     truth, the commands as delivered (ideal torque sources: duties 0, never saturated).
+    ``limits``: the controller's wall-time limits per call and per run, as on the twin
+    (:class:`twin.limits.PluginLimits`; its memory limit too); None: none.
     """
     k = steps_per_control(physics_dt, control_dt)
     duration = experiment.duration if duration is None else float(duration)
@@ -47,6 +51,11 @@ def simulate(controller, experiment: Experiment, params: RobotParams = NOMINAL,
             raise TwinError(f"x0 must be 8 finite numbers {STATE_NAMES}, got shape {x.shape}")
         x = x.copy()
     targets = experiment.targets
+    if limits is not None and not isinstance(limits, PluginLimits):
+        raise TwinError(f"limits must be a twin.limits.PluginLimits or None, got {limits!r}")
+    guard = RunGuard(limits, controller, None, control_dt) if limits is not None and limits.active else None
+    if guard is not None:
+        guard.start()
     if hasattr(controller, "reset"):
         controller.reset(targets)
     log = np.empty((n_ctrl + 1, 8))
@@ -56,11 +65,17 @@ def simulate(controller, experiment: Experiment, params: RobotParams = NOMINAL,
         log[i] = x
         if not np.all(np.isfinite(x)):
             raise TwinError(f"the analytic simulation diverged at t = {i * control_dt:.3f} s")
+        t0 = perf_counter()
         try:
             c = tuple(float(v) for v in controller(x[:6], targets))  # (ul, ur, *signals)
         except Exception as exc:  # noqa: BLE001 -- the controller's failure, in one line
             raise PluginError(f"controller {describe_object(controller)}: __call__() failed at t = {i * control_dt:.3f} "
-                              f"s: {type(exc).__name__}: {' '.join(str(exc).split())}") from None
+                              f"s: {type(exc).__name__}: {one_line(exc)}") from None
+        if guard is not None:
+            t1 = perf_counter()
+            guard.charge("controller", t1 - t0, t1, i)
+            if guard.memory_bytes is not None and i % MEMORY_EVERY == 0:
+                guard.memory(i)
         if len(c) != len(names) or not all(map(math.isfinite, c)):
             raise PluginError(f"controller {describe_object(controller)} returned {c!r} at t = {i * control_dt:.3f} s; "
                               f"expected {len(names)} finite numbers ({', '.join(names)}; torques in N·m)")

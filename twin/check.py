@@ -9,9 +9,7 @@ order in which runs finish.
 """
 from __future__ import annotations
 
-import multiprocessing
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -282,12 +280,13 @@ def _run(tasks, workers: int, progress) -> list:
         return out
     from concurrent.futures import FIRST_COMPLETED, wait
 
-    from twin.sweep.worker import ignore_sigint
+    from twin.workers import process_pool
 
     queue = list(range(len(tasks)))  # this process takes from the front, the workers from the back
     pending: dict = {}
-    ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(workers - 1, mp_context=ctx, initializer=ignore_sigint) as pool:
+    # workers that die with this process, and are stopped at once if this raises (Ctrl-C, SIGTERM):
+    # a plain pool would wait for their runs on the way out, a slow plugin's for minutes
+    with process_pool(workers - 1) as pool:
         while queue or pending:
             while queue and len(pending) < 2 * (workers - 1):  # one queued behind each running: never idle
                 i = queue.pop()

@@ -27,6 +27,7 @@ TICKS_READY = 12  # tick objects made per axis in advance (matplotlib reuses the
 # fixed margins (fractions of the figure): room for y tick labels of 8 characters ("−0.00025")
 # at the left and between the columns; the top leaves the suptitle's lines (see _place)
 LEFT, RIGHT, BOTTOM, WSPACE, HSPACE = 0.062, 0.988, 0.056, 0.17, 0.16
+TITLE_LINES = 6  # the suptitle's lines at most (the rest cut): the panels keep 3/4 of the height
 PNG_COMPRESSION = 1  # zlib level: 15 % larger files than matplotlib's 6, 30 ms less to write
 
 
@@ -102,7 +103,10 @@ def fill_figure(fig, axes, data: dict, title: str = ""):
             keep.setdefault(lab, h)  # one entry per label: spans repeat theirs
         if keep:
             ax.legend(keep.values(), keep.keys(), loc="best", fontsize=7, ncol=2 if len(keep) > 4 else 1)
-    text = "\n".join(textwrap.fill(line, 140) for line in title.splitlines())
+    lines = "\n".join(textwrap.fill(line, 140) for line in title.splitlines()).split("\n")
+    if len(lines) > TITLE_LINES:  # each line lowers the panels' top: a long title would leave them no room
+        lines = lines[:TITLE_LINES - 1] + [lines[TITLE_LINES - 1][:139] + "…"]
+    text = "\n".join(lines)
     fig.suptitle(text, fontsize=10)
     _place(fig, max(1, text.count("\n") + 1))
     return fig

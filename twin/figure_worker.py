@@ -10,7 +10,8 @@ writes figure.png while this process writes trajectory.csv and metrics.json.
 
 The command waits for the worker (:meth:`FigureWorker.finish`) and always ends it
 (:meth:`FigureWorker.close`): no process outlives the command, and figure.png is complete
-when the command returns. A worker that fails leaves the figure to this process, as before,
+when the command returns; killed, the command takes the worker with it
+(:mod:`twin.workers`). A worker that fails leaves the figure to this process, as before,
 with a one-line note. The worker is started only where a CPU is free for it (:func:`wanted`;
 ``TWIN_FIGURE_WORKER=1`` forces it, ``0`` turns it off): sharing the simulation's CPU, it
 would slow the command down. Drawn here or there, the figure is the same, pixel for pixel.
@@ -79,8 +80,10 @@ class FigureWorker:
 
     def __init__(self):
         self._stderr = tempfile.TemporaryFile()
-        # no BLAS thread pool for a process that only draws (its start costs 60 ms here)
-        env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
+        from twin.workers import subprocess_env
+
+        # no BLAS thread pool for a process that only draws (its start costs 60 ms here); it dies with this process
+        env = subprocess_env({**os.environ, "OPENBLAS_NUM_THREADS": "1"})
         self._proc = subprocess.Popen([sys.executable, "-c", _CODE], stdin=subprocess.PIPE,
                                       stdout=subprocess.DEVNULL, stderr=self._stderr, env=env)
         self._payload = None
@@ -152,6 +155,9 @@ def _data_waiting() -> bool:
 def main() -> None:
     """The worker: the empty figure, warmed up while nothing has arrived; then the data,
     drawn and written."""
+    from twin.workers import subprocess_worker_init
+
+    subprocess_worker_init()  # first: it goes with a killed parent at once, not when its warm-up ends
     from twin.figure import fill_figure, new_figure, save_figure, warm_up
 
     fig, axes = new_figure()

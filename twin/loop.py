@@ -26,17 +26,25 @@ reference) also gets the ground truth in ``measurement.truth``; no other does.
 Contracts. The controller's output and the estimator's are checked at every step; a
 wrong length, a non-number or a non-finite value stops the run with a one-line
 :class:`~twin.errors.PluginError` naming the object.
+
+Limits. With ``config.limits`` (:class:`twin.limits.PluginLimits`: a scenario's
+``[limits]``) each call of the controller and of the estimator is timed, and a call over
+``step_wall_s``, a run over ``run_wall_s`` (from :meth:`ClosedLoop.reset`) or a process
+whose resident memory grew by more than ``run_memory_mb`` over the run stops it with a
+one-line PluginError naming the plugin and the limit. Without limits nothing is timed.
 """
 from __future__ import annotations
 
 from math import isfinite
+from time import perf_counter
 from typing import Sequence
 
 import numpy as np
 
 from twin.errors import PluginError, TwinError
+from twin.limits import MEMORY_EVERY, RunGuard
 from twin.plant.bullet import BulletTwin, TwinConfig
-from twin.protocols import StepResult, Targets, describe_object
+from twin.protocols import StepResult, Targets, describe_object, one_line
 from twin.sensors import Measurement, SensorConfig, SensorSuite, imu_kinematics
 
 _IDLE = "idle"
@@ -87,6 +95,9 @@ class ClosedLoop:
         self.signals = tuple(getattr(controller, "signals", ())) if controller is not None else ()
         self._n_out = 2 + len(self.signals)
         self._attach_truth = bool(getattr(estimator, "reads_truth", False))
+        limits = self.config.limits
+        # None (no limits): the hot path below times nothing
+        self._guard = RunGuard(limits, controller, estimator, self.control_dt) if limits and limits.active else None
         self.twin: BulletTwin | None = None
         self.suite: SensorSuite | None = None
         self.k = 0
@@ -125,17 +136,28 @@ class ClosedLoop:
         else:
             self.suite = None
         self.measurement = self._read(tr)
+        guard = self._guard
+        if guard is not None:
+            guard.start()  # the run's clock: start() and reset() count towards limits.run_wall_s
+        t0 = perf_counter()
         try:
             est = self.estimator.start(self.measurement)
         except Exception as exc:  # noqa: BLE001 -- the plugin's failure, in one line
             raise self._raised("estimator", self.estimator, "start()", exc) from None
+        if guard is not None:
+            t1 = perf_counter()
+            guard.charge("estimator", t1 - t0, t1, 0, per_step=False)
         est = self._check_estimate(est, "start")
         self.estimate = est if isinstance(est, tuple) else tuple(float(v) for v in est)
         if self.controller is not None:
+            t0 = perf_counter()
             try:
                 self.controller.reset(self.targets)
             except Exception as exc:  # noqa: BLE001
                 raise self._raised("controller", self.controller, "reset()", exc) from None
+            if guard is not None:
+                t1 = perf_counter()
+                guard.charge("controller", t1 - t0, t1, 0, per_step=False)
         return self.result()
 
     def close(self) -> None:
@@ -158,10 +180,18 @@ class ClosedLoop:
         if out is None:
             if self.controller is None:
                 raise TwinError("this loop has no controller: give step() the command (ul, ur) in N·m")
+            guard = self._guard
             try:
-                out = self.controller(self.estimate, self.targets)
+                if guard is None:
+                    out = self.controller(self.estimate, self.targets)
+                else:
+                    t0 = perf_counter()
+                    out = self.controller(self.estimate, self.targets)
+                    t1 = perf_counter()
             except Exception as exc:  # noqa: BLE001 -- the plugin's failure, in one line
                 raise self._raised("controller", self.controller, "__call__()", exc) from None
+            if guard is not None:
+                guard.charge("controller", t1 - t0, t1, self.k)
             try:
                 ok = len(out) == self._n_out and isfinite(sum(out))
             except TypeError:
@@ -192,10 +222,20 @@ class ClosedLoop:
         if status == "diverged":  # a non-finite state: nothing more is read from it
             return self.result()
         meas = self.measurement = self._read(tr)
+        guard = self._guard
         try:
-            est = self.estimator.step(meas, (ul, ur))
+            if guard is None:
+                est = self.estimator.step(meas, (ul, ur))
+            else:
+                t0 = perf_counter()
+                est = self.estimator.step(meas, (ul, ur))
+                t1 = perf_counter()
         except Exception as exc:  # noqa: BLE001 -- the plugin's failure, in one line
             raise self._raised("estimator", self.estimator, "step()", exc) from None
+        if guard is not None:
+            guard.charge("estimator", t1 - t0, t1, self.k)
+            if guard.memory_bytes is not None and self.k % MEMORY_EVERY == 0:
+                guard.memory(self.k)
         try:
             ok = len(est) == 6 and isfinite(sum(est))
         except TypeError:
@@ -254,7 +294,7 @@ class ClosedLoop:
         if isinstance(exc, PluginError):
             return exc
         return PluginError(f"{role} {describe_object(obj)}: {method} raised {type(exc).__name__}: "
-                           f"{' '.join(str(exc).split())} at t = {self.k * self.control_dt:.3f} s")
+                           f"{one_line(exc)} at t = {self.k * self.control_dt:.3f} s")
 
     def _require_running(self) -> BulletTwin:
         if self.twin is None:

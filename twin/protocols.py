@@ -141,6 +141,23 @@ class StepResult(NamedTuple):
     reason: str
 
 
+def shown(value: Any, limit: int = 100) -> str:
+    """``repr(value)`` for a one-line message: at most ``limit`` characters (a plugin's name or
+    parameters as a user wrote them may be of any length)."""
+    try:
+        text = repr(value)
+    except Exception:  # noqa: BLE001 -- a plugin's object whose repr fails is still named
+        text = f"<a {type(value).__name__}>"
+    text = " ".join(text.split())
+    return text if len(text) <= limit else text[:limit - 1] + "…"
+
+
+def one_line(text: str, limit: int = 500) -> str:
+    """``text`` (a plugin's exception message, say) on one line, at most ``limit`` characters."""
+    text = " ".join(str(text).split())
+    return text if len(text) <= limit else text[:limit - 1] + "…"
+
+
 def describe_object(obj: Any) -> str:
     """A short name for messages: the class's (or function's) qualified name."""
     target = obj if isinstance(obj, type) or callable(obj) and hasattr(obj, "__qualname__") else type(obj)
@@ -148,4 +165,4 @@ def describe_object(obj: Any) -> str:
 
 
 __all__ = ["Controller", "ESTIMATE_NAMES", "ESTIMATE_UNITS", "Estimate", "Estimator", "GroundTruth", "Measurement",
-           "StepResult", "Targets", "describe_object"]
+           "StepResult", "Targets", "describe_object", "one_line", "shown"]

@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from twin.errors import PluginError, TwinError
-from twin.protocols import Targets
+from twin.protocols import Targets, one_line, shown
 
 _IMPORT_PATH = re.compile(r"^[A-Za-z_][\w]*(\.[A-Za-z_][\w]*)*:[A-Za-z_][\w]*(\.[A-Za-z_][\w]*)*$")
 
@@ -103,9 +103,9 @@ def _cascade(kind: str):
                 o[name] = value
         # checked here, not only where used: a loop that a run leaves off must not hide a bad value
         if not (isinstance(o.get("fou", 0.25), (int, float)) and 0.0 <= o.get("fou", 0.25) < 0.5):
-            raise TwinError(f"fou must be a number in [0, 0.5), got {o['fou']!r}")
+            raise TwinError(f"fou must be a number in [0, 0.5), got {shown(o['fou'])}")
         if o.get("type_reduction", "bmm") not in TYPE_REDUCERS:
-            raise TwinError(f"type_reduction must be one of {', '.join(TYPE_REDUCERS)}, got {o['type_reduction']!r}")
+            raise TwinError(f"type_reduction must be one of {', '.join(TYPE_REDUCERS)}, got {shown(o['type_reduction'])}")
         return build_cascade(kind, ctx.balance_design(), ctx.targets, ctx.model, **o)
     return build
 
@@ -131,7 +131,7 @@ CONTROLLERS: dict[str, Kind] = {
 # ---- built-in estimators ---------------------------------------------------------------------
 def _needs_sensors(kind: str, ctx: BuildContext):
     if ctx.sensors is None:
-        raise PluginError(f"estimator {kind!r} needs sensors, but sensing is ideal; use estimator 'ideal' or "
+        raise PluginError(f"estimator {shown(kind)} needs sensors, but sensing is ideal; use estimator 'ideal' or "
                           "give a SensorConfig")
     return ctx.sensors
 
@@ -217,7 +217,7 @@ def check_kind(role: str, kind) -> str:
     table = _ROLES[role]
     if isinstance(kind, str) and (kind in table or is_import_path(kind)):
         return kind
-    raise PluginError(f"{role} {kind!r} is neither a built-in ({', '.join(table)}) nor an import path "
+    raise PluginError(f"{role} {shown(kind)} is neither a built-in ({', '.join(table)}) nor an import path "
                       "'package.module:attribute'")
 
 
@@ -239,19 +239,19 @@ def resolve(role: str, kind: str) -> tuple[Callable, bool]:
     try:
         module = _import(module_name)
     except ModuleNotFoundError as exc:
-        where = "" if exc.name == module_name else f" (it imports {exc.name!r}, which is missing)"
-        raise PluginError(f"{role} {kind!r}: no module named {module_name!r}{where}; the module must be importable "
+        where = "" if exc.name == module_name else f" (it imports {shown(exc.name)}, which is missing)"
+        raise PluginError(f"{role} {shown(kind)}: no module named {shown(module_name)}{where}; the module must be importable "
                           f"(on sys.path or installed)") from None
     except Exception as exc:  # noqa: BLE001 -- a plugin's import error is the user's, reported in one line
-        raise PluginError(f"{role} {kind!r}: importing {module_name!r} failed: {type(exc).__name__}: "
-                          f"{' '.join(str(exc).split())}") from None
+        raise PluginError(f"{role} {shown(kind)}: importing {shown(module_name)} failed: {type(exc).__name__}: "
+                          f"{one_line(exc)}") from None
     obj = module
     for part in attr.split("."):
         if not hasattr(obj, part):
-            raise PluginError(f"{role} {kind!r}: module {module_name!r} has no attribute {attr!r}")
+            raise PluginError(f"{role} {shown(kind)}: module {shown(module_name)} has no attribute {shown(attr)}")
         obj = getattr(obj, part)
     if not callable(obj):
-        raise PluginError(f"{role} {kind!r}: {attr!r} is a {type(obj).__name__}, not a class or factory function; "
+        raise PluginError(f"{role} {shown(kind)}: {shown(attr)} is a {type(obj).__name__}, not a class or factory function; "
                           f"expected a class (or function) returning an object with {_SIGNATURES[role]}")
     return obj, True
 
@@ -285,14 +285,14 @@ def _accepts_context(factory) -> bool:
 def _build(role: str, kind: str, params: dict | None, context: BuildContext | None):
     factory, plugin = resolve(role, kind)
     if params is not None and not isinstance(params, dict):
-        raise PluginError(f"{role} {kind!r}: parameters must be a table of keyword arguments, got {params!r}")
+        raise PluginError(f"{role} {shown(kind)}: parameters must be a table of keyword arguments, got {shown(params)}")
     params = dict(params or {})
     context = context if context is not None else BuildContext()
     if not plugin:
         allowed = _ROLES[role][kind].parameters
         unknown = [p for p in params if p not in allowed]
         if unknown:
-            raise PluginError(f"{role} {kind!r}: unknown parameter{'s' * (len(unknown) > 1)} "
+            raise PluginError(f"{role} {shown(kind)}: unknown parameter{'s' * (len(unknown) > 1)} "
                               f"{', '.join(map(repr, unknown))}; allowed: {', '.join(allowed) or 'none'}")
     try:
         if not plugin:
@@ -303,13 +303,13 @@ def _build(role: str, kind: str, params: dict | None, context: BuildContext | No
         raise
     except TypeError as exc:
         allowed = _ROLES[role][kind].parameters if not plugin else _parameters(factory)
-        raise PluginError(f"{role} {kind!r}: cannot be built with parameters {params!r} "
-                          f"({' '.join(str(exc).split())}); allowed parameters: {', '.join(allowed) or 'none'}") from None
+        raise PluginError(f"{role} {shown(kind)}: cannot be built with parameters {shown(params)} "
+                          f"({one_line(exc)}); allowed parameters: {', '.join(allowed) or 'none'}") from None
     except TwinError as exc:
-        raise PluginError(f"{role} {kind!r}: {exc}") from None
+        raise PluginError(f"{role} {shown(kind)}: {exc}") from None
     except Exception as exc:  # noqa: BLE001 -- the plugin's own failure, in one line
-        raise PluginError(f"{role} {kind!r}: building it raised {type(exc).__name__}: "
-                          f"{' '.join(str(exc).split())}") from None
+        raise PluginError(f"{role} {shown(kind)}: building it raised {type(exc).__name__}: "
+                          f"{one_line(exc)}") from None
     check_protocol(role, kind, obj)
     return obj
 
@@ -330,20 +330,20 @@ def check_protocol(role: str, kind: str, obj) -> None:
     if missing:
         from twin.protocols import describe_object
 
-        raise PluginError(f"{role} {kind!r}: {describe_object(obj)} has no {' or '.join(f'{m}()' for m in missing)}; "
+        raise PluginError(f"{role} {shown(kind)}: {describe_object(obj)} has no {' or '.join(f'{m}()' for m in missing)}; "
                           f"{'an' if role[0] in 'aeiou' else 'a'} {role} needs {_SIGNATURES[role]} "
                           f"(see twin.protocols.{role.capitalize()})")
     if role == "controller":
         signals = getattr(obj, "signals", ())
         if not (isinstance(signals, (tuple, list)) and all(isinstance(s, str) and s.isidentifier() for s in signals)):
-            raise PluginError(f"{role} {kind!r}: 'signals' must be a tuple of names (identifiers) of extra logged "
-                              f"signals, got {signals!r}")
+            raise PluginError(f"{role} {shown(kind)}: 'signals' must be a tuple of names (identifiers) of extra logged "
+                              f"signals, got {shown(signals)}")
         from twin.runs import ACTUATION_NAMES, ESTIMATE_NAMES, PUSH_NAMES, TRUTH_NAMES
 
         taken = set(TRUTH_NAMES + ESTIMATE_NAMES + ACTUATION_NAMES + PUSH_NAMES + ("ul_cmd", "ur_cmd"))
         clash = sorted({s for s in signals if s in taken or list(signals).count(s) > 1})
         if clash:
-            raise PluginError(f"{role} {kind!r}: signal names {', '.join(map(repr, clash))} repeat each other or a "
+            raise PluginError(f"{role} {shown(kind)}: signal names {', '.join(map(repr, clash))} repeat each other or a "
                               "logged column (truth, estimate, command, actuation, push); choose other names")
 
 
@@ -390,7 +390,7 @@ def check_kinds(role: str, kinds, where: str) -> tuple[str, ...]:
     for kind in kinds:
         check_kind(role, kind)
     if len(set(kinds)) != len(kinds):
-        raise PluginError(f"{where} {list(kinds)!r}: a kind is repeated; list each once")
+        raise PluginError(f"{where} {shown(list(kinds))}: a kind is repeated; list each once")
     return kinds
 
 

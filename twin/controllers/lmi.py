@@ -96,6 +96,11 @@ NOMINAL_DESIGN = MappingProxyType({"decay_rate": 3.0, "damping": 0.0, "uncertain
 _ROOM = {"CLARABEL": 1e-5, "SCS": 1e-2}
 # Accepted ranges (beyond them the numbers stop meaning anything for this robot, or overflow)
 _MAX_EPSILON = 100.0
+# The design is solved at ε = 1 and scaled: its check takes (ρ/ε)², which overflows once
+# ε < ρ · 7e-155 (an OverflowError from 1e-149 at ρ = 1e6), and its P is scaled by ε², which
+# underflows below about 1e-154. The bound keeps far from both; a certified radius of a
+# micro-unit is already inside any sensor's noise.
+MIN_EPSILON = 1e-6
 _MAX_RHO = 1e6  # N·m
 _MAX_DECAY = 100.0  # 1/s
 _MAX_GAIN = 1e9
@@ -239,13 +244,14 @@ def _sig6(v):
     return None if v is None else float(f"{v:.6g}")
 
 
-def _check_positive(name: str, value: float, allow_zero: bool = False, upper: float = math.inf) -> float:
+def _check_positive(name: str, value: float, allow_zero: bool = False, upper: float = math.inf,
+                    lower: float = 0.0) -> float:
     try:
         v = float(value)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise TwinError(f"{name} must be a number, got {value!r}") from None
-    if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero) or v > upper:
-        bound = "in [0, " if allow_zero else "in (0, "
+    if not math.isfinite(v) or v < lower or (v == 0 and not allow_zero) or v > upper:
+        bound = f"in [{lower:g}, " if allow_zero or lower > 0 else "in (0, "
         raise TwinError(f"{name} must be a finite number {bound}{upper:g}], got {value!r}")
     return v
 
@@ -499,7 +505,7 @@ def design_balance_gains(
         With a one-line message naming the requirement (ρ, max_gain, decay rate, damping
         ratio or the parameter range) that cannot be met and the value that can.
     """
-    epsilon = _check_positive("epsilon", epsilon, upper=_MAX_EPSILON)
+    epsilon = _check_positive("epsilon", epsilon, upper=_MAX_EPSILON, lower=MIN_EPSILON)
     rho = _check_positive("rho", rho, upper=_MAX_RHO)
     decay_rate = _check_positive("decay rate", decay_rate, allow_zero=True, upper=_MAX_DECAY)
     if max_gain is not None:

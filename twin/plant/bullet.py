@@ -64,9 +64,10 @@ from typing import NamedTuple
 
 from twin.actuators.dc_motor import DEFAULT_MOTOR, DCMotorParams, MotorDriver
 from twin.errors import TwinError
+from twin.limits import PluginLimits
 from twin.params import NOMINAL, RobotParams
 from twin.plant.disturbances import Disturbances, Ground
-from twin.plant.urdf import BODY_DEPTH, body_height, robot_urdf
+from twin.plant.urdf import BODY_DEPTH, PAYLOAD_SIZE, Payload, body_box, body_height, robot_urdf
 from twin.rotations import cross, dot, quat_from_matrix, unit
 from twin.timing import steps_per_control
 
@@ -156,6 +157,10 @@ class TwinConfig:
         leaves unresolved, and the robot's rocking rectifies that slip into a yaw and
         position creep (0.08 rad per 100 s at α = 0.1 rad; see
         docs/investigations/yaw-creep.md); 1e-14 removes it for about 20 % more time.
+    limits : PluginLimits or None
+        Not part of the plant: what a :class:`twin.loop.ClosedLoop` on this twin allows the
+        controller and the estimator it calls (wall time per step and per run, memory
+        growth per run; :mod:`twin.limits`); None: no limits.
     """
 
     params: RobotParams = NOMINAL
@@ -167,8 +172,11 @@ class TwinConfig:
     fall_angle: float = 1.0
     solver_iterations: int = 50
     solver_residual_threshold: float = 1e-14
+    limits: PluginLimits | None = None
 
     def __post_init__(self):
+        if self.limits is not None and not isinstance(self.limits, PluginLimits):
+            raise TwinError(f"limits must be a twin.limits.PluginLimits or None, got {self.limits!r}")
         if not isinstance(self.params, RobotParams):
             raise TwinError(f"params must be a RobotParams, got {type(self.params).__name__}")
         if self.motor is not None and not isinstance(self.motor, DCMotorParams):
@@ -273,6 +281,12 @@ def initial_pose(params: RobotParams, ground: Ground, theta0: float, alpha0: flo
     robot heading ``alpha0``, and the body is pitched ``theta0`` from the vertical about
     the axle (rad).
     """
+    pos, R = _initial_frame(params, ground, theta0, alpha0, x0, y0)
+    return pos, quat_from_matrix(R)
+
+
+def _initial_frame(params: RobotParams, ground: Ground, theta0: float, alpha0: float, x0: float, y0: float):
+    """(axle midpoint (m, world), body rotation R as rows) of :func:`initial_pose`."""
     n = ground.normal()
     a_h = (-math.sin(alpha0), math.cos(alpha0), 0.0)
     k = dot(a_h, n)
@@ -288,7 +302,53 @@ def initial_pose(params: RobotParams, ground: Ground, theta0: float, alpha0: flo
     # the wheels touch the floor r from the axle against the normal
     cx, cy = x0 - params.r * n[0], y0 - params.r * n[1]
     pos = (x0, y0, ground.height(cx, cy) + params.r * n[2])
-    return pos, quat_from_matrix(R)
+    return pos, R
+
+
+START_TOLERANCE = 1e-9  # m: a part this far into the floor at the start is on it (rounding)
+
+
+def start_clearance(params: RobotParams, ground: Ground, theta0: float, alpha0: float = 0.0, position=(0.0, 0.0),
+                    payload: Payload | None = None) -> dict[str, float]:
+    """How far each part of the robot starts above the floor, along its normal, in m.
+
+    ``"wheels"``: the lower wheel's lowest point (0 by construction: they stand on the
+    floor); ``"body"``: the body box's lowest corner; ``"payload"`` (with one): the
+    payload's centre less half its cube (:data:`~twin.plant.urdf.PAYLOAD_SIZE`). The robot
+    stands as :func:`initial_pose` places it. A part starts above the floor if its
+    clearance is at least −:data:`START_TOLERANCE`. Nothing here keeps a part from reaching
+    the floor later: the body and the wheels collide with it (and a body that touches it
+    ends the run), the payload is a point mass."""
+    x0, y0 = position
+    pos, R = _initial_frame(params, ground, theta0, alpha0, x0, y0)
+    n = ground.normal()
+
+    def height(p) -> float:  # the floor plane passes through the origin
+        return dot(tuple(pos[i] + R[i][0] * p[0] + R[i][1] * p[1] + R[i][2] * p[2] for i in range(3)), n)
+
+    lo, hi = body_box(params)
+    out = {"wheels": min(height((0.0, s * params.b, 0.0)) for s in (-1.0, 1.0)) - params.r,
+           "body": min(height((x, y, z)) for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2]))}
+    if payload is not None:
+        out["payload"] = height(payload.position) - 0.5 * PAYLOAD_SIZE
+    return out
+
+
+def start_problem(params: RobotParams, ground: Ground, theta0: float, alpha0: float = 0.0, position=(0.0, 0.0),
+                  payload: Payload | None = None) -> str | None:
+    """The first part of :func:`start_clearance` that starts in the floor, as one line, or None."""
+    for part, clearance in start_clearance(params, ground, theta0, alpha0, position, payload).items():
+        if clearance < -START_TOLERANCE:
+            what = {"wheels": "the wheels reach", "body": "the body's box reaches",
+                    "payload": f"the payload (a {100 * PAYLOAD_SIZE:g} cm cube at {_point(payload.position)} m, body "
+                               f"frame) reaches"}[part]
+            return (f"{what} {-clearance:.3g} m into the floor at the start (pitch {theta0:g} rad, floor slope "
+                    f"{ground.slope:g} rad); every part must start above the floor")
+    return None
+
+
+def _point(p) -> str:
+    return "(" + ", ".join(f"{v:g}" for v in p) + ")"
 
 
 def touch_angle(params: RobotParams) -> float:
@@ -378,6 +438,11 @@ class BulletTwin:
             raise TwinError(f"theta0 must be inside the fall limit ±{config.fall_angle:g} rad, got {theta0!r}")
         if not (abs(x0) <= 1e4 and abs(y0) <= 1e4):
             raise TwinError(f"position must be 2 finite coordinates within ±10 km, got {position!r}")
+        # a part inside the floor would be thrown out of it by the solver (the body), or carried
+        # through it (the payload, a point mass): no robot can start so
+        problem = start_problem(config.params, config.ground, theta0, alpha0, (x0, y0), config.disturbances.payload)
+        if problem:
+            raise TwinError(problem)
         p = config.params
         self.params = p
         self.k = config.steps_per_control

@@ -196,6 +196,9 @@ def _worker_main() -> None:
     import pickle
     import sys
 
+    from twin.workers import subprocess_worker_init
+
+    subprocess_worker_init()  # first: it goes with a killed parent at once, not at its next frame's write
     out = os.fdopen(os.dup(1), "wb", buffering=1 << 20)
     os.dup2(2, 1)
     try:
@@ -234,8 +237,11 @@ class RemotePanel:
         self.n = len(times)
         self.wait = 0.0  # s this process waited for the worker's frames
         self.renderer = ""  # the worker's first message: read with the frames, so workers start together
+        from twin.workers import subprocess_env
+
         self._proc = subprocess.Popen([sys.executable, "-m", "twin.render.panels"], stdin=subprocess.PIPE,
-                                      stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+                                      stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                                      env=subprocess_env())  # it dies with this process (twin.workers)
         job = dict(config=config, size=size, renderer=renderer, camera=camera, track=track, samples=samples,
                    times=times, hud=hud)
         try:

@@ -15,7 +15,8 @@ from importlib import resources
 from pathlib import Path
 
 from twin.errors import TwinError
-from twin.scenarios.schema import ScenarioError, lookup, record, validate
+from twin.scenarios.schema import (MAX_DEPTH, NAME_RULE, ScenarioError, check_depth, key_text, lookup, name_problem,
+                                   record, shown, validate)
 from twin.timing import steps_per_control
 
 BUILTIN_PACKAGE = "twin.scenarios.builtin"
@@ -68,7 +69,7 @@ class Scenario:
         duration), so that a description written for the file can be read with care."""
         keys = [o.partition("=")[0].strip().split(".")[0] for o in self.overrides]
         return tuple(dict.fromkeys(k for k in keys if k not in ("seed", "duration", "video", "sweep", "expect",
-                                                              "name", "description")))
+                                                              "name", "description", "limits")))
 
     @property
     def controllers(self) -> tuple[str, ...]:
@@ -152,6 +153,10 @@ class Scenario:
         payload = Payload(p["payload_mass"], tuple(p["payload_position"])) if p["payload_mass"] > 0 else None
         dist = Disturbances(pushes=pushes, payload=payload, com_offset=tuple(p["com_offset"]))
         kwargs = {} if p["motor"] == "dc" else {"motor": None}
+        if any(v is not None for v in d["limits"].values()):
+            from twin.limits import PluginLimits
+
+            kwargs["limits"] = PluginLimits(**d["limits"])
         return TwinConfig(params=self.true_params(), physics_rate=d["rates"]["physics"],
                           control_rate=d["rates"]["control"], ground=ground, disturbances=dist, **kwargs)
 
@@ -249,8 +254,35 @@ class Scenario:
             raise self._error(f"initial.theta: {theta0:g} rad does not start on the wheels: this robot's body touches "
                               f"the floor (or passes the fall limit) at {limit + 0.01:.2f} rad; allowed: |θ0| < "
                               f"{limit:.2f} rad")
+        self._check_start(config)
         self.design()
         return self
+
+    def _check_start(self, config) -> None:
+        """Every part of the robot starts above the floor (:func:`twin.plant.bullet.start_problem`):
+        a payload below it, or a body pitched into a slope, is refused, naming the key."""
+        from dataclasses import replace
+
+        from twin.plant.bullet import START_TOLERANCE, start_clearance, start_problem
+
+        d = self.data
+        i = d["initial"]
+        args = (config.params, config.ground, i["theta"], i["alpha"], (i["x"], i["y"]))
+        payload = config.disturbances.payload
+        problem = start_problem(*args, payload)
+        if problem is None:
+            return
+        clearance = start_clearance(*args, payload)
+        if clearance.get("payload", 0.0) < -START_TOLERANCE:
+            # the clearance is linear in the payload's z: the lowest z that starts above the floor
+            x, y, _ = payload.position
+            c0, c1 = (start_clearance(*args, replace(payload, position=(x, y, z)))["payload"] for z in (0.0, 1.0))
+            z_min = -c0 / (c1 - c0)
+            hint = (f"a payload_position whose z is at least {z_min:.3g} m here (x = {x:g}, y = {y:g} m)"
+                    if z_min <= 0.5 else "a payload_position above the floor")
+            raise self._error(f"plant.payload_position: {problem}; allowed: {hint}")
+        raise self._error(f"initial.theta: {problem}; allowed: a smaller pitch towards the slope, or a gentler "
+                          f"ground.slope")
 
     def _error(self, message: str) -> ScenarioError:
         return ScenarioError(f"{self.source}: {message}")
@@ -262,13 +294,32 @@ def parse_override(item: str) -> tuple[str, object]:
     key, sep, text = item.partition("=")
     key = key.strip()
     if not sep or not key:
-        raise ScenarioError(f"--set {item!r}: expected KEY=VALUE with a dotted key, e.g. --set plant.scale.m_b=1.2")
+        raise ScenarioError(f"--set {shown(item)}: expected KEY=VALUE with a dotted key, e.g. --set plant.scale.m_b=1.2")
+    lookup(key)
     try:
         value = tomllib.loads(f"v = {text.strip()}")["v"]
     except tomllib.TOMLDecodeError:
         value = text.strip()
-    lookup(key)
+    except (RecursionError, ValueError) as exc:  # TOML, but more than the reader can take
+        raise ScenarioError(f"--set {key_text(key)}: the value cannot be read: {_unreadable(exc)}") from None
+    check_depth(value, f"--set {key_text(key)}: ")
     return key, value
+
+
+def _unreadable(exc: Exception) -> str:
+    """Why tomllib could not read valid-looking TOML, in one line."""
+    if isinstance(exc, RecursionError):
+        return f"nested too deeply for the TOML reader; allowed: at most {MAX_DEPTH} levels of tables and lists"
+    if "digits" in str(exc):
+        return "an integer with more than 4300 digits; allowed: integers within the key's range"
+    return " ".join(str(exc).split())[:200]
+
+
+def _item(override: str) -> str:
+    """A ``--set`` item for a message: as given if it is short and printable, else quoted,
+    escaped and shortened (the message must stay one line)."""
+    text = str(override)
+    return text if text.isprintable() and len(text) <= 80 else shown(text)
 
 
 def apply_overrides(raw: dict, overrides) -> dict:
@@ -280,7 +331,7 @@ def apply_overrides(raw: dict, overrides) -> dict:
         for part in parts[:-1]:
             child = node.setdefault(part, {})
             if not isinstance(child, dict):
-                raise ScenarioError(f"--set {key}: {part!r} is not a table in the scenario")
+                raise ScenarioError(f"--set {key_text(key)}: {shown(part)} is not a table in the scenario")
             node = child
         node[parts[-1]] = value
     return raw
@@ -306,7 +357,10 @@ def _read(name_or_path: str) -> tuple[dict, str, str]:
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(f"{source}: not valid TOML ({exc})") from None
+        raise ScenarioError(f"{source}: not valid TOML ({' '.join(str(exc).split())})") from None
+    except (RecursionError, ValueError) as exc:
+        raise ScenarioError(f"{source}: cannot be read: {_unreadable(exc)}") from None
+    check_depth(raw, f"{source}: ")
     return raw, source, stem
 
 
@@ -315,7 +369,8 @@ def load_scenario(name_or_path: str, overrides=()) -> Scenario:
     validated and checked (:meth:`Scenario.check`)."""
     raw, source, stem = _read(str(name_or_path))
     overrides = tuple(overrides)
-    where = source + (f" with --set {' '.join(overrides)}" if overrides else "")
+    # each item as the user gave it, on one line and shortened: the message must stay one line
+    where = source + (f" with --set {' '.join(_item(o) for o in overrides)}" if overrides else "")
     try:
         raw = apply_overrides(raw, overrides)
         data = validate(raw)
@@ -323,6 +378,11 @@ def load_scenario(name_or_path: str, overrides=()) -> Scenario:
         msg = str(exc)
         raise ScenarioError(msg if msg.startswith("--set") else f"{where}: {msg}") from None
     if not data["name"]:
+        problem = name_problem(stem)
+        if problem:
+            raise ScenarioError(f"{where}: name: absent, and the file's name {shown(stem)} {problem}, so it cannot "
+                                f"be the scenario's name; allowed: a file name or a name = \"...\" in the file of "
+                                f"{NAME_RULE}")
         data["name"] = stem
     latency_given = [("latency" in f) for f in raw.get("faults", [])] if isinstance(raw.get("faults"), list) else []
     relevant = {"dropout": {"kind", "sensor", "start", "duration"}, "stuck": {"kind", "sensor", "start", "duration"},

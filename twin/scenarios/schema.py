@@ -11,12 +11,13 @@ from __future__ import annotations
 
 import copy
 import math
+import re
 from dataclasses import dataclass, field
 from typing import Any
 
 from twin.controllers.cascade import DEFAULT_PSI_ERROR_LIMIT
 from twin.controllers.lmi import (DEFAULT_ALL_VERTICES, DEFAULT_DAMPING, DEFAULT_DECAY_RATE, DEFAULT_EPSILON, DEFAULT_RHO,
-                                  DEFAULT_UNCERTAIN)
+                                  DEFAULT_UNCERTAIN, MIN_EPSILON)
 from twin.controllers.lmi_regions import UNCERTAIN_PARAMETERS
 from twin.controllers.mamdani import DEFAULT_FOU, P_E_RANGE
 from twin.fuzzy.mamdani import TYPE_REDUCERS
@@ -53,6 +54,86 @@ class Key:
     recorded_at_default: bool = True
     recorded: bool = True  # False: never part of a run's record (what checks the run, not what it ran)
     hi_open: bool = False
+    check: Any = field(default=None, compare=False)  # str: check(value, path) raises on what the kind allows but the key does not
+
+
+NAME_MAX = 64  # characters of a scenario name
+NAME_RULE = (f"1 to {NAME_MAX} characters from A-Z a-z 0-9 _ - . (ASCII letters and digits, underscore, hyphen, "
+             f"full stop), the first a letter, a digit or _")
+DESCRIPTION_MAX = 240  # characters of a description (the figure's title wraps it at 140)
+MAX_DEPTH = 32  # levels of nested tables and lists in a scenario (a plugin's matrix parameter needs 5)
+_NAME = re.compile(rf"[A-Za-z0-9_][A-Za-z0-9_.-]{{0,{NAME_MAX - 1}}}")
+
+
+def shown(value, limit: int = 80) -> str:
+    """``repr(value)`` for a one-line message: control characters escaped (as repr does for a
+    str), at most ``limit`` characters (a 10 MB string is not echoed back)."""
+    try:
+        text = repr(value)
+    except (ValueError, RecursionError):  # an int beyond Python's 4300-digit str conversion, say
+        text = f"<a {type(value).__name__}>"
+    text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text) if not text.isprintable() else text
+    return text if len(text) <= limit else text[:limit - 1] + "…"
+
+
+def name_problem(name: str) -> str | None:
+    """What breaks the scenario-name rule (:data:`NAME_RULE`) in ``name``, or None. The name is
+    a directory's name (``runs/NAME``, ``runs/sweep-NAME``): no path separator, no ``.`` or
+    ``..``, nothing a shell or another file system reads differently."""
+    if _NAME.fullmatch(name):
+        return None
+    if not name:
+        return "is empty"
+    if len(name) > NAME_MAX:
+        return f"has {len(name)} characters"
+    for c in name:
+        if not (c.isascii() and (c.isalnum() or c in "_-.")):
+            what = ("a path separator" if c in "/\\" else "a control character" if not c.isprintable()
+                    else "a space" if c == " " else "not allowed")
+            return f"has {repr(c) if c.isprintable() else f'U+{ord(c):04X}'} ({what})"
+    return f"starts with {name[0]!r}"
+
+
+def _check_name(v: str, path: str) -> None:
+    if v:  # "": the file's name (checked where it is taken, twin.scenarios.scenario)
+        problem = name_problem(v)
+        if problem:
+            raise ScenarioError(f"{path}: {shown(v)} {problem}; allowed: {NAME_RULE} (the name is the output "
+                                f"folder's: runs/NAME)")
+
+
+def _check_description(v: str, path: str) -> None:
+    bad = next((c for c in v if not c.isprintable()), None)
+    if bad is not None:
+        what = "a line break" if bad in "\n\r" else f"the control character U+{ord(bad):04X}"
+        raise ScenarioError(f"{path}: {shown(v)} has {what}; allowed: one line of at most {DESCRIPTION_MAX} "
+                            f"printable characters")
+    if len(v) > DESCRIPTION_MAX:
+        raise ScenarioError(f"{path}: {shown(v)} has {len(v)} characters; allowed: one line of at most "
+                            f"{DESCRIPTION_MAX} printable characters")
+
+
+def check_depth(value, prefix: str = "") -> None:
+    """A one-line error (``prefix`` first) if ``value`` (parsed TOML) nests tables and lists
+    deeper than :data:`MAX_DEPTH`: checked before anything recurses into it (a copy, a
+    message's repr), which Python's recursion limit would break at a depth of about 1000."""
+    stack = [(value, 0, "")]
+    while stack:
+        v, depth, path = stack.pop()
+        if depth > MAX_DEPTH:
+            raise ScenarioError(f"{prefix}{path or 'the value'}: nested more than {MAX_DEPTH} levels deep; allowed: "
+                                f"at most {MAX_DEPTH} levels of tables and lists")
+        # (only the containers below are visited: a list of a million numbers costs no paths)
+        if isinstance(v, dict):
+            stack.extend((c, depth + 1, f"{path}.{key_text(k)}" if path else key_text(k)) for k, c in v.items()
+                         if isinstance(c, (dict, list, tuple)))
+        elif isinstance(v, (list, tuple)):
+            stack.extend((c, depth + 1, f"{path}[{i}]") for i, c in enumerate(v) if isinstance(c, (dict, list, tuple)))
+
+
+def key_text(name) -> str:
+    """A table key as a message shows it: bare if it is a plain word, else quoted and shortened."""
+    return name if isinstance(name, str) and re.fullmatch(r"[A-Za-z0-9_.:-]{1,64}", name) else shown(name, 40)
 
 
 def _f(default=REQUIRED, lo=-math.inf, hi=math.inf, unit="", doc="", lo_open=False, nullable=False):
@@ -105,8 +186,11 @@ def _believed_triad(unit: str) -> Key:
 
 
 SCHEMA: dict[str, Key] = {
-    "name": Key("str", "", doc="short name (default: the file name)"),
-    "description": Key("str", "", doc="one line: what the scenario shows"),
+    "name": Key("str", "", check=_check_name,
+                doc=f"short name, also the output folder's (runs/NAME): {NAME_RULE}; no path separators, "
+                    f"no '.' or '..' (default: the file's name, which must then follow the same rule)"),
+    "description": Key("str", "", check=_check_description,
+                       doc=f"one line of at most {DESCRIPTION_MAX} printable characters: what the scenario shows"),
     "duration": _f(15.0, 0.0, 3600.0, "s", lo_open=True, doc="simulated time"),
     "seed": Key("int", 0, 0, 2 ** 63 - 1, doc="seed of the sensor noise, faults and sampled disturbances"),
     "initial": Key("table", keys={
@@ -135,7 +219,7 @@ SCHEMA: dict[str, Key] = {
         "psi_error_limit": _f(DEFAULT_PSI_ERROR_LIMIT, 0.0, 100.0, "rad", lo_open=True, doc="clip of the wheel-angle error"),
     }),
     "design": Key("table", keys={
-        "epsilon": _f(DEFAULT_EPSILON, 0.0, 10.0, "1", lo_open=True, doc="radius of the certified initial states (Lemma 2)"),
+        "epsilon": _f(DEFAULT_EPSILON, MIN_EPSILON, 10.0, "1", doc="radius of the certified initial states (Lemma 2)"),
         "rho": _f(DEFAULT_RHO, 0.0, 1e3, "N·m", lo_open=True, doc="bound on the total wheel torque (Lemma 2)"),
         "decay_rate": _f(DEFAULT_DECAY_RATE, 0.0, 100.0, "1/s", doc="guaranteed decay rate"),
         "max_gain": _f(None, 0.0, 1e6, "", lo_open=True, nullable=True, doc="bound on each gain's norm"),
@@ -231,6 +315,19 @@ SCHEMA: dict[str, Key] = {
                   doc="bounds on the run's metrics that 'twin check' verifies, e.g. fell = false, "
                       "settling_time_s = \"<= 9\"; [expect.KIND] for one controller, [expect.seeds] over seeds, "
                       "[expect.golden] the tolerances of golden trajectories (see the README, 'twin check')"),
+    "limits": Key("table", recorded_at_default=False, recorded=False,
+                  doc="what a controller or an estimator may cost (each controller's run separately); over a "
+                      "limit the run stops with one line naming the plugin and the limit", keys={
+        "step_wall_s": Key("float", None, 0.0, 3600.0, True, "s", nullable=True, recorded_at_default=False,
+                           doc="wall time one call of the controller, or one step() of the estimator, may take; "
+                               "absent: no limit"),
+        "run_wall_s": Key("float", None, 0.0, 1e6, True, "s", nullable=True, recorded_at_default=False,
+                          doc="wall time one controller's run may take, the twin's own included; absent: no limit"),
+        "run_memory_mb": Key("float", None, 0.0, 1e6, True, "MB", nullable=True, recorded_at_default=False,
+                             doc="growth of the process's resident memory over one controller's run, in 10⁶ bytes "
+                                 "(read every 64 control steps; the run's log takes about 0.4 kB per step); absent: "
+                                 "no limit"),
+    }),
     "video": Key("table", keys={
         "enabled": Key("bool", True),
         "fps": Key("int", 30, 1, 120),
@@ -250,15 +347,15 @@ def _where(path: str) -> str:
 def _number(v, key: Key, path: str, integer: bool = False):
     if isinstance(v, bool) or not isinstance(v, (int, float)) or (integer and not isinstance(v, int)):
         what = "an integer" if integer else "a number"
-        raise ScenarioError(f"{path}: must be {what}{_range(key)}, got {v!r}")
+        raise ScenarioError(f"{path}: must be {what}{_range(key)}, got {shown(v)}")
     if not integer:
         v = float(v)
         if math.isnan(v) or (math.isinf(v) and not (key.hi == math.inf and v > 0)):
-            raise ScenarioError(f"{path}: must be a finite number{_range(key)}, got {v!r}")
+            raise ScenarioError(f"{path}: must be a finite number{_range(key)}, got {shown(v)}")
     low_ok = v > key.lo if key.lo_open else v >= key.lo
     high_ok = v < key.hi if key.hi_open else v <= key.hi
     if not (low_ok and high_ok):
-        raise ScenarioError(f"{path}: {v!r} is out of range; allowed{_range(key)}")
+        raise ScenarioError(f"{path}: {shown(v)} is out of range; allowed{_range(key)}")
     return v
 
 
@@ -281,54 +378,56 @@ def _value(v, key: Key, path: str):
         return _number(v, key, path, integer=True)
     if k == "bool":
         if not isinstance(v, bool):
-            raise ScenarioError(f"{path}: must be true or false, got {v!r}")
+            raise ScenarioError(f"{path}: must be true or false, got {shown(v)}")
         return v
     if k == "str":
         if not isinstance(v, str):
-            raise ScenarioError(f"{path}: must be a string{_choices(key)}, got {v!r}")
+            raise ScenarioError(f"{path}: must be a string{_choices(key)}, got {shown(v)}")
         if key.choices and v not in key.choices:
-            raise ScenarioError(f"{path}: {v!r} is not allowed{_choices(key)}")
+            raise ScenarioError(f"{path}: {shown(v)} is not allowed{_choices(key)}")
+        if key.check is not None:
+            key.check(v, path)
         return v
     if k == "vec3":
         if not isinstance(v, (list, tuple)) or len(v) != 3:
-            raise ScenarioError(f"{path}: must be a list of 3 numbers{_range(key)}, got {v!r}")
+            raise ScenarioError(f"{path}: must be a list of 3 numbers{_range(key)}, got {shown(v)}")
         return tuple(_number(c, key, f"{path}[{i}]") for i, c in enumerate(v))
     if k == "floats":
         if not isinstance(v, (list, tuple)) or not v:
-            raise ScenarioError(f"{path}: must be a non-empty list of numbers{_range(key)}, got {v!r}")
+            raise ScenarioError(f"{path}: must be a non-empty list of numbers{_range(key)}, got {shown(v)}")
         return tuple(_number(c, key, f"{path}[{i}]") for i, c in enumerate(v))
     if k == "range":
         if not isinstance(v, (list, tuple)) or len(v) != 2:
-            raise ScenarioError(f"{path}: must be [low, high]{_range(key)}, got {v!r}")
+            raise ScenarioError(f"{path}: must be [low, high]{_range(key)}, got {shown(v)}")
         lo, hi = (_number(c, key, f"{path}[{i}]") for i, c in enumerate(v))
         if lo > hi:
             raise ScenarioError(f"{path}: low {lo:g} is above high {hi:g}; allowed: [low, high] with low <= high")
         return (lo, hi)
     if k == "names":
         if not isinstance(v, (list, tuple)) or not all(isinstance(c, str) for c in v):
-            raise ScenarioError(f"{path}: must be a list of names{_choices(key)}, got {v!r}")
+            raise ScenarioError(f"{path}: must be a list of names{_choices(key)}, got {shown(v)}")
         for c in v:
             if c not in key.choices:
-                raise ScenarioError(f"{path}: {c!r} is not allowed{_choices(key)}")
+                raise ScenarioError(f"{path}: {shown(c)} is not allowed{_choices(key)}")
         if len(set(v)) != len(v):
-            raise ScenarioError(f"{path}: names repeat in {list(v)!r}; allowed: each at most once")
+            raise ScenarioError(f"{path}: names repeat in {shown(list(v))}; allowed: each at most once")
         return tuple(v)
     if k in ("kind", "kinds"):
         from twin.registry import check_kind
 
         items = [v] if k == "kind" else v
         if k == "kinds" and (not isinstance(v, (list, tuple)) or not v):
-            raise ScenarioError(f"{path}: must be a non-empty list of {key.role} kinds, got {v!r}")
+            raise ScenarioError(f"{path}: must be a non-empty list of {key.role} kinds, got {shown(v)}")
         for i, item in enumerate(items):
             where = path if k == "kind" else f"{path}[{i}]"
             if not isinstance(item, str):
-                raise ScenarioError(f"{where}: must be a string naming a {key.role}, got {item!r}")
+                raise ScenarioError(f"{where}: must be a string naming a {key.role}, got {shown(item)}")
             try:
                 check_kind(key.role, item)
             except TwinError as exc:
                 raise ScenarioError(f"{where}: {exc}") from None
         if k == "kinds" and len(set(items)) != len(items):
-            raise ScenarioError(f"{path}: a kind is repeated in {list(items)!r}; allowed: each at most once")
+            raise ScenarioError(f"{path}: a kind is repeated in {shown(list(items))}; allowed: each at most once")
         return v if k == "kind" else tuple(items)
     if k == "expect":
         from twin.expectations import parse_expect
@@ -340,7 +439,7 @@ def _value(v, key: Key, path: str):
         return copy.deepcopy(v)
     if k == "params":
         if not isinstance(v, dict):
-            raise ScenarioError(f"{path}: must be a table of keyword arguments, got {v!r}")
+            raise ScenarioError(f"{path}: must be a table of keyword arguments, got {shown(v)}")
         if key.role:  # one table of keyword arguments per kind: [controller.params.KIND]
             from twin.registry import check_kind
 
@@ -348,24 +447,24 @@ def _value(v, key: Key, path: str):
                 try:
                     check_kind(key.role, kind)
                 except TwinError as exc:
-                    raise ScenarioError(f"{path}.{kind}: {exc}") from None
+                    raise ScenarioError(f"{path}.{key_text(kind)}: {exc}") from None
                 if not isinstance(table, dict):
-                    raise ScenarioError(f"{path}.{kind}: must be a table of keyword arguments for {key.role} "
-                                        f"{kind!r}, got {table!r}")
+                    raise ScenarioError(f"{path}.{key_text(kind)}: must be a table of keyword arguments for {key.role} "
+                                        f"{shown(kind)}, got {shown(table)}")
         return copy.deepcopy(v)
     if k == "table":
         return _table(v, key.keys, path)
     if k == "tables":
         if not isinstance(v, list):
-            raise ScenarioError(f"{path}: must be a list of tables ([[{path}]] entries), got {v!r}")
+            raise ScenarioError(f"{path}: must be a list of tables ([[{path}]] entries), got {shown(v)}")
         return [_table(item, key.keys, f"{path}[{i}]") for i, item in enumerate(v)]
     if k == "map":
         if not isinstance(v, dict):
-            raise ScenarioError(f"{path}: must be a table of name = factor, got {v!r}")
+            raise ScenarioError(f"{path}: must be a table of name = factor, got {shown(v)}")
         out = {}
         for name, factor in v.items():
             if name not in key.choices:
-                raise ScenarioError(f"{path}.{name}: unknown parameter; allowed: {', '.join(key.choices)}")
+                raise ScenarioError(f"{path}.{key_text(name)}: unknown parameter; allowed: {', '.join(key.choices)}")
             out[name] = _number(factor, key, f"{path}.{name}")
         return out
     raise AssertionError(k)  # pragma: no cover
@@ -377,10 +476,10 @@ def _choices(key: Key) -> str:
 
 def _table(raw, keys: dict[str, Key], path: str) -> dict:
     if not isinstance(raw, dict):
-        raise ScenarioError(f"{_where(path)}: must be a table, got {raw!r}")
+        raise ScenarioError(f"{_where(path)}: must be a table, got {shown(raw)}")
     for name in raw:
         if name not in keys:
-            raise ScenarioError(f"{path + '.' if path else ''}{name}: unknown key; allowed here: {', '.join(keys)}")
+            raise ScenarioError(f"{path + '.' if path else ''}{key_text(name)}: unknown key; allowed here: {', '.join(keys)}")
     out = {}
     for name, key in keys.items():
         p = f"{path}.{name}" if path else name
@@ -397,6 +496,7 @@ def _table(raw, keys: dict[str, Key], path: str) -> dict:
 
 def validate(raw: dict) -> dict:
     """The scenario ``raw`` (parsed TOML) with every key checked and every default filled in."""
+    check_depth(raw)
     return _table(raw, SCHEMA, "")
 
 
@@ -434,7 +534,7 @@ def lookup(path: str) -> Key:
         if keys is None or part not in keys:
             where = ".".join(parts[:i]) or "the top level"
             allowed = ", ".join(keys) if keys else "none (not a table)"
-            raise ScenarioError(f"--set {path}: unknown key {part!r} in {where}; allowed: {allowed}")
+            raise ScenarioError(f"--set {key_text(path)}: unknown key {shown(part, 40)} in {where}; allowed: {allowed}")
         key = keys[part]
         if key.kind in ("params", "expect"):  # free-form below: checked as a whole when the file is validated
             return key

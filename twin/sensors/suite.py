@@ -65,6 +65,8 @@ class SensorConfig:
 
 
 def _whole(x: float, message: str) -> int:
+    if not math.isfinite(x):  # a rate of 5e-324 Hz: the ratio overflows
+        raise TwinError(message)
     k = round(x)
     if abs(x - k) > 1e-9 * max(1.0, abs(x)):
         raise TwinError(message)

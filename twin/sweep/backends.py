@@ -9,16 +9,20 @@ most those.
 A worker that dies (a crash in native code, the OOM killer) breaks only the samples it
 held: they run again, each alone, and a sample that kills its worker ``MAX_CRASHES``
 times is recorded with an error instead of stopping the sweep.
+
+Local workers die with the sweep, however it ends (:mod:`twin.workers`: SIGKILL included);
+Ray's tasks are cancelled when the sweep stops by an exception (Ctrl-C, SIGTERM), and a
+local Ray instance shares the sweep's fate (Ray starts its processes so).
 """
 from __future__ import annotations
 
-import multiprocessing
 import os
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, wait
 from concurrent.futures.process import BrokenProcessPool
 
 from twin.errors import TwinError
-from twin.sweep.worker import SweepJob, crash_record, ignore_sigint, run_sample
+from twin.sweep.worker import SweepJob, crash_record, run_sample
+from twin.workers import process_pool
 
 MAX_CRASHES = 2
 BACKENDS = ("local", "ray")
@@ -37,14 +41,12 @@ def run_local(job: SweepJob, indices, workers: int, on_result) -> None:
     queue = list(indices)
     crashes: dict[int, int] = {}
     suspects: list[int] = []  # samples held by a worker that died: rerun one at a time, to find the culprit
-    ctx = multiprocessing.get_context("spawn")
     while queue or suspects:
         alone = bool(suspects)
         batch, width = ([suspects.pop(0)], 1) if alone else (queue, workers)
-        pool = ProcessPoolExecutor(width, mp_context=ctx, initializer=ignore_sigint)
         running: dict = {}
         broken = False
-        try:
+        with process_pool(width) as pool:  # its workers stopped at once if this raises (Ctrl-C, SIGTERM)
             while (batch or running) and not broken:
                 while batch and len(running) < width:
                     try:
@@ -65,17 +67,6 @@ def run_local(job: SweepJob, indices, workers: int, on_result) -> None:
                     else:
                         suspects.append(k)
             suspects += running.values()  # held by the dead pool: not yet known to be innocent
-        except BaseException:
-            _terminate(pool)
-            raise
-        finally:
-            pool.shutdown(wait=True, cancel_futures=True)
-
-
-def _terminate(pool: ProcessPoolExecutor) -> None:
-    """Stop the workers now (Ctrl-C): ``shutdown`` alone would wait for their samples."""
-    for p in list((getattr(pool, "_processes", None) or {}).values()):
-        p.terminate()
 
 
 def run_ray(job: SweepJob, indices, workers: int | None, on_result, address: str | None = None) -> None:
@@ -87,8 +78,14 @@ def run_ray(job: SweepJob, indices, workers: int | None, on_result, address: str
     except ImportError:
         raise TwinError("the ray backend needs Ray: pip install 'mtwip-twin[ray]' (or use --backend local)") from None
     import logging
+    import signal
+    import threading
 
     started = not ray.is_initialized()
+    main_thread = threading.current_thread() is threading.main_thread()
+    # ray.init puts its own SIGTERM handler in (sys.exit(15)), which bypasses the command's
+    # (an interrupt that stores what finished and exits 143): the one there before is put back
+    sigterm = signal.getsignal(signal.SIGTERM) if main_thread else None
     if started:
         try:
             if address is None:
@@ -99,7 +96,12 @@ def run_ray(job: SweepJob, indices, workers: int | None, on_result, address: str
         except (ConnectionError, ValueError, RuntimeError) as exc:
             raise TwinError(f"cannot start or reach Ray at {address or 'a local instance'}: "
                             f"{' '.join(str(exc).split())[:300]}") from None
+        finally:
+            if sigterm is not None:
+                signal.signal(signal.SIGTERM, sigterm)
     running: dict = {}
+    raised: list = []  # what the command's signal handlers raised (Ray's waits turn it into a bare KeyboardInterrupt)
+    relays = _relay_signals(raised) if main_thread else {}
     try:
         cap = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
         task = ray.remote(num_cpus=1, max_retries=MAX_CRASHES - 1)(run_sample)
@@ -118,10 +120,37 @@ def run_ray(job: SweepJob, indices, workers: int | None, on_result, address: str
                     record = crash_record(job, k, f"Ray task failed {MAX_CRASHES} times running this sample "
                                                   f"({type(exc).__name__})")
                 on_result(record)
-    except BaseException:
+    except BaseException as exc:
         for ref in running:  # a cluster outlives this driver: do not leave its tasks running
             ray.cancel(ref, force=True)
+        if raised and type(exc) is KeyboardInterrupt and exc is not raised[-1]:
+            raise raised[-1] from None  # the interrupt as the handler raised it (SIGTERM's, say), not Ray's copy
         raise
     finally:
+        for signum, handler in relays.items():
+            signal.signal(signum, handler)
         if started:
             ray.shutdown()
+
+
+def _relay_signals(raised: list) -> dict:
+    """Wrap the SIGINT and SIGTERM handlers that are Python functions so that what they raise is
+    also kept in ``raised``; the handlers wrapped, to put back."""
+    import signal
+
+    def relay(handler):
+        def on_signal(signum, frame):
+            try:
+                handler(signum, frame)
+            except BaseException as exc:
+                raised.append(exc)
+                raise
+        return on_signal
+
+    old = {}
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        handler = signal.getsignal(signum)
+        if callable(handler):
+            old[signum] = handler
+            signal.signal(signum, relay(handler))
+    return old

@@ -2,18 +2,29 @@
 
 Outputs in the sweep directory:
 
-- ``sweep.json``, ``samples.jsonl``: the manifest (with the environment the samples ran
-  in and the designs' digests) and the finished samples (see :mod:`twin.sweep.store`); a
-  rerun with the same command resumes from them;
+- ``sweep.json``, ``samples.jsonl``: the manifest (with the configuration hash every
+  sample carries, the environment the samples ran in and the designs' digests) and the
+  finished samples (see :mod:`twin.sweep.store`); a rerun with the same command resumes
+  from them, and a rerun of another configuration is refused;
 - ``sweep.csv``: one row per sample and controller (:mod:`twin.sweep.table`);
 - ``summary.md``, ``summary.json``: success rates and metric quantiles with confidence
   intervals per level and controller, and the paired tests of each controller against
   the reference (by default the last one listed: IT2 against type-1 for the default
   pair) (:mod:`twin.sweep.statistics`);
-- ``success.png``, ``distributions.png``, ``paired.png``: the figures.
+- ``success.png``, ``distributions.png``, ``paired.png``: the figures;
+- ``manifest.json``, written last (:func:`twin.rundir.seal`): every file with its size and
+  SHA-256. The report of an earlier run is deleted before any sample runs, so a directory
+  without ``manifest.json`` holds a sweep that did not finish, never an out-of-date report.
 
 The report depends only on the finished samples, never on the backend, the number of
-workers, the finishing order or on interruptions.
+workers, the finishing order or on interruptions. The directory is held
+(:func:`twin.rundir.lock`) from the first sample to the manifest.
+
+Limits: each controller's run of a sample is bounded by the scenario's ``[limits]``
+(:mod:`twin.limits`); where it sets no ``run_wall_s`` the sweep sets
+``RUN_WALL_BASE_S + RUN_WALL_PER_SIMULATED_S × duration`` (210 s for a 15 s scenario, which
+runs in about 1 s), so that a plugin far too slow for the sweep fails its samples, as
+``LimitExceeded: ...`` against that controller, instead of holding the sweep for hours.
 """
 from __future__ import annotations
 
@@ -28,9 +39,14 @@ from twin.sweep.backends import BACKENDS, default_workers, run_local, run_ray
 from twin.sweep.sampling import value_columns
 from twin.sweep.store import SweepStore
 from twin.sweep.table import columns, rows_of, write_sweep_csv
-from twin.sweep.worker import SweepJob
+from twin.sweep.worker import LIMIT, SweepJob
 
 MAX_DRAWS = 100_000
+# the sweep's per-run wall-time limit where the scenario sets none: s, + s per simulated s
+RUN_WALL_BASE_S = 60.0
+RUN_WALL_PER_SIMULATED_S = 10.0
+COMMAND = "twin sweep"
+REPORT_FILES = ("sweep.csv", "summary.md", "summary.json", "success.png", "distributions.png", "paired.png")
 
 
 @dataclass
@@ -47,6 +63,7 @@ class SweepResult:
     resumed: int = 0       # samples found finished in the directory
     wall_s: float = 0.0    # time spent running samples in this call
     environment_changes: list = field(default_factory=list)  # this call's environment against the first samples'
+    failure: str | None = None  # why the sweep measured nothing usable (the command exits 2), or None
 
 
 def replay_command(manifest: dict, sample: int) -> str:
@@ -113,15 +130,27 @@ def run_sweep(scenario: Scenario, draws: int, out: Path, scenario_arg: str | Non
         raise TwinError(f"--workers must be an integer from 1 to 1024, got {workers!r}")
     kinds, reference = sweep_controllers(scenario, controllers, reference)
     preflight(scenario, kinds)
+    from twin import rundir
+    from twin.registry import provenance
+    from twin.sweep.sampling import SAMPLES_VERSION
+
     levels = scenario.data["sweep"]["levels"]
+    roles = [("controller", k) for k in kinds] + [("estimator", scenario.estimator)]
     manifest = {"scenario": scenario.data, "source": scenario.source, "scenario_arg": scenario_arg or scenario.name,
                 "overrides": [o for o in scenario.overrides if not o.startswith("seed=")],
-                "root_seed": scenario.seed, "controllers": list(kinds), "draws": draws}
+                "root_seed": scenario.seed, "controllers": list(kinds),
+                # the plugins' code, which no version number covers (part of the configuration hash)
+                "plugins": {f"{p['role']} {p['kind']}": p["sha256"]
+                            for p in (provenance(role, k) for role, k in roles) if p is not None},
+                "sampling": SAMPLES_VERSION, "draws": draws}
     design = scenario.design() if any(uses_design(k) for k in kinds) else None
     manifest["environment"] = environment_of(scenario, kinds, design)
-    paths = plugin_dirs([("controller", k) for k in kinds] + [("estimator", scenario.estimator)])
-    job = SweepJob(scenario.data, scenario.source, scenario.overrides, scenario.seed, design, kinds, paths)
+    paths = plugin_dirs(roles)
     with SweepStore(out, manifest) as store:
+        job = SweepJob(sweep_data(scenario.data), scenario.source, scenario.overrides, scenario.seed, design, kinds,
+                       paths, store.config)
+        for name in (rundir.MANIFEST, *REPORT_FILES):  # the earlier report is no longer this directory's
+            (store.out / name).unlink(missing_ok=True)
         total = draws * len(levels)
         todo = [k for k in range(total) if k not in store.records]
         resumed = total - len(todo)
@@ -130,10 +159,13 @@ def run_sweep(scenario: Scenario, draws: int, out: Path, scenario_arg: str | Non
             progress(done[0], total)
 
         def on_result(record):
-            store.append(record)
-            done[0] += 1
-            if progress is not None:
-                progress(done[0], total)
+            # stored and counted as one: an interrupt lands before or after, so the count it reports is the store's
+            with rundir.deferred_signals():
+                store.append(record)
+                done[0] += 1
+                if progress is not None:
+                    progress(done[0], total)
+            rundir.test_point("sweep-sample")  # the kill tests' stop: a sample stored, others in flight
 
         t0 = time.perf_counter()
         if todo:
@@ -143,12 +175,39 @@ def run_sweep(scenario: Scenario, draws: int, out: Path, scenario_arg: str | Non
                 run_ray(job, todo, workers, on_result, address=address)
         wall = time.perf_counter() - t0
         records = [store.records[k] for k in range(total)]
-        manifest = store.manifest
-        changes = store.environment_changes
-    result = write_report(out, manifest, records, scenario, reference)
-    result.ran, result.resumed, result.wall_s = len(todo), resumed, wall
-    result.environment_changes = changes
+        result = write_report(out, store.manifest, records, scenario, reference)
+        rundir.test_point("sweep-report")  # the kill tests' stop: the report written, not yet sealed
+        result.failure = failure_of(result.rows)
+        result.ran, result.resumed, result.wall_s = len(todo), resumed, wall
+        result.environment_changes = store.environment_changes
+        rundir.seal(store.out, COMMAND, exit_status=2 if result.failure else 0)  # last: the report is complete
+        result.files.append(store.out / rundir.MANIFEST)
     return result
+
+
+def sweep_data(data: dict) -> dict:
+    """The scenario data the samples run with: the scenario's ``[limits]`` with the sweep's
+    default per-run wall time where it sets none (see the module docstring)."""
+    limits = data.get("limits")
+    if not isinstance(limits, dict) or limits.get("run_wall_s") is not None:
+        return data
+    return {**data, "limits": {**limits, "run_wall_s": RUN_WALL_BASE_S + RUN_WALL_PER_SIMULATED_S * data["duration"]}}
+
+
+def failure_of(rows) -> str | None:
+    """Why a finished sweep measured nothing it can stand by (the command then exits 2, its
+    outputs kept): every run ended in an error, or a plugin broke its contract past the
+    preflight. A run stopped by a limit is a result, not a failure."""
+    if rows and all(r["status"] == "error" for r in rows):
+        first = rows[0]
+        return (f"every run of the sweep ended in an error, so nothing was measured (first: sample {first['sample']}, "
+                f"{first['controller']}: {first['error']})")
+    broken = [r for r in rows if str(r.get("error") or "").startswith("PluginError")]
+    if broken:
+        first = broken[0]
+        return (f"{len(broken)} run{'s' * (len(broken) > 1)} ended with a plugin error (first: sample "
+                f"{first['sample']}, {first['error'][len('PluginError: '):]})")
+    return None
 
 
 def environment_of(scenario: Scenario, kinds, design) -> dict:
@@ -189,7 +248,7 @@ def write_report(out: Path, manifest: dict, records, scenario: Scenario, referen
     sw = scenario.data["sweep"]
     n = len(records)
     notes = [f"Scenario {scenario.name} ({manifest['source']}): {scenario.description}",
-             f"{n} samples ({manifest['draws']} draws × {len(sw['levels'])} levels λ = "
+             f"{n} samples ({manifest['draws']} draw{'s' * (manifest['draws'] != 1)} × {len(sw['levels'])} levels λ = "
              f"{', '.join(f'{v:g}' for v in sw['levels'])}), root seed {manifest['root_seed']}; "
              f"{', '.join(labels[k] for k in kinds)} run on every sample with the same plant, noise and "
              f"disturbances; paired differences are each controller minus {labels[reference]}.",
@@ -205,6 +264,13 @@ def write_report(out: Path, manifest: dict, records, scenario: Scenario, referen
     if errors:
         notes.append(f"{len(errors)} samples ended in an error (first: sample {errors[0]['sample']}: "
                      f"{errors[0]['error']})")
+    limited = [(r["sample"], k, m) for r in records for k, m in (r.get("errors") or {}).items()
+               if m.startswith(f"{LIMIT}: ")]
+    if limited:
+        k, kind, m = limited[0]
+        notes.append(f"{len(limited)} run{'s' * (len(limited) > 1)} stopped by a limit of [limits], counted as "
+                     f"failures of their controller (first: sample {k}, {labels.get(kind, kind)}: "
+                     f"{m[len(LIMIT) + 2:]})")
     text = statistics.summary_markdown(summary, paired, f"Sweep of {scenario.name}", notes, labels=labels)
     (out / "summary.md").write_text(text, encoding="utf-8")
     files.append(out / "summary.md")

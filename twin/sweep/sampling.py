@@ -27,6 +27,11 @@ from twin.errors import TwinError
 from twin.params import NOMINAL, PARAMETER_DOCS, clip_inertia_factors
 from twin.scenarios.scenario import Scenario
 
+# What sample k of a sweep is (its seed, sampled values and scenario) in this code: part of the
+# configuration hash every stored sample carries (twin.sweep.store), so a sweep is never resumed
+# with samples whose k meant something else. Raise it whenever sample_scenario changes what it
+# gives for a k (tests/test_sweep_store.py pins one sample to catch that).
+SAMPLES_VERSION = 1
 VALUES_STREAM = 1_000_003  # spawn key of the sampled values' stream (sensors spawn 0, 1, 2, …)
 # every Table III parameter that can be perturbed, in the fixed order of the draws
 PERTURBABLE = tuple(n for n in PARAMETER_DOCS if n not in ("g", "n_xb"))

@@ -30,6 +30,7 @@ class SweepJob:
     design: object
     controllers: tuple = ("it2", "t1")
     plugin_paths: tuple = ()
+    config: str = ""  # the configuration hash every record carries (twin.sweep.store.config_of)
 
     def scenario(self):
         from twin.registry import use_plugin_dirs
@@ -45,7 +46,9 @@ def run_sample(job: SweepJob, index: int) -> dict:
 
     A run that falls or diverges is a result (its metrics say so). An exception inside a
     controller's run (a plugin that breaks its contract, say) is recorded against that
-    controller alone, in ``errors``, so the others' results on the sample stand.
+    controller alone, in ``errors``, so the others' results on the sample stand; a run
+    stopped by one of the scenario's ``[limits]`` (:mod:`twin.limits`: too slow a step or
+    run, too much memory) likewise, as ``LimitExceeded: ...``.
     """
     from twin.scenarios.runner import run_scenario
     from twin.sweep.sampling import sample_scenario, success
@@ -61,29 +64,40 @@ def run_sample(job: SweepJob, index: int) -> dict:
             metrics = run_scenario(sample.scenario, (kind,)).metrics[kind]
             runs[kind] = {**metrics, "success": success(metrics, scenario)}
         except Exception as exc:  # noqa: BLE001 -- a run that errors is a result, kept with its message
-            errors[kind] = f"{type(exc).__name__}: {' '.join(str(exc).split())}"
+            errors[kind] = error_text(exc)
     error = "; ".join(f"{k}: {m}" for k, m in errors.items())
-    record = _record(sample, runs, error, time.perf_counter() - t0)
+    record = _record(sample, runs, error, time.perf_counter() - t0, job.config)
     if errors:
         record["errors"] = errors
     return record
 
 
+LIMIT = "LimitExceeded"  # the error's name in a record when a [limits] guard stopped the run
+
+
+def over_a_limit(exc: BaseException) -> bool:
+    """True if ``exc`` is a run stopped by one of the scenario's ``[limits]`` (twin.limits raises
+    a PluginError saying "over limits.<key>"): a result of that controller on that sample (too
+    slow, too hungry), unlike a broken contract, which the sweep reports as a failure."""
+    from twin.errors import PluginError
+
+    return isinstance(exc, PluginError) and (getattr(exc, "limit", None) is not None or " over limits." in str(exc))
+
+
+def error_text(exc: BaseException) -> str:
+    """One line for a record: the exception's name (:data:`LIMIT` for a limit) and its message."""
+    return f"{LIMIT if over_a_limit(exc) else type(exc).__name__}: {' '.join(str(exc).split())}"
+
+
 def crash_record(job: SweepJob, index: int, why: str) -> dict:
-    """The record of a sample whose worker died every time it ran it."""
+    """The record of a sample whose worker died every time it ran it (or that the sweep stopped)."""
     from twin.sweep.sampling import sample_scenario
 
-    return _record(sample_scenario(job.scenario(), job.root_seed, index), {}, why, 0.0)
+    return _record(sample_scenario(job.scenario(), job.root_seed, index), {}, why, 0.0, job.config)
 
 
-def _record(sample, runs: dict, error: str, wall_s: float) -> dict:
-    """What the store keeps of a sample: who it is, what was sampled, and each controller's metrics."""
+def _record(sample, runs: dict, error: str, wall_s: float, config: str) -> dict:
+    """What the store keeps of a sample: who it is, what was sampled, each controller's metrics,
+    and the hash of the configuration that produced it (checked when the sweep is resumed)."""
     return {"sample": sample.index, "draw": sample.draw, "level": sample.level, "seed": sample.seed,
-            "values": sample.values, "runs": runs, "error": error, "wall_s": wall_s}
-
-
-def ignore_sigint() -> None:
-    """Worker initializer: Ctrl-C is the parent's to handle (it stops the workers itself)."""
-    import signal
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+            "values": sample.values, "runs": runs, "error": error, "wall_s": wall_s, "config": config}

@@ -1,0 +1,173 @@
+"""Limits on what a controller and an estimator may cost a run: wall time per control step,
+wall time per run, and the growth of the process's resident memory over a run.
+
+A scenario sets them with ``[limits]`` (``step_wall_s``, ``run_wall_s``, ``run_memory_mb``;
+absent: no limit); :class:`PluginLimits` carries them in the twin's
+:class:`~twin.plant.bullet.TwinConfig` to :class:`twin.loop.ClosedLoop`, which times each
+call of the controller and of the estimator with :class:`RunGuard` and stops the run with
+one :class:`~twin.errors.PluginError` line naming the plugin and the limit. Each run of a
+loop (each :meth:`~twin.loop.ClosedLoop.reset`) starts its own clock: in a scenario with
+several controllers, each controller's run has the whole budget, whatever the others took.
+
+What the limits cannot do: they are checked when a call returns, so a call that never
+returns is not stopped (interrupting it would take a signal, which would also land in the
+twin's own code, pytest's timeouts or a user's handler); the memory is the whole process's
+(the run's own log included, about 0.4 kB per control step), read every
+:data:`MEMORY_EVERY` control steps, so a plugin leaking L bytes per call may exceed the
+limit by up to ``MEMORY_EVERY · L`` before it is seen.
+"""
+from __future__ import annotations
+
+import math
+import os
+import sys
+from dataclasses import dataclass
+from time import perf_counter
+
+from twin.errors import PluginError, TwinError
+
+MEMORY_EVERY = 64  # control steps between two reads of the resident memory (about 5 µs each on Linux)
+MB = 1e6  # bytes: the limits' memory unit (SI megabyte)
+
+
+@dataclass(frozen=True)
+class PluginLimits:
+    """What one run may cost; None: no limit.
+
+    ``step_wall_s``: seconds of wall time one call of the controller (``__call__``) or of
+    the estimator (``step``) may take; ``run_wall_s``: seconds of wall time one run may take
+    from its :meth:`~twin.loop.ClosedLoop.reset` (the twin's own time included);
+    ``run_memory_mb``: MB (10⁶ bytes) by which the process's resident memory may grow over
+    one run (Linux: the current resident set; elsewhere its peak)."""
+
+    step_wall_s: float | None = None
+    run_wall_s: float | None = None
+    run_memory_mb: float | None = None
+
+    def __post_init__(self):
+        for name in ("step_wall_s", "run_wall_s", "run_memory_mb"):
+            v = getattr(self, name)
+            if v is None:
+                continue
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
+                unit = "MB" if name == "run_memory_mb" else "s"
+                raise TwinError(f"limits.{name} must be a positive finite number in {unit} or None (no limit), "
+                                f"got {v!r}")
+            object.__setattr__(self, name, float(v))
+        if self.run_memory_mb is not None and _reader() is None:
+            raise TwinError(f"limits.run_memory_mb needs the process's resident memory, which this platform "
+                            f"({sys.platform}) does not report; leave it out here")
+
+    @property
+    def active(self) -> bool:
+        return self.step_wall_s is not None or self.run_wall_s is not None or self.run_memory_mb is not None
+
+
+def _statm() -> int:
+    """The current resident set in bytes (Linux)."""
+    with open("/proc/self/statm", "rb") as f:
+        return int(f.read().split()[1]) * _PAGE
+
+
+def _maxrss() -> int:
+    """The peak resident set in bytes (macOS, the BSDs): ru_maxrss is in bytes on macOS, KiB elsewhere."""
+    import resource
+
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak if sys.platform == "darwin" else peak * 1024
+
+
+def _reader():
+    """The function reading the resident memory here, or None."""
+    global _PAGE
+    try:
+        _PAGE = os.sysconf("SC_PAGE_SIZE")
+        _statm()
+        return _statm
+    except (OSError, ValueError, AttributeError, IndexError):
+        pass
+    try:
+        _maxrss()
+        return _maxrss
+    except (ImportError, OSError, ValueError):
+        return None
+
+
+_PAGE = 4096
+
+
+def resident_bytes() -> int | None:
+    """The process's resident memory in bytes (see :class:`PluginLimits`), or None where unknown."""
+    read = _reader()
+    return None if read is None else read()
+
+
+class RunGuard:
+    """Enforces :class:`PluginLimits` over the runs of one loop: :meth:`start` at each reset,
+    :meth:`charge` after each timed call, :meth:`memory` every :data:`MEMORY_EVERY` steps."""
+
+    __slots__ = ("limits", "step", "run", "memory_bytes", "controller", "estimator", "control_dt", "t0", "spent",
+                 "rss0", "_read")
+
+    def __init__(self, limits: PluginLimits, controller, estimator, control_dt: float):
+        self.limits = limits
+        inf = math.inf
+        self.step = limits.step_wall_s if limits.step_wall_s is not None else inf
+        self.run = limits.run_wall_s if limits.run_wall_s is not None else inf
+        self.memory_bytes = limits.run_memory_mb * MB if limits.run_memory_mb is not None else None
+        self.controller, self.estimator, self.control_dt = controller, estimator, control_dt
+        self._read = _reader() if self.memory_bytes is not None else None
+        self.t0 = perf_counter()
+        self.spent = {"controller": 0.0, "estimator": 0.0}
+        self.rss0 = 0
+
+    def start(self) -> None:
+        """A new run: its clock, its plugins' time and its memory baseline start now."""
+        self.spent = {"controller": 0.0, "estimator": 0.0}
+        self.rss0 = self._read() if self._read is not None else 0
+        self.t0 = perf_counter()
+
+    def charge(self, role: str, dt: float, now: float, k: int, per_step: bool = True) -> None:
+        """``role`` ("controller" or "estimator") took ``dt`` s in one call that ended at
+        ``now`` (perf_counter) at control step ``k``: a PluginError if that is over a limit."""
+        self.spent[role] += dt
+        if per_step and dt > self.step:
+            raise PluginError(f"{self._who(role)} took {dt:.3g} s for one control step, over limits.step_wall_s = "
+                              f"{self.step:g} s (at t = {k * self.control_dt:.3f} s)")
+        if now - self.t0 > self.run:
+            self.over_run(now, k)
+
+    def over_run(self, now: float, k: int) -> None:
+        total = now - self.t0
+        c, e = self.spent["controller"], self.spent["estimator"]
+        parts = ([f"{c:.3g} s in the controller"] if self.controller is not None else []) + (
+            [f"{e:.3g} s in the estimator"] if self.estimator is not None else []) + [
+            f"{max(0.0, total - c - e):.3g} s in the plant and the rest"]
+        raise PluginError(f"{self._run_of()} took {total:.3g} s, over limits.run_wall_s = {self.run:g} s (stopped at "
+                          f"t = {k * self.control_dt:.3f} s: {', '.join(parts)})")
+
+    def memory(self, k: int) -> None:
+        """A PluginError if the resident memory grew by more than the limit since :meth:`start`."""
+        grown = self._read() - self.rss0
+        if grown > self.memory_bytes:
+            raise PluginError(f"{self._run_of()} grew the process's resident memory by {grown / MB:.4g} MB, over "
+                              f"limits.run_memory_mb = {self.memory_bytes / MB:g} MB (at t = "
+                              f"{k * self.control_dt:.3f} s; the run's own log takes about 0.4 kB per control step)")
+
+    def _who(self, role: str) -> str:
+        from twin.protocols import describe_object
+
+        return f"{role} {describe_object(self.controller if role == 'controller' else self.estimator)}"
+
+    def _run_of(self) -> str:
+        from twin.protocols import describe_object
+
+        if self.estimator is None:  # the analytic loop: the controller reads the true state
+            return f"the run of {self._who('controller')}"
+        estimator = describe_object(self.estimator)
+        if self.controller is not None:
+            return f"the run of {self._who('controller')} (estimator {estimator})"
+        return f"the run with estimator {estimator}"
+
+
+__all__ = ["MEMORY_EVERY", "PluginLimits", "RunGuard", "resident_bytes"]
