@@ -55,9 +55,17 @@ def simulate(controller, experiment: Experiment, params: RobotParams = NOMINAL,
         raise TwinError(f"limits must be a twin.limits.PluginLimits or None, got {limits!r}")
     guard = RunGuard(limits, controller, None, control_dt) if limits is not None and limits.active else None
     if guard is not None:
-        guard.start()
+        guard.start()  # the run's clock: reset() counts towards limits.run_wall_s, as on the twin
     if hasattr(controller, "reset"):
-        controller.reset(targets)
+        t0 = perf_counter()
+        try:
+            controller.reset(targets)
+        except Exception as exc:  # noqa: BLE001 -- the controller's failure, in one line
+            raise PluginError(f"controller {describe_object(controller)}: reset() raised {type(exc).__name__}: "
+                              f"{one_line(exc)}") from None
+        if guard is not None:
+            t1 = perf_counter()
+            guard.charge("controller", t1 - t0, t1, 0, per_step=False)
     log = np.empty((n_ctrl + 1, 8))
     names = ("ul_cmd", "ur_cmd") + tuple(getattr(controller, "signals", ()))
     cmds = np.zeros((n_ctrl + 1, len(names)))

@@ -168,6 +168,73 @@ def _tolerances(atol, rtol, items):
     return parse_options(atol, rtol, items)
 
 
+# --step-limit, --run-limit, --memory-limit: the scenario's [limits] keys (twin.limits), with
+# their ranges as twin.scenarios.schema has them (tests/test_limits.py checks that they agree)
+LIMIT_OPTIONS = (
+    ("step_limit", "--step-limit", "step_wall_s", "SECONDS", "(0, 3600] s",
+     "Wall time in s one call of a controller, or one step() of the estimator, may take"),
+    ("run_limit", "--run-limit", "run_wall_s", "SECONDS", "(0, 1e+06] s",
+     "Wall time in s one controller's run may take, the twin's own time included"),
+    ("memory_limit", "--memory-limit", "run_memory_mb", "MB", "(0, 1e+06] MB",
+     "Growth in MB (10⁶ bytes) of the process's resident memory over one controller's run"),
+)
+
+
+def _limit_options(where: str, run_default: str = ""):
+    """--step-limit, --run-limit and --memory-limit, each setting a key of [limits] (``where``: to
+    what it applies, for the help; ``run_default``: what --run-limit's default is, if not none)."""
+    def decorate(f):
+        for dest, flag, key, metavar, allowed, what in reversed(LIMIT_OPTIONS):
+            default = (run_default or "the scenario's, else none") if dest == "run_limit" else "the scenario's, else none"
+            f = click.option(flag, dest, default=None, metavar=metavar,
+                             help=f"{what}, in {allowed}: sets limits.{key}{where} (not with --set "
+                                  f"limits.{key}). Default: {default}.")(f)
+        return f
+    return decorate
+
+
+def _limit_overrides(overrides, step_limit, run_limit, memory_limit) -> tuple:
+    """``overrides`` (the --set items) followed by ``limits.KEY=V`` for each limit option
+    given, validated like the scenario key; an option and a --set of the same key are refused."""
+    given = {"step_limit": step_limit, "run_limit": run_limit, "memory_limit": memory_limit}
+    if all(v is None for v in given.values()):
+        return tuple(overrides)
+    from twin.scenarios.schema import ScenarioError, _value, lookup
+    from twin.scenarios.scenario import parse_override
+
+    extra = []
+    for dest, flag, key, _metavar, _allowed, _what in LIMIT_OPTIONS:
+        text = given[dest]
+        if text is None:
+            continue
+        for item in overrides:  # the same key twice would leave one of them unsaid
+            name, _, rest = str(item).partition("=")
+            name = name.strip()
+            if name == f"limits.{key}" or (name == "limits" and key in _inline_table(rest)):
+                raise TwinError(f"{flag} and --set {name}=... both set limits.{key}; give one of them")
+        try:
+            _, value = parse_override(f"limits.{key}={text}")
+            value = _value(value, lookup(f"limits.{key}"), flag)
+        except ScenarioError as exc:
+            message = str(exc)
+            if message.startswith("--set"):  # what the TOML reader could not take, said of the option
+                message = f"{flag}: {message.partition(': ')[2]}"
+            raise TwinError(message) from None
+        extra.append(f"limits.{key}={value!r}")
+    return tuple(overrides) + tuple(extra)
+
+
+def _inline_table(text: str) -> dict:
+    """The keys of ``--set limits={...}``'s value, or {} if it is not a table."""
+    import tomllib
+
+    try:
+        value = tomllib.loads(f"v = {text.strip()}")["v"]
+    except (tomllib.TOMLDecodeError, RecursionError, ValueError):
+        return {}
+    return value if isinstance(value, dict) else {}
+
+
 @main.group()
 def cache():
     """The design cache: LMI designs stored by their inputs, so that a run need not solve them.
@@ -494,8 +561,10 @@ def _paper_experiment_in(staged, experiment, controller, out, duration, gains_fi
                    "still computed from every step. metrics.json's 'log' says what was dropped.")
 @click.option("--log-format", "log_format", type=click.Choice(["csv", "csv.gz"]), default="csv", show_default=True,
               help="trajectory.csv, or trajectory.csv.gz: the same text gzip-compressed (pandas.read_csv reads it).")
+@_limit_options("")
 @_no_cache_option
-def run(scenario, controller, seed, duration, overrides, out, video, sample, log_every, log_format, no_cache):
+def run(scenario, controller, seed, duration, overrides, out, video, sample, log_every, log_format, step_limit,
+        run_limit, memory_limit, no_cache):
     """Run a scenario on the PyBullet twin: trajectory, metrics, figure and video.
 
     SCENARIO is a built-in name (see 'twin scenarios') or a scenario .toml file. Writes
@@ -503,7 +572,10 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample, log
     video.mp4 and manifest.json (every file's size and SHA-256) into --out, as a whole:
     --out is the earlier run until the new one is complete, and an interrupt (exit
     status 130 or 143) keeps the data if only the figure or the video was missing. The
-    same scenario and seed give identical metrics.json and trajectory.csv.
+    same scenario and seed give identical metrics.json and trajectory.csv. A controller's
+    run stopped by a limit ([limits], --step-limit, --run-limit, --memory-limit) is one
+    line naming it and the limit, exit status 2; the other controllers' results are
+    written, and metrics.json's 'errors' names the run stopped.
 
     \b
     Examples:
@@ -522,7 +594,7 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample, log
     from twin import rundir
 
     every = _log_every(log_every)
-    sc = _load(scenario, overrides, seed, duration)
+    sc = _load(scenario, _limit_overrides(overrides, step_limit, run_limit, memory_limit), seed, duration)
     if out is None:  # the scenario's name must not lead the outputs out of runs/ (a shared file may say "../..")
         out = rundir.child_of(Path("runs"), sc.name if sample is None else f"{sc.name}-sample{sample}",
                               "the scenario's name")
@@ -541,10 +613,11 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample, log
         _echo_plugins(plugins_of(sc, kinds))
         with _Progress() as bar:
             result = run_scenario(sc, kinds, out=out, video=video, progress=bar.update, log_every=every,
-                                  log_format=log_format)
+                                  log_format=log_format, keep_limited=True)
     except KeyboardInterrupt as exc:  # what the run kept, if it got that far, stands
         rundir.kept(exc, target.unchanged())
         raise
+    limited, kinds = result.errors, tuple(k for k in kinds if k in result.metrics)  # runs a limit stopped: said last
     keys = ("status", "settling_time_s", "theta_rms_rad", "oscillation_peak_to_peak_rad", "final_position_error_m",
             "final_heading_error_rad", "iae_theta", "control_effort", "max_abs_torque_nm", "estimator_theta_rmse_rad",
             "rejected_measurements")
@@ -568,6 +641,11 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample, log
     for note in result.notes:
         click.echo(f"  note: {note}")
     click.echo(f"wrote {out}/: " + ", ".join(Path(f).name for f in result.files))
+    if limited:  # a plugin error against that controller alone: its one line, exit status 2, the others kept
+        first, exc = next(iter(limited.items()))
+        more = f" (and {len(limited) - 1} more run{'s' * (len(limited) > 2)} stopped by a limit)" if len(limited) > 1 else ""
+        raise TwinError(f"{first}: {' '.join(str(exc).split())}{more}; the results of {', '.join(kinds)} are in "
+                        f"{out} (metrics.json's 'errors' names the runs stopped)")
 
 
 def _log_every(text: str) -> int:
@@ -636,14 +714,19 @@ def _title(sc) -> str:
                    "package.module:attribute. Default: the scenario's controller.kinds.")
 @click.option("--reference", default=None, metavar="KIND",
               help="The controller each other one is paired with in the paired statistics (default: the last listed).")
-def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overrides, out, controller, reference):
+@_limit_options(" for each controller's run of a sample",
+                "the scenario's, else 60 s + 10 × the simulated time in s (210 s for 15 s)")
+def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overrides, out, controller, reference,
+          step_limit, run_limit, memory_limit):
     """Monte Carlo sweep: controllers compared on sampled plants, noise, tilts and pushes.
 
     The scenario's [sweep] table says what is sampled (see the README). Each sample's
     seed and sampled values are in sweep.csv, and 'twin run SCENARIO --sample K'
     replays sample K exactly. Finished samples are kept as they finish: rerun the
     same command after an interruption and only the rest runs. Writes sweep.csv,
-    summary.md, summary.json, success.png, distributions.png and paired.png.
+    summary.md, summary.json, success.png, distributions.png and paired.png. A run
+    stopped by a limit (--step-limit, --run-limit, --memory-limit; by default each run
+    may take 60 s + 10 s per simulated s) is an error of that controller on that sample.
 
     \b
     Examples:
@@ -659,7 +742,7 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
 
     if ray_address is not None and backend != "ray":
         raise TwinError("--ray-address needs --backend ray")
-    sc = _load(scenario, overrides, seed, duration)
+    sc = _load(scenario, _limit_overrides(overrides, step_limit, run_limit, memory_limit), seed, duration)
     if out is None:
         out = rundir.child_of(Path("runs"), f"sweep-{sc.name}", "the scenario's name")
     rundir.refuse_if_in_use(out)
@@ -717,7 +800,9 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
 @click.option("--golden", type=click.Path(file_okay=False, path_type=Path), default=None, metavar="DIR",
               help="Compare every run with the golden trajectory stored under DIR; report where it departs.")
 @_tolerance_options("the golden trajectories (with --golden)")
-def check(targets, controller, seeds, workers, overrides, junit, record, golden, atol, rtol, tolerance):
+@_limit_options(" in every scenario checked")
+def check(targets, controller, seeds, workers, overrides, junit, record, golden, atol, rtol, tolerance, step_limit,
+          run_limit, memory_limit):
     """Check scenarios against their [expect] bounds: exit 0 if all hold, 1 if any fails.
 
     Runs every scenario, controller and seed (in parallel on local cores) and prints each
@@ -725,7 +810,8 @@ def check(targets, controller, seeds, workers, overrides, junit, record, golden,
     [expect] table. With --golden, each run must also follow its recorded trajectory: bit
     for bit unless --atol, --rtol, --tolerance or the scenario's [expect.golden] allow
     more; a departure says whether the environment or a design differs from the
-    reference's. Exit status 2 on a user error (a bad file, key or kind).
+    reference's. A run stopped by a limit (--step-limit, --run-limit, --memory-limit)
+    fails its check. Exit status 2 on a user error (a bad file, key or kind).
 
     \b
     Examples:
@@ -756,7 +842,7 @@ def check(targets, controller, seeds, workers, overrides, junit, record, golden,
         from twin.registry import parse_controllers
 
         kinds = parse_controllers(controller)
-    scenarios, skipped = collect(targets, overrides)
+    scenarios, skipped = collect(targets, _limit_overrides(overrides, step_limit, run_limit, memory_limit))
     for f in skipped:
         click.echo(f"  skipped {f}: no [expect] table")
     if not scenarios:

@@ -132,8 +132,8 @@ class RunGuard:
         ``now`` (perf_counter) at control step ``k``: a PluginError if that is over a limit."""
         self.spent[role] += dt
         if per_step and dt > self.step:
-            raise PluginError(f"{self._who(role)} took {dt:.3g} s for one control step, over limits.step_wall_s = "
-                              f"{self.step:g} s (at t = {k * self.control_dt:.3f} s)")
+            raise _over("step_wall_s", f"{self._who(role)} took {dt:.3g} s for one control step, over "
+                                       f"limits.step_wall_s = {self.step:g} s (at t = {k * self.control_dt:.3f} s)")
         if now - self.t0 > self.run:
             self.over_run(now, k)
 
@@ -143,15 +143,15 @@ class RunGuard:
         parts = ([f"{c:.3g} s in the controller"] if self.controller is not None else []) + (
             [f"{e:.3g} s in the estimator"] if self.estimator is not None else []) + [
             f"{max(0.0, total - c - e):.3g} s in the plant and the rest"]
-        raise PluginError(f"{self._run_of()} took {total:.3g} s, over limits.run_wall_s = {self.run:g} s (stopped at "
-                          f"t = {k * self.control_dt:.3f} s: {', '.join(parts)})")
+        raise _over("run_wall_s", f"{self._run_of()} took {total:.3g} s, over limits.run_wall_s = {self.run:g} s "
+                                  f"(stopped at t = {k * self.control_dt:.3f} s: {', '.join(parts)})")
 
     def memory(self, k: int) -> None:
         """A PluginError if the resident memory grew by more than the limit since :meth:`start`."""
         grown = self._read() - self.rss0
         if grown > self.memory_bytes:
-            raise PluginError(f"{self._run_of()} grew the process's resident memory by {grown / MB:.4g} MB, over "
-                              f"limits.run_memory_mb = {self.memory_bytes / MB:g} MB (at t = "
+            raise _over("run_memory_mb", f"{self._run_of()} grew the process's resident memory by "
+                                            f"{grown / MB:.4g} MB, over limits.run_memory_mb = {self.memory_bytes / MB:g} MB (at t = "
                               f"{k * self.control_dt:.3f} s; the run's own log takes about 0.4 kB per control step)")
 
     def _who(self, role: str) -> str:
@@ -170,4 +170,21 @@ class RunGuard:
         return f"the run with estimator {estimator}"
 
 
-__all__ = ["MEMORY_EVERY", "PluginLimits", "RunGuard", "resident_bytes"]
+def _over(limit: str, message: str) -> PluginError:
+    """The PluginError of a run stopped by ``limit`` (a key of :class:`PluginLimits`), carrying
+    it as ``exc.limit`` (see :func:`limit_of`)."""
+    exc = PluginError(message)
+    exc.limit = limit
+    return exc
+
+
+def limit_of(exc: BaseException) -> str | None:
+    """The limit (``"step_wall_s"``, ``"run_wall_s"`` or ``"run_memory_mb"``) that stopped the run
+    ``exc`` ended, or None if ``exc`` is not a limit's PluginError (a broken contract, say)."""
+    limit = getattr(exc, "limit", None) if isinstance(exc, PluginError) else None
+    return limit if limit in LIMIT_KEYS else None
+
+
+LIMIT_KEYS = ("step_wall_s", "run_wall_s", "run_memory_mb")
+
+__all__ = ["LIMIT_KEYS", "MEMORY_EVERY", "PluginLimits", "RunGuard", "limit_of", "resident_bytes"]

@@ -10,7 +10,9 @@ Outputs in the run directory:
 - ``metrics.json``: the scenario (complete, defaults filled in), the seed, and one
   object per controller run (:func:`twin.metrics.run_metrics`, always from every control
   step); when the trajectory is decimated or compressed, a ``log`` object says so (which
-  rows were written, how many of how many, the file);
+  rows were written, how many of how many, the file); with ``keep_limited``, an
+  ``errors`` object holds the controllers whose runs a limit of ``[limits]`` stopped
+  (kind → ``LimitExceeded: <the one-line message>``), which are in no other file;
 - ``figure.png``: θ, torque, dψ/dt, distance and α over time (the paper's Figs. 6–8),
   the controllers overlaid;
 - ``video.mp4``: offscreen rendering, the controllers side by side (optional);
@@ -36,7 +38,8 @@ from pathlib import Path
 import numpy as np
 
 from twin import figure_worker, rundir
-from twin.errors import TwinError
+from twin.errors import PluginError, TwinError
+from twin.limits import limit_of
 from twin.scenarios.scenario import Scenario
 
 LOG_FORMATS = ("csv", "csv.gz")  # trajectory.csv, or the same text gzip-compressed
@@ -57,6 +60,7 @@ class ScenarioResult:
     design: object = None
     notes: list = field(default_factory=list)
     designs: dict = field(default_factory=dict)  # name → digest of each design the runs used
+    errors: dict = field(default_factory=dict)  # kind → the PluginError of a run a limit stopped (keep_limited)
 
     def environment(self) -> dict:
         """What these runs ran on, with their designs' digests (metrics.json's "environment")."""
@@ -85,7 +89,7 @@ def plugins_of(scenario: Scenario, controllers) -> list[dict]:
 
 
 def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, video: bool | None = None,
-                 progress=None, log_every: int = 1, log_format: str = "csv") -> ScenarioResult:
+                 progress=None, log_every: int = 1, log_format: str = "csv", keep_limited: bool = False) -> ScenarioResult:
     """Run ``scenario`` with each of ``controllers`` (kinds; None: the scenario's
     ``controller.kinds``) on identical conditions: same true plant, sensor seed,
     estimator kind, pushes and faults.
@@ -98,6 +102,13 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
     from every step; see :func:`twin.bullet_loop.simulate_twin`); ``log_format``: "csv"
     (trajectory.csv) or "csv.gz" (trajectory.csv.gz, gzip). Nothing is written unless every
     run finished (a run that falls is a result; a plugin that breaks its contract is an error).
+
+    ``keep_limited``: a controller's run that a limit of the scenario's ``[limits]`` stops
+    (:func:`twin.limits.limit_of`) is recorded against that controller alone, in the
+    result's ``errors`` and metrics.json's ``errors``, and the other controllers run and are
+    written (the manifest's exit status is then 2); if every run was stopped, the first
+    one's PluginError is raised and nothing is written. False: that PluginError is raised
+    at once, like any other.
     """
     from twin.bullet_loop import check_log_every
     from twin.registry import check_kinds, parse_controllers
@@ -116,7 +127,7 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
         # the figure's worker process starts now, to import matplotlib while the runs simulate
         worker = figure_worker.start() if out is not None else None
         try:
-            return _run_and_write(scenario, kinds, staged, video, progress, every, log_format, worker)
+            return _run_and_write(scenario, kinds, staged, video, progress, every, log_format, worker, keep_limited)
         finally:
             if worker is not None:  # ended before its staging goes: it may be writing figure.png there
                 worker.close()
@@ -131,7 +142,8 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
             staged.discard()
 
 
-def _run_and_write(scenario, kinds, staged, video, progress, every, log_format, worker) -> ScenarioResult:
+def _run_and_write(scenario, kinds, staged, video, progress, every, log_format, worker,
+                   keep_limited: bool = False) -> ScenarioResult:
     """:func:`run_scenario` after its checks; ``staged`` a :class:`twin.rundir.StagedDirectory`
     (None: write nothing); ``worker`` a :class:`twin.figure_worker.FigureWorker` for the
     figure, or None (drawn here)."""
@@ -154,25 +166,33 @@ def _run_and_write(scenario, kinds, staged, video, progress, every, log_format, 
 
     context = scenario.build_context(design)
     plugins = plugins_of(scenario, kinds)
-    runs, metrics, controllers = [], {}, []
+    runs, metrics, controllers, errors = [], {}, [], {}
     for kind in kinds:
         controller = scenario.build_controller(kind, context)
-        controllers.append((kind, controller))
         cb = None if progress is None else (lambda done, total, k=kind: progress(f"run {k}", done, total))
         t0 = time.perf_counter()
-        run = simulate_twin(controller, exp, config, duration=scenario.duration, controller_name=kind,
-                            alpha0=d["initial"]["alpha"], position=(d["initial"]["x"], d["initial"]["y"]),
-                            sensors=sensors, estimator=scenario.build_estimator(context), seed=scenario.seed,
-                            model_params=context.model, progress=cb, log_every=every)
+        try:
+            run = simulate_twin(controller, exp, config, duration=scenario.duration, controller_name=kind,
+                                alpha0=d["initial"]["alpha"], position=(d["initial"]["x"], d["initial"]["y"]),
+                                sensors=sensors, estimator=scenario.build_estimator(context), seed=scenario.seed,
+                                model_params=context.model, progress=cb, log_every=every)
+        except PluginError as exc:
+            if not keep_limited or limit_of(exc) is None:
+                raise
+            errors[kind] = exc  # that controller's alone: the others run on
+            continue
+        controllers.append((kind, controller))
         run.sensing = scenario.estimator
         timings[f"run_{kind}_s"] = time.perf_counter() - t0
         runs.append(run)
         metrics[kind] = run_metrics(run)
+    if errors and not runs:  # nothing to write: the first limit's one line, as without keep_limited
+        raise next(iter(errors.values()))
     from twin.fingerprint import digests
 
     result = ScenarioResult(scenario, runs, metrics, timings=timings, plugins=plugins,
                             design=solved[0] if solved else None,
-                            designs=digests(solved[0] if solved else None, controllers))
+                            designs=digests(solved[0] if solved else None, controllers), errors=errors)
     if staged is None:
         return result
     _write(result, staged, video, progress, every, log_format, worker, sensors, config)
@@ -203,6 +223,8 @@ def _write(result, staged, video, progress, every, log_format, worker, sensors, 
         doc = {"scenario": scenario.record(), "source": scenario.source, "seed": scenario.seed, "runs": metrics}
         if result.plugins:
             doc["plugins"] = result.plugins
+        if result.errors:  # runs a limit stopped: in no other file
+            doc["errors"] = {k: limit_text(exc) for k, exc in result.errors.items()}
         name = "trajectory." + log_format
         if every > 1 or log_format != "csv":  # at the defaults metrics.json stays as it always was
             doc["log"] = log_record(runs, every, log_format, name)
@@ -225,7 +247,10 @@ def _write(result, staged, video, progress, every, log_format, worker, sensors, 
             stage, writing = "video", "video.mp4"
             _video(result, out, progress, every, config)
         stage, writing = "commit", rundir.MANIFEST
-        staged.commit(0)
+        if result.errors:  # complete for the runs that finished; the command ends with the limit's error
+            staged.commit(2, stopped="; ".join(f"{k}: {limit_text(exc)}" for k, exc in result.errors.items()))
+        else:
+            staged.commit(0)
         written = ["metrics.json", name] + ["design.json"] * (solved is not None) + ["figure.png"] + \
             ["video.mp4"] * bool(want_video) + [rundir.MANIFEST]  # in the order they were written
         result.files += [staged.shown / n for n in written]
@@ -302,6 +327,11 @@ def _video(result, out: Path, progress, every: int, config) -> None:
     result.timings["video_s"] = time.perf_counter() - t0
     if result.video.note:  # H.264 by ffmpeg was not available: say what wrote the video instead, and why
         result.notes.append(result.video.note)
+
+
+def limit_text(exc: BaseException) -> str:
+    """One line for a run a limit stopped: ``LimitExceeded: <its message>`` (as a sweep records it)."""
+    return f"LimitExceeded: {' '.join(str(exc).split())}"
 
 
 def log_record(runs, every: int, log_format: str, name: str) -> dict:
