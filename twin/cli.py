@@ -185,7 +185,9 @@ def _limit_options(where: str, run_default: str = ""):
     what it applies, for the help; ``run_default``: what --run-limit's default is, if not none)."""
     def decorate(f):
         for dest, flag, key, metavar, allowed, what in reversed(LIMIT_OPTIONS):
-            default = (run_default or "the scenario's, else none") if dest == "run_limit" else "the scenario's, else none"
+            default = "the scenario's, else none"
+            if dest == "run_limit" and run_default:
+                default = run_default
             f = click.option(flag, dest, default=None, metavar=metavar,
                              help=f"{what}, in {allowed}: sets limits.{key}{where} (not with --set "
                                   f"limits.{key}). Default: {default}.")(f)
@@ -643,7 +645,8 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample, log
     click.echo(f"wrote {out}/: " + ", ".join(Path(f).name for f in result.files))
     if limited:  # a plugin error against that controller alone: its one line, exit status 2, the others kept
         first, exc = next(iter(limited.items()))
-        more = f" (and {len(limited) - 1} more run{'s' * (len(limited) > 2)} stopped by a limit)" if len(limited) > 1 else ""
+        n = len(limited) - 1
+        more = f" (and {n} more run{'s' * (n > 1)} stopped by a limit)" if n else ""
         raise TwinError(f"{first}: {' '.join(str(exc).split())}{more}; the results of {', '.join(kinds)} are in "
                         f"{out} (metrics.json's 'errors' names the runs stopped)")
 

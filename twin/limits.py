@@ -151,8 +151,9 @@ class RunGuard:
         grown = self._read() - self.rss0
         if grown > self.memory_bytes:
             raise _over("run_memory_mb", f"{self._run_of()} grew the process's resident memory by "
-                                            f"{grown / MB:.4g} MB, over limits.run_memory_mb = {self.memory_bytes / MB:g} MB (at t = "
-                              f"{k * self.control_dt:.3f} s; the run's own log takes about 0.4 kB per control step)")
+                                         f"{grown / MB:.4g} MB, over limits.run_memory_mb = "
+                                         f"{self.memory_bytes / MB:g} MB (at t = {k * self.control_dt:.3f} s; the "
+                                         f"run's own log takes about 0.4 kB per control step)")
 
     def _who(self, role: str) -> str:
         from twin.protocols import describe_object

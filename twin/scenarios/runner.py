@@ -89,7 +89,8 @@ def plugins_of(scenario: Scenario, controllers) -> list[dict]:
 
 
 def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, video: bool | None = None,
-                 progress=None, log_every: int = 1, log_format: str = "csv", keep_limited: bool = False) -> ScenarioResult:
+                 progress=None, log_every: int = 1, log_format: str = "csv",
+                 keep_limited: bool = False) -> ScenarioResult:
     """Run ``scenario`` with each of ``controllers`` (kinds; None: the scenario's
     ``controller.kinds``) on identical conditions: same true plant, sensor seed,
     estimator kind, pushes and faults.
