@@ -12,7 +12,9 @@ times is recorded with an error instead of stopping the sweep.
 
 Local workers die with the sweep, however it ends (:mod:`twin.workers`: SIGKILL included);
 Ray's tasks are cancelled when the sweep stops by an exception (Ctrl-C, SIGTERM), and a
-local Ray instance shares the sweep's fate (Ray starts its processes so).
+local Ray instance shares the sweep's fate: Ray starts its daemons so, and what they leave
+behind when the sweep is killed (Ray's agents, which would wait a minute for the dead GCS)
+is killed by a :class:`twin.workers.Reaper`.
 """
 from __future__ import annotations
 
@@ -22,7 +24,7 @@ from concurrent.futures.process import BrokenProcessPool
 
 from twin.errors import TwinError
 from twin.sweep.worker import SweepJob, crash_record, run_sample
-from twin.workers import process_pool
+from twin.workers import Reaper, process_pool
 
 MAX_CRASHES = 2
 BACKENDS = ("local", "ray")
@@ -77,16 +79,32 @@ def run_ray(job: SweepJob, indices, workers: int | None, on_result, address: str
         import ray
     except ImportError:
         raise TwinError("the ray backend needs Ray: pip install 'mtwip-twin[ray]' (or use --backend local)") from None
+    started = not ray.is_initialized()
+    # a local instance's processes go with the sweep even when it is killed: Ray fate-shares its
+    # daemons with this process, and a reaper (twin.workers) takes what is left (its agents)
+    reaper = Reaper() if started and address is None else None
+    try:
+        _drive_ray(ray, job, indices, workers, on_result, address, started, reaper)
+    finally:
+        if reaper is not None:
+            reaper.close()  # after ray.shutdown(): nothing of Ray's is left to kill
+
+
+def _drive_ray(ray, job, indices, workers, on_result, address, started, reaper) -> None:
     import logging
     import signal
     import threading
 
-    started = not ray.is_initialized()
     main_thread = threading.current_thread() is threading.main_thread()
     # ray.init puts its own SIGTERM handler in (sys.exit(15)), which bypasses the command's
     # (an interrupt that stores what finished and exits 143): the one there before is put back
     sigterm = signal.getsignal(signal.SIGTERM) if main_thread else None
     if started:
+        # Ray's notice that the local instance it starts uses token authentication (its default)
+        # is a line on stderr in every sweep: left out (a warning that it does not is kept)
+        notices = logging.getLogger("ray._private.authentication.authentication_token_setup")
+        quiet = _DropNotice("Token authentication is enabled for this Ray cluster")
+        notices.addFilter(quiet)
         try:
             if address is None:
                 ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False,
@@ -97,8 +115,11 @@ def run_ray(job: SweepJob, indices, workers: int | None, on_result, address: str
             raise TwinError(f"cannot start or reach Ray at {address or 'a local instance'}: "
                             f"{' '.join(str(exc).split())[:300]}") from None
         finally:
+            notices.removeFilter(quiet)
             if sigterm is not None:
                 signal.signal(signal.SIGTERM, sigterm)
+        if reaper is not None:
+            reaper.scan()  # Ray's daemons and agents, noted now
     running: dict = {}
     raised: list = []  # what the command's signal handlers raised (Ray's waits turn it into a bare KeyboardInterrupt)
     relays = _relay_signals(raised) if main_thread else {}
@@ -131,6 +152,16 @@ def run_ray(job: SweepJob, indices, workers: int | None, on_result, address: str
             signal.signal(signum, handler)
         if started:
             ray.shutdown()
+
+
+class _DropNotice:
+    """A logging filter that drops the records whose message starts with ``prefix``."""
+
+    def __init__(self, prefix: str):
+        self.prefix = prefix
+
+    def filter(self, record) -> bool:
+        return not str(record.msg).startswith(self.prefix)
 
 
 def _relay_signals(raised: list) -> dict:
