@@ -11,11 +11,11 @@ from __future__ import annotations
 
 import json
 import math
-import textwrap
 import time
 
 import pytest
 
+from slow_plugin import write_slow_plugin
 from test_scenarios import twin
 from twin.errors import PluginError, TwinError
 from twin.limits import LIMIT_KEYS, MB, MEMORY_EVERY, PluginLimits, RunGuard, limit_of, resident_bytes
@@ -283,34 +283,13 @@ def test_the_analytic_loop_gives_the_same_run_with_generous_limits():
 
 # ---- the command line -----------------------------------------------------------------------------------------
 
-PLUGIN = '''
-    import time
-
-
-    class Slow:
-        """A state feedback, slow (0.15 s a call) at its 20th to 22nd calls."""
-
-        def __init__(self):
-            self.calls = 0
-
-        def reset(self, targets):
-            self.calls = 0
-
-        def __call__(self, estimate, targets):
-            self.calls += 1
-            if 20 <= self.calls <= 22:
-                time.sleep(0.15)
-            theta, theta_dot, psi, psi_dot = estimate[:4]
-            u = 1.2 * theta + 0.085 * theta_dot + 0.06 * psi + 0.032 * psi_dot
-            return (0.5 * u, 0.5 * u)
-'''
 SLOW = "limslowplug:Slow"
 
 
 @pytest.fixture(scope="module")
 def plugdir(tmp_path_factory):
     d = tmp_path_factory.mktemp("plugins")
-    (d / "limslowplug.py").write_text(textwrap.dedent(PLUGIN))
+    write_slow_plugin(d, "limslowplug", 0.15, first=20, last=22)
     return d
 
 

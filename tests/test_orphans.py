@@ -24,12 +24,12 @@ import os
 import signal
 import subprocess
 import sys
-import textwrap
 import time
 from pathlib import Path
 
 import pytest
 
+from slow_plugin import write_slow_plugin
 from test_rundir import _one_line
 from test_sweep_store import DRAWS, SETS, reference, sweep_cli  # noqa: F401 (reference: a fixture)
 
@@ -38,33 +38,6 @@ pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="re
 
 GONE_WITHIN_S = 5.0
 
-PLUGIN = '''
-    import os
-    import time
-
-
-    class Slow:
-        """The state feedback of examples/my_plugins.py, $ORPHAN_SLEEP_S seconds per call (default
-        0.05), leaving a file named by its process id in $ORPHAN_MARKS on its first call."""
-
-        def __init__(self):
-            self.calls = 0
-            self.sleep = float(os.environ.get("ORPHAN_SLEEP_S", "0.05"))
-
-        def reset(self, targets):
-            self.calls = 0
-
-        def __call__(self, estimate, targets):
-            self.calls += 1
-            marks = os.environ.get("ORPHAN_MARKS")
-            if self.calls == 1 and marks:
-                open(os.path.join(marks, str(os.getpid())), "w").close()
-            if self.sleep:
-                time.sleep(self.sleep)
-            theta, theta_dot, psi, psi_dot = estimate[:4]
-            u = 1.2 * theta + 0.085 * theta_dot + 0.06 * psi + 0.032 * psi_dot
-            return (0.5 * u, 0.5 * u)
-'''
 SLOW = "orphplug:Slow"
 
 
@@ -121,7 +94,7 @@ class Command:
         self.marks = cwd / f"marks-{time.monotonic_ns()}"
         self.marks.mkdir()
         self.marker = cwd / f"stopped-{time.monotonic_ns()}"
-        env = {**os.environ, "ORPHAN_MARKS": str(self.marks), **(env or {})}
+        env = {**os.environ, "SLOW_PLUGIN_MARKS": str(self.marks), **(env or {})}
         if stop_at is not None:
             env["TWIN_TEST_STOP_AT"] = f"{stop_at}:{self.marker}"
         self.proc = subprocess.Popen([sys.executable, "-m", "twin.cli", *map(str, args)], cwd=cwd, env=env,
@@ -189,7 +162,7 @@ def command():
 
 @pytest.fixture
 def plugin_dir(tmp_path) -> Path:
-    (tmp_path / "orphplug.py").write_text(textwrap.dedent(PLUGIN))
+    write_slow_plugin(tmp_path, "orphplug", 0.05)
     return tmp_path
 
 
@@ -254,7 +227,7 @@ def test_a_run_killed_while_it_simulates_takes_the_figure_worker_along(command, 
 
 def test_a_run_killed_during_its_video_takes_the_panel_renderers_and_ffmpeg_along(command, plugin_dir):
     c = command(["run", "paper-exp1", "--duration", 1, "--controller", f"lqr,{SLOW}", "--video", "--out", "R"],
-                plugin_dir, env={"TWIN_FIGURE_WORKER": "1", "ORPHAN_SLEEP_S": "0"}, stop_at="video")
+                plugin_dir, env={"TWIN_FIGURE_WORKER": "1", "SLOW_PLUGIN_SLEEP_S": "0"}, stop_at="video")
     noted = c.watch(lambda c: c.marker.exists())  # the first frame written: the renderers and the encoder at work
     assert len(_named(noted, "twin.render.panels")) == 2, noted
     code, _, err = c.kill(signal.SIGKILL)
@@ -315,7 +288,10 @@ def test_a_sweep_killed_at_a_point_is_never_mixed_and_a_rerun_finishes_it(comman
         assert code == -signal.SIGKILL, err
     else:
         line = _interrupted(code, err, sig)
-        assert f"samples are stored in {out}" in line, line
+        if point == "sweep-report":
+            assert f"all {2 * DRAWS} samples are stored in {out}, the report is not finished" in line, line
+        else:
+            assert f"of {2 * DRAWS} samples are stored in {out}; rerun the same command to finish the rest" in line, line
     c.assert_nothing_left()
     assert not (out / "manifest.json").exists()  # what marks a folder complete: never there before it is
     stored = _whole_records(out, torn_allowed=sig == signal.SIGKILL)

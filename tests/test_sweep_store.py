@@ -10,12 +10,12 @@ import os
 import shutil
 import subprocess
 import sys
-import textwrap
 import time
 from pathlib import Path
 
 import pytest
 
+from slow_plugin import write_slow_plugin
 from test_scenarios import twin
 from twin.scenarios import load_scenario
 from twin.sweep.table import read_sweep_csv
@@ -382,32 +382,11 @@ def test_a_folder_a_sweep_is_using_is_refused_to_other_commands(reference, tmp_p
 
 # ---- limits ------------------------------------------------------------------------------------------------
 
-SLOW = '''
-    import time
-
-
-    class Slow:
-        """The state feedback of examples/my_plugins.py, slow from its 50th call on."""
-
-        def __init__(self):
-            self.calls = 0
-
-        def reset(self, targets):
-            self.calls = 0
-
-        def __call__(self, estimate, targets):
-            self.calls += 1
-            if self.calls > 50:
-                time.sleep(0.01)
-            theta, theta_dot, psi, psi_dot = estimate[:4]
-            u = 1.2 * theta + 0.085 * theta_dot + 0.06 * psi + 0.032 * psi_dot
-            return (0.5 * u, 0.5 * u)
-'''
 
 
 def test_a_run_over_a_limit_is_a_failed_run_of_that_controller_not_a_failed_sweep(tmp_path):
     pytest.importorskip("twin.limits")
-    (tmp_path / "slowplug.py").write_text(textwrap.dedent(SLOW))
+    write_slow_plugin(tmp_path, "slowplug", 0.01, first=51)  # slow from its 51st call on
     out = tmp_path / "limited"
     r = sweep_cli(out, "--controller", "slowplug:Slow,it2", "--set", "limits.run_wall_s=0.4", "--workers", "2",
                   cwd=tmp_path)

@@ -762,8 +762,12 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
                            address=ray_address, progress=bar.update, controllers=kinds, reference=reference)
     except KeyboardInterrupt as exc:
         bar.close()
-        rundir.kept(exc, f"{bar.done} of {bar.total} samples are stored in {out}; rerun the same command to finish "
-                         "the rest")
+        if bar.total and bar.done >= bar.total:  # stopped while the report was written
+            rundir.kept(exc, f"all {bar.total} samples are stored in {out}, the report is not finished; rerun the "
+                             "same command to write it")
+        else:
+            rundir.kept(exc, f"{bar.done} of {bar.total} samples are stored in {out}; rerun the same command to "
+                             "finish the rest")
         raise
     bar.close()
     if result.environment_changes:
