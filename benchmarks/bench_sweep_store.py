@@ -2,8 +2,8 @@
 
 Run from the repository root::
 
-    python benchmarks/bench_sweep_store.py            # 32 samples of paper-exp3 (5 s): about 12 min
-    python benchmarks/bench_sweep_store.py --quick    # 8 samples of 2 s runs: about 2 min
+    python benchmarks/bench_sweep_store.py            # 32 samples of paper-exp3 (5 s): about 1 min
+    python benchmarks/bench_sweep_store.py --quick    # 8 samples of 2 s runs: about 20 s
 
 Side by side, in one process, rounds interleaved (A B, B A, ...: a machine that slows down
 or speeds up meanwhile weighs on both alike), each a whole ``run_sweep`` into a fresh
