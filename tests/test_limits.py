@@ -85,7 +85,7 @@ def test_run_guard_memory_reads_growth_since_start():
     guard = RunGuard(PluginLimits(run_memory_mb=5), _Named(), None, 0.005)
     guard.start()
     guard.memory(0)
-    hoard = bytearray(b"\x01") * int(20 * MB)  # touched: resident
+    hoard = fresh_resident(int(20 * MB))
     try:
         with pytest.raises(PluginError) as info:
             guard.memory(MEMORY_EVERY)
@@ -100,6 +100,17 @@ def test_limit_of_is_none_for_other_errors():
     assert limit_of(PluginError("controller x returned nan")) is None
     assert limit_of(ValueError("x")) is None
     assert set(LIMIT_KEYS) == {"step_wall_s", "run_wall_s", "run_memory_mb"}
+
+
+def fresh_resident(n: int):
+    """``n`` bytes of new resident memory: an anonymous mapping of its own, every page written.
+    (A bytearray may reuse heap pages a long test session freed but kept resident, so the
+    resident set would not grow.)"""
+    import mmap
+
+    m = mmap.mmap(-1, n)
+    m.write(b"\x01" * n)
+    return m
 
 
 # ---- the closed loop ------------------------------------------------------------------------------------------
@@ -119,7 +130,7 @@ class Feedback:
         if self.sleep_from is not None and self.calls >= self.sleep_from:
             time.sleep(self.sleep)
         if self.leak_bytes:
-            self.hoard.append(bytearray(b"\x01") * self.leak_bytes)
+            self.hoard.append(fresh_resident(self.leak_bytes))
         theta, theta_dot, psi, psi_dot = estimate[:4]
         u = 1.2 * theta + 0.085 * theta_dot + 0.06 * psi + 0.032 * psi_dot
         return (0.5 * u, 0.5 * u)
@@ -189,7 +200,8 @@ def test_a_leaking_controller_stops_the_closed_loop():
             closed_loop_run(leaky, {"run_memory_mb": 30}, duration=1.0)
         calls = leaky.calls
     finally:
-        leaky.hoard.clear()
+        for m in leaky.hoard:
+            m.close()
     one_line_plugin_error(info, "the run of controller test_limits.Feedback", "grew the process's resident memory",
                           "over limits.run_memory_mb = 30 MB")
     assert limit_of(info.value) == "run_memory_mb"
@@ -264,7 +276,8 @@ def test_the_analytic_loop_keeps_the_limits():
             with pytest.raises(PluginError) as info:
                 analytic(leaky, duration=1.0, run_memory_mb=30)
         finally:
-            leaky.hoard.clear()
+            for m in leaky.hoard:
+                m.close()
         one_line_plugin_error(info, "the run of controller test_limits.Feedback grew", "over limits.run_memory_mb = 30")
     with pytest.raises(TwinError, match="limits must be a twin.limits.PluginLimits or None"):
         from twin.analytic_loop import simulate
