@@ -30,6 +30,7 @@ from pathlib import Path
 import pytest
 
 from slow_plugin import write_slow_plugin
+from twin.workers import descendants, process_stat
 from test_rundir import _one_line
 from test_sweep_store import DRAWS, SETS, reference, sweep_cli  # noqa: F401 (reference: a fixture)
 
@@ -43,15 +44,6 @@ SLOW = "orphplug:Slow"
 
 # ---- processes, through /proc ---------------------------------------------------------------------------
 
-def _stat(pid: int):
-    """(state, parent pid, start time) of ``pid``, None once it is gone."""
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_bytes().rsplit(b")", 1)[1].split()
-        return fields[0].decode(), int(fields[1]), int(fields[19])
-    except (OSError, IndexError, ValueError):
-        return None
-
-
 def _cmdline(pid: int) -> str:
     try:
         return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace").strip()
@@ -61,19 +53,7 @@ def _cmdline(pid: int) -> str:
 
 def _descendants(root: int) -> dict:
     """pid -> (start time, command line) of every live process descended from ``root``."""
-    children: dict = {}
-    for name in os.listdir("/proc"):
-        if name.isdigit():
-            st = _stat(int(name))
-            if st is not None and st[0] != "Z":
-                children.setdefault(st[1], []).append((int(name), st[2]))
-    found, todo = {}, [root]
-    while todo:
-        for pid, start in children.get(todo.pop(), ()):
-            if pid not in found:
-                found[pid] = (start, _cmdline(pid))
-                todo.append(pid)
-    return found
+    return {pid: (start, _cmdline(pid)) for pid, start in descendants(root).items()}
 
 
 def _alive(noted: dict) -> dict:
@@ -81,7 +61,7 @@ def _alive(noted: dict) -> dict:
     zombies of this test process."""
     left = {}
     for pid, (start, cmd) in noted.items():
-        st = _stat(pid)
+        st = process_stat(pid)
         if st is not None and st[2] == start and (st[0] != "Z" or st[1] == os.getpid()):
             left[pid] = f"{cmd[:160]} (state {st[0]}, parent {st[1]})"
     return left
@@ -329,7 +309,7 @@ def test_the_reaper_kills_what_its_killed_parent_started_while_it_watched_and_no
     proc = subprocess.Popen([sys.executable, "-c", REAPED, "close" if closed else "watch"], stdout=subprocess.PIPE,
                             text=True, cwd=Path(__file__).resolve().parent.parent, start_new_session=True)
     old, new = map(int, proc.stdout.readline().split())
-    noted = {pid: (_stat(pid)[2], _cmdline(pid)) for pid in (old, new)}
+    noted = {pid: (process_stat(pid)[2], _cmdline(pid)) for pid in (old, new)}
     try:
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait(30)

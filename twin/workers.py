@@ -116,7 +116,7 @@ _ROOT = str(Path(__file__).resolve().parent.parent)  # the directory holding thi
 _REAPER_CODE = f"import sys; sys.path.insert(0, {_ROOT!r}); from twin.workers import reaper_main; reaper_main()"
 
 
-def _stat(pid: int):
+def process_stat(pid: int):
     """(state, parent pid, start time in clock ticks) of process ``pid``; None if it is gone."""
     try:
         with open(f"/proc/{pid}/stat", "rb") as fh:
@@ -131,7 +131,7 @@ def descendants(root: int) -> dict:
     children: dict = {}
     for name in os.listdir("/proc"):
         if name.isdigit():
-            st = _stat(int(name))
+            st = process_stat(int(name))
             if st is not None and st[0] != "Z":
                 children.setdefault(st[1], []).append((int(name), st[2]))
     found, todo = {}, [root]
@@ -199,7 +199,7 @@ def reaper_main() -> None:
     import select
 
     parent = int(os.environ[PARENT_ENV])
-    born = _stat(parent)
+    born = process_stat(parent)
     if born is None or os.getppid() != parent:
         return
     me = os.getpid()
@@ -214,17 +214,17 @@ def reaper_main() -> None:
             pending += chunk
             if b"done\n" in pending:
                 return
-        now = _stat(parent)
+        now = process_stat(parent)
         if now is None or now[0] == "Z" or now[2] != born[2]:
             break  # the parent is gone (its pid may be another process's by now): no scan
         noted.update((pid, start) for pid, start in descendants(parent).items()
                      if pid != me and (pid, start) not in before)
     for pid, start in noted.items():
-        st = _stat(pid)
+        st = process_stat(pid)
         if st is not None and st[0] != "Z" and st[2] == start:
             with contextlib.suppress(OSError):
                 os.kill(pid, signal.SIGKILL)
 
 
-__all__ = ["Reaper", "descendants", "die_with_parent", "pool_worker_init", "process_pool", "reaper_main",
+__all__ = ["Reaper", "descendants", "die_with_parent", "pool_worker_init", "process_pool", "process_stat", "reaper_main",
            "subprocess_env", "subprocess_worker_init", "terminate"]
