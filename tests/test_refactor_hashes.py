@@ -1,5 +1,6 @@
-"""Refactors keep behaviour: every built-in scenario (and three sensing variants) gives the
-same trajectory.csv and metrics.json, byte for byte, as before the ClosedLoop refactor.
+"""Refactors keep behaviour: every built-in scenario (and three sensing variants), with IT2,
+type-1 and LQR, gives the same trajectory.csv and metrics.json, byte for byte, as before
+the ClosedLoop refactor (and, LQR included, as before the run-specification refactor).
 
 The hashes in data/refactor_hashes.json were recorded at commit e7718e8 (before the loop
 was rebuilt around twin.loop.ClosedLoop and the registry), with the compiled kernels and
@@ -33,7 +34,7 @@ def test_outputs_are_byte_identical_to_before_the_refactor(case, tmp_path):
         pytest.skip("some compiled kernels are built and others not: neither recorded path applies")
     spec = DATA["cases"][case]
     sc = load_scenario(spec["scenario"], spec["set"])
-    run_scenario(sc, ("it2", "t1"), out=tmp_path, video=False)
+    run_scenario(sc, tuple(spec["controllers"]), out=tmp_path, video=False)
     for name, expected in spec[path].items():
         # metrics.json's environment fingerprint names this machine's BLAS kernel and the
         # commit: it is left out (tests/test_across_kernels.py checks the rest on every kernel)

@@ -29,7 +29,8 @@ def hashes() -> dict:
     out = {}
     for case, spec in sorted(data["cases"].items()):
         with tempfile.TemporaryDirectory() as tmp:
-            run_scenario(load_scenario(spec["scenario"], spec["set"]), ("it2", "t1"), out=Path(tmp), video=False)
+            run_scenario(load_scenario(spec["scenario"], spec["set"]), tuple(spec["controllers"]), out=Path(tmp),
+                         video=False)
             out[case] = {"trajectory.csv": hashlib.sha256((Path(tmp) / "trajectory.csv").read_bytes()).hexdigest(),
                          # without its environment fingerprint (the kernel, the commit)
                          "metrics.json": hashlib.sha256(metrics_bytes(Path(tmp) / "metrics.json")).hexdigest()}
@@ -53,7 +54,7 @@ if __name__ == "__main__":
             data["cases"][case][path] = runs[path][case]
     data.setdefault("history", []).append(sys.argv[1])
     data["about"] = ("SHA-256 of trajectory.csv and of metrics.json without its 'environment' member, 'twin run' "
-                     "outputs of each case (it2 and t1); 'compiled': with the C kernels, 'pure': TWIN_PURE_PYTHON=1; "
+                     "outputs of each case (its controllers); 'compiled': with the C kernels, 'pure': TWIN_PURE_PYTHON=1; "
                      "the same under every OpenBLAS kernel and numpy SIMD level (tests/test_across_kernels.py)")
     FILE.write_text(json.dumps(data, indent=1, ensure_ascii=False) + "\n", encoding="utf-8")
     print(f"re-recorded {len(data['cases'])} cases on both paths")
