@@ -441,6 +441,28 @@ def verify_certificate(A, B, Q, N, Y, epsilon, rho, decay_rate, T=None, weight_g
                        models=len(models))
 
 
+def design_options(epsilon=DEFAULT_EPSILON, rho=DEFAULT_RHO, decay_rate=DEFAULT_DECAY_RATE, max_gain=None,
+                   solver=None, damping=DEFAULT_DAMPING, uncertain=DEFAULT_UNCERTAIN,
+                   all_vertices=DEFAULT_ALL_VERTICES) -> dict:
+    """The design options of :func:`design_balance_gains`, checked (one-line TwinError naming
+    the option and its range) and in canonical form: floats, the parameter box as
+    ((name, relative half-range), ...) in Table III order, ``all_vertices`` a bool.
+    ``solver`` is kept as given (its upper-case name is what the design depends on)."""
+    epsilon = _check_positive("epsilon", epsilon, upper=_MAX_EPSILON, lower=MIN_EPSILON)
+    rho = _check_positive("rho", rho, upper=_MAX_RHO)
+    decay_rate = _check_positive("decay rate", decay_rate, allow_zero=True, upper=_MAX_DECAY)
+    if max_gain is not None:
+        max_gain = _check_positive("max gain", max_gain, upper=_MAX_GAIN)
+    if solver is not None and not isinstance(solver, str):
+        raise TwinError(f"solver must be a cvxpy solver name, got {solver!r}")
+    damping = regions.check_damping(damping)
+    box = regions.check_uncertain(uncertain)
+    if not isinstance(all_vertices, (bool, np.bool_)):
+        raise TwinError(f"all_vertices must be true or false, got {all_vertices!r}")
+    return {"epsilon": epsilon, "rho": rho, "decay_rate": decay_rate, "max_gain": max_gain, "solver": solver,
+            "damping": damping, "uncertain": box, "all_vertices": bool(all_vertices)}
+
+
 def design_balance_gains(
     params: RobotParams = NOMINAL,
     epsilon: float = DEFAULT_EPSILON,
@@ -493,9 +515,10 @@ def design_balance_gains(
         weights, the type-1 PDC's included (see :mod:`twin.controllers.lmi_regions`);
         default True.
     cache : bool
-        Look the design up in the on-disk cache (:mod:`twin.controllers.design_cache`)
-        first and store a fresh one there. Off by default so that a library call solves;
-        the command line and the scenarios turn it on (unless ``--no-cache``). A cached
+        Take the design from the design store (:func:`twin.controllers.designs.balance_design`:
+        this process's designs, then the on-disk cache) and keep a fresh one there. Off by
+        default so that a library call solves; the command line and the scenarios use the
+        store (unless ``--no-cache``). A cached
         design equals the fresh one bit for bit, including its original ``solve_time_s``;
         its ``from_cache`` is True. cvxpy is imported only when the design is solved.
 
@@ -505,31 +528,14 @@ def design_balance_gains(
         With a one-line message naming the requirement (ρ, max_gain, decay rate, damping
         ratio or the parameter range) that cannot be met and the value that can.
     """
-    epsilon = _check_positive("epsilon", epsilon, upper=_MAX_EPSILON, lower=MIN_EPSILON)
-    rho = _check_positive("rho", rho, upper=_MAX_RHO)
-    decay_rate = _check_positive("decay rate", decay_rate, allow_zero=True, upper=_MAX_DECAY)
-    if max_gain is not None:
-        max_gain = _check_positive("max gain", max_gain, upper=_MAX_GAIN)
-    if solver is not None and not isinstance(solver, str):
-        raise TwinError(f"solver must be a cvxpy solver name, got {solver!r}")
-    damping = regions.check_damping(damping)
-    box = regions.check_uncertain(uncertain)
-    if not isinstance(all_vertices, (bool, np.bool_)):
-        raise TwinError(f"all_vertices must be true or false, got {all_vertices!r}")
-    all_vertices = bool(all_vertices)
-    if cache:
-        from twin.controllers import design_cache
+    if cache:  # the design store above this module: memory, then disk, then a solve here
+        from twin.controllers.designs import balance_design
 
-        inputs = design_cache.inputs_of(params, epsilon, rho, decay_rate, max_gain, solver.upper() if solver else None,
-                                        damping=damping, uncertain=box, all_vertices=all_vertices)
-        key = design_cache.key_of(inputs)
-        hit = design_cache.load(key, inputs, params)
-        if hit is not None:
-            return hit
-        d = design_balance_gains(params, epsilon, rho, decay_rate, max_gain, solver, damping=damping, uncertain=box,
-                                 all_vertices=all_vertices)
-        design_cache.store(key, inputs, d)
-        return d
+        return balance_design(params, epsilon, rho, decay_rate, max_gain, solver, damping=damping,
+                              uncertain=uncertain, all_vertices=all_vertices, cache=True, hold=False)
+    o = design_options(epsilon, rho, decay_rate, max_gain, solver, damping, uncertain, all_vertices)
+    epsilon, rho, decay_rate, max_gain, solver = o["epsilon"], o["rho"], o["decay_rate"], o["max_gain"], o["solver"]
+    damping, box, all_vertices = o["damping"], o["uncertain"], o["all_vertices"]
     if damping > 0 or box or all_vertices:
         return _design_region(params, epsilon, rho, decay_rate, max_gain, solver, damping, box, all_vertices)
     import cvxpy  # (imported before the clock starts: solve time excludes import)
