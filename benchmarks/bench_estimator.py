@@ -42,7 +42,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench_twin import cpu_model, pybullet_version  # noqa: E402
 
-from estimation import build_estimator  # noqa: E402
+from twin.registry import build_estimator_for as build_estimator  # noqa: E402
 from estimation import ekf as ekf_module  # noqa: E402
 from twin.controllers.cascade import build_cascade  # noqa: E402
 from twin.experiments import Experiment  # noqa: E402

@@ -6,8 +6,10 @@
 ``ideal``       the ground truth passed through (ideal sensing, a reference)
 ``consistency`` NEES, NIS and their χ² bounds
 
-Each meets :class:`twin.protocols.Estimator`; the kinds and their names are in
-:mod:`twin.registry`, and :func:`build_estimator` makes any of them for a twin configuration.
+Each meets :class:`twin.protocols.Estimator`. The package depends on the contracts
+(:mod:`twin.protocols`), the sensor data types and the robot model, never on the twin's
+registry: the kinds and their names are in :mod:`twin.registry`, and
+:func:`twin.registry.build_estimator_for` makes any of them for a twin configuration.
 """
 from __future__ import annotations
 
@@ -19,31 +21,9 @@ _LAZY = {"AngleBiasKalman": "baselines", "ComplementaryFilter": "baselines", "EK
 
 
 def __getattr__(name: str):
-    if name == "ESTIMATORS":  # the built-in kinds, from the registry
-        from twin.registry import ESTIMATORS
-
-        return tuple(ESTIMATORS)
     if name in _LAZY:
         return getattr(importlib.import_module(f"estimation.{_LAZY[name]}"), name)
     raise AttributeError(f"module 'estimation' has no attribute {name!r}")
-
-
-def build_estimator(kind: str, sensors, control_rate: float, motor, params, alpha0: float = 0.0,
-                    compiled: bool | None = None, **options):
-    """An estimator of ``kind`` (a built-in name or ``"package.module:attribute"``, see
-    :mod:`twin.registry`) for these sensors.
-
-    ``sensors`` a :class:`twin.sensors.SensorConfig` (None: only ``"ideal"``); ``control_rate`` Hz;
-    ``motor`` the motors' specification (or None); ``params`` the robot model the estimator
-    assumes; ``alpha0`` the initial heading (rad); ``compiled`` the EKF's implementation (see
-    :class:`estimation.ekf.EKFEstimator`); ``options`` the estimator's own parameters.
-    """
-    from twin.protocols import Targets
-    from twin.registry import BuildContext, build_estimator as build
-
-    if compiled is not None:
-        options["compiled"] = compiled
-    return build(kind, options, BuildContext(control_rate, params, motor, sensors, Targets(), alpha0))
 
 
 def replay(estimator, run, measurements=None):
@@ -58,5 +38,4 @@ def replay(estimator, run, measurements=None):
     return np.array(out, dtype=float)
 
 
-__all__ = ["ESTIMATORS", "AngleBiasKalman", "ComplementaryFilter", "EKFEstimator", "Estimate", "EstimatorModel",
-           "build_estimator", "replay"]
+__all__ = ["AngleBiasKalman", "ComplementaryFilter", "EKFEstimator", "Estimate", "EstimatorModel", "replay"]

@@ -83,7 +83,7 @@ except ImportError:  # numpy 1.x
     from numpy.core import _multiarray_umath as mu
 from threadpoolctl import threadpool_info
 from types import SimpleNamespace
-from estimation import build_estimator
+from twin.registry import build_estimator_for as build_estimator
 from twin.bullet_loop import simulate_twin
 from twin.controllers.cascade import build_cascade
 from twin.controllers.lqr import LQRController

@@ -17,8 +17,8 @@ import math
 import numpy as np
 import pytest
 
-import estimation
-from estimation import build_estimator, ekf, replay
+from estimation import ekf, replay
+from twin.registry import build_estimator_for as build_estimator
 from estimation.consistency import filter_truth, monte_carlo
 from estimation.ekf import BY, BZ, C0, H0, N, SAX, SAZ, SY, SZ, TH, EKFEstimator
 from estimation.model import EstimatorModel
@@ -275,7 +275,7 @@ def test_monte_carlo_test_fails_for_a_mistuned_filter(design):
     ctrl = build_cascade("it2", design, e.targets)
     mistuned = dataclasses.replace(SENSORS, imu=quiet)
     runs = [simulate_twin(ctrl, e, sensors=SENSORS, seed=s, log_filter=True,
-                          estimator=estimation.build_estimator("ekf", mistuned, 200.0, DEFAULT_MOTOR, NOMINAL))
+                          estimator=build_estimator("ekf", mistuned, 200.0, DEFAULT_MOTOR, NOMINAL))
             for s in MC_SEEDS]
     m, tol, passed = _consistency(runs)
     assert passed == [False, False, False], (m["nees_inside"], m["nis_inside"], m["nis_per_dof"], tol)

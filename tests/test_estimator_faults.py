@@ -15,7 +15,8 @@ import re
 import numpy as np
 import pytest
 
-from estimation import build_estimator, replay
+from estimation import replay
+from twin.registry import build_estimator_for as build_estimator
 from estimation.ekf import EKFEstimator
 from twin.bullet_loop import simulate_twin
 from twin.controllers.cascade import build_cascade

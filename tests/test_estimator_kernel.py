@@ -6,7 +6,8 @@ import os
 import numpy as np
 import pytest
 
-from estimation import build_estimator, replay
+from estimation import replay
+from twin.registry import build_estimator_for as build_estimator
 from estimation import ekf as ekf_module
 from twin.controllers.cascade import build_cascade
 from twin.experiments import Experiment

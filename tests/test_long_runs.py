@@ -76,7 +76,7 @@ def test_short_soak_ekf_in_the_loop_holds_balance_and_estimates():
 def test_consider_states_are_held_after_the_learning_window_on_both_paths():
     """After learn_time the encoder zeros and scale factors no longer move; before it they do.
     The compiled kernel and the Python path hold the same states."""
-    from estimation import build_estimator
+    from twin.registry import build_estimator_for as build_estimator
     from estimation.ekf import STATE_NAMES, _kernel
     from twin.actuators.dc_motor import DEFAULT_MOTOR
     from twin.bullet_loop import simulate_twin
@@ -104,7 +104,7 @@ def test_consider_states_are_held_after_the_learning_window_on_both_paths():
                                            ({"consider": "theta"}, "consider must be a list"),
                                            ({"learn_time": -1.0}, "learn_time must be a finite time")])
 def test_bad_consider_parameters_are_one_line_errors(params, match):
-    from estimation import build_estimator
+    from twin.registry import build_estimator_for as build_estimator
     from twin.params import NOMINAL
     from twin.sensors import SensorConfig
 

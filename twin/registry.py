@@ -357,6 +357,22 @@ def build_estimator(kind: str, params: dict | None = None, context: BuildContext
     return _build("estimator", kind, params, context)
 
 
+def build_estimator_for(kind: str, sensors, control_rate: float, motor, params, alpha0: float = 0.0,
+                        compiled: bool | None = None, **options):
+    """An estimator of ``kind`` (a built-in name or ``"package.module:attribute"``) for these
+    sensors: :func:`build_estimator` with the context spelled out (this was
+    ``estimation.build_estimator``; the estimator package no longer imports the registry).
+
+    ``sensors`` a :class:`twin.sensors.SensorConfig` (None: only ``"ideal"``); ``control_rate`` Hz;
+    ``motor`` the motors' specification (or None); ``params`` the robot model the estimator
+    assumes; ``alpha0`` the initial heading (rad); ``compiled`` the EKF's implementation (see
+    :class:`estimation.ekf.EKFEstimator`); ``options`` the estimator's own parameters.
+    """
+    if compiled is not None:
+        options["compiled"] = compiled
+    return build_estimator(kind, options, BuildContext(control_rate, params, motor, sensors, Targets(), alpha0))
+
+
 def provenance(role: str, kind: str) -> dict | None:
     """For an import path: ``{"role", "kind", "module", "file", "sha256"}`` of the module
     that defines it (its source file's SHA-256); None for a built-in. The file is hashed
@@ -401,5 +417,5 @@ def parse_controllers(choice: str) -> tuple[str, ...]:
     return check_kinds("controller", (s.strip() for s in str(choice).split(",") if s.strip()), "--controller")
 
 
-__all__ = ["BuildContext", "CONTROLLERS", "ESTIMATORS", "Kind", "build_controller", "build_estimator",
+__all__ = ["BuildContext", "CONTROLLERS", "ESTIMATORS", "Kind", "build_controller", "build_estimator", "build_estimator_for",
            "check_kind", "check_kinds", "check_protocol", "is_import_path", "label", "parse_controllers", "provenance", "resolve"]
