@@ -81,10 +81,28 @@ def subprocess_worker_init() -> None:
         die_with_parent(int(parent))
 
 
-def terminate(pool) -> None:
-    """Stop a :class:`~concurrent.futures.ProcessPoolExecutor`'s workers now (``shutdown``
-    alone would wait for the tasks they are running, a slow plugin's for minutes)."""
-    for p in list((getattr(pool, "_processes", None) or {}).values()):
+def _recording_context():
+    """multiprocessing's spawn context, noting every process a pool starts through it in its
+    ``started`` list: the pool's workers, known without reading the pool's private state."""
+    import multiprocessing.context
+
+    class RecordingSpawnContext(multiprocessing.context.SpawnContext):
+        def __init__(self):
+            super().__init__()
+            self.started = []
+
+        def Process(self, *args, **kwargs):  # noqa: N802 -- multiprocessing's name
+            p = multiprocessing.context.SpawnProcess(*args, **kwargs)
+            self.started.append(p)
+            return p
+
+    return RecordingSpawnContext()
+
+
+def terminate(processes) -> None:
+    """Stop ``processes`` (a pool's workers) now: ``shutdown`` alone would wait for the tasks
+    they are running, a slow plugin's for minutes."""
+    for p in list(processes):
         with contextlib.suppress(OSError, ValueError, AttributeError):
             p.terminate()
 
@@ -95,15 +113,14 @@ def process_pool(width: int):
     with this process; if the block raises (Ctrl-C, SIGTERM turned into an exception, an
     error) its workers are stopped at once instead of finishing their tasks. Spawned, not
     forked: a fork would copy PyBullet clients and locks held by other threads."""
-    import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
-    pool = ProcessPoolExecutor(width, mp_context=multiprocessing.get_context("spawn"),
-                               initializer=pool_worker_init, initargs=(os.getpid(),))
+    ctx = _recording_context()
+    pool = ProcessPoolExecutor(width, mp_context=ctx, initializer=pool_worker_init, initargs=(os.getpid(),))
     try:
         yield pool
     except BaseException:
-        terminate(pool)
+        terminate(ctx.started)
         raise
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
