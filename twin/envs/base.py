@@ -251,10 +251,9 @@ class TwinEnv(gymnasium.Env):
                     math.isfinite(max_torque) and max_torque > 0):
                 raise TwinError(f"max_torque must be a positive number of N·m, got {max_torque!r}")
             return float(max_torque)
-        from twin.plant.bullet import TwinConfig
+        from twin.actuators.dc_motor import DEFAULT_MOTOR  # the twin's motors when the config names none
 
-        motor = self.config.motor if self.config.motor is not None else TwinConfig.__dataclass_fields__[
-            "motor"].default
+        motor = self.config.motor if self.config.motor is not None else DEFAULT_MOTOR
         return float(min(motor.stall_torque, motor.k_t * motor.max_current))
 
     def _build_estimator(self, sc, context):
