@@ -1,7 +1,8 @@
 """State estimation from the twin's sensors: θ, ψ, α and their rates, with covariance.
 
 ``model``       what the estimator knows: equation (1), the motor driver, the sensors' models and noise
-``ekf``         the extended Kalman filter (filterpy) with gating and latency handling
+``ekf``         the extended Kalman filter: its policies composed on a filter core
+``ekf_core``    the filter core: one interface, a filterpy (reference) and a compiled implementation
 ``baselines``   a complementary filter and the two-state angle-plus-bias Kalman filter of hobby robots
 ``ideal``       the ground truth passed through (ideal sensing, a reference)
 ``consistency`` NEES, NIS and their χ² bounds

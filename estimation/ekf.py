@@ -158,20 +158,18 @@ the two.
 from __future__ import annotations
 
 import math
-import os
+
 import numpy as np
 
 from estimation.detlinalg import affine, dot, mm, mm3, mv, quad_inv, rowsums, solve
+from estimation.ekf_core import (AL, BY, BZ, C0, H0, PS, SAX, SAZ, STATE_NAMES, STATE_UNITS, SY, SZ, TH, V,  # noqa: F401
+                                 KernelState, N, compiled_kernel_loaded, cov_predict, make_core)
+from estimation.ekf_core import _kernel  # noqa: F401 - golden.py and the tests read ekf._kernel
 from estimation.gates import chi2_gate
 from estimation.model import TORQUE_TOLERANCE, EstimatorModel
 from twin.errors import TwinError
 from twin.protocols import Estimate
 
-STATE_NAMES = ("theta", "psi", "imu_speed", "alpha", "gyro_bias_y", "gyro_bias_z", "encoder_zero", "gyro_scale_y",
-               "encoder_heading_zero", "gyro_scale_z", "accel_scale_x", "accel_scale_z")
-STATE_UNITS = ("rad", "rad", "m/s", "rad", "rad/s", "rad/s", "rad", "1", "rad", "1", "1", "1")
-N = len(STATE_NAMES)
-TH, PS, V, AL, BY, BZ, C0, SY, H0, SZ, SAX, SAZ = range(N)
 GROUPS = ("gyro", "accel", "encoders")
 # the constants the encoders and the IMU cannot tell apart from the strapdown integration's
 # own errors: kept in P (their uncertainty is accounted for) but never corrected (Schmidt);
@@ -191,14 +189,6 @@ WATCH_PERSIST = 3  # ... in this many checks in a row
 # r0 = n − 1 − WATCH_WINDOW = WATCH_MAX_LAG + 4 is the window's first row (see _watch_latency)
 _WATCH_INDEX = (WATCH_MAX_LAG + 2 - np.arange(WATCH_MAX_LAG + 1)[:, None] + np.arange(WATCH_WINDOW)[None, :])
 ACCEL_MAX_IN_ROW = 2  # accelerometer samples rejected in a row before the next is taken as real
-
-try:  # the optional compiled path (setup.py); TWIN_PURE_PYTHON=1 turns it off
-    from estimation import _ekf as _kernel
-except ImportError:  # pragma: no cover - no C compiler where it was installed
-    _kernel = None
-if os.environ.get("TWIN_PURE_PYTHON", "") not in ("", "0"):
-    _kernel = None
-
 
 def truncated_measurement(w: float, s2: float, lo: float, hi: float, gate: float):
     """(z, R): the scalar measurement whose Kalman update turns the prior N(w, s2) into the
@@ -244,21 +234,6 @@ def _median(a: np.ndarray) -> float:
     return float((p[k - 1] + p[k]) / 2.0)  # as np.mean of the two: their sum, halved
 
 
-_F_ROWS = [TH, AL, V, PS]  # the rows of the strapdown step's F that are not the identity's
-
-
-def cov_predict(F, P, Q) -> np.ndarray:
-    """F P Fᵀ + Q for the strapdown step's F (:meth:`EKFEstimator._propagate`: the identity but
-    in rows θ, α, v, ψ), as the compiled kernel's ``cov_predict``: only those rows of F P and
-    those columns of (F P) Fᵀ are sums, in ascending order (:mod:`estimation.detlinalg`); the
-    others are P's own entries, which the full product would give too (x·1 plus zeros)."""
-    A = P.copy()
-    A[_F_ROWS] = mm(F[_F_ROWS], P)
-    out = A.copy()
-    out[:, _F_ROWS] = mm(A, F[_F_ROWS].T)
-    return out + Q
-
-
 def finite_reading(v) -> bool:
     """A sensor reading that arrived (not None) with every value finite."""
     # a finite sum proves every value finite (NaN and ±inf propagate); only a sum that
@@ -274,20 +249,6 @@ def __getattr__(name: str):
 
         return TwinEKF
     raise AttributeError(f"module 'estimation.ekf' has no attribute {name!r}")
-
-
-class KernelState:
-    """The Python side of the compiled path's filter state: x (12,), P (12, 12) and the
-    consider mask, as on :class:`~estimation.twin_ekf.TwinEKF` (which starts them the same
-    way), brought up to date from the kernel by ``EKFEstimator._sync``. The kernel does the
-    filter step, so filterpy (and its import) is not needed there."""
-
-    __slots__ = ("x", "P", "consider")
-
-    def __init__(self):
-        self.x = np.zeros(N)
-        self.P = np.eye(N)
-        self.consider = np.zeros(N, dtype=bool)
 
 
 class EKFEstimator:
@@ -389,6 +350,7 @@ class EKFEstimator:
         self._enc_range = float(2 ** 31) * self.delta
         if compiled and _kernel is None:
             raise TwinError("the compiled EKF kernel is not built here (estimation._ekf); use compiled=None or False")
+        self._compiled = compiled
         self._core_args = None
         if _kernel is not None and compiled is not False:
             m = model
@@ -405,12 +367,11 @@ class EKFEstimator:
     def _new_run(self) -> None:
         """The state of one run, as before the first start(); start() calls it again when the
         filter is reused for another run, so that nothing of the previous one is kept."""
-        if self._core_args is None:  # the reference path: filterpy's EKF does the steps
-            from estimation.twin_ekf import TwinEKF
-
-            self.kf = TwinEKF()
-        else:
-            self.kf = KernelState()
+        # the filter core (estimation.ekf_core): filterpy's EKF, or the compiled kernel
+        self.core = make_core(self._compiled, _kernel if self._core_args is not None else None, self._core_args)
+        self.kf = self.core.kf  # its state (x, P, consider)
+        # the IMU-driven step: fused in the core where it can (the kernel), else composed here
+        self._imu_step = self._imu_step_fused if self.core.fuses_imu_step else self._imu_step_composed
         self.holding = False  # the consider states are held (after learn_time)
         self.last_dof = 0
         self.k = -1
@@ -450,7 +411,6 @@ class EKFEstimator:
         self._implausible = 0
         self.events: list[tuple[float, str]] = []
         self.resets = 0
-        self._core = None if self._core_args is None else _kernel.new(self._core_args)
 
     # ---- public -----------------------------------------------------------------------
     @property
@@ -460,33 +420,26 @@ class EKFEstimator:
     @property
     def compiled(self) -> bool:
         """True if the filter steps run in the compiled kernel."""
-        return self._core is not None
+        return self.core.compiled
 
     @property
     def x(self) -> np.ndarray:
         """The filter's state (12,) at its own time t_{k−lag}."""
-        self._sync()
+        self.core.pull()
         return self.kf.x
 
     @property
     def P(self) -> np.ndarray:
         """Its covariance (12, 12)."""
-        self._sync()
+        self.core.pull()
         return self.kf.P
-
-    def _sync(self) -> None:
-        """Bring the Python-side state up to date with the compiled kernel's."""
-        if self._core is not None:
-            x, P, w, wp = _kernel.state(self._core)
-            self.kf.x, self.kf.P = np.array(x), np.array(P).reshape(N, N)
-            self._w, self._w_prev = w, wp
 
     def rates(self, x=None, w=None, w_prev=None) -> tuple[float, float]:
         """(θ̇, α̇) in rad/s at the filter's time: the gyro's mean rates over the last two
         periods (``w``, ``w_prev``; default the filter's) extrapolated linearly to the end of
         the last one."""
         x = self.kf.x if x is None else x
-        (wy, wz), (wy0, wz0) = (self._w if w is None else w), (self._w_prev if w_prev is None else w_prev)
+        (wy, wz), (wy0, wz0) = (self.core.w if w is None else w), (self.core.w_prev if w_prev is None else w_prev)
         wy, wz = 1.5 * wy - 0.5 * wy0, 1.5 * wz - 0.5 * wz0
         return (wy - x[BY]) / (1.0 + x[SY]), (wz - x[BZ]) / ((1.0 + x[SZ]) * math.cos(x[TH]))
 
@@ -576,16 +529,14 @@ class EKFEstimator:
         for i in (TH, C0):
             P[i, SAX] = P[SAX, i] = -sc * self._a_sf
             P[i, SAZ] = P[SAZ, i] = sc * self._a_sf
-        self.kf.x, self.kf.P = x, P
         self.last_nis, self.last_dof = math.nan, 0
-        self._w = self._w_prev = (meas.gyro[1], meas.gyro[2])
+        w = (meas.gyro[1], meas.gyro[2])
+        self.core.set_state(x, P, w, w)
         self.k, self.m = 0, 0
         self._store(meas, 0)
         if finite_reading(meas.encoders):
             self._last_enc, self._last_enc_m = tuple(meas.encoders), -self.d_enc
-        self._good = (x.copy(), P.copy(), self._w, self._w_prev)
-        if self._core is not None:
-            _kernel.set_state(self._core, x, P.ravel(), self._w, self._w_prev)
+        self.core.keep_good()
         self._last_estimate = tuple(self.state6())
         return Estimate(*self._last_estimate)
 
@@ -623,9 +574,7 @@ class EKFEstimator:
     def _hold(self) -> None:
         """From now on the consider states are held: no update corrects them."""
         self.holding = True
-        self.kf.consider = self._consider_mask.copy()
-        if self._core is not None:
-            _kernel.set_consider(self._core, [float(v) for v in self._consider_mask])
+        self.core.hold(self._consider_mask)
 
     def _store(self, meas, k: int) -> None:
         ok = finite_reading
@@ -774,10 +723,8 @@ class EKFEstimator:
 
     def _estimate(self, k: int) -> Estimate:
         """The filter's state predicted forward to control step ``k``; never non-finite."""
-        if self._core is not None:
-            s, finite = _kernel.forward(self._core, [self._commands.get(j, (0.0, 0.0)) for j in range(self.m, k)])
-        else:
-            s, finite = self._forward(self.state6(), self.m, k)
+        s, finite = self.core.forward([self._commands.get(j, (0.0, 0.0)) for j in range(self.m, k)], self.state6,
+                                      self.model.step6)
         if not finite:  # s is then the filter's own state, finite as a rule
             self.events.append((k * self.model.dt, "forward prediction non-finite; handing out the filter's own state"))
             if not all(map(math.isfinite, s)):
@@ -796,16 +743,7 @@ class EKFEstimator:
         command = self._commands.get(m - self.every, (0.0, 0.0))
         enc = self._screen_encoders(self._enc.get(m), m, t)
         if imu is not None:
-            if self._core is not None:
-                eps_imu = self._strapdown_compiled(m, t, imu, enc, command)
-            else:
-                sample, syn, sat, acc_out = self._imu_sample(self.kf.x, imu, command, self._acc_test())
-                pred = self._propagate(self.kf.x, sample)
-                eps_imu = None if enc is None else self._imu_outlier(pred, syn, enc, m, command)
-                if eps_imu is None:
-                    self.saturated += sat
-                    self._strapdown(m, t, pred, enc)
-                self._acc_out = acc_out
+            eps_imu = self._imu_step(m, t, imu, enc, command)
             acc_out = self._acc_out
             self._acc_seen(self._acc_e)
             self._acc_in_row = self._acc_in_row + 1 if acc_out else 0
@@ -855,8 +793,7 @@ class EKFEstimator:
         return None
 
     def _rebase_encoders(self, enc, m: int, t: float) -> None:
-        if self._core is not None:
-            self._sync()
+        self.core.pull()
         x, P = self.kf.x.copy(), self.kf.P.copy()
         off = np.array([self.b_r * self.alpha0, -self.b_r * self.alpha0])
         y = np.asarray(enc, dtype=float) - (mv(self.H, x) + off)
@@ -872,8 +809,7 @@ class EKFEstimator:
             self._aug[:N, :N] = P
             for i in (C0, H0):
                 self._aug[i, N:] = self._aug[N:, i] = 0.0
-        if self._core is not None:
-            _kernel.set_state(self._core, x, P.ravel(), self._w, self._w_prev)
+        self.core.push()
         self._last_enc, self._last_enc_m = tuple(enc), m
         self._implausible = 0
         self.events.append((t, f"encoder counts stayed {self.max_rejects_in_row} samples away from the estimate: "
@@ -962,30 +898,41 @@ class EKFEstimator:
         tm_alt, eps_alt = self._encoder_fit(enc, m, alt, P, test=True)
         return eps if eps_alt <= self.gates[len(tm_alt[0])] else None
 
+    def _imu_step_composed(self, m: int, t: float, imu, enc, command):
+        """The IMU-driven step composed here on the core's predict and update (the reference
+        path): the accelerometer test, the IMU outlier test, then :meth:`_strapdown`; returns
+        the encoders' NIS with the sample if it is an outlier (the state then unchanged), else None."""
+        sample, syn, sat, acc_out = self._imu_sample(self.kf.x, imu, command, self._acc_test())
+        pred = self._propagate(self.kf.x, sample)
+        eps_imu = None if enc is None else self._imu_outlier(pred, syn, enc, m, command)
+        if eps_imu is None:
+            self.saturated += sat
+            self._strapdown(m, t, pred, enc)
+        self._acc_out = acc_out
+        return eps_imu
+
     def _strapdown(self, m: int, t: float, pred, enc) -> None:
         """One step driven by an IMU sample, its prediction ``pred`` from :meth:`_propagate`,
-        on filterpy (the reference path)."""
-        kf = self.kf
+        on the core's predict and update."""
+        core = self.core
         x_next, F, Q, w = pred
-        kf._x_next, kf.F, kf.Q = x_next, F, Q
-        kf.predict()
-        self._w_prev, self._w = self._w, w
+        core.predict(x_next, F, Q, w)
 
         def update(em):
             z, off, H, R = em
-            kf.update(z, lambda x: H, lambda x: affine(off, H, x), R=R)
+            core.update(z, off, H, R)
 
         self._encoder_step(enc, m, t, True, update)
         self._finish(t)
 
-    def _strapdown_compiled(self, m: int, t: float, imu, enc, command):
-        """:meth:`_imu_outlier` and :meth:`_strapdown` in the compiled kernel, the counts and
-        events kept here; returns the encoders' NIS with the sample if it is an outlier (the
-        state then unchanged), else None."""
+    def _imu_step_fused(self, m: int, t: float, imu, enc, command):
+        """:meth:`_imu_step_composed` fused in the core (the compiled kernel), the counts and
+        events kept here from its decisions; returns the encoders' NIS with the sample if it is
+        an outlier (the state then unchanged), else None."""
         sample = (imu[0][1], imu[0][2], imu[1][0], imu[1][2])
         T = (m - self._last_enc_m) * self.model.dt
-        code_i, sat, code_e, nis, dof, ok, acc_out, ex, ez, inside = _kernel.advance(
-            self._core, sample, enc, self._last_enc if enc is not None else None, T, command,
+        code_i, sat, code_e, nis, dof, ok, acc_out, ex, ez, inside = self.core.advance(
+            sample, enc, self._last_enc if enc is not None else None, T, command,
             self.in_row < self.max_rejects_in_row, self._acc_test())
         self._acc_out = bool(acc_out)
         self._acc_e = (ex, ez)
@@ -1030,9 +977,7 @@ class EKFEstimator:
         real IMU sample ends it (ω becomes a reading again). Always the Python path: coasting
         is rare, and one implementation serves both."""
         kf = self.kf
-        if self._core is not None:
-            self._sync()
-            self._good = (kf.x.copy(), kf.P.copy(), self._w, self._w_prev)
+        self.core.take_over()
         if not had_imu:
             self.predict_only += 1
         Pa = self._aug
@@ -1040,7 +985,7 @@ class EKFEstimator:
             Pa = np.zeros((N + 4, N + 4))
             Pa[:N, :N] = kf.P
             Pa[N:, N:] = np.eye(4) * self._g_var
-        x, w, wp = kf.x, self._w, self._w_prev
+        x, w, wp = kf.x, self.core.w, self.core.w_prev
         syn = self._synthetic(x, command, w, wp)
         x1, F, Q, w1, L = self._propagate(x, syn, with_L=True)
         z = np.concatenate([x, w, wp])
@@ -1065,14 +1010,14 @@ class EKFEstimator:
         Pa[N, N] += syn[1][0]
         Pa[N + 1, N + 1] += syn[1][1]
         kf.x, kf.P = x1, Pa[:N, :N].copy()
-        self._w_prev, self._w = self._w, w1
+        self.core.w_prev, self.core.w = self.core.w, w1
         self._aug = Pa
 
         def update(em):
             zm_, off, H, R = em
             Ha = np.zeros((len(zm_), N + 4))
             Ha[:, :N] = H
-            za = np.concatenate([kf.x, self._w, self._w_prev])
+            za = np.concatenate([kf.x, self.core.w, self.core.w_prev])
             Pa = self._aug
             PHt = mm(Pa, Ha.T)
             S = mm(Ha, PHt) + R
@@ -1084,12 +1029,11 @@ class EKFEstimator:
             Pa = mm3(IKH, Pa, IKH.T) + mm3(K, R, K.T)
             self._aug = 0.5 * (Pa + Pa.T)
             kf.x, kf.P = za[:N], self._aug[:N, :N].copy()
-            self._w, self._w_prev = (za[N], za[N + 1]), (za[N + 2], za[N + 3])
+            self.core.w, self.core.w_prev = (za[N], za[N + 1]), (za[N + 2], za[N + 3])
 
         self._encoder_step(enc, m, t, had_imu, update)
         self._finish(t)
-        if self._core is not None:
-            _kernel.set_state(self._core, kf.x, kf.P.ravel(), self._w, self._w_prev)
+        self.core.push()
 
     def _encoder_step(self, enc, m: int, t: float, had_imu: bool, update) -> None:
         """The gated encoder update after a prediction, with ``update(measurement)``."""
@@ -1164,7 +1108,7 @@ class EKFEstimator:
         kf = self.kf
         kf.P = 0.5 * (kf.P + kf.P.T)
         if np.isfinite(kf.x).all() and np.isfinite(kf.P).all() and (np.diag(kf.P) > 0).all():
-            self._good = (kf.x.copy(), kf.P.copy(), self._w, self._w_prev)
+            self.core.keep_good()
         else:
             self._restore(t, "the state or covariance became non-finite or lost positivity; "
                              "restored the last good estimate")
@@ -1193,7 +1137,7 @@ class EKFEstimator:
         if not rows:
             return None, None
         if pred is None:
-            x, Pp, (wy, wz) = self.kf.x, self.kf.P, self._w
+            x, Pp, (wy, wz) = self.kf.x, self.kf.P, self.core.w
         else:
             x, F, Q, (wy, wz) = pred
             Pp = cov_predict(F, P, Q)
@@ -1310,24 +1254,7 @@ class EKFEstimator:
         return x1, F, Q, (wy, wz)
 
     def _restore(self, t: float, why: str) -> None:
-        x, P, self._w, self._w_prev = self._good
-        self.kf.x, self.kf.P = x.copy(), 4.0 * P + np.diag(np.full(N, 1e-10))
+        self.core.restore()
         self._aug = None
-        if self._core is not None:
-            _kernel.set_state(self._core, self.kf.x, self.kf.P.ravel(), self._w, self._w_prev)
         self.resets += 1
         self.events.append((t, why))
-
-    def _forward(self, s6: np.ndarray, m: int, k: int):
-        """(state, finite): [θ, θ̇, ψ, ψ̇, α, α̇] at t_m predicted to t_k with the commands in
-        between; ``s6`` itself if that is not finite."""
-        model = self.model
-        s = s6
-        try:
-            for j in range(m, k):
-                s = model.step6(s, self._commands.get(j, (0.0, 0.0)))
-        except (ValueError, OverflowError, FloatingPointError):
-            return s6, False
-        if not np.isfinite(s).all():
-            return s6, False
-        return s, True

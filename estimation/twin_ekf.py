@@ -17,27 +17,34 @@ from __future__ import annotations
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 
-from estimation.detlinalg import inv, mm
-from estimation.ekf import N, cov_predict
+from estimation.ekf_core import N, cov_predict, joseph_update
 
 
 class TwinEKF(ExtendedKalmanFilter):
-    """filterpy's EKF whose nonlinear prediction is computed (with F and Q) beforehand, and
-    whose update leaves the consider states (``consider``, a (12,) mask) uncorrected."""
+    """filterpy's EKF whose nonlinear prediction is computed (with F and Q) beforehand and
+    handed to :meth:`predict`, and whose update leaves the consider states (``consider``, a
+    (12,) mask) uncorrected. :class:`estimation.ekf_core.PythonCore` steps it."""
 
     def __init__(self, consider=None):
         super().__init__(dim_x=N, dim_z=2)
         self.x = np.zeros(N)
-        self._x_next = self.x
         self.consider = np.zeros(N, dtype=bool) if consider is None else np.asarray(consider, dtype=bool)
 
     def predict_x(self, u=0):
-        self.x = self._x_next
+        """The state is predicted beforehand (``predict(x_next=...)``): nothing to do here."""
 
-    def predict(self, u=0):
-        """filterpy's predict, P = F P Fᵀ + Q, summed as the compiled kernel does
-        (:func:`estimation.ekf.cov_predict`: F is the strapdown step's)."""
-        self.predict_x(u)
+    def predict(self, u=0, x_next=None, F=None, Q=None):
+        """filterpy's predict with the predicted state ``x_next`` (and the step's F, Q), P = F P Fᵀ + Q
+        summed as the compiled kernel does (:func:`estimation.ekf_core.cov_predict`: F is the
+        strapdown step's)."""
+        if F is not None:
+            self.F = F
+        if Q is not None:
+            self.Q = Q
+        if x_next is not None:
+            self.x = x_next
+        else:
+            self.predict_x(u)
         self.P = cov_predict(self.F, self.P, self.Q)
         self.x_prior = np.copy(self.x)
         self.P_prior = np.copy(self.P)
@@ -45,33 +52,15 @@ class TwinEKF(ExtendedKalmanFilter):
     def update(self, z, HJacobian, Hx, R=None, args=(), hx_args=(), residual=np.subtract):
         """filterpy's update (Joseph form) with the gain's rows of the consider states zeroed
         (the Schmidt–Kalman update: the Joseph form is exact for any gain, so P keeps their
-        uncertainty and its correlations; only their estimates are never moved).
-
-        Every sum runs in the order of the compiled kernel's ``kalman_update`` (estimation/_ekf.c):
-        K = (P Hᵀ) S⁻¹ with S⁻¹ by the explicit formula, x + K y and I − K H a row of H at a
-        time, P = ((I − K H) P)(I − K H)ᵀ, then + K R Kᵀ a row of H at a time (R diagonal)."""
+        uncertainty and its correlations; only their estimates are never moved), every sum in
+        the compiled kernel's order (:func:`estimation.ekf_core.joseph_update`)."""
         if R is None:
             R = self.R
         elif np.isscalar(R):
             R = np.eye(len(z)) * R
         H = HJacobian(self.x, *args)
-        PHT = mm(self.P, H.T)
-        self.S = mm(H, PHT) + R
-        self.SI = inv(self.S)
-        self.K = mm(PHT, self.SI)
-        if self.consider.any():
-            self.K[self.consider] = 0.0
-        self.y = residual(z, Hx(self.x, *hx_args))
-        x = self.x.copy()
-        I_KH = self._I.copy()
-        for a in range(H.shape[0]):
-            x += self.K[:, a] * self.y[a]
-            I_KH -= np.multiply.outer(self.K[:, a], H[a])
-        self.x = x
-        P = mm(mm(I_KH, self.P), I_KH.T)
-        for a in range(H.shape[0]):
-            P += np.multiply.outer(self.K[:, a] * R[a, a], self.K[:, a])
-        self.P = P
+        self.x, self.P, self.y, self.S, self.SI, self.K = joseph_update(
+            self.x, self.P, z, lambda x: residual(z, Hx(x, *hx_args)), H, R, self.consider)
         self._log_likelihood = self._likelihood = self._mahalanobis = None
         self.z = np.copy(z)
         self.x_post = self.x.copy()

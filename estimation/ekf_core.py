@@ -1,0 +1,300 @@
+"""The EKF's filter core: the state (x, P, the gyro's last two rates) and the filter's steps,
+behind one interface with two implementations.
+
+:class:`FilterCore` (the interface) in textbook terms: ``x`` (12,) and ``P`` (12, 12);
+``predict(x_next, F, Q, w)``, the state predicted beforehand (the strapdown step is
+nonlinear: :meth:`estimation.ekf.EKFEstimator._propagate` computes x⁺, F and Q) with
+P = F P Fᵀ + Q; ``update(z, off, H, R)``, the Joseph-form update of the affine measurement
+z = off + H x + v, v ~ N(0, R), with the consider states' gain rows zeroed (Schmidt), returning
+the innovation y and its covariance S; ``hold(mask)`` makes the masked states consider states;
+``forward(commands, state6, step6)`` predicts the controllers' state across the latency.
+
+The implementations:
+
+* :class:`PythonCore`, the reference: filterpy's ExtendedKalmanFilter
+  (:class:`~estimation.twin_ekf.TwinEKF`, imported on first use: filterpy imports scipy.stats).
+* :class:`CompiledCore`: the state lives in the compiled kernel ``estimation._ekf``, with a
+  Python-side mirror (:class:`KernelState`). ``pull()`` brings the mirror up to date,
+  ``push()`` writes it back; between the two, Python code (coasting, re-basing the encoders,
+  and ``predict``/``update`` here, which run the same arithmetic on the mirror) works on the
+  mirror. The kernel also *fuses* the whole IMU-driven step, the EKF's policies included
+  (accelerometer outlier test, IMU outlier test, encoder gate, truncation into an unchanged
+  count), in :meth:`CompiledCore.advance`: ``fuses_imu_step`` says so, and the estimator
+  then books the kernel's decisions instead of taking them one by one in Python.
+
+Both implementations run the same sums in the same order (:mod:`estimation.detlinalg`), so
+a predict/update sequence gives the same bits on either (tests/test_ekf_core.py).
+
+Nothing here imports the twin beyond numpy and this package.
+"""
+from __future__ import annotations
+
+import math
+import os
+from typing import Protocol
+
+import numpy as np
+
+from estimation.detlinalg import affine, inv, mm
+
+STATE_NAMES = ("theta", "psi", "imu_speed", "alpha", "gyro_bias_y", "gyro_bias_z", "encoder_zero", "gyro_scale_y",
+               "encoder_heading_zero", "gyro_scale_z", "accel_scale_x", "accel_scale_z")
+STATE_UNITS = ("rad", "rad", "m/s", "rad", "rad/s", "rad/s", "rad", "1", "rad", "1", "1", "1")
+N = len(STATE_NAMES)
+TH, PS, V, AL, BY, BZ, C0, SY, H0, SZ, SAX, SAZ = range(N)
+
+try:  # the optional compiled path (setup.py); TWIN_PURE_PYTHON=1 turns it off
+    from estimation import _ekf as _kernel
+except ImportError:  # pragma: no cover - no C compiler where it was installed
+    _kernel = None
+if os.environ.get("TWIN_PURE_PYTHON", "") not in ("", "0"):
+    _kernel = None
+
+
+def compiled_kernel_loaded() -> bool:
+    """True if the compiled EKF kernel (``estimation._ekf``) is built and not turned off
+    (``TWIN_PURE_PYTHON=1``) in this process."""
+    return _kernel is not None
+
+
+_F_ROWS = [TH, AL, V, PS]  # the rows of the strapdown step's F that are not the identity's
+
+
+def cov_predict(F, P, Q) -> np.ndarray:
+    """F P Fᵀ + Q for the strapdown step's F (:meth:`EKFEstimator._propagate`: the identity but
+    in rows θ, α, v, ψ), as the compiled kernel's ``cov_predict``: only those rows of F P and
+    those columns of (F P) Fᵀ are sums, in ascending order (:mod:`estimation.detlinalg`); the
+    others are P's own entries, which the full product would give too (x·1 plus zeros)."""
+    A = P.copy()
+    A[_F_ROWS] = mm(F[_F_ROWS], P)
+    out = A.copy()
+    out[:, _F_ROWS] = mm(A, F[_F_ROWS].T)
+    return out + Q
+
+
+def joseph_update(x, P, z, y_of, H, R, consider):
+    """(x⁺, P⁺, y, S, S⁻¹, K): the Joseph-form update of prior (x, P) with measurement z,
+    innovation ``y_of(x)`` (z less the predicted measurement), Jacobian H and noise R (diagonal),
+    the gain's rows of the ``consider`` states (a (12,) mask) zeroed (Schmidt–Kalman: the Joseph
+    form is exact for any gain, so P keeps their uncertainty and correlations).
+
+    Every sum runs in the order of the compiled kernel's ``kalman_update`` (estimation/_ekf.c):
+    K = (P Hᵀ) S⁻¹ with S⁻¹ by the explicit formula, x + K y and I − K H a row of H at a time,
+    P = ((I − K H) P)(I − K H)ᵀ, then + K R Kᵀ a row of H at a time."""
+    PHT = mm(P, H.T)
+    S = mm(H, PHT) + R
+    SI = inv(S)
+    K = mm(PHT, SI)
+    if consider.any():
+        K[consider] = 0.0
+    y = y_of(x)
+    x = x.copy()
+    I_KH = np.eye(len(x))
+    for a in range(H.shape[0]):
+        x += K[:, a] * y[a]
+        I_KH -= np.multiply.outer(K[:, a], H[a])
+    P = mm(mm(I_KH, P), I_KH.T)
+    for a in range(H.shape[0]):
+        P += np.multiply.outer(K[:, a] * R[a, a], K[:, a])
+    return x, P, y, S, SI, K
+
+
+class FilterCore(Protocol):
+    """The filter core's interface (see the module docstring)."""
+
+    compiled: bool
+    fuses_imu_step: bool  # True: advance() runs the whole IMU step, policies included
+    kf: object  # the Python-side state: x, P, consider
+    w: tuple  # the gyro's mean rates (ω_y, ω_z) over the last period and the one before
+    w_prev: tuple
+
+    @property
+    def x(self) -> np.ndarray: ...
+
+    @property
+    def P(self) -> np.ndarray: ...
+
+    def pull(self) -> None:
+        """Bring the Python-side state up to date with the implementation's."""
+
+    def push(self) -> None:
+        """Write the Python-side state to the implementation."""
+
+    def set_state(self, x, P, w, w_prev) -> None: ...
+
+    def hold(self, mask) -> None: ...
+
+    def keep_good(self) -> None:
+        """Remember the state as the last good one (:meth:`restore`)."""
+
+    def take_over(self) -> None:
+        """Python code is about to step the filter: the state as it is now is the last good one."""
+
+    def restore(self) -> None:
+        """The last good state, its covariance inflated (4 P + 1e-10 I)."""
+
+    def predict(self, x_next, F, Q, w) -> None: ...
+
+    def update(self, z, off, H, R) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def forward(self, commands, state6, step6) -> tuple: ...
+
+
+class KernelState:
+    """The Python side of the compiled path's filter state: x (12,), P (12, 12) and the
+    consider mask, as on :class:`~estimation.twin_ekf.TwinEKF` (which starts them the same
+    way), brought up to date from the kernel by :meth:`CompiledCore.pull`. The kernel does the
+    filter step, so filterpy (and its import) is not needed there."""
+
+    __slots__ = ("x", "P", "consider")
+
+    def __init__(self):
+        self.x = np.zeros(N)
+        self.P = np.eye(N)
+        self.consider = np.zeros(N, dtype=bool)
+
+
+class _Core:
+    """What both implementations share: the Python-side state and the last good one."""
+
+    kf: object
+    w = w_prev = (0.0, 0.0)
+    good = None
+
+    @property
+    def x(self) -> np.ndarray:
+        return self.kf.x
+
+    @x.setter
+    def x(self, value) -> None:
+        self.kf.x = value
+
+    @property
+    def P(self) -> np.ndarray:
+        return self.kf.P
+
+    @P.setter
+    def P(self, value) -> None:
+        self.kf.P = value
+
+    def set_state(self, x, P, w, w_prev) -> None:
+        self.kf.x, self.kf.P = x, P
+        self.w, self.w_prev = w, w_prev
+        self.push()
+
+    def keep_good(self) -> None:
+        kf = self.kf
+        self.good = (kf.x.copy(), kf.P.copy(), self.w, self.w_prev)
+
+    def restore(self) -> None:
+        x, P, self.w, self.w_prev = self.good
+        self.kf.x, self.kf.P = x.copy(), 4.0 * P + np.diag(np.full(N, 1e-10))
+        self.push()
+
+
+class PythonCore(_Core):
+    """The reference implementation on filterpy's ExtendedKalmanFilter
+    (:class:`~estimation.twin_ekf.TwinEKF`): the state lives there, ``pull``/``push`` have
+    nothing to do."""
+
+    compiled = False
+    fuses_imu_step = False
+
+    def __init__(self):
+        from estimation.twin_ekf import TwinEKF
+
+        self.kf = TwinEKF()
+
+    def pull(self) -> None:
+        pass
+
+    def push(self) -> None:
+        pass
+
+    def take_over(self) -> None:
+        pass
+
+    def hold(self, mask) -> None:
+        self.kf.consider = np.array(mask, dtype=bool)
+
+    def predict(self, x_next, F, Q, w) -> None:
+        self.kf.predict(x_next=x_next, F=F, Q=Q)
+        self.w_prev, self.w = self.w, w
+
+    def update(self, z, off, H, R):
+        kf = self.kf
+        kf.update(z, lambda x: H, lambda x: affine(off, H, x), R=R)
+        return kf.y, kf.S
+
+    def forward(self, commands, state6, step6):
+        """(state, finite): [θ, θ̇, ψ, ψ̇, α, α̇] of the filter (``state6()``) predicted over
+        ``commands`` with ``step6(s, command)``; the filter's own if that is not finite."""
+        s6 = s = state6()
+        try:
+            for c in commands:
+                s = step6(s, c)
+        except (ValueError, OverflowError, FloatingPointError):
+            return s6, False
+        if not np.isfinite(s).all():
+            return s6, False
+        return s, True
+
+
+class CompiledCore(_Core):
+    """The compiled kernel ``estimation._ekf`` (``kernel``, built from the filter's constants
+    ``args``), with the Python-side mirror :class:`KernelState`."""
+
+    compiled = True
+    fuses_imu_step = True
+
+    def __init__(self, kernel, args):
+        self.kf = KernelState()
+        self._kernel = kernel
+        self._core = kernel.new(args)
+
+    def pull(self) -> None:
+        x, P, self.w, self.w_prev = self._kernel.state(self._core)
+        self.kf.x, self.kf.P = np.array(x), np.array(P).reshape(N, N)
+
+    def push(self) -> None:
+        self._kernel.set_state(self._core, self.kf.x, self.kf.P.ravel(), self.w, self.w_prev)
+
+    def take_over(self) -> None:
+        self.pull()  # the kernel restores a broken state itself: what it holds is good
+        self.keep_good()
+
+    def hold(self, mask) -> None:
+        self.kf.consider = np.array(mask, dtype=bool)
+        self._kernel.set_consider(self._core, [float(v) for v in mask])
+
+    def predict(self, x_next, F, Q, w) -> None:
+        """On the mirror (``pull()`` before, ``push()`` after), as the kernel's step predicts."""
+        kf = self.kf
+        kf.x, kf.P = x_next, cov_predict(F, kf.P, Q)
+        self.w_prev, self.w = self.w, w
+
+    def update(self, z, off, H, R):
+        """On the mirror (``pull()`` before, ``push()`` after), as the kernel's ``kalman_update``."""
+        kf = self.kf
+        kf.x, kf.P, y, S, _, _ = joseph_update(kf.x, kf.P, z, lambda x: z - affine(off, H, x), H, R, kf.consider)
+        return y, S
+
+    def forward(self, commands, state6=None, step6=None):
+        """As :meth:`PythonCore.forward`, in the kernel (from the kernel's own state)."""
+        return self._kernel.forward(self._core, commands)
+
+    def advance(self, sample, enc, last, T, command, may_reject, acc_test):
+        """The whole IMU-driven step in the kernel (see ``advance`` in estimation/_ekf.c):
+        (imu_code, saturated, enc_code, nis, dof, ok, acc_out, e_x, e_z, inside)."""
+        return self._kernel.advance(self._core, sample, enc, last, T, command, may_reject, acc_test)
+
+
+def make_core(compiled: bool | None, kernel, args) -> FilterCore:
+    """The core for ``compiled`` (None: the kernel where it is built)."""
+    if kernel is not None and compiled is not False:
+        return CompiledCore(kernel, args)
+    return PythonCore()
+
+
+__all__ = ["CompiledCore", "FilterCore", "KernelState", "N", "PythonCore", "STATE_NAMES", "STATE_UNITS",
+           "compiled_kernel_loaded", "cov_predict", "joseph_update", "make_core"]
