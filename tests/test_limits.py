@@ -209,7 +209,6 @@ def test_a_leaking_controller_stops_the_closed_loop():
 
 
 def test_without_limits_nothing_is_timed(monkeypatch):
-    import twin.analytic_loop
     import twin.loop
     from twin.analytic_loop import simulate
     from twin.experiments import PAPER_EXPERIMENTS
@@ -218,7 +217,6 @@ def test_without_limits_nothing_is_timed(monkeypatch):
         raise AssertionError("a RunGuard was built without limits")
 
     monkeypatch.setattr(twin.loop, "RunGuard", refuse)
-    monkeypatch.setattr(twin.analytic_loop, "RunGuard", refuse)
     run = closed_loop_run(Feedback(), {}, duration=0.1)
     assert run.control_steps == 21
     simulate(Feedback(), PAPER_EXPERIMENTS[1], duration=0.1)
@@ -268,8 +266,9 @@ def test_the_analytic_loop_keeps_the_limits():
                           "at t = 0.045 s")
     with pytest.raises(PluginError) as info:
         analytic(Feedback(sleep_from=1, sleep=0.004), duration=2.0, run_wall_s=0.2)
-    one_line_plugin_error(info, "the run of controller test_limits.Feedback took", "over limits.run_wall_s = 0.2 s",
-                          "s in the controller", "s in the plant and the rest")
+    # the analytic loop is ClosedLoop with the ideal estimator (the truth passed through)
+    one_line_plugin_error(info, "the run of controller test_limits.Feedback (estimator estimation.ideal.IdealEstimator) "
+                          "took", "over limits.run_wall_s = 0.2 s", "s in the controller", "s in the plant and the rest")
     if resident_bytes() is not None:
         leaky = Feedback(leak_bytes=int(1 * MB))
         try:
@@ -278,7 +277,8 @@ def test_the_analytic_loop_keeps_the_limits():
         finally:
             for m in leaky.hoard:
                 m.close()
-        one_line_plugin_error(info, "the run of controller test_limits.Feedback grew", "over limits.run_memory_mb = 30")
+        one_line_plugin_error(info, "the run of controller test_limits.Feedback (estimator estimation.ideal.IdealEstimator) "
+                              "grew", "over limits.run_memory_mb = 30")
     with pytest.raises(TwinError, match="limits must be a twin.limits.PluginLimits or None"):
         from twin.analytic_loop import simulate
         from twin.experiments import PAPER_EXPERIMENTS

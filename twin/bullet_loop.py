@@ -1,5 +1,6 @@
-"""A whole run on the PyBullet twin, logged as a :class:`twin.runs.Run`: :func:`simulate_twin`
-drives :class:`twin.loop.ClosedLoop`.
+"""A whole run, logged as a :class:`twin.runs.Run`: :func:`simulate_twin` drives
+:class:`twin.loop.ClosedLoop` on the PyBullet twin (by default) or on any
+:class:`twin.protocols.Plant` (``plant``: "analytic" for equation (1), or one's own object).
 
 Sensing. By default the controllers act on the estimator's output, computed from the
 simulated IMU and encoders (:mod:`twin.sensors`, :mod:`estimation`); ``sensors=None``
@@ -36,8 +37,8 @@ def simulate_twin(controller, experiment: Experiment, config: TwinConfig | None 
                   duration: float | None = None, controller_name: str = "", alpha0: float = 0.0,
                   position=(0.0, 0.0), sensors: SensorConfig | None = SensorConfig(), estimator="ekf",
                   seed: int = 0, model_params: RobotParams = NOMINAL, log_filter: bool = False,
-                  progress=None, estimator_params: dict | None = None, log_every: int = 1) -> Run:
-    """Run ``controller`` on a new twin built from ``config`` from the experiment's θ0.
+                  progress=None, estimator_params: dict | None = None, log_every: int = 1, plant=None) -> Run:
+    """Run ``controller`` on a new twin built from ``config`` (or on ``plant``) from the experiment's θ0.
 
     A driver of :class:`twin.loop.ClosedLoop`: reset, then the controller's command and a
     step per control period, everything logged (see the module docstring).
@@ -62,26 +63,52 @@ def simulate_twin(controller, experiment: Experiment, config: TwinConfig | None 
         covariance and NIS, ``filter_log``).
     progress : callable or None
         ``progress(steps_done, steps_total)``, called once per simulated second and at the end.
+    plant : None, str or Plant
+        None or "bullet": the PyBullet twin on ``config``, new for the run; "analytic": equation
+        (1) on ``config`` (:class:`twin.plant.analytic_plant.AnalyticPlant`: RK4 at the
+        physics rate, ideal torque sources); or an object meeting :class:`twin.protocols.Plant`
+        (its control rate is the run's; ``config`` then only fills in what it does not say).
     log_every : int
         Log every N-th control step (N ≥ 1): row i of the run is step i·N (t = i·N·T); the
         other steps are not kept. The signals the metrics read are kept at every step
         (``Run.full_rate``), so :func:`twin.metrics.run_metrics` gives the same figures for
         every N. N > 1 excludes ``log_filter`` (the EKF's consistency checks need every step).
 
-    The twin is closed when the run ends, fallen or not.
+    The twin (the plant) is closed when the run ends, fallen or not.
     """
     from twin.loop import ClosedLoop
     from twin.registry import BuildContext, build_estimator
 
     config = config if config is not None else TwinConfig()
+    plant_name, motor = "twin", config.motor
+    if isinstance(plant, str):
+        from twin.plant import build_plant
+
+        plant = None if plant == "bullet" else build_plant(plant, config, experiment.theta0, alpha0, position)
+    if plant is not None:
+        from twin.plant import check_plant
+        from twin.plant.analytic_plant import AnalyticPlant
+        from twin.plant.bullet import BulletTwin
+        from twin.protocols import describe_object
+
+        check_plant(plant, sensors is not None)
+        own = getattr(plant, "config", None)
+        if isinstance(own, TwinConfig):
+            config = own
+        if isinstance(plant, BulletTwin):
+            motor = plant.config.motor
+        else:  # the analytic plant's torque sources are ideal; one's own plant says nothing of motors
+            motor = None
+            plant_name = "analytic" if isinstance(plant, AnalyticPlant) else describe_object(plant)
+    rate = config.control_rate if plant is None else float(plant.control_rate)
     duration = experiment.duration if duration is None else float(duration)
-    control_dt = 1.0 / config.control_rate
+    control_dt = 1.0 / rate
     if not (math.isfinite(duration) and duration >= control_dt):
         raise TwinError(f"duration must be at least one control period ({control_dt:g} s), got {duration:g} s")
     if sensors is not None and not isinstance(sensors, SensorConfig):
         raise TwinError(f"sensors must be a SensorConfig or None (ideal sensing), got {sensors!r}")
     if sensors is not None:
-        sensors.steps(config.control_rate)  # rates and latencies fit the control period: check before building
+        sensors.steps(rate)  # rates and latencies fit the control period: check before building
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise TwinError(f"seed must be a non-negative integer, got {seed!r}")
     every = check_log_every(log_every)
@@ -95,14 +122,15 @@ def simulate_twin(controller, experiment: Experiment, config: TwinConfig | None 
                         f"{estimator!r} would not run; give sensors=SensorConfig(...) to use it")
     if isinstance(estimator, str) or ideal:
         kind = "ideal" if ideal else estimator
-        context = BuildContext(config.control_rate, model_params, config.motor, sensors, experiment.targets, alpha0)
+        context = BuildContext(rate, model_params, motor, sensors, experiment.targets, alpha0)
         filt = build_estimator(kind, estimator_params, context)
         sensing = kind
     else:
         filt, sensing = estimator, getattr(estimator, "name", type(estimator).__name__)
-    loop = ClosedLoop(config, filt, controller, sensors, experiment.targets, experiment.theta0, alpha0, position)
+    loop = ClosedLoop(config if plant is None else plant, filt, controller, sensors, experiment.targets,
+                      experiment.theta0, alpha0, position, limits=config.limits)
     n_ctrl = int(round(duration / control_dt))
-    report_every = max(1, int(round(config.control_rate)))
+    report_every = max(1, int(round(rate)))
     n_rows = n_ctrl + 1
     names = ("ul_cmd", "ur_cmd") + loop.signals
     log = _Log(n_rows, every, len(names), measured=not ideal, with_truth=bool(getattr(filt, "reads_truth", False)))
@@ -114,6 +142,8 @@ def simulate_twin(controller, experiment: Experiment, config: TwinConfig | None 
     with loop:
         loop.reset(seed)
         twin = loop.twin  # read directly below: this loop runs once per control period
+        # a plant without actuation or push_force: the loop's (the command delivered, no push)
+        src = twin if hasattr(twin, "actuation") and hasattr(twin, "push_force") else loop
         command, step = loop.command, loop.step
         for i in range(n_rows):
             if twin.status == "diverged":
@@ -137,8 +167,8 @@ def simulate_twin(controller, experiment: Experiment, config: TwinConfig | None 
             if progress is not None and i % report_every == 0 and i:
                 progress(i, n_ctrl)
             step(c)
-            act.append(twin.actuation)
-            push.append(twin.push_force)
+            act.append(src.actuation)
+            push.append(src.push_force)
         status = "ok" if loop.status == "running" else loop.status
         reason = "" if status == "ok" else loop.end_reason
         stats = {} if ideal else loop.estimator_stats()
@@ -161,7 +191,8 @@ def simulate_twin(controller, experiment: Experiment, config: TwinConfig | None 
                    seed=None if ideal else int(seed), sensor_truth=sensor_truth, sensor_config=sensors,
                    model_params=model_params, command_names=names,
                    command_units=tuple(units.get(k, "1") for k in names), log_every=every,
-                   full_rate=None if log.full is None else {name: a[:n] for name, a in log.full.items()})
+                   full_rate=None if log.full is None else {name: a[:n] for name, a in log.full.items()},
+                   plant=plant_name)
 
 
 def check_log_every(value) -> int:

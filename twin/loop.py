@@ -1,4 +1,4 @@
-"""The steppable closed loop on the PyBullet twin: plant → sensors → estimator → controller → actuators.
+"""The steppable closed loop: plant → sensors → estimator → controller → actuators.
 
 :class:`ClosedLoop` is the one loop every consumer drives: :func:`twin.bullet_loop.simulate_twin`
 (and through it the scenario runner and the sweeps), the Gymnasium environment and a
@@ -17,13 +17,24 @@ chooses, say); without one it asks the controller. At every instant the loop exp
 reached the estimator), :attr:`estimate` (6,) and, after a step, :attr:`actuation` and
 :attr:`push_force` (what the motors and pushes did over the period).
 
+The plant. Given a :class:`~twin.plant.bullet.TwinConfig` (or None: the defaults), every
+:meth:`ClosedLoop.reset` builds a new PyBullet twin (:class:`~twin.plant.bullet.BulletTwin`)
+on it, as it always has. Given any object meeting :class:`twin.protocols.Plant` instead
+(:class:`~twin.plant.analytic_plant.AnalyticPlant`: equation (1); or one's own), the loop
+runs that: :meth:`ClosedLoop.reset` calls its ``reset(theta0, alpha0, position)``, each step
+its ``step(ul, ur)``; the control rate is the plant's, the sensors read its truth and (for
+the IMU) its ``kinematics``. :func:`twin.plant.build_plant` makes a scenario's
+``plant.model``. A plant's missing member, or a truth that is not 15 numbers, is a
+one-line :class:`~twin.errors.PluginError` naming the plant and the contract.
+
 Sensing. With a :class:`~twin.sensors.SensorConfig` the IMU and encoders are simulated
 with their noise and faults, drawn from ``numpy.random.default_rng(SeedSequence(seed))``
 and nothing else; with ``sensors=None`` nothing is measured and each measurement
 carries only its time. An estimator that declares ``reads_truth = True`` (the ``ideal``
 reference) also gets the ground truth in ``measurement.truth``; no other does.
 
-Contracts. The controller's output and the estimator's are checked at every step; a
+Contracts. The controller's output and the estimator's are checked at every step (here
+alone: every consumer runs this loop); a
 wrong length, a non-number or a non-finite value stops the run with a one-line
 :class:`~twin.errors.PluginError` naming the object.
 
@@ -43,7 +54,7 @@ import numpy as np
 
 from twin.errors import PluginError, TwinError
 from twin.limits import MEMORY_EVERY, RunGuard
-from twin.plant.bullet import BulletTwin, TwinConfig
+from twin.plant.bullet import Actuation, BulletTwin, GroundTruth, TwinConfig
 from twin.protocols import StepResult, Targets, describe_object, one_line
 from twin.sensors import Measurement, SensorConfig, SensorSuite, imu_kinematics
 
@@ -51,12 +62,15 @@ _IDLE = "idle"
 
 
 class ClosedLoop:
-    """The twin with sensors, an estimator and (optionally) a controller, one control period per step.
+    """A plant with sensors, an estimator and (optionally) a controller, one control period per step.
 
     Parameters
     ----------
-    config : TwinConfig
-        The true plant, rates, motors, floor and disturbances.
+    config : TwinConfig, Plant or None
+        A TwinConfig (None: the defaults): the PyBullet twin's true plant, rates, motors,
+        floor, disturbances and limits, built anew by every :meth:`reset`. Or an object
+        meeting :class:`twin.protocols.Plant` (the analytic plant, one's own), reused by
+        every :meth:`reset`; its ``config`` attribute, if a TwinConfig, gives the limits.
     estimator : Estimator
         Meets :class:`twin.protocols.Estimator`; reused by every :meth:`reset` (its
         ``start`` begins a new run).
@@ -70,15 +84,32 @@ class ClosedLoop:
         Initial pitch and heading, rad.
     position : (float, float)
         Initial axle midpoint (x, y) in m.
+    limits : PluginLimits or None
+        What the controller and the estimator may cost (:mod:`twin.limits`); None: the
+        config's ``limits``.
     """
 
-    def __init__(self, config: TwinConfig | None, estimator, controller=None, sensors: SensorConfig | None = None,
-                 targets: Targets = Targets(), theta0: float = 0.0, alpha0: float = 0.0, position=(0.0, 0.0)):
-        self.config = config if config is not None else TwinConfig()
+    def __init__(self, config, estimator, controller=None, sensors: SensorConfig | None = None,
+                 targets: Targets = Targets(), theta0: float = 0.0, alpha0: float = 0.0, position=(0.0, 0.0),
+                 limits=None):
         if sensors is not None and not isinstance(sensors, SensorConfig):
             raise TwinError(f"sensors must be a SensorConfig or None (nothing measured), got {sensors!r}")
+        if config is None or isinstance(config, TwinConfig):
+            self.config = config if config is not None else TwinConfig()
+            self._given = None  # a new BulletTwin at every reset
+            control_rate = self.config.control_rate
+        else:
+            from twin.plant import check_plant
+
+            check_plant(config, sensors is not None)
+            self._given = config
+            own = getattr(config, "config", None)
+            self.config = own if isinstance(own, TwinConfig) else None
+            control_rate = float(config.control_rate)
+        # a plant other than the built-in ones: its truth is checked at every step
+        self._foreign = self._given is not None and not _is_builtin(self._given)
         if sensors is not None:
-            sensors.steps(self.config.control_rate)  # rates and latencies fit the control period: check first
+            sensors.steps(control_rate)  # rates and latencies fit the control period: check first
         if not isinstance(targets, Targets):
             raise TwinError(f"targets must be a twin.protocols.Targets(position, heading), got {targets!r}")
         from twin.registry import check_protocol
@@ -91,14 +122,16 @@ class ClosedLoop:
         self.sensors = sensors
         self.targets = targets
         self.theta0, self.alpha0, self.position = float(theta0), float(alpha0), tuple(position)
-        self.control_dt = 1.0 / self.config.control_rate
+        self.control_rate = control_rate
+        self.control_dt = 1.0 / control_rate
         self.signals = tuple(getattr(controller, "signals", ())) if controller is not None else ()
         self._n_out = 2 + len(self.signals)
         self._attach_truth = bool(getattr(estimator, "reads_truth", False))
-        limits = self.config.limits
+        if limits is None and self.config is not None:
+            limits = self.config.limits
         # None (no limits): the hot path below times nothing
         self._guard = RunGuard(limits, controller, estimator, self.control_dt) if limits and limits.active else None
-        self.twin: BulletTwin | None = None
+        self.twin = None  # the plant of the current run (a BulletTwin, or the plant given)
         self.suite: SensorSuite | None = None
         self.k = 0
         self.truth = self.measurement = self.estimate = None
@@ -108,7 +141,8 @@ class ClosedLoop:
 
     # ---- life cycle ---------------------------------------------------------------------------
     def reset(self, seed: int = 0) -> StepResult:
-        """Build a new twin at the initial state and take the readings of instant 0.
+        """Start a run: a new twin (or the plant's ``reset``) at the initial state, and the
+        readings of instant 0.
 
         ``seed`` (int ≥ 0) seeds the sensors' noise and faults. The estimator's ``start``
         and the controller's ``reset`` are called; returns instant 0.
@@ -117,20 +151,33 @@ class ClosedLoop:
             raise TwinError(f"seed must be a non-negative integer, got {seed!r}")
         self.close()
         self.seed = int(seed)
-        self.twin = twin = BulletTwin(self.config, theta0=self.theta0, alpha0=self.alpha0, position=self.position)
         self.k = 0
+        if self._given is None:
+            self.twin = twin = BulletTwin(self.config, theta0=self.theta0, alpha0=self.alpha0, position=self.position)
+            tr = twin.truth
+        else:
+            twin = self._given
+            if self._foreign:
+                try:
+                    tr = twin.reset(self.theta0, self.alpha0, self.position)
+                except Exception as exc:  # noqa: BLE001 -- the plant's failure, in one line
+                    raise self._raised("plant", twin, "reset()", exc) from None
+                tr = self._check_truth(tr, "reset")
+            else:
+                tr = twin.reset(self.theta0, self.alpha0, self.position)
+            self.twin = twin
         self._command = None
-        tr = self.truth = twin.truth
+        self._last_command = (0.0, 0.0)
+        tr = self.truth = tr
         if self.sensors is not None:
-            cfg = self.config
-            self.suite = suite = SensorSuite(self.sensors, cfg.control_rate,
+            self.suite = suite = SensorSuite(self.sensors, self.control_rate,
                                              np.random.default_rng(np.random.SeedSequence(self.seed)))
             com = twin.com_local
             imu_pos = self.sensors.imu.position
             self._lever = (imu_pos[0] - com[0], imu_pos[1] - com[1], imu_pos[2] - com[2])
             self._imu_dt = suite.every * self.control_dt
             pose, vel = self._last_imu = twin.kinematics  # the body at rest before t = 0
-            self._g = cfg.params.g
+            self._g = twin.gravity
             self._imu = imu_kinematics(pose, vel, pose, vel, self._imu_dt, self._lever, self._g)
             suite.start(*self._imu, tr.psi_l - tr.theta, tr.psi_r - tr.theta)
         else:
@@ -161,10 +208,16 @@ class ClosedLoop:
         return self.result()
 
     def close(self) -> None:
-        """Disconnect the twin's PyBullet client (safe to call twice)."""
+        """Close the plant (the twin's PyBullet client; safe to call twice)."""
         if self.twin is not None:
-            self.twin.close()
-            self.twin = None
+            twin, self.twin = self.twin, None
+            if not self._foreign:
+                twin.close()
+            else:
+                try:
+                    twin.close()
+                except Exception as exc:  # noqa: BLE001 -- the plant's failure, in one line
+                    raise self._raised("plant", twin, "close()", exc) from None
 
     def __enter__(self):
         return self
@@ -215,7 +268,10 @@ class ClosedLoop:
         elif command is not self._command:
             command = self._check_command(command, external=True)
         ul, ur = command[0], command[1]
-        tr = self.truth = twin.step(ul, ur)
+        if self._foreign:
+            tr = self.truth = self._plant_step(twin, ul, ur)
+        else:
+            tr = self.truth = twin.step(ul, ur)
         self.k += 1
         self._command = None
         status = twin.status
@@ -265,6 +321,37 @@ class ClosedLoop:
         return meas._replace(truth=tr) if self._attach_truth else meas
 
     # ---- contracts ----------------------------------------------------------------------------
+    def _plant_step(self, plant, ul, ur):
+        """One step of a plant given to the loop, its output checked (one place: here)."""
+        self._last_command = (ul, ur)
+        try:
+            tr = plant.step(ul, ur)
+        except Exception as exc:  # noqa: BLE001 -- the plant's failure, in one line
+            raise self._raised("plant", plant, "step()", exc) from None
+        tr = self._check_truth(tr, "step", 1)
+        status = getattr(plant, "status", None)
+        if status not in ("running", "fell", "diverged", "closed"):
+            raise PluginError(f"plant {describe_object(plant)}: status is {_short(status)} after step() at t = "
+                              f"{(self.k + 1) * self.control_dt:.3f} s; expected \"running\", \"fell\" or "
+                              f"\"diverged\" (see twin.protocols.Plant)")
+        return tr
+
+    def _check_truth(self, tr, where: str, ahead: int = 0) -> GroundTruth:
+        """``tr`` as a GroundTruth, or a one-line PluginError naming the plant and the contract."""
+        if type(tr) is GroundTruth:
+            values = tr
+        else:
+            try:
+                values = tuple(float(v) for v in tr)
+            except (TypeError, ValueError):
+                values = ()
+        if len(values) != len(GroundTruth._fields):
+            raise PluginError(f"plant {describe_object(self._given)}: {where}() returned {_short(tr)} at t = "
+                              f"{(self.k + ahead) * self.control_dt:.3f} s; expected a GroundTruth, "
+                              f"{len(GroundTruth._fields)} numbers ({', '.join(GroundTruth._fields)}; SI units) "
+                              f"(see twin.protocols.Plant)")
+        return tr if type(tr) is GroundTruth else GroundTruth(*values)
+
     def _check_estimate(self, est, where: str):
         try:
             ok = len(est) == 6 and (isfinite(sum(est)) or all(map(isfinite, est)))
@@ -296,7 +383,7 @@ class ClosedLoop:
         return PluginError(f"{role} {describe_object(obj)}: {method} raised {type(exc).__name__}: "
                            f"{one_line(exc)} at t = {self.k * self.control_dt:.3f} s")
 
-    def _require_running(self) -> BulletTwin:
+    def _require_running(self):
         if self.twin is None:
             raise TwinError("call reset(seed) before step()")
         if self.twin.status != "running":
@@ -314,19 +401,30 @@ class ClosedLoop:
         return "" if self.twin is None or self.twin.status == "running" else self.twin.end_reason
 
     @property
+    def plant(self):
+        """The plant of the current run (a :class:`~twin.plant.bullet.BulletTwin`, or the plant
+        given), None before the first :meth:`reset` and after :meth:`close`."""
+        return self.twin
+
+    @property
     def t(self) -> float:
         """Time of the current instant, s."""
         return self.k * self.control_dt
 
     @property
     def actuation(self):
-        """What the motors did over the last period (:class:`~twin.plant.bullet.Actuation`)."""
-        return self.twin.actuation
+        """What the motors did over the last period (:class:`~twin.plant.bullet.Actuation`); for a
+        plant without ``actuation``, the last command delivered exactly."""
+        got = getattr(self.twin, "actuation", None)
+        if got is None:
+            ul, ur = self._last_command
+            return Actuation(0.0, 0.0, float(ul), float(ur), False, False)
+        return got
 
     @property
     def push_force(self) -> tuple:
-        """Mean push force over the last period, N, world frame."""
-        return self.twin.push_force
+        """Mean push force over the last period, N, world frame ((0, 0, 0) for a plant without ``push_force``)."""
+        return getattr(self.twin, "push_force", (0.0, 0.0, 0.0))
 
     def result(self) -> StepResult:
         return StepResult(self.truth, self.measurement, self.estimate, self.status, self.end_reason)
@@ -346,6 +444,13 @@ class ClosedLoop:
         """The estimator's ``diagnostics()`` hook for the last step, or None without one."""
         hook = getattr(self.estimator, "diagnostics", None)
         return hook() if callable(hook) else None
+
+
+def _is_builtin(plant) -> bool:
+    """The built-in plants, whose truth needs no check at every step."""
+    from twin.plant.analytic_plant import AnalyticPlant
+
+    return type(plant) in (BulletTwin, AnalyticPlant)
 
 
 def _short(v) -> str:

@@ -1,4 +1,4 @@
-"""The data that flows around the closed loop, and the two contracts a user's code meets.
+"""The data that flows around the closed loop, and the contracts a user's code meets.
 
 One control period of :class:`twin.loop.ClosedLoop`::
 
@@ -20,6 +20,10 @@ one's own are named the same way, by :mod:`twin.registry`: a built-in name (``"i
 ``"ekf"``, ...) or an import path ``"package.module:attribute"``. The loop checks the
 contract at every step and stops with a one-line :class:`twin.errors.PluginError` naming
 the object and what was expected.
+
+The plant is one more such object (:class:`Plant`): the PyBullet twin, equation (1) or
+one's own, chosen by a scenario's ``plant.model`` (:func:`twin.plant.build_plant`) or
+handed to :class:`twin.loop.ClosedLoop` directly.
 """
 from __future__ import annotations
 
@@ -127,6 +131,80 @@ class Estimator(Protocol):
     def step(self, measurement: Measurement, command: Sequence[float]) -> Sequence[float]: ...
 
 
+@runtime_checkable
+class Plant(Protocol):
+    """The robot being controlled: steps one control period with the two wheel torques and
+    reports the ground truth. :class:`twin.loop.ClosedLoop` runs any object with these
+    members (structural typing: no base class to inherit); built in are the PyBullet twin
+    (:class:`twin.plant.bullet.BulletTwin`, ``plant.model = "bullet"``) and equation (1)
+    (:class:`twin.plant.analytic_plant.AnalyticPlant`, ``plant.model = "analytic"``).
+
+    Attributes
+    ----------
+    control_rate : float
+        Hz: one :meth:`step` advances 1 / control_rate s.
+    truth : GroundTruth
+        The ground truth now (after the last :meth:`reset` or :meth:`step`), SI units:
+        ``t`` s, θ, ψ_l, ψ_r, ψ, α, roll in rad, their rates in rad/s, ``distance`` p = r ψ
+        and the axle midpoint ``x``, ``y`` in m (see :class:`~twin.plant.bullet.GroundTruth`).
+    status : str
+        ``"running"``, ``"fell"`` or ``"diverged"`` (a non-finite state); ``"closed"`` after
+        :meth:`close` mid-run. Only a running plant is stepped.
+    end_reason : str
+        One line saying why the run ended ("" while running).
+
+    Methods
+    -------
+    reset(theta0, alpha0, position) -> GroundTruth
+        Start a new run at rest: body pitch ``theta0`` and heading ``alpha0`` in rad, axle
+        midpoint ``position`` (x, y) in m, all rates 0, wheel angles ψ_i = 0 at t = 0.
+        Returns the truth at t = 0. Called by every :meth:`twin.loop.ClosedLoop.reset`,
+        also after :meth:`close` (a plant is reused run after run).
+    step(ul, ur) -> GroundTruth
+        Apply the left and right wheel torque commands ``ul``, ``ur`` (N·m, each acting
+        between body and wheel, positive driving forward) for one control period; returns
+        the truth at its end (also :attr:`truth`) and updates :attr:`status`.
+    close()
+        Free what the plant holds (a physics server, say); safe to call twice.
+
+    For the simulated IMU (a loop with ``sensors``; the encoders read ψ_i − θ from the truth)
+    -----------------------------------------------------------------------------------
+    kinematics : ((x, y, z), (qx, qy, qz, qw)), ((vx, vy, vz), (ωx, ωy, ωz))
+        The body's pose and velocity at :attr:`truth`'s instant, PyBullet's layout: its
+        centre of mass in m and orientation quaternion (body → world; body axes x forward,
+        y left along the axle, z up the body), then the centre of mass's velocity in m/s
+        and the angular velocity in rad/s, both in world axes (z up). For a planar plant
+        :func:`twin.plant.analytic_plant.planar_kinematics` builds it from θ, α and rates.
+    com_local : (3,) m
+        The body's centre of mass in body axes from the axle midpoint.
+    gravity : float
+        m/s², what the accelerometer adds.
+
+    Optional (read by the loop when present)
+    ----------------------------------------
+    actuation : Actuation
+        What the motors delivered over the last period (duties, torques N·m, saturation);
+        absent: the commands, delivered exactly.
+    push_force : (3,) N
+        Mean external push force over the last period, world axes; absent: none.
+
+    A plant that lacks a member, or returns something other than a GroundTruth (15 numbers)
+    from ``reset``/``step``, stops the run with a one-line :class:`twin.errors.PluginError`
+    naming it and this contract.
+    """
+
+    control_rate: float
+    truth: GroundTruth
+    status: str
+    end_reason: str
+
+    def reset(self, theta0: float = 0.0, alpha0: float = 0.0, position=(0.0, 0.0)) -> GroundTruth: ...
+
+    def step(self, ul: float, ur: float) -> GroundTruth: ...
+
+    def close(self) -> None: ...
+
+
 class StepResult(NamedTuple):
     """What one control instant of :class:`twin.loop.ClosedLoop` holds.
 
@@ -165,4 +243,4 @@ def describe_object(obj: Any) -> str:
 
 
 __all__ = ["Controller", "ESTIMATE_NAMES", "ESTIMATE_UNITS", "Estimate", "Estimator", "GroundTruth", "Measurement",
-           "StepResult", "Targets", "describe_object", "one_line", "shown"]
+           "Plant", "StepResult", "Targets", "describe_object", "one_line", "shown"]

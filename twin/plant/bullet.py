@@ -403,7 +403,7 @@ def truth_from_states(cls, pose, vel, joints, alpha_prev, com_local, r: float, t
 
 
 class BulletTwin:
-    """One simulated robot in its own PyBullet world.
+    """One simulated robot in its own PyBullet world (a :class:`twin.protocols.Plant`).
 
     Parameters
     ----------
@@ -448,6 +448,8 @@ class BulletTwin:
         self.k = config.steps_per_control
         self.physics_dt = 1.0 / config.physics_rate
         self.control_dt = self.k * self.physics_dt
+        self.control_rate = config.control_rate  # Hz (twin.protocols.Plant)
+        self.gravity = p.g  # m/s² (twin.protocols.Plant, for the IMU)
         self.client, pybullet = _connect()
         c = self.client
         c.setPhysicsEngineParameter(fixedTimeStep=self.physics_dt, numSolverIterations=config.solver_iterations,
@@ -533,6 +535,13 @@ class BulletTwin:
         self._check_end()
 
     # ---- lifecycle ---------------------------------------------------------------------
+    def reset(self, theta0: float = 0.0, alpha0: float = 0.0, position=(0.0, 0.0)) -> GroundTruth:
+        """A new run on the same config (:class:`twin.protocols.Plant`): the physics server
+        is closed and the twin built again at the given initial state; returns the truth at t = 0."""
+        self.close()
+        self.__init__(self.config, theta0, alpha0, position)
+        return self.truth
+
     def close(self) -> None:
         """Disconnect the physics server (idempotent); a running twin ends as "closed"."""
         client = getattr(self, "client", None)
