@@ -161,11 +161,13 @@ import math
 
 import numpy as np
 
-from estimation.detlinalg import affine, dot, mm, mm3, mv, quad_inv, rowsums, solve
+from estimation.detlinalg import affine, mm, mm3, mv, quad_inv, solve
 from estimation.ekf_core import (AL, BY, BZ, C0, H0, PS, SAX, SAZ, STATE_NAMES, STATE_UNITS, SY, SZ, TH, V,  # noqa: F401
                                  KernelState, N, compiled_kernel_loaded, cov_predict, make_core)
 from estimation.ekf_core import _kernel  # noqa: F401 - golden.py and the tests read ekf._kernel
-from estimation.gates import chi2_gate
+from estimation.ekf_policies import (ACCEL_MAX_IN_ROW, INSIDE_MARGIN, WATCH_EVERY, WATCH_MARGIN,  # noqa: F401
+                                     WATCH_MAX_LAG, WATCH_PERSIST, WATCH_RHO, WATCH_WINDOW, AccelOutlierTest,
+                                     ConsiderStates, EncoderGate, KeepInside, LatencyWatch, truncated_measurement)
 from estimation.model import TORQUE_TOLERANCE, EstimatorModel
 from twin.errors import TwinError
 from twin.protocols import Estimate
@@ -175,64 +177,7 @@ GROUPS = ("gyro", "accel", "encoders")
 # own errors: kept in P (their uncertainty is accounted for) but never corrected (Schmidt);
 # see the module docstring, "Consider states"
 CONSIDER = ("encoder_zero", "encoder_heading_zero", "gyro_scale_y", "gyro_scale_z", "accel_scale_x", "accel_scale_z")
-# counts each side added to the count an unchanged wheel is kept in: see EKFEstimator._keep_inside
-INSIDE_MARGIN = 1.0
 MAX_RIM_SPEED = 20.0  # m/s: encoder counts implying a faster wheel (relative to the body) are a fault
-# the latency watch (EKFEstimator._watch_latency), all in control periods
-WATCH_WINDOW = 100  # samples correlated (0.5 s at 200 Hz)
-WATCH_EVERY = 10  # periods between checks
-WATCH_MAX_LAG = 20  # the largest latency looked for (100 ms at 200 Hz)
-WATCH_RHO = 0.2  # the best lag's correlation must reach this ...
-WATCH_MARGIN = 0.15  # ... and beat the assumed latency's by this much ...
-WATCH_PERSIST = 3  # ... in this many checks in a row
-# row j of the window at latency L reads the command kernel at r0 − 2 − L + j, where
-# r0 = n − 1 − WATCH_WINDOW = WATCH_MAX_LAG + 4 is the window's first row (see _watch_latency)
-_WATCH_INDEX = (WATCH_MAX_LAG + 2 - np.arange(WATCH_MAX_LAG + 1)[:, None] + np.arange(WATCH_WINDOW)[None, :])
-ACCEL_MAX_IN_ROW = 2  # accelerometer samples rejected in a row before the next is taken as real
-
-def truncated_measurement(w: float, s2: float, lo: float, hi: float, gate: float):
-    """(z, R): the scalar measurement whose Kalman update turns the prior N(w, s2) into the
-    mean and variance of that prior truncated to [lo, hi]; None if w lies inside (nothing
-    to correct), if s2 is not positive, or if w lies more than ``gate`` standard deviations
-    outside (a constraint that far off says the prior, not the interval, is wrong).
-
-    With a = (lo − w)/s, b = (hi − w)/s the truncated normal's mean is w + s (φ(a) − φ(b))/Z
-    and its variance s² (1 + (a φ(a) − b φ(b))/Z − ((φ(a) − φ(b))/Z)²), Z = Φ(b) − Φ(a).
-    A gain k = 1 − σ_t²/s² gives that variance; z = w + (μ_t − w)/k that mean;
-    R = s² (1 − k)/k. Units: those of w (rad for a wheel angle), s2 and R their squares."""
-    if not s2 > 0.0 or lo <= w < hi:
-        return None
-    s = math.sqrt(s2)
-    a, b = (lo - w) / s, (hi - w) / s
-    sign = 1.0
-    if b <= 0.0:  # the mean above the interval: mirror it below
-        a, b, sign = -b, -a, -1.0
-    if a > gate:
-        return None
-    pa, pb = math.exp(-0.5 * a * a) / _SQRT_2PI, math.exp(-0.5 * b * b) / _SQRT_2PI
-    Z = 0.5 * (math.erfc(a / _SQRT_2) - math.erfc(b / _SQRT_2))
-    if not Z > 0.0:
-        return None
-    mean = (pa - pb) / Z
-    var = 1.0 + (a * pa - b * pb) / Z - mean * mean
-    if not 0.0 < var < 1.0:
-        return None
-    k = 1.0 - var
-    return w + sign * s * mean / k, s2 * var / k
-
-
-_SQRT_2, _SQRT_2PI = math.sqrt(2.0), math.sqrt(2.0 * math.pi)
-
-
-def _median(a: np.ndarray) -> float:
-    """np.median of a non-empty 1-d array, bit for bit, without its overhead (a few µs
-    against 17 µs on 100 samples)."""
-    k = len(a) // 2
-    if len(a) % 2:
-        return float(np.partition(a, k)[k])
-    p = np.partition(a, (k - 1, k))
-    return float((p[k - 1] + p[k]) / 2.0)  # as np.mean of the two: their sum, halved
-
 
 def finite_reading(v) -> bool:
     """A sensor reading that arrived (not None) with every value finite."""
@@ -293,12 +238,13 @@ class EKFEstimator:
         if isinstance(consider, str) or not isinstance(consider, (list, tuple)) or \
                 not all(isinstance(n, str) and n in STATE_NAMES for n in consider):
             raise TwinError(f"consider must be a list of state names from {', '.join(STATE_NAMES)}, got {consider!r}")
-        self.consider = tuple(n for n in STATE_NAMES if n in consider)
-        self._consider_mask = np.array([n in self.consider for n in STATE_NAMES])
+        self._consider = ConsiderStates(consider, STATE_NAMES, 0.0)
+        self.consider = self._consider.names
+        self._consider_mask = self._consider.mask
         if isinstance(learn_time, bool) or not isinstance(learn_time, (int, float)) or \
                 not (0.0 <= learn_time < math.inf):
             raise TwinError(f"learn_time must be a finite time >= 0 in s, got {learn_time!r}")
-        self.learn_time = float(learn_time)
+        self.learn_time = self._consider.learn_time = float(learn_time)
         self.model = model
         self.every, self.d_imu, self.d_enc = int(imu_every), int(imu_latency), int(encoder_latency)
         self.lag = max(self.d_imu, self.d_enc)
@@ -310,7 +256,7 @@ class EKFEstimator:
         # latency with the others it looks at (0 … WATCH_MAX_LAG periods): a gyro assumed
         # later than that (over 100 ms at 200 Hz, over 4 ms at 5 kHz) has nothing to compare
         # with, so it is not watched
-        self._watch = self.every == 1 and self.d_imu <= WATCH_MAX_LAG
+        self._watches = self.every == 1 and self.d_imu <= WATCH_MAX_LAG
         self.dt = self.every * model.dt
         self.alpha0 = float(alpha0)
         # an IMU sample is called an outlier only on much stronger evidence (1 − 1e-9):
@@ -334,10 +280,10 @@ class EKFEstimator:
             self.H[i, TH] = -1.0
             self.H[i, AL] = sgn * self.b_r
             self.H[i, H0] = sgn
-        self.gates = {k: chi2_gate(gate_probability, k) for k in (1, 2)}
-        self.imu_gates = {k: chi2_gate(1e-9, k) for k in (1, 2)}
-        self._inside_gate = math.sqrt(self.imu_gates[1])  # σ: see _keep_inside
-        self._inside_half = (0.5 + INSIDE_MARGIN) * self.delta  # rad: see _keep_inside
+        self._gate_policy = EncoderGate(gate_probability, max_rejects_in_row)
+        self.gates, self.imu_gates = self._gate_policy.gates, self._gate_policy.imu_gates
+        self._inside = KeepInside(self.H, self.b_r, self.alpha0, self.delta, math.sqrt(self.imu_gates[1]))
+        self._inside_half = self._inside.half  # rad: see _keep_inside
         g, a = model.imu.gyro, model.imu.accel
         # the largest readings the ADC can give (a sample there may be clipped)
         self._limits = (g.lsb * ((1 << (g.bits - 1)) - 1),) * 2 + (a.lsb * ((1 << (a.bits - 1)) - 1),) * 2
@@ -384,17 +330,11 @@ class EKFEstimator:
         self.lag = max(self.d_imu, self.d_enc)
         self.latency_changes = 0
         self.accel_outliers = 0  # accelerometer halves replaced by the model's (the gyro's kept)
-        self._acc_in_row = 0
         self._acc_out = False
         self._acc_e = None  # the last accelerometer innovation (m/s², (f_x, f_z)), None: not computed
-        self._acc_hist: list = []  # the last three
-        self._w_y: list[float] = []  # the watch's window: gyro ω_y by arrival step (NaN: none)
-        self._w_u: list[float] = []  # the sum of the wheel commands over the period ending at each step
-        self._gaps = {"gyro": [], "accel": []}  # (step, length) of recent arrival gaps, per triad
-        self._last_arrival = {"gyro": 0, "accel": 0}
-        self._votes = (0, 0)  # (candidate latency, consecutive checks that chose it)
-        self._watch_hold = 0  # no verdict before this step (after a change)
-        self._watch_last = None  # (t, best latency, its ρ, the assumed one's ρ) of the last check
+        self._accel = AccelOutlierTest(self.imu_gates[2], self.imu_gates[1])
+        # the latency watch (None: not watched, see __init__)
+        self._watch = LatencyWatch(self._torque_sign) if self._watches else None
         self.accepted = dict.fromkeys(GROUPS, 0)
         self.rejected = dict.fromkeys(GROUPS, 0)
         self.in_row = 0
@@ -556,7 +496,7 @@ class EKFEstimator:
         # one filter step per due IMU instant; after the assumed latency shrinks several are due
         for m in range(self.m + self.every, last + 1, self.every):
             t = meas.t - (k - m) * self.model.dt
-            if not self.holding and self.consider and t >= self.learn_time - 1e-9:
+            if self._consider.due(t, self.holding):
                 self._hold()
             try:
                 self._advance(m, t)
@@ -607,7 +547,7 @@ class EKFEstimator:
                     self._acc[k - self.d_acc] = accel
                 self._stale_in_row = 0
             self._last_imu = (g_new if g_ok else last_g, a_new if a_ok else last_a)
-        if self._watch and k > 0:
+        if self._watch is not None and k > 0:
             self._watch_latency(meas.t, k, gyro if g_ok else None, a_ok)
         if e_ok:
             if -self._enc_range <= enc[0] <= self._enc_range and -self._enc_range <= enc[1] <= self._enc_range:
@@ -617,82 +557,11 @@ class EKFEstimator:
                                             f"counter's range (±{self._enc_range:.4g} rad)"))
 
     def _watch_latency(self, t: float, k: int, gyro, a_ok: bool) -> None:
-        """Watch the gyro's latency: every :data:`WATCH_EVERY` periods, correlate the gyro's
-        second difference Δ²ω_y (arrival-indexed, the last :data:`WATCH_WINDOW` samples) with
-        the commands' torque-sum differences at candidate latencies 0 … :data:`WATCH_MAX_LAG`.
-
-        Why this works: θ̈ responds to the wheel torques at once (equation (1)), so Δ²ω_y of
-        the sample taken over period p follows (u_p + u_{p−1}) − (u_{p−2} + u_{p−3}) (u the
-        command sum; the two-period kernel because the sample is a mean over its period and
-        the difference spans two), whose high-frequency part is the controller's reaction
-        to sensor noise - uncorrelated with the state, so the correlation peaks sharply at
-        the gyro's true latency (|ρ| 0.2–0.4 balancing, 0.3–0.8 in a limit cycle) and drops
-        to ~0 one or more periods off. The commands are known exactly and undelayed: they
-        are the clock. A change is declared when the best latency differs from the assumed
-        one, its ρ (sign as equation (1) gives) ≥ :data:`WATCH_RHO` and beats the assumed
-        one's by :data:`WATCH_MARGIN`, in :data:`WATCH_PERSIST` checks in a row; then
-        :meth:`_latency_changed` re-aligns."""
-        wy, wu = self._w_y, self._w_u
-        wy.append(float(gyro[1]) if gyro is not None else math.nan)
-        c = self._commands.get(k - 1, (0.0, 0.0))
-        wu.append(c[0] + c[1])
-        last = self._last_arrival
-        # (the common case, both halves arriving without a gap, without a loop: every period)
-        if gyro is None or not a_ok or last["gyro"] != k - 1 or last["accel"] != k - 1:
-            for name, arrived in (("gyro", gyro is not None), ("accel", a_ok)):
-                if arrived:
-                    gap = k - last[name] - 1
-                    if gap > 0:
-                        self._gaps[name].append((k, gap))
-                        if len(self._gaps[name]) > 8:
-                            del self._gaps[name][0]
-                    last[name] = k
-        else:
-            last["gyro"] = last["accel"] = k
-        n = WATCH_WINDOW + WATCH_MAX_LAG + 5
-        if len(wy) > n:
-            del wy[0], wu[0]
-        if k % WATCH_EVERY or len(wy) < n or self._watch_hold > k:
-            return
-        # the same arithmetic as on index arrays, on slices: this check runs every
-        # WATCH_EVERY periods and was most of the filter's cost per step
-        y, u = np.fromiter(wy, float, n), np.fromiter(wu, float, n)
-        r0 = n - 1 - WATCH_WINDOW  # rows r0 … n − 2: the newest has no command after it yet
-        y2 = y[r0:n - 1] - 2.0 * y[r0 - 1:n - 2] + y[r0 - 2:n - 3]
-        ok = np.isfinite(y2)
-        if ok.sum() < WATCH_WINDOW // 2:
-            return
-        # an outlier (a spike moves three second differences by up to twice its size) would
-        # carry the correlation: rows beyond 5 robust σ (median absolute deviation) are left out
-        dev = np.abs(y2 - _median(y2[ok]))
-        ok &= ~(dev > 5.0 * 1.4826 * _median(dev[ok]))
-        used = int(ok.sum())
-        if used < WATCH_WINDOW // 2:
-            return
-        # wu[i] is the command over the period ending at step i; the Δ-kernel at step i,
-        # dk[i − 2] = u[i+1] + u[i] − u[i−1] − u[i−2]; at latency L row r reads dk at r − L
-        dk = u[3:] + u[2:-1] - u[1:-2] - u[:-3]
-        if used == WATCH_WINDOW:
-            Z, yy = dk[_WATCH_INDEX], y2
-        else:
-            Z, yy = dk[_WATCH_INDEX[:, ok]], y2[ok]
-        yy = yy - yy.mean()
-        Z -= Z.sum(axis=1, keepdims=True) / used  # as Z.mean(axis=1): the sum, divided
-        # Σ z y, Σ z², Σ y² in one fixed-order sum each (not @: BLAS products differ in their
-        # last bits between CPU kernels, issue 25)
-        R = len(Z)
-        sums = rowsums(np.vstack([Z * yy, Z * Z, (yy * yy)[None, :]]))
-        den = np.sqrt(sums[2 * R] * sums[R:2 * R])
-        rho = self._torque_sign * sums[:R] / np.where(den > 0, den, math.inf)
-        best = int(np.argmax(rho))
-        self._watch_last = (t, best, float(rho[best]), float(rho[self.d_gyro]))
-        if best != self.d_gyro and rho[best] >= WATCH_RHO and rho[best] - rho[self.d_gyro] >= WATCH_MARGIN:
-            votes = self._votes[1] + 1 if self._votes[0] == best else 1
-            self._votes = (best, votes)
-            if votes >= WATCH_PERSIST:
-                self._latency_changed(t, k, best, float(rho[best]))
-        else:
-            self._votes = (0, 0)
+        """Feed the latency watch (:class:`~estimation.ekf_policies.LatencyWatch`); on a change
+        it declares, :meth:`_latency_changed` re-aligns."""
+        found = self._watch.observe(t, k, gyro, a_ok, self._commands.get(k - 1, (0.0, 0.0)), self.d_gyro)
+        if found is not None:
+            self._latency_changed(t, k, *found)
 
     def _latency_changed(self, t: float, k: int, new: int, rho: float) -> None:
         """The gyro's latency is now ``new`` periods: re-align the samples not yet used, and the
@@ -700,8 +569,7 @@ class EKFEstimator:
         IMU then stopped arriving for the same span: a gap of ``new − old`` samples in each,
         within a period of each other; an accelerometer-only change is not detected)."""
         old, delta = self.d_gyro, new - self.d_gyro
-        g_gap = [s for s, n in self._gaps["gyro"] if n == delta]
-        acc = delta > 0 and any(abs(s - sg) <= 1 for s, n in self._gaps["accel"] if n == delta for sg in g_gap)
+        acc = self._watch.accel_gapped(delta)
         dt_ms = 1e3 * self.model.dt
         for store, d in ((self._gyro, delta), (self._acc, delta if acc else 0)):
             if d:
@@ -714,8 +582,7 @@ class EKFEstimator:
             self.d_acc += delta
         self.lag = max(self.d_gyro, self.d_acc, self.d_enc)
         self.latency_changes += 1
-        self._votes = (0, 0)
-        self._watch_hold = k + WATCH_WINDOW  # the next verdict on a window of the new latency alone
+        self._watch.changed(k)
         what = "gyro and accelerometer latency" if acc else "gyro latency"
         self.events.append((t, f"{what} changed: now about {new * dt_ms:.0f} ms (was {old * dt_ms:.0f} ms; "
                                f"correlation with the commands {rho:.2f}): re-aligned, the filter now runs "
@@ -745,8 +612,7 @@ class EKFEstimator:
         if imu is not None:
             eps_imu = self._imu_step(m, t, imu, enc, command)
             acc_out = self._acc_out
-            self._acc_seen(self._acc_e)
-            self._acc_in_row = self._acc_in_row + 1 if acc_out else 0
+            self._accel.seen(self._acc_e, acc_out)
             if acc_out:
                 self.accel_outliers += 1
             if eps_imu is None:
@@ -830,15 +696,13 @@ class EKFEstimator:
             syn = self._synthetic(x, command)
             e, sx, sz = self._accel_innovation(x, sample[0], syn)
             self._acc_e = e
-            ex, ez = e[0] - acc_test[1], e[1] - acc_test[2]
             # a push moves the specific force too, but also θ̈, which the gyro sees (its NIS
             # against the model: ≤ 18 on fault-free runs, 10³–10⁵ in a push): an accelerometer
             # outlier needs a gyro sample that agrees with the model (the 1 − 1e-9 gate). The
             # gyro's variance: its noise in this sample and in the two the model's θ̇ is
             # extrapolated from (1 + 1.5² + 0.5²), and the model's torque uncertainty
             eg, sg = sample[0][0] - syn[0][0], 3.5 * self._g_var + syn[1][0]
-            acc_out = bool(acc_test[3]) and ex * ex / sx + ez * ez / sz > 2.0 * acc_test[0] and \
-                eg * eg / sg <= self.imu_gates[1]
+            acc_out = self._accel.is_outlier(acc_test, e, sx, sz, eg, sg)
         if not any(sat) and not acc_out:
             return sample, syn, False, False
         if syn is None:
@@ -862,25 +726,9 @@ class EKFEstimator:
         return (sample[2] - fx, sample[3] - fz), sx, sz
 
     def _acc_test(self):
-        """(gate, b_x, b_z, may) for the accelerometer test of the next sample: its innovation e
-        (:meth:`_accel_innovation`) less b, the median of the last three innovations, must pass
-        the IMU gate (1 − 1e-9, 2 dof) with twice the variance (e and b both noisy). The median
-        follows a lasting change (a slope, a payload, a push: a force the model does not know)
-        after two samples, an isolated spike not at all. ``may`` is False until three
-        innovations are known and after :data:`ACCEL_MAX_IN_ROW` rejections in a row."""
-        h = self._acc_hist
-        if len(h) < 3:
-            return (self.imu_gates[2], 0.0, 0.0, 0.0)
-        (x0, z0), (x1, z1), (x2, z2) = h
-        bx = max(min(x0, x1), min(max(x0, x1), x2))  # the median of three
-        bz = max(min(z0, z1), min(max(z0, z1), z2))
-        return (self.imu_gates[2], bx, bz, float(self._acc_in_row < ACCEL_MAX_IN_ROW))
-
-    def _acc_seen(self, e) -> None:
-        if e is not None and math.isfinite(e[0]) and math.isfinite(e[1]):
-            self._acc_hist.append(e)
-            if len(self._acc_hist) > 3:
-                del self._acc_hist[0]
+        """(gate, b_x, b_z, may) for the accelerometer test of the next sample
+        (:meth:`~estimation.ekf_policies.AccelOutlierTest.params`)."""
+        return self._accel.params()
 
     def _imu_outlier(self, pred, syn, enc, m: int, command):
         """The encoders' NIS with the IMU sample behind ``pred`` (its step, from
@@ -933,7 +781,7 @@ class EKFEstimator:
         T = (m - self._last_enc_m) * self.model.dt
         code_i, sat, code_e, nis, dof, ok, acc_out, ex, ez, inside = self.core.advance(
             sample, enc, self._last_enc if enc is not None else None, T, command,
-            self.in_row < self.max_rejects_in_row, self._acc_test())
+            self._gate_policy.may_reject(self.in_row), self._acc_test())
         self._acc_out = bool(acc_out)
         self._acc_e = (ex, ez)
         if code_i == 2:
@@ -1088,20 +936,8 @@ class EKFEstimator:
         last = self._last_enc
         if last is None:
             return
-        for i in (0, 1):
-            if enc[i] != last[i]:
-                continue
-            x, P = self.kf.x, self.kf.P
-            h = self.H[i]
-            off = -(2 * i - 1) * self.b_r * self.alpha0
-            w = float(affine([off], h[None, :], x)[0])
-            s2 = dot(h, mv(P, h))
-            half = self._inside_half
-            pm = truncated_measurement(w, s2, enc[i] - half, enc[i] + half, self._inside_gate)
-            if pm is None:
-                continue
-            z, R = pm
-            update((np.array([z]), np.array([off]), self.H[[i]], np.array([[R]])))
+        for em in self._inside.measurements(enc, last, self.kf):  # (:class:`~estimation.ekf_policies.KeepInside`)
+            update(em)
             self.interval_updates += 1
 
     def _finish(self, t: float) -> None:
@@ -1174,8 +1010,8 @@ class EKFEstimator:
         dof = len(em[0])
         self.last_nis, self.last_dof = eps, dof
         gate = self.gates[dof]
-        if not eps <= gate:
-            if self.in_row < self.max_rejects_in_row:
+        if not self._gate_policy.passes(eps, dof):
+            if self._gate_policy.may_reject(self.in_row):
                 self.rejected["encoders"] += 1
                 self.in_row += 1
                 return False

@@ -122,3 +122,32 @@ def test_both_cores_restore_the_last_good_state_inflated():
 
 def test_the_compiled_kernel_is_read_through_one_flag():
     assert compiled_kernel_loaded() == (ekf_core._kernel is not None)
+
+
+@pytest.mark.parametrize("compiled", [False, pytest.param(True, marks=needs_kernel)])
+def test_a_policy_composes_on_either_core(compiled):
+    """KeepInside (the truncation into an unchanged count) on a bare core: a wheel estimated
+    three counts off its unchanged count is pulled back towards it, its variance shrinks, and
+    the other wheel (inside) is left alone; the gate policy's thresholds hold."""
+    from estimation.detlinalg import affine, dot, mv
+    from estimation.ekf_policies import EncoderGate, KeepInside
+
+    est = EKFEstimator(EstimatorModel(), compiled=compiled)
+    core, H, delta = est.core, est.H, est.delta
+    x, P = np.zeros(N), np.eye(N) * 1e-6
+    core.set_state(x, P, (0.0, 0.0), (0.0, 0.0))
+    core.pull()
+    enc = (3.0 * delta, 0.0)  # the left wheel's count three counts above its estimate (0)
+    policy = KeepInside(H, est.b_r, 0.0, delta, 6.0)
+    gate = EncoderGate(1e-4, 5)
+    before = dot(H[0], mv(core.P, H[0]))
+    used = 0
+    for z, off, Hi, R in policy.measurements(enc, enc, core.kf):
+        y, S = core.update(z, off, Hi, R)
+        assert gate.passes(0.0, 1) and not gate.passes(float("inf"), 1) and S[0, 0] > 0.0
+        used += 1
+    core.push()
+    assert used == 1
+    w = float(affine([0.0], H[0][None, :], core.x)[0])
+    assert 0.0 < w < 3.0 * delta and dot(H[0], mv(core.P, H[0])) < before
+    assert gate.may_reject(4) and not gate.may_reject(5)

@@ -1,0 +1,292 @@
+"""The EKF's policies, composed on its filter core (:mod:`estimation.ekf_core`) by
+:class:`estimation.ekf.EKFEstimator`: what to do with a measurement, not how to filter it.
+
+:class:`EncoderGate`       the χ² gate of the encoder update and the forced re-synchronisation
+:class:`LatencyWatch`      the gyro's latency watched against the commands
+:class:`AccelOutlierTest`  the accelerometer half of an IMU sample against equation (1)
+:class:`KeepInside`        the truncation that keeps a wheel in an unchanged count
+                           (:func:`truncated_measurement`)
+:class:`ConsiderStates`    which states are held (Schmidt) after the learning time
+
+The module docstring of :mod:`estimation.ekf` gives the reasons and the measurements behind
+each. The compiled core runs the gate, the accelerometer test and the truncation fused in its
+IMU step (estimation/_ekf.c) with the same constants; the estimator books its decisions.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from estimation.detlinalg import affine, dot, mv, rowsums
+from estimation.gates import chi2_gate
+
+# counts each side added to the count an unchanged wheel is kept in: see KeepInside
+INSIDE_MARGIN = 1.0
+# the latency watch (LatencyWatch), all in control periods
+WATCH_WINDOW = 100  # samples correlated (0.5 s at 200 Hz)
+WATCH_EVERY = 10  # periods between checks
+WATCH_MAX_LAG = 20  # the largest latency looked for (100 ms at 200 Hz)
+WATCH_RHO = 0.2  # the best lag's correlation must reach this ...
+WATCH_MARGIN = 0.15  # ... and beat the assumed latency's by this much ...
+WATCH_PERSIST = 3  # ... in this many checks in a row
+# row j of the window at latency L reads the command kernel at r0 − 2 − L + j, where
+# r0 = n − 1 − WATCH_WINDOW = WATCH_MAX_LAG + 4 is the window's first row (see LatencyWatch.observe)
+_WATCH_INDEX = (WATCH_MAX_LAG + 2 - np.arange(WATCH_MAX_LAG + 1)[:, None] + np.arange(WATCH_WINDOW)[None, :])
+ACCEL_MAX_IN_ROW = 2  # accelerometer samples rejected in a row before the next is taken as real
+IMU_GATE_PROBABILITY = 1e-9  # an IMU sample is called an outlier only on much stronger evidence
+
+
+class EncoderGate:
+    """The χ² gate of an encoder update at 1 − ``probability`` (1 or 2 degrees of freedom), and
+    of an IMU sample's outlier test at 1 − :data:`IMU_GATE_PROBABILITY`: wrongly replacing a real
+    sample by the model's is worse than keeping a mild outlier. After ``max_rejects_in_row``
+    rejections in a row the next sample is accepted (the filter is then the likely culprit)."""
+
+    def __init__(self, probability: float, max_rejects_in_row: int):
+        self.gates = {k: chi2_gate(probability, k) for k in (1, 2)}
+        self.imu_gates = {k: chi2_gate(IMU_GATE_PROBABILITY, k) for k in (1, 2)}
+        self.max_rejects_in_row = int(max_rejects_in_row)
+
+    def passes(self, eps: float, dof: int) -> bool:
+        return eps <= self.gates[dof]
+
+    def may_reject(self, in_row: int) -> bool:
+        """False once ``in_row`` rejections in a row force the next sample in."""
+        return in_row < self.max_rejects_in_row
+
+
+def truncated_measurement(w: float, s2: float, lo: float, hi: float, gate: float):
+    """(z, R): the scalar measurement whose Kalman update turns the prior N(w, s2) into the
+    mean and variance of that prior truncated to [lo, hi]; None if w lies inside (nothing
+    to correct), if s2 is not positive, or if w lies more than ``gate`` standard deviations
+    outside (a constraint that far off says the prior, not the interval, is wrong).
+
+    With a = (lo − w)/s, b = (hi − w)/s the truncated normal's mean is w + s (φ(a) − φ(b))/Z
+    and its variance s² (1 + (a φ(a) − b φ(b))/Z − ((φ(a) − φ(b))/Z)²), Z = Φ(b) − Φ(a).
+    A gain k = 1 − σ_t²/s² gives that variance; z = w + (μ_t − w)/k that mean;
+    R = s² (1 − k)/k. Units: those of w (rad for a wheel angle), s2 and R their squares."""
+    if not s2 > 0.0 or lo <= w < hi:
+        return None
+    s = math.sqrt(s2)
+    a, b = (lo - w) / s, (hi - w) / s
+    sign = 1.0
+    if b <= 0.0:  # the mean above the interval: mirror it below
+        a, b, sign = -b, -a, -1.0
+    if a > gate:
+        return None
+    pa, pb = math.exp(-0.5 * a * a) / _SQRT_2PI, math.exp(-0.5 * b * b) / _SQRT_2PI
+    Z = 0.5 * (math.erfc(a / _SQRT_2) - math.erfc(b / _SQRT_2))
+    if not Z > 0.0:
+        return None
+    mean = (pa - pb) / Z
+    var = 1.0 + (a * pa - b * pb) / Z - mean * mean
+    if not 0.0 < var < 1.0:
+        return None
+    k = 1.0 - var
+    return w + sign * s * mean / k, s2 * var / k
+
+
+_SQRT_2, _SQRT_2PI = math.sqrt(2.0), math.sqrt(2.0 * math.pi)
+
+
+class KeepInside:
+    """For each wheel whose count has not changed since the last sample used: if the estimate
+    has left that count by more than :data:`INSIDE_MARGIN` counts, the truncated update that
+    brings it back (see :meth:`estimation.ekf.EKFEstimator._keep_inside` for why, and why the margin).
+
+    ``H`` (2, 12) the wheels' rows, ``b_r`` b/r, ``alpha0`` the initial heading (rad),
+    ``delta`` the count (rad), ``gate`` the σ beyond which the count is left to the next edge's gate."""
+
+    def __init__(self, H, b_r: float, alpha0: float, delta: float, gate: float):
+        self.H, self.b_r, self.alpha0, self.gate = H, b_r, alpha0, gate
+        self.half = (0.5 + INSIDE_MARGIN) * delta  # rad
+
+    def measurements(self, enc, last, kf):
+        """The truncated measurements (z, off, H, R), one per wheel that needs one, each computed
+        from the state ``kf`` (x, P) as it is after the previous one's update."""
+        for i in (0, 1):
+            if enc[i] != last[i]:
+                continue
+            x, P = kf.x, kf.P
+            h = self.H[i]
+            off = -(2 * i - 1) * self.b_r * self.alpha0
+            w = float(affine([off], h[None, :], x)[0])
+            s2 = dot(h, mv(P, h))
+            half = self.half
+            pm = truncated_measurement(w, s2, enc[i] - half, enc[i] + half, self.gate)
+            if pm is None:
+                continue
+            z, R = pm
+            yield np.array([z]), np.array([off]), self.H[[i]], np.array([[R]])
+
+
+class AccelOutlierTest:
+    """The accelerometer half of an IMU sample against the specific force equation (1) predicts:
+    its innovation less the median of the last three must pass the IMU gate (2 dof) at twice
+    the variance, while the gyro agrees with the model; at most :data:`ACCEL_MAX_IN_ROW` in a row."""
+
+    def __init__(self, gate2: float, gyro_gate: float):
+        self.gate2, self.gyro_gate = gate2, gyro_gate
+        self.history: list = []  # the last three innovations (m/s², (f_x, f_z))
+        self.in_row = 0
+
+    def params(self):
+        """(gate, b_x, b_z, may) for the next sample: b the median of the last three innovations;
+        ``may`` 0.0 until three are known and after :data:`ACCEL_MAX_IN_ROW` rejections in a row."""
+        h = self.history
+        if len(h) < 3:
+            return (self.gate2, 0.0, 0.0, 0.0)
+        (x0, z0), (x1, z1), (x2, z2) = h
+        bx = max(min(x0, x1), min(max(x0, x1), x2))  # the median of three
+        bz = max(min(z0, z1), min(max(z0, z1), z2))
+        return (self.gate2, bx, bz, float(self.in_row < ACCEL_MAX_IN_ROW))
+
+    def is_outlier(self, test, e, sx: float, sz: float, eg: float, sg: float) -> bool:
+        """With ``test`` from :meth:`params`: innovation ``e`` (variances ``sx``, ``sz``) less the
+        median fails the gate at twice the variance, and the gyro's innovation ``eg`` (variance
+        ``sg``) passes its own (a push moves θ̈ too, a sensor spike does not)."""
+        ex, ez = e[0] - test[1], e[1] - test[2]
+        return bool(test[3]) and ex * ex / sx + ez * ez / sz > 2.0 * test[0] and eg * eg / sg <= self.gyro_gate
+
+    def seen(self, e, outlier: bool) -> None:
+        """After a sample: its innovation ``e`` (None: not computed) and the verdict."""
+        if e is not None and math.isfinite(e[0]) and math.isfinite(e[1]):
+            self.history.append(e)
+            if len(self.history) > 3:
+                del self.history[0]
+        self.in_row = self.in_row + 1 if outlier else 0
+
+
+def _median(a: np.ndarray) -> float:
+    """np.median of a non-empty 1-d array, bit for bit, without its overhead (a few µs
+    against 17 µs on 100 samples)."""
+    k = len(a) // 2
+    if len(a) % 2:
+        return float(np.partition(a, k)[k])
+    p = np.partition(a, (k - 1, k))
+    return float((p[k - 1] + p[k]) / 2.0)  # as np.mean of the two: their sum, halved
+
+
+class LatencyWatch:
+    """Watch the gyro's latency: every :data:`WATCH_EVERY` periods, correlate the gyro's
+    second difference Δ²ω_y (arrival-indexed, the last :data:`WATCH_WINDOW` samples) with
+    the commands' torque-sum differences at candidate latencies 0 … :data:`WATCH_MAX_LAG`.
+
+    Why this works: θ̈ responds to the wheel torques at once (equation (1)), so Δ²ω_y of
+    the sample taken over period p follows (u_p + u_{p−1}) − (u_{p−2} + u_{p−3}) (u the
+    command sum; the two-period kernel because the sample is a mean over its period and
+    the difference spans two), whose high-frequency part is the controller's reaction
+    to sensor noise - uncorrelated with the state, so the correlation peaks sharply at
+    the gyro's true latency (|ρ| 0.2–0.4 balancing, 0.3–0.8 in a limit cycle) and drops
+    to ~0 one or more periods off. The commands are known exactly and undelayed: they
+    are the clock. A change is declared when the best latency differs from the assumed
+    one, its ρ (sign as equation (1) gives, ``torque_sign``) ≥ :data:`WATCH_RHO` and beats the
+    assumed one's by :data:`WATCH_MARGIN`, in :data:`WATCH_PERSIST` checks in a row."""
+
+    def __init__(self, torque_sign: float):
+        self.torque_sign = torque_sign
+        self.y: list[float] = []  # the window: gyro ω_y by arrival step (NaN: none)
+        self.u: list[float] = []  # the sum of the wheel commands over the period ending at each step
+        self.gaps = {"gyro": [], "accel": []}  # (step, length) of recent arrival gaps, per triad
+        self.last_arrival = {"gyro": 0, "accel": 0}
+        self.votes = (0, 0)  # (candidate latency, consecutive checks that chose it)
+        self.hold_until = 0  # no verdict before this step (after a change)
+        self.last = None  # (t, best latency, its ρ, the assumed one's ρ) of the last check
+
+    def observe(self, t: float, k: int, gyro, a_ok: bool, command, assumed: int):
+        """Step ``k`` (time ``t``): the gyro reading (None: none), whether the accelerometer's
+        arrived, the command over the period that ended, the latency assumed now (periods).
+        Returns (new latency, its ρ) when a change is declared, else None."""
+        wy, wu = self.y, self.u
+        wy.append(float(gyro[1]) if gyro is not None else math.nan)
+        wu.append(command[0] + command[1])
+        last = self.last_arrival
+        # (the common case, both halves arriving without a gap, without a loop: every period)
+        if gyro is None or not a_ok or last["gyro"] != k - 1 or last["accel"] != k - 1:
+            for name, arrived in (("gyro", gyro is not None), ("accel", a_ok)):
+                if arrived:
+                    gap = k - last[name] - 1
+                    if gap > 0:
+                        self.gaps[name].append((k, gap))
+                        if len(self.gaps[name]) > 8:
+                            del self.gaps[name][0]
+                    last[name] = k
+        else:
+            last["gyro"] = last["accel"] = k
+        n = WATCH_WINDOW + WATCH_MAX_LAG + 5
+        if len(wy) > n:
+            del wy[0], wu[0]
+        if k % WATCH_EVERY or len(wy) < n or self.hold_until > k:
+            return None
+        # the same arithmetic as on index arrays, on slices: this check runs every
+        # WATCH_EVERY periods and was most of the filter's cost per step
+        y, u = np.fromiter(wy, float, n), np.fromiter(wu, float, n)
+        r0 = n - 1 - WATCH_WINDOW  # rows r0 … n − 2: the newest has no command after it yet
+        y2 = y[r0:n - 1] - 2.0 * y[r0 - 1:n - 2] + y[r0 - 2:n - 3]
+        ok = np.isfinite(y2)
+        if ok.sum() < WATCH_WINDOW // 2:
+            return None
+        # an outlier (a spike moves three second differences by up to twice its size) would
+        # carry the correlation: rows beyond 5 robust σ (median absolute deviation) are left out
+        dev = np.abs(y2 - _median(y2[ok]))
+        ok &= ~(dev > 5.0 * 1.4826 * _median(dev[ok]))
+        used = int(ok.sum())
+        if used < WATCH_WINDOW // 2:
+            return None
+        # wu[i] is the command over the period ending at step i; the Δ-kernel at step i,
+        # dk[i − 2] = u[i+1] + u[i] − u[i−1] − u[i−2]; at latency L row r reads dk at r − L
+        dk = u[3:] + u[2:-1] - u[1:-2] - u[:-3]
+        if used == WATCH_WINDOW:
+            Z, yy = dk[_WATCH_INDEX], y2
+        else:
+            Z, yy = dk[_WATCH_INDEX[:, ok]], y2[ok]
+        yy = yy - yy.mean()
+        Z -= Z.sum(axis=1, keepdims=True) / used  # as Z.mean(axis=1): the sum, divided
+        # Σ z y, Σ z², Σ y² in one fixed-order sum each (not @: BLAS products differ in their
+        # last bits between CPU kernels, issue 25)
+        R = len(Z)
+        sums = rowsums(np.vstack([Z * yy, Z * Z, (yy * yy)[None, :]]))
+        den = np.sqrt(sums[2 * R] * sums[R:2 * R])
+        rho = self.torque_sign * sums[:R] / np.where(den > 0, den, math.inf)
+        best = int(np.argmax(rho))
+        self.last = (t, best, float(rho[best]), float(rho[assumed]))
+        if best != assumed and rho[best] >= WATCH_RHO and rho[best] - rho[assumed] >= WATCH_MARGIN:
+            votes = self.votes[1] + 1 if self.votes[0] == best else 1
+            self.votes = (best, votes)
+            if votes >= WATCH_PERSIST:
+                return best, float(rho[best])
+        else:
+            self.votes = (0, 0)
+        return None
+
+    def accel_gapped(self, delta: int) -> bool:
+        """True if the accelerometer stopped arriving for ``delta`` samples when the gyro did
+        (within a period of each other): the whole IMU then fell behind, not the gyro alone."""
+        g_gap = [s for s, n in self.gaps["gyro"] if n == delta]
+        return delta > 0 and any(abs(s - sg) <= 1 for s, n in self.gaps["accel"] if n == delta for sg in g_gap)
+
+    def changed(self, k: int) -> None:
+        """A change was acted on at step ``k``: the next verdict on a window of the new latency alone."""
+        self.votes = (0, 0)
+        self.hold_until = k + WATCH_WINDOW
+
+
+class ConsiderStates:
+    """The states (names from ``state_names``) that become consider states after ``learn_time``
+    s: measurements no longer correct their estimates (Schmidt–Kalman: their uncertainty stays
+    in P)."""
+
+    def __init__(self, names, state_names, learn_time: float):
+        self.names = tuple(n for n in state_names if n in names)
+        self.mask = np.array([n in self.names for n in state_names])
+        self.learn_time = float(learn_time)
+
+    def due(self, t: float, holding: bool) -> bool:
+        """True when the states are to be held from time ``t`` on."""
+        return not holding and bool(self.names) and t >= self.learn_time - 1e-9
+
+
+__all__ = ["ACCEL_MAX_IN_ROW", "INSIDE_MARGIN", "WATCH_EVERY", "WATCH_MARGIN", "WATCH_MAX_LAG", "WATCH_PERSIST",
+           "WATCH_RHO", "WATCH_WINDOW", "AccelOutlierTest", "ConsiderStates", "EncoderGate", "KeepInside",
+           "LatencyWatch", "truncated_measurement"]
