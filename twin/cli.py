@@ -436,7 +436,9 @@ def analytic(experiment, controller, out, duration, gains_file, epsilon, rho, de
     EXPERIMENT is 1 (balance from θ0 = 0.48 rad), 2 (+ position, p_d = 0.7 m) or
     3 (+ direction, p_d = 1 m, α_d = 1.5 rad). Writes figure.png, metrics.json,
     trajectory_<controller>.csv, design.json and manifest.json into --out, as a whole:
-    --out is the earlier directory until the new one is complete.
+    --out is the earlier directory until the new one is complete. The runs are those of
+    'twin run paper-expN --set plant.model=analytic --set plant.scale={} --set
+    sensors.sensing=ideal' (the same closed loop and plant; the same metrics).
 
     \b
     Examples:

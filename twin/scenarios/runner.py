@@ -176,7 +176,8 @@ def _run_and_write(scenario, kinds, staged, video, progress, every, log_format, 
             run = simulate_twin(controller, exp, config, duration=scenario.duration, controller_name=kind,
                                 alpha0=d["initial"]["alpha"], position=(d["initial"]["x"], d["initial"]["y"]),
                                 sensors=sensors, estimator=scenario.build_estimator(context), seed=scenario.seed,
-                                model_params=context.model, progress=cb, log_every=every)
+                                model_params=context.model, progress=cb, log_every=every,
+                                plant=scenario.plant_model)
         except PluginError as exc:
             if not keep_limited or limit_of(exc) is None:
                 raise
@@ -215,7 +216,8 @@ def _write(result, staged, video, progress, every, log_format, worker, sensors, 
     d = scenario.data
     out = staged.path
     title = f"{scenario.name}: {scenario.description}\nseed {scenario.seed}, " + (
-        "ideal sensing" if sensors is None else f"{scenario.estimator} estimator in the loop")
+        "ideal sensing" if sensors is None else f"{scenario.estimator} estimator in the loop") + (
+        ", analytic model (equation 1)" if scenario.plant_model == "analytic" else "")
     want_video = video if video is not None else d["video"]["enabled"]
     stage, drawn, writing = "data", False, None
     try:

@@ -136,6 +136,19 @@ class Scenario:
         return Experiment(d["name"], d["description"], theta0=d["initial"]["theta"],
                           p_d=d["targets"]["position"], alpha_d=d["targets"]["heading"], duration=d["duration"])
 
+    @property
+    def plant_model(self) -> str:
+        """``plant.model``: "bullet" (the PyBullet twin) or "analytic" (equation (1))."""
+        return self.data["plant"]["model"]
+
+    def plant(self):
+        """A new plant of ``plant.model`` on :meth:`twin_config` at the initial state (a
+        :class:`twin.protocols.Plant`; :func:`twin.plant.build_plant`)."""
+        from twin.plant import build_plant
+
+        i = self.data["initial"]
+        return build_plant(self.plant_model, self.twin_config(), i["theta"], i["alpha"], (i["x"], i["y"]))
+
     def true_params(self):
         from twin.params import NOMINAL
 
@@ -152,7 +165,8 @@ class Scenario:
                        for q in d["pushes"])
         payload = Payload(p["payload_mass"], tuple(p["payload_position"])) if p["payload_mass"] > 0 else None
         dist = Disturbances(pushes=pushes, payload=payload, com_offset=tuple(p["com_offset"]))
-        kwargs = {} if p["motor"] == "dc" else {"motor": None}
+        # the analytic model's torque sources are ideal, whatever plant.motor says
+        kwargs = {} if p["motor"] == "dc" and p["model"] == "bullet" else {"motor": None}
         if any(v is not None for v in d["limits"].values()):
             from twin.limits import PluginLimits
 
@@ -238,6 +252,7 @@ class Scenario:
             self.believed_sensor_config()
             return None if config is None else config.steps(control)
 
+        self._check_analytic()
         for where, build in (("plant", self.true_params), ("twin", self.twin_config), ("sensors", sensors)):
             try:
                 build()
@@ -257,6 +272,23 @@ class Scenario:
         self._check_start(config)
         self.design()
         return self
+
+    def _check_analytic(self) -> None:
+        """With ``plant.model = "analytic"``, what only the PyBullet twin models is refused, naming the key."""
+        d = self.data
+        if d["plant"]["model"] != "analytic":
+            return
+        from twin.scenarios.schema import SCHEMA
+
+        keys = SCHEMA["plant"].keys
+        used = ["plant.payload_mass"] * (d["plant"]["payload_mass"] != keys["payload_mass"].default)
+        used += ["plant.com_offset"] * (tuple(d["plant"]["com_offset"]) != tuple(keys["com_offset"].default))
+        used += [f"ground.{k}" for k, key in SCHEMA["ground"].keys.items() if d["ground"][k] != key.default]
+        used += ["pushes"] * bool(d["pushes"])
+        if used:
+            raise self._error(f"{used[0]}: the analytic plant (plant.model = \"analytic\", equation (1)) rolls without "
+                              f"slip on a level floor and has no pushes, payload or centre-of-mass offset; allowed: "
+                              f"{used[0]} at its default with it, or plant.model = \"bullet\"")
 
     def _check_start(self, config) -> None:
         """Every part of the robot starts above the floor (:func:`twin.plant.bullet.start_problem`):
