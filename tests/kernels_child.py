@@ -37,6 +37,7 @@ def outputs(directory: Path) -> dict:
 def main() -> None:
     out, golden, mode = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3]
     from twin import fingerprint
+    from twin.controllers.designs import balance_design
     from twin.controllers.lmi import NOMINAL_DESIGN, design_balance_gains
     from twin.controllers.lqr import LQRController
     from twin.params import NOMINAL
@@ -47,9 +48,9 @@ def main() -> None:
     result = {"kernel": env["blas"].get("kernel"), "numpy_simd": env["numpy_simd"]["dispatched"],
               "libm": env["libm"],
               "build": "".join("c" if v else "p" for v in env["kernels"].values())}
-    default = design_balance_gains(cache=True)
+    default = balance_design(cache=True, hold=False)
     result["designs"] = {"default": default.digest(), "default_unique": default.unique,
-                         "nominal": design_balance_gains(**NOMINAL_DESIGN, cache=True).digest(),
+                         "nominal": balance_design(**NOMINAL_DESIGN, cache=True, hold=False).digest(),
                          # a region and a box with the paper's relaxation (slack variables)
                          "relaxed_region_box": design_balance_gains(decay_rate=2.5, damping=0.4, all_vertices=False,
                                                                     uncertain={"l": 0.1, "m_b": 0.1}).digest(),
@@ -64,7 +65,7 @@ def main() -> None:
     hashes = {}
     for case, spec in sorted(cases.items()):
         d = out / "refactor" / case
-        run_scenario(load_scenario(spec["scenario"], spec["set"]), ("it2", "t1"), out=d, video=False)
+        run_scenario(load_scenario(spec["scenario"], spec["set"]), tuple(spec["controllers"]), out=d, video=False)
         hashes[case] = outputs(d)
     result["refactor"] = hashes
     from twin.cli import main as twin_main

@@ -2,6 +2,7 @@
 fresh one bit for bit; a bad entry is never trusted but noted and solved again; --no-cache
 bypasses it; 'twin cache clear' empties it; a run served from it never imports cvxpy."""
 import dataclasses
+import functools
 import hashlib
 import json
 import subprocess
@@ -12,7 +13,11 @@ import numpy as np
 import pytest
 
 from twin.controllers import design_cache
+from twin.controllers.designs import balance_design
 from twin.controllers.lmi import design_balance_gains
+
+# the disk cache alone, as a new process finds it (not this process's designs)
+cached_design = functools.partial(balance_design, cache=True, hold=False)
 from twin.params import NOMINAL
 
 DECAY = 2.5  # options of their own, so that no other test's entry is found by accident
@@ -52,9 +57,9 @@ def _same_bits(a, b, solve_time=True):
 
 
 def test_cached_design_equals_the_fresh_one_bit_for_bit(cache):
-    fresh = design_balance_gains(decay_rate=DECAY, cache=True)
+    fresh = cached_design(decay_rate=DECAY)
     assert not fresh.from_cache and _entry(cache).is_file()
-    cached = design_balance_gains(decay_rate=DECAY, cache=True)
+    cached = cached_design(decay_rate=DECAY)
     assert cached.from_cache
     _same_bits(fresh, cached)
     assert json.dumps(fresh.to_json_dict()) == json.dumps(cached.to_json_dict())
@@ -107,11 +112,11 @@ def _flip_gains(doc):
     (lambda p: (p.unlink(), p.mkdir()), "unreadable"),
 ])
 def test_a_bad_entry_is_noted_and_solved_again(cache, capsys, damage, why):
-    fresh = design_balance_gains(decay_rate=DECAY, cache=True)
+    fresh = cached_design(decay_rate=DECAY)
     path = _entry(cache)
     damage(path)
     capsys.readouterr()
-    d = design_balance_gains(decay_rate=DECAY, cache=True)
+    d = cached_design(decay_rate=DECAY)
     err = capsys.readouterr().err
     assert not d.from_cache, "a damaged entry was trusted"
     _same_bits(fresh, d, solve_time=False)
@@ -120,13 +125,13 @@ def test_a_bad_entry_is_noted_and_solved_again(cache, capsys, damage, why):
     # one line; only an entry that cannot be replaced (a directory in its place) adds one more
     assert len(lines) == 1 or (why == "unreadable" and len(lines) == 2 and "could not write" in lines[1]), err
     if path.is_file():  # the recomputed design replaced the bad file, and is served next time
-        assert design_balance_gains(decay_rate=DECAY, cache=True).from_cache
+        assert cached_design(decay_rate=DECAY).from_cache
 
 
 def test_an_unwritable_cache_is_a_note_not_an_error(tmp_path, monkeypatch, capsys):
     (tmp_path / "file").write_text("")
     monkeypatch.setenv("TWIN_CACHE_DIR", str(tmp_path / "file" / "cache"))  # below a file: cannot exist
-    d = design_balance_gains(decay_rate=DECAY, cache=True)
+    d = cached_design(decay_rate=DECAY)
     assert d.certificate.passed and "could not write" in capsys.readouterr().err
 
 
