@@ -41,7 +41,7 @@ if which == "nominal" and mode == "first":
 if mode == "first":
     import clarabel  # noqa
 t_import = time.perf_counter() - t0
-from twin.controllers import lmi, lmi_center
+from twin.controllers import designs, lmi, lmi_center
 from twin.errors import InfeasibleDesign
 if before:
     def _fail(*a, **k):
@@ -77,9 +77,9 @@ err = io.StringIO() if before else None
 t0 = time.perf_counter()
 if before:
     with contextlib.redirect_stderr(err):
-        d = lmi.design_balance_gains(**kw, cache=True)  # an empty cache on "first": solved, then stored
+        d = designs.balance_design(**kw, cache=True)  # an empty cache on "first": solved, then stored
 else:
-    d = lmi.design_balance_gains(**kw, cache=True)  # an empty cache on "first": solved, then stored
+    d = designs.balance_design(**kw, cache=True)  # an empty cache on "first": solved, then stored
 wall = time.perf_counter() - t0
 assert d.from_cache == (mode == "cached"), (mode, d.from_cache)
 assert d.unique == (not before) or d.from_cache, (before, d.unique)

@@ -65,8 +65,18 @@ def test_the_key_is_the_disk_caches_and_bad_options_are_one_line():
         designs.balance_design(rho=-1.0)
 
 
-def test_the_library_call_with_cache_uses_the_disk_alone(tmp_path):
-    """design_balance_gains(cache=True), as before the store: disk, not the process's designs."""
-    a = design_balance_gains(**NOMINAL_DESIGN, cache=True)
-    b = design_balance_gains(**NOMINAL_DESIGN, cache=True)
-    assert b is not a and b.from_cache and not a.from_cache
+def test_the_solver_does_not_know_the_store():
+    """lmi solves; the store sits above it (no import back up, no cache argument)."""
+    import inspect
+
+    from twin.controllers import lmi
+
+    assert "cache" not in inspect.signature(design_balance_gains).parameters
+    import ast
+
+    imported = {n.module if isinstance(n, ast.ImportFrom) else a.name
+                for n in ast.walk(ast.parse(inspect.getsource(lmi))) if isinstance(n, (ast.Import, ast.ImportFrom))
+                for a in n.names}
+    imported |= {f"{n.module}.{a.name}" for n in ast.walk(ast.parse(inspect.getsource(lmi)))
+                 if isinstance(n, ast.ImportFrom) and n.module for a in n.names}
+    assert not {"twin.controllers.designs", "twin.controllers.design_cache"} & imported, imported

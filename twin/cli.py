@@ -292,13 +292,11 @@ def design(epsilon, rho, decay_rate, max_gain, damping, uncertain, all_vertices,
       twin design --decay-rate 2 --damping 0.5 --uncertain m_b=0.2,l=0.15 --rho 3 --out gains.json
       twin design --decay-rate 3 --damping 0 --uncertain none --pdc-mixes    # the nominal design
     """
-    from twin.controllers import design_cache
-    from twin.controllers.lmi import design_balance_gains
+    from twin.controllers.designs import balance_design
 
-    d = design_balance_gains(epsilon=epsilon, rho=rho, decay_rate=decay_rate, max_gain=max_gain,
-                             solver=solver.upper() if solver else None, damping=damping,
-                             uncertain=_parse_uncertain(uncertain), all_vertices=all_vertices,
-                             cache=design_cache.enabled())
+    d = balance_design(epsilon=epsilon, rho=rho, decay_rate=decay_rate, max_gain=max_gain,
+                       solver=solver.upper() if solver else None, damping=damping,
+                       uncertain=_parse_uncertain(uncertain), all_vertices=all_vertices)
     _print_design(d)
     if out is not None:
         from twin.report import write_json
@@ -374,8 +372,7 @@ def _print_region(d) -> None:
 
 
 def _load_design(path: Path | None, epsilon, rho, decay_rate, max_gain, damping, uncertain, all_vertices):
-    from twin.controllers import design_cache
-    from twin.controllers.lmi import design_balance_gains
+    from twin.controllers.designs import balance_design
 
     ctx = click.get_current_context()
     given = [f"--{n.replace('_', '-')}" for n in ("epsilon", "rho", "decay_rate", "max_gain", "damping", "uncertain",
@@ -384,9 +381,8 @@ def _load_design(path: Path | None, epsilon, rho, decay_rate, max_gain, damping,
     if path is not None and given:
         raise TwinError(f"--gains uses a finished design; {', '.join(given)} would be ignored: give one or the other")
     if path is None:
-        return design_balance_gains(epsilon=epsilon, rho=rho, decay_rate=decay_rate, max_gain=max_gain,
-                                    damping=damping, uncertain=_parse_uncertain(uncertain), all_vertices=all_vertices,
-                                    cache=design_cache.enabled())
+        return balance_design(epsilon=epsilon, rho=rho, decay_rate=decay_rate, max_gain=max_gain, damping=damping,
+                              uncertain=_parse_uncertain(uncertain), all_vertices=all_vertices)
     from types import SimpleNamespace
 
     import numpy as np

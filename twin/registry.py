@@ -83,10 +83,9 @@ class BuildContext:
 
     def balance_design(self):
         if self.design is None:
-            from twin.controllers import design_cache
-            from twin.controllers.lmi import design_balance_gains
+            from twin.controllers.designs import balance_design
 
-            design = design_balance_gains(self.model, cache=design_cache.enabled())
+            design = balance_design(self.model)
             object.__setattr__(self, "design", lambda: design)
         return self.design()
 

@@ -474,7 +474,6 @@ def design_balance_gains(
     damping: float = DEFAULT_DAMPING,
     uncertain=DEFAULT_UNCERTAIN,
     all_vertices: bool = DEFAULT_ALL_VERTICES,
-    cache: bool = False,
 ) -> BalanceDesign:
     """Solve Lemmas 1–2 with a decay rate for the IT2 PDC gains.
 
@@ -514,13 +513,10 @@ def design_balance_gains(
         paper's Y_ij relaxation covers: then it holds for any pair of model and controller
         weights, the type-1 PDC's included (see :mod:`twin.controllers.lmi_regions`);
         default True.
-    cache : bool
-        Take the design from the design store (:func:`twin.controllers.designs.balance_design`:
-        this process's designs, then the on-disk cache) and keep a fresh one there. Off by
-        default so that a library call solves; the command line and the scenarios use the
-        store (unless ``--no-cache``). A cached
-        design equals the fresh one bit for bit, including its original ``solve_time_s``;
-        its ``from_cache`` is True. cvxpy is imported only when the design is solved.
+
+    This always solves; :func:`twin.controllers.designs.balance_design` takes the same
+    arguments and answers from the design store (this process's designs, the on-disk
+    cache) when it can, bit for bit the same design, without importing cvxpy.
 
     Raises
     ------
@@ -528,11 +524,6 @@ def design_balance_gains(
         With a one-line message naming the requirement (ρ, max_gain, decay rate, damping
         ratio or the parameter range) that cannot be met and the value that can.
     """
-    if cache:  # the design store above this module: memory, then disk, then a solve here
-        from twin.controllers.designs import balance_design
-
-        return balance_design(params, epsilon, rho, decay_rate, max_gain, solver, damping=damping,
-                              uncertain=uncertain, all_vertices=all_vertices, cache=True, hold=False)
     o = design_options(epsilon, rho, decay_rate, max_gain, solver, damping, uncertain, all_vertices)
     epsilon, rho, decay_rate, max_gain, solver = o["epsilon"], o["rho"], o["decay_rate"], o["max_gain"], o["solver"]
     damping, box, all_vertices = o["damping"], o["uncertain"], o["all_vertices"]

@@ -20,7 +20,6 @@ from twin.scenarios.schema import (MAX_DEPTH, NAME_RULE, ScenarioError, check_de
 from twin.timing import steps_per_control
 
 BUILTIN_PACKAGE = "twin.scenarios.builtin"
-_DESIGNS: dict = {}  # design options → the solved design (an LMI solve takes 50 ms to 1 s)
 
 
 def builtin_names() -> list[str]:
@@ -190,33 +189,28 @@ class Scenario:
     def design_options(self) -> dict:
         return dict(self.data["design"])
 
-    def _design_key(self) -> tuple:
-        """The design options as a hashable key (the parameter box is a table)."""
-        return tuple(sorted((k, tuple(sorted(v.items())) if isinstance(v, dict) else v)
-                            for k, v in self.data["design"].items()))
-
     def design(self):
-        """The LMI balance design (on the nominal model), solved once per set of options."""
-        key = self._design_key()
-        if key not in _DESIGNS:
-            from twin.controllers import design_cache
-            from twin.controllers.lmi import design_balance_gains
+        """The LMI balance design (on the nominal model), from the design store
+        (:mod:`twin.controllers.designs`: solved once per process and set of options, and
+        taken from the on-disk cache when it has it, when cvxpy is never imported)."""
+        from twin.controllers.designs import balance_design
 
-            try:  # from the on-disk cache when it has this design (then cvxpy is never imported)
-                _DESIGNS[key] = design_balance_gains(**self.design_options(), cache=design_cache.enabled())
-            except TwinError as exc:
-                msg = str(exc)
-                for flag, name in (("--epsilon", "design.epsilon"), ("--rho", "design.rho"),
-                                   ("--decay-rate", "design.decay_rate"), ("--max-gain", "design.max_gain"),
-                                   ("--damping", "design.damping"), ("--uncertain", "design.uncertain")):
-                    msg = msg.replace(flag, name)
-                raise self._error(f"design: {msg}") from None
-        return _DESIGNS[key]
+        try:
+            return balance_design(**self.design_options())
+        except TwinError as exc:
+            msg = str(exc)
+            for flag, name in (("--epsilon", "design.epsilon"), ("--rho", "design.rho"),
+                               ("--decay-rate", "design.decay_rate"), ("--max-gain", "design.max_gain"),
+                               ("--damping", "design.damping"), ("--uncertain", "design.uncertain")):
+                msg = msg.replace(flag, name)
+            raise self._error(f"design: {msg}") from None
 
     def adopt_design(self, design) -> "Scenario":
         """Use ``design`` (solved elsewhere for these design options) instead of solving it
         again: a sweep's workers take the design the sweep solved once."""
-        _DESIGNS[self._design_key()] = design
+        from twin.controllers.designs import adopt
+
+        adopt(design, **self.design_options())
         return self
 
     def cascade_options(self) -> dict:
