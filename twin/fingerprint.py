@@ -133,12 +133,12 @@ def _numpy_simd() -> dict:
 
 def kernels() -> dict:
     """Which optional compiled kernels run in this process ({name: True/False})."""
-    from estimation import ekf
+    from estimation import ekf_core
     from twin.fuzzy import mamdani
     from twin.plant import bullet
 
-    return {"fuzzy": mamdani._kernel is not None, "ekf": ekf._kernel is not None,
-            "physics": bullet._fastpath is not None}
+    return {"fuzzy": mamdani.compiled_kernel_loaded(), "ekf": ekf_core.compiled_kernel_loaded(),
+            "physics": bullet.compiled_kernel_loaded()}
 
 
 def environment() -> dict:

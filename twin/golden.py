@@ -54,11 +54,9 @@ FORMAT = 2  # 2: the meta records the environment and the design digests (twin.f
 
 def build() -> str:
     """"compiled" if every optional kernel runs here, "pure" if none does, "mixed" otherwise."""
-    from estimation import ekf
-    from twin.fuzzy import mamdani
-    from twin.plant import bullet
+    from twin.fingerprint import kernels
 
-    built = [bullet._fastpath is not None, ekf._kernel is not None, mamdani._kernel is not None]
+    built = list(kernels().values())
     return "compiled" if all(built) else "pure" if not any(built) else "mixed"
 
 

@@ -26,6 +26,11 @@ except ImportError:  # pragma: no cover - depends on the build
 if os.environ.get("TWIN_PURE_PYTHON", "") not in ("", "0"):
     _kernel = None
 
+
+def compiled_kernel_loaded() -> bool:
+    """True if the Mamdani FLS runs in its compiled kernel in this process."""
+    return _kernel is not None
+
 TYPE_REDUCERS = ("bmm", "nt", "km")
 
 

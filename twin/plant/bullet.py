@@ -88,6 +88,11 @@ if os.environ.get("TWIN_PURE_PYTHON", "") not in ("", "0"):
     _fastpath = None
 
 
+def compiled_kernel_loaded() -> bool:
+    """True if the twin's own per-step arithmetic runs in its compiled fast path here."""
+    return _fastpath is not None
+
+
 class GroundTruth(NamedTuple):
     """The true state at one instant (SI units)."""
 
