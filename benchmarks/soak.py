@@ -39,7 +39,7 @@ def soak(name: str, seed: int, duration: float) -> dict:
     ctrl = sc.build_controller("it2", ctx)
     est = sc.build_estimator(ctx)
     exp, d = sc.experiment(), sc.data
-    loop = ClosedLoop(sc.twin_config(), est, ctrl, sc.sensor_config(), exp.targets, exp.theta0,
+    loop = ClosedLoop(sc.twin_config() if sc.plant_model == "bullet" else sc.plant(), est, ctrl, sc.sensor_config(), exp.targets, exp.theta0,
                       d["initial"]["alpha"], (d["initial"]["x"], d["initial"]["y"]))
     rate = sc.twin_config().control_rate
     n = int(round(duration * rate))

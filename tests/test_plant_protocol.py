@@ -267,3 +267,17 @@ def test_a_plant_returning_the_wrong_shape_is_one_line_naming_the_contract():
         with pytest.raises(PluginError) as info:
             loop.step((0.0, 0.0))
     _one_line(info, "plant test_plant_protocol.Raises: step() raised RuntimeError: the model blew up badly")
+
+
+def test_the_gymnasium_environment_runs_the_scenarios_plant():
+    gym = pytest.importorskip("gymnasium")
+    import twin.envs  # noqa: F401 -- registers the environments
+
+    kinds = {}
+    for model in ("bullet", "analytic"):
+        env = gym.make("mtwip/Track-v0", scenario="paper-exp3", overrides=[f"plant.model={model}"])
+        env.reset(seed=1)
+        _, _, term, trunc, _ = env.step(env.action_space.sample() * 0)
+        kinds[model] = type(env.unwrapped.loop.twin).__name__
+        env.close()
+    assert kinds == {"bullet": "BulletTwin", "analytic": "AnalyticPlant"}

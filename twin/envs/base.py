@@ -375,7 +375,9 @@ class TwinEnv(gymnasium.Env):
         self._next_estimator = None
         self._close_loop()
         init = sc.data["initial"]
-        self.loop = loop = ClosedLoop(config, estimator, None, sensors, exp.targets, exp.theta0, init["alpha"],
+        # the scenario's plant.model: the PyBullet twin from its config, or the plant it names
+        plant = config if sc.plant_model == "bullet" else sc.plant()
+        self.loop = loop = ClosedLoop(plant, estimator, None, sensors, exp.targets, exp.theta0, init["alpha"],
                                       (init["x"], init["y"]))
         self._episode = (sc, config, exp.targets)
         self._begin_episode(exp.targets)
