@@ -23,7 +23,7 @@ import numpy as np
 
 from twin.errors import TwinError
 from twin.plant.analytic import STATE_NAMES, rk4_step
-from twin.plant.bullet import Actuation, GroundTruth, TwinConfig
+from twin.plant.bullet import Actuation, GroundTruth, TwinConfig, checked_start
 from twin.plant.disturbances import Disturbances, Ground
 
 _ZERO3 = (0.0, 0.0, 0.0)
@@ -108,16 +108,7 @@ class AnalyticPlant:
 
     def reset(self, theta0: float = 0.0, alpha0: float = 0.0, position=(0.0, 0.0)) -> GroundTruth:
         """A new run at rest (or at ``initial``); returns the truth at t = 0."""
-        try:
-            theta0, alpha0 = float(theta0), float(alpha0)
-            x0, y0 = (float(v) for v in position)
-        except (TypeError, ValueError):
-            raise TwinError(f"theta0 and alpha0 must be angles in rad and position 2 coordinates in m, got "
-                            f"theta0={theta0!r}, alpha0={alpha0!r}, position={position!r}") from None
-        if not (math.isfinite(theta0) and math.isfinite(alpha0) and math.isfinite(x0) and math.isfinite(y0)):
-            raise TwinError(f"theta0, alpha0 and position must be finite, got {theta0!r}, {alpha0!r}, {position!r}")
-        if not abs(theta0) < self.config.fall_angle:
-            raise TwinError(f"theta0 must be inside the fall limit ±{self.config.fall_angle:g} rad, got {theta0!r}")
+        theta0, alpha0, (x0, y0) = checked_start(theta0, alpha0, position, self.config.fall_angle)
         if self.initial is not None:
             self.x = self.initial.copy()
         else:

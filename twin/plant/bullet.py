@@ -310,6 +310,25 @@ def _initial_frame(params: RobotParams, ground: Ground, theta0: float, alpha0: f
     return pos, R
 
 
+def checked_start(theta0, alpha0, position, fall_angle: float) -> tuple[float, float, tuple[float, float]]:
+    """A plant's starting pose, checked: (θ0 rad, α0 rad, (x0, y0) m) as floats, or a one-line
+    TwinError naming what is wrong (not numbers, not finite, past the fall limit, beyond ±10 km)."""
+    try:
+        theta0, alpha0 = float(theta0), float(alpha0)
+        x0, y0 = (float(v) for v in position)
+    except (TypeError, ValueError):
+        raise TwinError(f"theta0 and alpha0 must be angles in rad and position 2 coordinates in m, got "
+                        f"theta0={theta0!r}, alpha0={alpha0!r}, position={position!r}") from None
+    for name, v in (("theta0", theta0), ("alpha0", alpha0)):
+        if not math.isfinite(v):
+            raise TwinError(f"{name} must be a finite angle in rad, got {v!r}")
+    if not abs(theta0) < fall_angle:
+        raise TwinError(f"theta0 must be inside the fall limit ±{fall_angle:g} rad, got {theta0!r}")
+    if not (abs(x0) <= 1e4 and abs(y0) <= 1e4):
+        raise TwinError(f"position must be 2 finite coordinates within ±10 km, got {position!r}")
+    return theta0, alpha0, (x0, y0)
+
+
 START_TOLERANCE = 1e-9  # m: a part this far into the floor at the start is on it (rounding)
 
 
@@ -430,19 +449,7 @@ class BulletTwin:
         self.config = config = config if config is not None else TwinConfig()
         if not isinstance(config, TwinConfig):
             raise TwinError(f"config must be a TwinConfig, got {type(config).__name__}")
-        try:
-            theta0, alpha0 = float(theta0), float(alpha0)
-            x0, y0 = (float(v) for v in position)
-        except (TypeError, ValueError):
-            raise TwinError(f"theta0 and alpha0 must be angles in rad and position 2 coordinates in m, got "
-                            f"theta0={theta0!r}, alpha0={alpha0!r}, position={position!r}") from None
-        for name, v in (("theta0", theta0), ("alpha0", alpha0)):
-            if not math.isfinite(v):
-                raise TwinError(f"{name} must be a finite angle in rad, got {v!r}")
-        if not abs(theta0) < config.fall_angle:
-            raise TwinError(f"theta0 must be inside the fall limit ±{config.fall_angle:g} rad, got {theta0!r}")
-        if not (abs(x0) <= 1e4 and abs(y0) <= 1e4):
-            raise TwinError(f"position must be 2 finite coordinates within ±10 km, got {position!r}")
+        theta0, alpha0, (x0, y0) = checked_start(theta0, alpha0, position, config.fall_angle)
         # a part inside the floor would be thrown out of it by the solver (the body), or carried
         # through it (the payload, a point mass): no robot can start so
         problem = start_problem(config.params, config.ground, theta0, alpha0, (x0, y0), config.disturbances.payload)
