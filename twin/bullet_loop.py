@@ -8,8 +8,9 @@ asks for ideal sensing (the ``ideal`` estimator passes the ground truth through)
 as a reference.
 
 Logged at the control rate, one row per control instant (see :mod:`twin.runs`), or at
-every N-th instant (``log_every``). Memory: the rows are gathered as tuples (the cheapest
-thing to append in the loop) for a chunk of :data:`CHUNK` control steps at a time, then
+every N-th instant (``log_every``), by a :class:`twin.recorder.Recorder` fed what the loop
+publishes (its step results and the commands), never the loop's internals. Memory: the
+step results are gathered for a chunk of :data:`CHUNK` control steps at a time, then
 moved into preallocated float64 arrays, so a run costs about 8 bytes per logged number
 (some 0.27 GB per simulated hour at 200 Hz with sensors, every step logged).
 """
@@ -23,14 +24,15 @@ from twin.errors import TwinError
 from twin.experiments import Experiment
 from twin.params import NOMINAL, RobotParams
 from twin.plant.bullet import TwinConfig
-from twin.runs import (ACTUATION_NAMES, COMMAND_NAMES, COMMAND_UNITS, ESTIMATE_NAMES, ESTIMATE_UNITS,
-                       FULL_RATE_NAMES, PUSH_NAMES, PUSH_UNITS, TRUTH_NAMES, MeasurementLog, Run, TwinRun)
+from twin.recorder import Recorder, check_log_every
+from twin.runs import (ACTUATION_NAMES, COMMAND_NAMES, COMMAND_UNITS, ESTIMATE_NAMES, ESTIMATE_UNITS, PUSH_NAMES,
+                       PUSH_UNITS, TRUTH_NAMES, Run, TwinRun)
 from twin.sensors import SensorConfig
 
-CHUNK = 4096  # control steps gathered as tuples before they move into the log's arrays
+CHUNK = 4096  # control steps gathered before they move into the log's arrays (twin.recorder.Recorder's chunk)
 
 __all__ = ["ACTUATION_NAMES", "COMMAND_NAMES", "COMMAND_UNITS", "ESTIMATE_NAMES", "ESTIMATE_UNITS", "PUSH_NAMES",
-           "PUSH_UNITS", "Run", "TRUTH_NAMES", "TwinRun", "simulate_twin"]
+           "PUSH_UNITS", "Run", "TRUTH_NAMES", "TwinRun", "check_log_every", "simulate_twin"]
 
 
 def simulate_twin(controller, experiment: Experiment, config: TwinConfig | None = None,
@@ -41,7 +43,8 @@ def simulate_twin(controller, experiment: Experiment, config: TwinConfig | None 
     """Run ``controller`` on a new twin built from ``config`` (or on ``plant``) from the experiment's θ0.
 
     A driver of :class:`twin.loop.ClosedLoop`: reset, then the controller's command and a
-    step per control period, everything logged (see the module docstring).
+    step per control period, each step's result handed to a :class:`twin.recorder.Recorder`
+    (see the module docstring).
 
     Parameters
     ----------
@@ -131,159 +134,33 @@ def simulate_twin(controller, experiment: Experiment, config: TwinConfig | None 
                       experiment.theta0, alpha0, position, limits=config.limits)
     n_ctrl = int(round(duration / control_dt))
     report_every = max(1, int(round(rate)))
-    n_rows = n_ctrl + 1
-    names = ("ul_cmd", "ur_cmd") + loop.signals
-    log = _Log(n_rows, every, len(names), measured=not ideal, with_truth=bool(getattr(filt, "reads_truth", False)))
-    truth, est, cmds, act, push = log.truth_rows, log.est_rows, log.cmd_rows, log.act_rows, log.push_rows
-    meas_log, bias_log = log.meas_rows, log.bias_rows
-    diag = [] if log_filter else None
-    n = n_rows
-    flush_at = CHUNK
+    rec = Recorder.for_loop(loop, n_ctrl + 1, log_every=every, diagnostics=log_filter, chunk=CHUNK)
+    instant, period = rec.instant, rec.period
+    diagnostics = loop.diagnostics if log_filter else None
     with loop:
-        loop.reset(seed)
-        twin = loop.twin  # read directly below: this loop runs once per control period
-        # a plant without actuation or push_force: the loop's (the command delivered, no push)
-        src = twin if hasattr(twin, "actuation") and hasattr(twin, "push_force") else loop
+        res = loop.reset(seed)
         command, step = loop.command, loop.step
-        for i in range(n_rows):
-            if twin.status == "diverged":
-                n = i  # the non-finite state is not logged: the log ends with the last finite one
+        for i in range(n_ctrl + 1):
+            if res.status == "diverged":  # the non-finite state is not logged: the log ends with the last finite one
                 break
-            if i == flush_at:
-                log.flush()
-                flush_at += CHUNK
-            truth.append(loop.truth)
-            if not ideal:
-                meas_log.append(loop.measurement)
-                bias_log.append(loop.true_gyro_bias)
-            if diag is not None:
-                diag.append(loop.diagnostics())
-            est.append(loop.estimate)
+            d = None if diagnostics is None else diagnostics()
             c = command()
-            cmds.append(c)
-            if i == n_ctrl or twin.status != "running":
-                n = i + 1
+            instant(res, c, d)
+            if i == n_ctrl or res.status != "running":
                 break
             if progress is not None and i % report_every == 0 and i:
                 progress(i, n_ctrl)
-            step(c)
-            act.append(src.actuation)
-            push.append(src.push_force)
+            res = step(c)
+            period(res)  # what the motors and pushes did over [t_i, t_i+1)
         status = "ok" if loop.status == "running" else loop.status
         reason = "" if status == "ok" else loop.end_reason
         stats = {} if ideal else loop.estimator_stats()
-        sensor_counts = {} if ideal else loop.suite.fault_counts()
-        sensor_truth = {} if ideal else loop.suite.truth()
+        sensor_counts = {} if ideal else loop.sensor_counts()
+        sensor_truth = {} if ideal else loop.sensor_truth()
         if progress is not None:
             progress(n_ctrl, n_ctrl)
-    # the last row's actuation is zero: nothing was applied after it
-    act += [(0.0,) * len(ACTUATION_NAMES)] * (len(truth) - len(act))
-    push += [(0.0,) * 3] * (len(truth) - len(push))
-    log.flush()
-    rows = log.kept(n)
-    truth, est, cmds, act, push = (a[:rows] for a in (log.truth, log.est, log.cmds, log.act, log.push))
-    t = truth[:, 0].copy()
     units = {**COMMAND_UNITS, **getattr(controller, "signal_units", {})}
-    return Run(t, truth, cmds, act, push, status, reason, config, experiment, controller_name,
-                   estimates=est, sensing=sensing, measurements=[] if ideal else log.meas[:rows],
-                   estimator_stats=stats, sensor_counts=sensor_counts,
-                   gyro_bias=None if ideal else log.bias[:rows], filter_log=_filter_log(diag, n),
-                   seed=None if ideal else int(seed), sensor_truth=sensor_truth, sensor_config=sensors,
-                   model_params=model_params, command_names=names,
-                   command_units=tuple(units.get(k, "1") for k in names), log_every=every,
-                   full_rate=None if log.full is None else {name: a[:n] for name, a in log.full.items()},
-                   plant=plant_name)
-
-
-def check_log_every(value) -> int:
-    """``log_every`` as an int, or a TwinError naming what is allowed."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise TwinError(f"log_every must be a whole number of control steps ≥ 1 (1: log every step), got {value!r}")
-    return int(value)
-
-
-class _Log:
-    """A run's log in preallocated float64 arrays, filled a chunk at a time.
-
-    The loop appends each control step's tuples to the ``*_rows`` lists; :meth:`flush`
-    moves every ``every``-th step of them (steps 0, N, 2N, …) into the arrays and empties
-    the lists. With ``every`` > 1, :data:`FULL_RATE_NAMES` are also copied at every step
-    into ``full`` (the metrics' signals). The arrays are allocated (``np.empty``) for the
-    whole run, but only the rows written take memory: a run that falls early costs what it
-    logged.
-    """
-
-    def __init__(self, n_rows: int, every: int, n_commands: int, measured: bool, with_truth: bool):
-        self.every = every
-        k = self.kept(n_rows)
-        self.truth = np.empty((k, len(TRUTH_NAMES)))
-        self.est = np.empty((k, len(ESTIMATE_NAMES)))
-        self.cmds = np.empty((k, n_commands))
-        self.act = np.empty((k, len(ACTUATION_NAMES)))
-        self.push = np.empty((k, len(PUSH_NAMES)))
-        self.meas = MeasurementLog.empty(k, with_truth) if measured else None
-        self.bias = np.empty((k, 3)) if measured else None  # the gyro's true bias, NaN on steps without a sample
-        self.full = {name: np.empty(n_rows) for name in FULL_RATE_NAMES} if every > 1 else None
-        self.truth_rows, self.est_rows, self.cmd_rows, self.act_rows, self.push_rows = [], [], [], [], []
-        self.meas_rows, self.bias_rows = [], []
-        self.start = 0  # the control step of the lists' first row
-
-    def kept(self, steps: int) -> int:
-        """Rows logged out of the first ``steps`` control steps."""
-        return (steps + self.every - 1) // self.every
-
-    def flush(self) -> None:
-        m = len(self.truth_rows)
-        if not m:
-            return
-        s, every = self.start, self.every
-        first = (-s) % every  # the lists' first row that is a logged step
-        r0 = (s + first) // every
-        r1 = r0 + len(range(first, m, every))
-        pick = slice(first, m, every)
-        truth = np.array(self.truth_rows, dtype=float).reshape(m, len(TRUTH_NAMES))
-        est = np.array(self.est_rows, dtype=float).reshape(m, len(ESTIMATE_NAMES))
-        act = np.array(self.act_rows, dtype=float).reshape(m, len(ACTUATION_NAMES))
-        self.truth[r0:r1] = truth[pick]
-        self.est[r0:r1] = est[pick]
-        self.act[r0:r1] = act[pick]
-        self.cmds[r0:r1] = np.array(self.cmd_rows[pick], dtype=float).reshape(r1 - r0, self.cmds.shape[1])
-        self.push[r0:r1] = np.array(self.push_rows[pick], dtype=float).reshape(r1 - r0, len(PUSH_NAMES))
-        if self.meas is not None:
-            self.meas.put(r0, self.meas_rows[pick])
-            bias = self.bias_rows[pick]
-            self.bias[r0:r1] = np.nan
-            where = [j for j, b in enumerate(bias) if b is not None]
-            if where:
-                self.bias[r0 + np.array(where)] = [bias[j] for j in where]
-        if self.full is not None:
-            rows = slice(s, s + m)
-            f = self.full
-            f["t"][rows] = truth[:, TRUTH_NAMES.index("t")]
-            f["theta"][rows] = truth[:, TRUTH_NAMES.index("theta")]
-            f["distance"][rows] = truth[:, TRUTH_NAMES.index("distance")]
-            f["alpha"][rows] = truth[:, TRUTH_NAMES.index("alpha")]
-            f["theta_est"][rows] = est[:, ESTIMATE_NAMES.index("theta_est")]
-            f["torque_l"][rows] = act[:, ACTUATION_NAMES.index("torque_l")]
-            f["torque_r"][rows] = act[:, ACTUATION_NAMES.index("torque_r")]
-        for rows in (self.truth_rows, self.est_rows, self.cmd_rows, self.act_rows, self.push_rows, self.meas_rows,
-                     self.bias_rows):
-            rows.clear()
-        self.start = s + m
-
-
-def _filter_log(diag: list | None, n: int) -> dict | None:
-    """The estimator's per-step diagnostics as arrays: for the EKF ``x`` (n, 12), ``P`` (n, 12, 12),
-    ``nis`` (n,), ``nis_dof`` (n,) and ``lag`` (control periods); None if not logged or no hook."""
-    if not diag or diag[0] is None:
-        return None
-    diag = diag[:n]
-    out = {}
-    for key, first in diag[0].items():
-        if key == "lag":
-            out[key] = first
-        elif key == "nis_dof":
-            out[key] = np.array([d[key] for d in diag], dtype=int)
-        else:
-            out[key] = np.array([d[key] for d in diag], dtype=float)
-    return out
+    return rec.run(status, reason, config, command_units=tuple(units.get(k, "1") for k in rec.command_names),
+                   experiment=experiment, controller=controller_name, sensing=sensing, estimator_stats=stats,
+                   sensor_counts=sensor_counts, seed=None if ideal else int(seed), sensor_truth=sensor_truth,
+                   sensor_config=sensors, model_params=model_params, plant=plant_name)

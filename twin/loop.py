@@ -17,6 +17,19 @@ chooses, say); without one it asks the controller. At every instant the loop exp
 reached the estimator), :attr:`estimate` (6,) and, after a step, :attr:`actuation` and
 :attr:`push_force` (what the motors and pushes did over the period).
 
+Outputs. ``reset`` and ``step`` return a :class:`~twin.protocols.StepResult`: everything
+the loop publishes at the instant (truth, measurement, the gyro's true bias, estimate,
+status) and over the period that ended there (actuation, push force). A logger is fed
+these, never the loop's internals: :class:`twin.recorder.Recorder` (what
+:func:`twin.bullet_loop.simulate_twin` logs into a :class:`twin.runs.Run`) or one's own::
+
+    rows = [loop.reset(seed)]
+    while loop.status == "running":
+        rows.append(loop.step())
+
+At the end of a run :meth:`ClosedLoop.estimator_stats`, :meth:`ClosedLoop.sensor_counts`
+and :meth:`ClosedLoop.sensor_truth` give the counts and the sensors' drawn constants.
+
 The plant. Given a :class:`~twin.plant.bullet.TwinConfig` (or None: the defaults), every
 :meth:`ClosedLoop.reset` builds a new PyBullet twin (:class:`~twin.plant.bullet.BulletTwin`)
 on it, as it always has. Given any object meeting :class:`twin.protocols.Plant` instead
@@ -56,7 +69,7 @@ from twin.errors import PluginError, TwinError
 from twin.limits import MEMORY_EVERY, RunGuard
 from twin.plant.bullet import Actuation, BulletTwin, GroundTruth, TwinConfig
 from twin.protocols import StepResult, Targets, describe_object, one_line
-from twin.sensors import Measurement, SensorConfig, SensorSuite, imu_kinematics
+from twin.sensors import ImuMotion, Measurement, SensorConfig, SensorSuite
 
 _IDLE = "idle"
 
@@ -133,6 +146,7 @@ class ClosedLoop:
         self._guard = RunGuard(limits, controller, estimator, self.control_dt) if limits and limits.active else None
         self.twin = None  # the plant of the current run (a BulletTwin, or the plant given)
         self.suite: SensorSuite | None = None
+        self._motion: ImuMotion | None = None  # the IMU's lever-arm kinematics of the current run
         self.k = 0
         self.truth = self.measurement = self.estimate = None
         self.true_gyro_bias = None
@@ -172,16 +186,10 @@ class ClosedLoop:
         if self.sensors is not None:
             self.suite = suite = SensorSuite(self.sensors, self.control_rate,
                                              np.random.default_rng(np.random.SeedSequence(self.seed)))
-            com = twin.com_local
-            imu_pos = self.sensors.imu.position
-            self._lever = (imu_pos[0] - com[0], imu_pos[1] - com[1], imu_pos[2] - com[2])
-            self._imu_dt = suite.every * self.control_dt
-            pose, vel = self._last_imu = twin.kinematics  # the body at rest before t = 0
-            self._g = twin.gravity
-            self._imu = imu_kinematics(pose, vel, pose, vel, self._imu_dt, self._lever, self._g)
-            suite.start(*self._imu, tr.psi_l - tr.theta, tr.psi_r - tr.theta)
+            self._motion = motion = ImuMotion(twin, self.sensors.imu.position, suite.every * self.control_dt)
+            suite.start(*motion.reading, tr.psi_l - tr.theta, tr.psi_r - tr.theta)
         else:
-            self.suite = None
+            self.suite = self._motion = None
         self.measurement = self._read(tr)
         guard = self._guard
         if guard is not None:
@@ -275,8 +283,13 @@ class ClosedLoop:
         self.k += 1
         self._command = None
         status = twin.status
+        if self._foreign:
+            act, push = self.actuation, self.push_force
+        else:
+            act, push = twin.actuation, twin.push_force
         if status == "diverged":  # a non-finite state: nothing more is read from it
-            return self.result()
+            self.true_gyro_bias = None
+            return StepResult(tr, self.measurement, self.estimate, status, twin.end_reason, None, act, push)
         meas = self.measurement = self._read(tr)
         guard = self._guard
         try:
@@ -301,7 +314,8 @@ class ClosedLoop:
         if not isinstance(est, tuple):  # a buffer the plugin reuses: keep a copy
             est = tuple(float(v) for v in est)
         self.estimate = est
-        return StepResult(tr, meas, est, status, "" if status == "running" else twin.end_reason)
+        return StepResult(tr, meas, est, status, "" if status == "running" else twin.end_reason, self.true_gyro_bias,
+                          act, push)
 
     def _read(self, tr) -> Measurement:
         suite = self.suite
@@ -309,15 +323,14 @@ class ClosedLoop:
             self.true_gyro_bias = None
             return Measurement(tr.t, None, None, None, tr if self._attach_truth else None)
         k = self.k
+        motion = self._motion
         if k % suite.every == 0:
             if k > 0:
-                kin = self.twin.kinematics
-                self._imu = imu_kinematics(*kin, *self._last_imu, self._imu_dt, self._lever, self._g)
-                self._last_imu = kin
+                motion.update(self.twin.kinematics)
             self.true_gyro_bias = suite.gyro.bias
         else:
             self.true_gyro_bias = None
-        meas = suite.read(k, *self._imu, tr.psi_l - tr.theta, tr.psi_r - tr.theta)
+        meas = suite.read(k, *motion.reading, tr.psi_l - tr.theta, tr.psi_r - tr.theta)
         return meas._replace(truth=tr) if self._attach_truth else meas
 
     # ---- contracts ----------------------------------------------------------------------------
@@ -427,7 +440,22 @@ class ClosedLoop:
         return getattr(self.twin, "push_force", (0.0, 0.0, 0.0))
 
     def result(self) -> StepResult:
-        return StepResult(self.truth, self.measurement, self.estimate, self.status, self.end_reason)
+        """The current instant as a :class:`~twin.protocols.StepResult` (what :meth:`reset` and
+        :meth:`step` return)."""
+        period = self.k > 0 and self.twin is not None
+        return StepResult(self.truth, self.measurement, self.estimate, self.status, self.end_reason,
+                          self.true_gyro_bias, self.actuation if period else None,
+                          self.push_force if period else None)
+
+    def sensor_counts(self) -> dict:
+        """The run's sensor fault counts so far (per sensor: samples produced, dropped, stuck,
+        spiked, superseded); {} without sensors."""
+        return {} if self.suite is None else self.suite.fault_counts()
+
+    def sensor_truth(self) -> dict:
+        """The constants the run's sensors drew (scale factors, turn-on biases, encoder
+        phases); {} without sensors."""
+        return {} if self.suite is None else self.suite.truth()
 
     def estimator_stats(self) -> dict:
         """The estimator's ``stats()`` hook, or {} without one."""

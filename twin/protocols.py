@@ -210,13 +210,23 @@ class StepResult(NamedTuple):
 
     ``truth`` the plant's ground truth; ``measurement`` what reached the estimator;
     ``estimate`` (6,) what the controller is given; ``status`` "running", "fell" or
-    "diverged"; ``reason`` why it ended ("" while running)."""
+    "diverged"; ``reason`` why it ended ("" while running).
+
+    Published with them, for loggers (:class:`twin.recorder.Recorder`, one's own):
+    ``gyro_bias`` (3,) rad/s the gyro's true bias in the sample taken at this instant (None
+    without one: no sensors, or no IMU sample due); ``actuation``
+    (:class:`~twin.plant.bullet.Actuation`) and ``push_force`` (3,) N, world axes, what the
+    motors delivered and the pushes did over the control period that ended at this instant
+    (None at instant 0, from :meth:`~twin.loop.ClosedLoop.reset`)."""
 
     truth: GroundTruth
     measurement: Measurement
     estimate: tuple
     status: str
     reason: str
+    gyro_bias: tuple | None = None
+    actuation: Any = None
+    push_force: tuple | None = None
 
 
 def shown(value: Any, limit: int = 100) -> str:

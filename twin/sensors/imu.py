@@ -69,3 +69,42 @@ def imu_kinematics(pose, vel, pose_prev, vel_prev, dt: float, lever, g: float):
     n = math.sqrt(rx * rx + ry * ry + rz * rz)
     k = (2.0 * math.atan2(n, rw) / n if n > 1e-12 else 2.0) / dt
     return (k * rx, k * ry, k * rz), accel
+
+
+class ImuMotion:
+    """What the IMU mounted on a plant's body feels, sample after sample: the lever arm from
+    the body's centre of mass to the sensing point, the sample interval and gravity, and the
+    body's kinematics at the previous sample (:func:`imu_kinematics` needs both ends of the
+    interval).
+
+    Parameters
+    ----------
+    plant : Plant
+        Read once here: ``com_local`` (the centre of mass in body axes from the axle
+        midpoint, m), ``kinematics`` (the body at rest before t = 0) and ``gravity`` (m/s²);
+        see :class:`twin.protocols.Plant`.
+    imu_position : (3,) m
+        The sensing point in body axes from the axle midpoint (``ImuSpec.position``).
+    dt : float
+        The IMU's sample interval, s.
+
+    ``reading`` is the true (gyro, specific force) of the latest sample, the rest state's
+    after construction; :meth:`update` takes the body's kinematics at the next sample.
+    """
+
+    __slots__ = ("lever", "dt", "g", "last", "reading")
+
+    def __init__(self, plant, imu_position, dt: float):
+        com = plant.com_local
+        self.lever = (imu_position[0] - com[0], imu_position[1] - com[1], imu_position[2] - com[2])
+        self.dt = dt
+        pose, vel = self.last = plant.kinematics  # the body at rest before t = 0
+        self.g = plant.gravity
+        self.reading = imu_kinematics(pose, vel, pose, vel, dt, self.lever, self.g)
+
+    def update(self, kinematics) -> tuple:
+        """The true (gyro, accel) of the sample whose interval ends at ``kinematics`` (the
+        plant's, PyBullet's layout); it becomes the start of the next interval."""
+        self.reading = reading = imu_kinematics(*kinematics, *self.last, self.dt, self.lever, self.g)
+        self.last = kinematics
+        return reading

@@ -1,0 +1,223 @@
+"""A run's log, kept apart from the loop: :class:`Recorder` is fed what
+:class:`twin.loop.ClosedLoop` publishes (its :class:`~twin.protocols.StepResult` at every
+control instant and the command computed from it) and makes the :class:`twin.runs.Run`.
+
+It reads nothing of the loop's internals, the way a logger is attached to a system's
+outputs: whoever drives the loop hands it what the loop returned::
+
+    rec = Recorder.for_loop(loop, steps=n + 1)
+    res = loop.reset(seed)
+    for i in range(n + 1):
+        if res.status == "diverged":        # a non-finite state is not logged
+            break
+        u = loop.command()
+        rec.instant(res, u)                 # row i: truth, measurement, gyro bias, estimate, command
+        if i == n or res.status != "running":
+            break
+        res = loop.step(u)
+        rec.period(res)                     # row i's actuation and push, over [t_i, t_i+1)
+    run = rec.run(status, reason, config, experiment=...)
+
+:func:`twin.bullet_loop.simulate_twin` is that driver. One's own logger is fed the same
+way (the step results carry everything; see :class:`~twin.protocols.StepResult`).
+
+Memory: the step results are gathered for a chunk of ``chunk`` control steps at a time
+(the cheapest thing to append in the loop), then moved into preallocated float64 arrays,
+so a run costs about 8 bytes per logged number. With ``log_every`` N > 1 only every N-th
+step is kept, and :data:`twin.runs.FULL_RATE_NAMES` at every step (``Run.full_rate``).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from twin.errors import TwinError
+from twin.runs import (ACTUATION_NAMES, ESTIMATE_NAMES, FULL_RATE_NAMES, PUSH_NAMES, TRUTH_NAMES, MeasurementLog,
+                       Run)
+
+CHUNK = 4096  # control steps gathered before they move into the log's arrays
+
+__all__ = ["CHUNK", "Recorder", "check_log_every"]
+
+_NO_ACTUATION = (0.0,) * len(ACTUATION_NAMES)
+_NO_PUSH = (0.0,) * len(PUSH_NAMES)
+
+
+def check_log_every(value) -> int:
+    """``log_every`` as an int, or a TwinError naming what is allowed."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise TwinError(f"log_every must be a whole number of control steps ≥ 1 (1: log every step), got {value!r}")
+    return int(value)
+
+
+class Recorder:
+    """A run's log, fed one control instant and one control period at a time.
+
+    Parameters
+    ----------
+    steps : int
+        The most control instants the run can have (rows of the log with N = 1); the arrays
+        are allocated for them (``np.empty``: a row takes memory once it is written).
+    command_names : sequence of str
+        The command's columns: ``("ul_cmd", "ur_cmd")`` and the controller's ``signals``.
+    measured : bool
+        Log the measurements and the gyro's true bias (False: ideal sensing, nothing measured).
+    with_truth : bool
+        The measurements carry the ground truth (an estimator that ``reads_truth``).
+    log_every : int
+        N ≥ 1: keep control steps 0, N, 2N, … (and the metrics' signals at every step).
+    diagnostics : bool
+        Keep the estimator's ``diagnostics()`` given to :meth:`instant` (``Run.filter_log``).
+    chunk : int
+        Control steps gathered before they move into the arrays.
+
+    Feed it :meth:`instant` at every control instant logged (in order, from 0) and
+    :meth:`period` after every step that followed one; :meth:`run` then gives the Run.
+    """
+
+    def __init__(self, steps: int, command_names=("ul_cmd", "ur_cmd"), *, measured: bool = True,
+                 with_truth: bool = False, log_every: int = 1, diagnostics: bool = False, chunk: int = CHUNK):
+        self.every = every = check_log_every(log_every)
+        if diagnostics and every > 1:
+            raise TwinError(f"the estimator's diagnostics need every control step, so log_every must be 1 with "
+                            f"them, got {log_every!r}")
+        if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
+            raise TwinError(f"chunk must be a whole number of control steps ≥ 1, got {chunk!r}")
+        self.steps = int(steps)
+        self.chunk = int(chunk)
+        self.command_names = tuple(command_names)
+        k = self._kept(self.steps)
+        self.truth = np.empty((k, len(TRUTH_NAMES)))
+        self.est = np.empty((k, len(ESTIMATE_NAMES)))
+        self.cmds = np.empty((k, len(self.command_names)))
+        self.act = np.empty((k, len(ACTUATION_NAMES)))
+        self.push = np.empty((k, len(PUSH_NAMES)))
+        self.meas = MeasurementLog.empty(k, with_truth) if measured else None
+        self.bias = np.empty((k, 3)) if measured else None  # the gyro's true bias, NaN on steps without a sample
+        self.full = {name: np.empty(self.steps) for name in FULL_RATE_NAMES} if every > 1 else None
+        self._diag = [] if diagnostics else None
+        self._instants, self._commands, self._periods = [], [], []
+        self._start = 0  # the control step of the gathered lists' first row
+        self.n = 0  # control instants recorded
+
+    @classmethod
+    def for_loop(cls, loop, steps: int, *, log_every: int = 1, diagnostics: bool = False,
+                 chunk: int = CHUNK) -> "Recorder":
+        """A recorder for what ``loop`` (a :class:`twin.loop.ClosedLoop`) publishes: its
+        controller's ``signals``, whether it has ``sensors``, and whether its estimator
+        ``reads_truth`` (public attributes, read once)."""
+        return cls(steps, ("ul_cmd", "ur_cmd") + tuple(loop.signals), measured=loop.sensors is not None,
+                   with_truth=bool(getattr(loop.estimator, "reads_truth", False)), log_every=log_every,
+                   diagnostics=diagnostics, chunk=chunk)
+
+    # ---- fed by the driver --------------------------------------------------------------------
+    def instant(self, result, command, diagnostics=None) -> None:
+        """Control instant ``n`` (the next row): ``result`` the loop's
+        :class:`~twin.protocols.StepResult` there (truth, measurement, gyro bias, estimate) and
+        ``command`` (ul, ur, *signals) the controller's output on it; ``diagnostics`` the
+        estimator's, when the recorder keeps them."""
+        if self.n >= self.steps:
+            raise TwinError(f"the recorder holds {self.steps} control instants; make it for more")
+        instants = self._instants
+        if len(instants) == self.chunk:
+            self.flush()
+        instants.append(result)
+        self._commands.append(command)
+        if self._diag is not None:
+            self._diag.append(diagnostics)
+        self.n += 1
+
+    def period(self, result) -> None:
+        """The control period after the last instant: ``result`` the StepResult the loop's step
+        returned, whose ``actuation`` and ``push_force`` the last row gets (a row without a
+        period, the run's last, gets zeros)."""
+        if len(self._periods) >= len(self._instants):
+            raise TwinError("Recorder.period() follows an instant(): one period per step after a logged instant")
+        self._periods.append(result)
+
+    # ---- the log ------------------------------------------------------------------------------
+    def _kept(self, steps: int) -> int:
+        """Rows logged out of the first ``steps`` control steps."""
+        return (steps + self.every - 1) // self.every
+
+    def flush(self) -> None:
+        """Move the gathered steps into the arrays (every N-th of them; the metrics' signals all)."""
+        instants = self._instants
+        m = len(instants)
+        if not m:
+            return
+        periods = self._periods
+        s, every = self._start, self.every
+        first = (-s) % every  # the lists' first row that is a logged step
+        r0 = (s + first) // every
+        r1 = r0 + len(range(first, m, every))
+        pick = slice(first, m, every)
+        act_rows = [p.actuation for p in periods]
+        push_rows = [p.push_force for p in periods]
+        if len(periods) < m:  # the run's last row: nothing was applied after it
+            act_rows += [_NO_ACTUATION] * (m - len(periods))
+            push_rows += [_NO_PUSH] * (m - len(periods))
+        truth = np.array([r.truth for r in instants], dtype=float).reshape(m, len(TRUTH_NAMES))
+        est = np.array([r.estimate for r in instants], dtype=float).reshape(m, len(ESTIMATE_NAMES))
+        act = np.array(act_rows, dtype=float).reshape(m, len(ACTUATION_NAMES))
+        self.truth[r0:r1] = truth[pick]
+        self.est[r0:r1] = est[pick]
+        self.act[r0:r1] = act[pick]
+        self.cmds[r0:r1] = np.array(self._commands[pick], dtype=float).reshape(r1 - r0, self.cmds.shape[1])
+        self.push[r0:r1] = np.array(push_rows[pick], dtype=float).reshape(r1 - r0, len(PUSH_NAMES))
+        if self.meas is not None:
+            kept = instants[pick]
+            self.meas.put(r0, [r.measurement for r in kept])
+            bias = [r.gyro_bias for r in kept]
+            self.bias[r0:r1] = np.nan
+            where = [j for j, b in enumerate(bias) if b is not None]
+            if where:
+                self.bias[r0 + np.array(where)] = [bias[j] for j in where]
+        if self.full is not None:
+            rows = slice(s, s + m)
+            f = self.full
+            f["t"][rows] = truth[:, TRUTH_NAMES.index("t")]
+            f["theta"][rows] = truth[:, TRUTH_NAMES.index("theta")]
+            f["distance"][rows] = truth[:, TRUTH_NAMES.index("distance")]
+            f["alpha"][rows] = truth[:, TRUTH_NAMES.index("alpha")]
+            f["theta_est"][rows] = est[:, ESTIMATE_NAMES.index("theta_est")]
+            f["torque_l"][rows] = act[:, ACTUATION_NAMES.index("torque_l")]
+            f["torque_r"][rows] = act[:, ACTUATION_NAMES.index("torque_r")]
+        instants.clear()
+        self._commands.clear()
+        periods.clear()
+        self._start = s + m
+
+    def run(self, status: str, reason: str, config, command_units=None, **fields) -> Run:
+        """The :class:`twin.runs.Run` of what was recorded: ``status`` "ok", "fell" or "diverged",
+        ``reason`` why it ended, ``config`` the TwinConfig (or None); ``command_units`` one unit
+        per command column (default "1" each, "N·m" for the torques); ``fields`` the Run's other
+        fields (experiment, controller, sensing, estimator_stats, sensor_counts, seed,
+        sensor_truth, sensor_config, model_params, plant)."""
+        self.flush()
+        n = self.n
+        rows = self._kept(n)
+        truth, est, cmds, act, push = (a[:rows] for a in (self.truth, self.est, self.cmds, self.act, self.push))
+        if command_units is None:
+            command_units = tuple("N·m" if k in ("ul_cmd", "ur_cmd") else "1" for k in self.command_names)
+        return Run(truth[:, 0].copy(), truth, cmds, act, push, status, reason, config, estimates=est,
+                   measurements=[] if self.meas is None else self.meas[:rows],
+                   gyro_bias=None if self.bias is None else self.bias[:rows], filter_log=_filter_log(self._diag, n),
+                   command_names=self.command_names, command_units=tuple(command_units), log_every=self.every,
+                   full_rate=None if self.full is None else {name: a[:n] for name, a in self.full.items()}, **fields)
+
+
+def _filter_log(diag: list | None, n: int) -> dict | None:
+    """The estimator's per-step diagnostics as arrays: for the EKF ``x`` (n, 12), ``P`` (n, 12, 12),
+    ``nis`` (n,), ``nis_dof`` (n,) and ``lag`` (control periods); None if not logged or no hook."""
+    if not diag or diag[0] is None:
+        return None
+    diag = diag[:n]
+    out = {}
+    for key, first in diag[0].items():
+        if key == "lag":
+            out[key] = first
+        elif key == "nis_dof":
+            out[key] = np.array([d[key] for d in diag], dtype=int)
+        else:
+            out[key] = np.array([d[key] for d in diag], dtype=float)
+    return out
