@@ -640,3 +640,29 @@ def test_floor_markers_are_hidden_where_the_robot_stands_in_front(egl_loads):
             counts.append(_green(img))
     with_robot, without = counts
     assert without > 60 and with_robot < 0.5 * without, counts
+
+
+def test_hud_names_the_plant_when_it_is_not_the_pybullet_twin(design, run_exp1):
+    """A video of the analytic model (equation (1)) or of a user's plant says so under the
+    label; the PyBullet twin's overlay is as it was (no plant line)."""
+    from twin.analytic_loop import simulate
+    from twin.render.video import _Track
+
+    exp = PAPER_EXPERIMENTS[1]
+    analytic = simulate(build_cascade("it2", design, exp.targets), exp, duration=0.05, controller_name="it2")
+    assert analytic.plant == "analytic"
+    track = _Track(analytic, "IT2  paper-exp1")
+    assert track.plant == "analytic model (eq. 1)"
+    lines = hud_lines(HudState(track.label, 0.0, 0.1, 0.0, 0.0, plant=track.plant))
+    assert lines[:2] == [("IT2  paper-exp1", hud.YELLOW), ("plant: analytic model (eq. 1)", hud.ORANGE)]
+    assert lines[2][0].startswith("t ")
+
+    twin_track = _Track(run_exp1, "IT2  paper-exp1")
+    assert run_exp1.plant == "twin" and twin_track.plant == ""
+    assert not any("plant" in t for t, _ in hud_lines(HudState("IT2", 0.0, 0.1, 0.0, 0.0, plant=twin_track.plant)))
+
+    # a user's plant by the name the run gives it; ASCII only (Hershey fonts), its end kept when long
+    assert hud.plant_caption("my_plants.Spring") == "my_plants.Spring"
+    assert hud.plant_caption("modèle.Pendule\n") == "mod?le.Pendule"
+    long = hud.plant_caption("a_very.long.package.path.of.plugins.SpringPlant")
+    assert len(long) == hud.PLANT_NAME_MAX and long.startswith("...") and long.endswith(".SpringPlant")

@@ -1,8 +1,9 @@
 """The heads-up overlay of a video panel, drawn with OpenCV (Hershey fonts: ASCII only).
 
-Top left, on a darkened box: the panel's label (controller), the simulated time (s),
-the body pitch θ (rad), the travelled distance p = r ψ (m) and the heading α (rad), in the
-project's SI units like every figure and file,
+Top left, on a darkened box: the panel's label (controller), the plant in orange when it is
+not the PyBullet twin (the analytic model of equation (1), or a user's plant by name), the
+simulated time (s), the body pitch θ (rad), the travelled distance p = r ψ (m) and the
+heading α (rad), in the project's SI units like every figure and file,
 each with the experiment's target where it has one, the estimator's pitch θ̂ (rad, cyan like
 the ghost of the body drawn at the estimate), the sensor faults acting (violet),
 and, once the run has ended early, why (fell / diverged) in red.
@@ -18,6 +19,7 @@ GREY = (190, 190, 190)
 YELLOW = (80, 220, 255)
 RED = (60, 60, 240)
 VIOLET = (230, 130, 200)  # the figure's fault shading, in BGR
+ORANGE = (60, 170, 255)  # the plant, when it is not the PyBullet twin
 CYAN = (255, 255, 0)  # the estimator's ghost (twin.render.panels.GHOST_BGR)
 BOX_DARKEN = 0.45  # the box keeps this fraction of the picture's brightness
 
@@ -37,6 +39,23 @@ class HudState:
     alarm: bool = False  # the run ended early (fell, diverged): ``ended`` in red
     fault: str = ""  # the sensor faults acting now, named (e.g. "IMU dropout"); "" for none
     theta_est: float | None = None  # rad, the estimator's pitch (None with ideal sensing)
+    plant: str = ""  # what simulated the run when it is not the PyBullet twin (:func:`plant_caption`); "" for the twin
+
+
+PLANT_NAME_MAX = 36  # characters of a user's plant name on the overlay (its end kept: the class's name)
+
+
+def plant_caption(plant: str) -> str:
+    """What the overlay says of a run's plant (:attr:`twin.runs.Run.plant`): nothing for the
+    PyBullet twin, ``"analytic model (eq. 1)"`` for the analytic one, else the user's plant
+    as the run names it (its module and class), in ASCII (the Hershey fonts have nothing
+    else) and at most :data:`PLANT_NAME_MAX` characters."""
+    if not plant or plant == "twin":
+        return ""
+    if plant == "analytic":
+        return "analytic model (eq. 1)"
+    text = "".join(c if " " <= c <= "~" else "?" for c in " ".join(str(plant).split()))
+    return text if len(text) <= PLANT_NAME_MAX else "..." + text[-(PLANT_NAME_MAX - 3):]
 
 
 def _num(v: float, decimals: int) -> float:
@@ -46,8 +65,10 @@ def _num(v: float, decimals: int) -> float:
 
 def hud_lines(s: HudState) -> list[tuple[str, tuple[int, int, int]]]:
     """The overlay's text lines and their BGR colours."""
-    lines = [(s.label, YELLOW), (f"t       {_num(s.t, 2):6.2f} s", WHITE),
-             (f"pitch   {_num(s.theta, 3):+6.3f} rad", WHITE)]
+    lines = [(s.label, YELLOW)]
+    if s.plant:
+        lines.append((f"plant: {s.plant}", ORANGE))
+    lines += [(f"t       {_num(s.t, 2):6.2f} s", WHITE), (f"pitch   {_num(s.theta, 3):+6.3f} rad", WHITE)]
     if s.theta_est is not None:
         lines.append((f"  est.  {_num(s.theta_est, 3):+6.3f} rad", CYAN))
     dist = f"dist    {_num(s.distance, 3):+6.3f} m"

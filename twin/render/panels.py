@@ -45,7 +45,7 @@ def panel_frames(scene: Scene, track, samples: dict, times: np.ndarray, hud: boo
             draw_hud(panel, HudState(track.label, min(tk, track.duration), s["theta"][k], s["distance"][k],
                                      s["alpha"][k], track.p_d, track.alpha_d, track.ended(tk),
                                      track.status != "ok", track.fault_at(min(tk, track.duration)),
-                                     s["theta_est"][k] if "theta_est" in s else None))
+                                     s["theta_est"][k] if "theta_est" in s else None, track.plant))
         if tk > track.duration + 1e-9:
             held = panel  # the run has ended: this panel stays as it is
         yield panel

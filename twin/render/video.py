@@ -47,6 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from twin.errors import TwinError
+from twin.render.hud import plant_caption
 from twin.render.scene import Camera, Scene, check_size, resolve_renderer
 from twin.sensors.faults import fault_windows
 
@@ -139,6 +140,7 @@ class _Track:
         self.p_d = None if e is None else e.p_d
         self.alpha_d = None if e is None else e.alpha_d
         self.label = label
+        self.plant = plant_caption(getattr(run, "plant", "twin"))  # "" for the PyBullet twin
         self.status = run.status
         self.push = np.asarray(run.push, dtype=float)  # (n, 3) N, world frame
         self.start = (float(self.cols["x"][0]), float(self.cols["y"][0]), float(self.cols["alpha"][0]))
@@ -465,7 +467,8 @@ def render_video(runs, path, fps: float = 30, size=(640, 480),
         One per run, shown at the top of its overlay; default the controller's label
         (upper case) and the experiment's name.
     hud : bool
-        Draw the heads-up overlay (time s, pitch rad, distance m, heading rad, targets).
+        Draw the heads-up overlay (time s, pitch rad, distance m, heading rad, targets; the
+        plant when it is not the PyBullet twin: ``Run.plant``).
     parallel : bool, optional
         Render each panel in a worker process of its own (:mod:`twin.render.panels`)
         while this one composes and encodes; default: when there are several runs and
