@@ -1,4 +1,11 @@
-"""The one exception type users see: a one-line message naming what is wrong and what is allowed."""
+"""The one exception type users see: a one-line message naming what is wrong and what is allowed.
+
+:func:`shown` quotes a user's value inside such a message.
+"""
+from __future__ import annotations
+
+import json
+import re
 
 
 class TwinError(ValueError):
@@ -13,3 +20,32 @@ class PluginError(TwinError):
     """A controller or estimator (built-in or a user's) broke its contract
     (:mod:`twin.protocols`): could not be loaded, lacks a method, or returned a value of
     the wrong shape or a non-finite one. The message names the object and what was expected."""
+
+
+QUOTE_LIMIT = 80  # characters of a value quoted in a message, by default
+_LAYOUT = re.compile(r"\s*[^\S ]\s*")  # a run of white space holding a line break, a tab, ...
+
+
+def shown(value, limit: int = QUOTE_LIMIT, *, as_json: bool = False) -> str:
+    """``value`` quoted for a one-line message: its ``repr`` (its JSON with ``as_json``, for
+    what was read from a JSON file), on one line, control characters escaped as ``repr``
+    escapes them in a str, at most ``limit`` characters (a 10 MB string is not echoed back;
+    a cut one ends in "…").
+
+    A str's own line breaks are escaped (``'a\\nb'``); what a multi-line ``repr`` (a NumPy
+    array's, a plugin's object's) puts between its lines is layout, and becomes one space.
+    An object whose ``repr`` fails, or an int beyond Python's 4300-digit conversion, is
+    named by its type: ``<a Foo>``.
+    """
+    try:
+        text = json.dumps(value, ensure_ascii=False) if as_json else repr(value)
+    except Exception:  # noqa: BLE001 -- a plugin's object whose repr fails is still named
+        text = f"<a {type(value).__name__}>"
+    if not text.isprintable():
+        if not as_json:  # JSON without indent has no layout: all it holds is the value's
+            text = _LAYOUT.sub(" ", text)
+        text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+    return text if len(text) <= limit else text[:limit - 1] + "…"
+
+
+__all__ = ["InfeasibleDesign", "PluginError", "QUOTE_LIMIT", "TwinError", "shown"]

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 from typing import Any, NamedTuple, Protocol, Sequence, runtime_checkable
 
+from twin.errors import shown  # re-exported: twin.registry quotes values with twin.protocols.shown
 from twin.plant.bullet import GroundTruth
 from twin.sensors.suite import Measurement
 
@@ -227,17 +228,6 @@ class StepResult(NamedTuple):
     gyro_bias: tuple | None = None
     actuation: Any = None
     push_force: tuple | None = None
-
-
-def shown(value: Any, limit: int = 100) -> str:
-    """``repr(value)`` for a one-line message: at most ``limit`` characters (a plugin's name or
-    parameters as a user wrote them may be of any length)."""
-    try:
-        text = repr(value)
-    except Exception:  # noqa: BLE001 -- a plugin's object whose repr fails is still named
-        text = f"<a {type(value).__name__}>"
-    text = " ".join(text.split())
-    return text if len(text) <= limit else text[:limit - 1] + "…"
 
 
 def one_line(text: str, limit: int = 500) -> str:

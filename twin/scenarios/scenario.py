@@ -14,9 +14,9 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-from twin.errors import TwinError
+from twin.errors import TwinError, shown
 from twin.scenarios.schema import (MAX_DEPTH, NAME_RULE, ScenarioError, check_depth, key_text, lookup, name_problem,
-                                   record, shown, validate)
+                                   record, validate)
 from twin.timing import steps_per_control
 
 BUILTIN_PACKAGE = "twin.scenarios.builtin"

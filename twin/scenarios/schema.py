@@ -21,7 +21,7 @@ from twin.controllers.lmi import (DEFAULT_ALL_VERTICES, DEFAULT_DAMPING, DEFAULT
 from twin.controllers.lmi_regions import UNCERTAIN_PARAMETERS
 from twin.controllers.mamdani import DEFAULT_FOU, P_E_RANGE
 from twin.fuzzy.mamdani import TYPE_REDUCERS
-from twin.errors import TwinError
+from twin.errors import TwinError, shown
 from twin.params import PARAMETER_DOCS
 from twin.plant import PLANT_MODELS
 from twin.sensors.specs import IMU_PRESETS
@@ -64,17 +64,6 @@ NAME_RULE = (f"1 to {NAME_MAX} characters from A-Z a-z 0-9 _ - . (ASCII letters 
 DESCRIPTION_MAX = 240  # characters of a description (the figure's title wraps it at 140)
 MAX_DEPTH = 32  # levels of nested tables and lists in a scenario (a plugin's matrix parameter needs 5)
 _NAME = re.compile(rf"[A-Za-z0-9_][A-Za-z0-9_.-]{{0,{NAME_MAX - 1}}}")
-
-
-def shown(value, limit: int = 80) -> str:
-    """``repr(value)`` for a one-line message: control characters escaped (as repr does for a
-    str), at most ``limit`` characters (a 10 MB string is not echoed back)."""
-    try:
-        text = repr(value)
-    except (ValueError, RecursionError):  # an int beyond Python's 4300-digit str conversion, say
-        text = f"<a {type(value).__name__}>"
-    text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text) if not text.isprintable() else text
-    return text if len(text) <= limit else text[:limit - 1] + "…"
 
 
 def name_problem(name: str) -> str | None:

@@ -29,7 +29,7 @@ import json
 import os
 from pathlib import Path
 
-from twin.errors import TwinError
+from twin.errors import TwinError, shown
 
 FORMAT = 2  # 1: before issue 26 (no configuration hash); read and upgraded
 ENV, RESUMED = "environment", "resumed_in"  # where the samples ran: recorded, not required to match
@@ -59,10 +59,10 @@ def _get(tree, dotted: str):
     return tree
 
 
-def _short(v, n: int = 40, absent: str = "(none)") -> str:
-    """``v`` as JSON in at most ``n`` characters; None (a missing key) as ``absent``."""
-    text = absent if v is None else json.dumps(v, ensure_ascii=False)
-    return text if len(text) <= n else text[:n - 1] + "…"
+def _stored(v, limit: int = 40) -> str:
+    """A value read from the store, as JSON, for a message (:func:`twin.errors.shown`); None
+    (a missing key) as "(none)"."""
+    return "(none)" if v is None else shown(v, limit, as_json=True)
 
 
 def _jsonable(tree):
@@ -78,11 +78,11 @@ def _record_problem(rec: dict, k: int, levels, kinds) -> str:
     """What is wrong with the fields the report reads from sample ``k``'s record ("" if nothing)."""
     draw, i = divmod(k, len(levels))
     if not (_is_int(rec.get("draw")) and rec["draw"] == draw):
-        return f"\"draw\" is {_short(rec.get('draw'), 20)}, not {draw}"
+        return f"\"draw\" is {_stored(rec.get('draw'), 20)}, not {draw}"
     if not (isinstance(rec.get("level"), (int, float)) and rec["level"] == levels[i]):
-        return f"\"level\" is {_short(rec.get('level'), 20)}, not {levels[i]!r}"
+        return f"\"level\" is {_stored(rec.get('level'), 20)}, not {levels[i]!r}"
     if not _is_int(rec.get("seed")):
-        return f"\"seed\" is {_short(rec.get('seed'), 20)}, not an integer"
+        return f"\"seed\" is {_stored(rec.get('seed'), 20)}, not an integer"
     if not isinstance(rec.get("values"), dict):
         return "no sampled \"values\""
     if not isinstance(rec.get("error"), str):
@@ -227,7 +227,7 @@ class SweepStore:
             raise TwinError(f"{path}: not a sweep manifest (no scenario, root_seed and controllers); {again}")
         fmt = old.get("format")
         if fmt not in (1, FORMAT):
-            raise TwinError(f"{path}: a sweep manifest of format {_short(fmt)}, which this mtwip-twin does not read "
+            raise TwinError(f"{path}: a sweep manifest of format {_stored(fmt)}, which this mtwip-twin does not read "
                             f"(formats 1 and {FORMAT}); resume it with the version that began it, or {again}")
         try:
             if fmt == 1:  # before the plugins and the sampling version were recorded: take this run's
@@ -242,7 +242,7 @@ class SweepStore:
         if config_hash(old_config) != self.config:
             new_config = self._config
             diff = _differences(old_config, new_config)
-            said = ", ".join(f"{d} (stored {_short(_get(old_config, d))}, now {_short(_get(new_config, d))})"
+            said = ", ".join(f"{d} (stored {_stored(_get(old_config, d))}, now {_stored(_get(new_config, d))})"
                              for d in diff[:3])
             raise TwinError(f"{self.out} holds a different sweep: its samples were produced with another "
                             f"configuration (differs in: {said}{', …' if len(diff) > 3 else ''}); rerun it as it "
@@ -284,20 +284,20 @@ class SweepStore:
         except (ValueError, UnicodeDecodeError) as exc:
             raise self._damaged(n, f"not JSON ({' '.join(str(exc).split())[:60]})") from None
         if not isinstance(rec, dict):
-            raise self._damaged(n, f"{_short(rec, 20, absent='null')} is not a sample record (a JSON object with \"sample\", "
-                                   f"\"config\", \"runs\", ...)")
+            raise self._damaged(n, f"{shown(rec, 20, as_json=True)} is not a sample record (a JSON object with "
+                                   f"\"sample\", \"config\", \"runs\", ...)")
         k = rec.get("sample")
         if isinstance(k, bool) or not isinstance(k, int) or k < 0:
             raise self._damaged(n, "no sample number (\"sample\": a non-negative integer)" if "sample" not in rec
-                                else f"\"sample\" is {_short(k, 20)}, not a non-negative integer")
+                                else f"\"sample\" is {shown(k, 20, as_json=True)}, not a non-negative integer")
         stamp = rec.get("config")
         if stamp != self.config and not (stamp is None and accept_unstamped):
             if stamp is None:
                 raise self._damaged(n, f"sample {k} carries no configuration hash (\"config\"), so what produced it "
                                        f"is unknown")
             raise TwinError(f"{self.path} line {n}: sample {k} was produced by another configuration "
-                            f"({_short(stamp, 14)}, this sweep's {self.config[:12]}: appended from another sweep?); "
-                            f"delete that line to run its sample again, or use another --out")
+                            f"({shown(stamp, 14, as_json=True)}, this sweep's {self.config[:12]}: appended from "
+                            f"another sweep?); delete that line to run its sample again, or use another --out")
         problem = _record_problem(rec, k, levels, kinds)
         if problem:
             raise self._damaged(n, f"sample {k}: {problem}")
