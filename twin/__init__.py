@@ -10,6 +10,11 @@ The Python API, loaded on first use::
     from twin import load_scenario, run_scenario
     result = run_scenario(load_scenario("paper-exp3"), ["it2", "lqr"])
     result.metrics["lqr"]["settling_time_s"]
+
+One run, as a typed specification (:class:`twin.sim.spec.RunSpec`)::
+
+    from twin import load_scenario, simulate
+    run = simulate(load_scenario("paper-exp1").run_spec("it2"))
 """
 from __future__ import annotations
 
@@ -26,6 +31,7 @@ _LAZY = {
     "simulate_twin": "twin.bullet_loop", "load_scenario": "twin.scenarios", "run_scenario": "twin.scenarios.runner",
     "build_controller": "twin.registry", "build_estimator": "twin.registry", "BuildContext": "twin.registry",
     "TwinConfig": "twin.plant.bullet", "SensorConfig": "twin.sensors",
+    "RunSpec": "twin.sim.spec", "simulate": "twin.sim.simulate", "build_loop": "twin.sim.simulate",
 }
 
 

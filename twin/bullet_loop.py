@@ -16,20 +16,15 @@ moved into preallocated float64 arrays, so a run costs about 8 bytes per logged 
 """
 from __future__ import annotations
 
-import math
-
-import numpy as np
-
 from twin.errors import TwinError
 from twin.experiments import Experiment
 from twin.params import NOMINAL, RobotParams
 from twin.plant.bullet import TwinConfig
-from twin.recorder import Recorder, check_log_every
+from twin.recorder import check_log_every
 from twin.runs import (ACTUATION_NAMES, COMMAND_NAMES, COMMAND_UNITS, ESTIMATE_NAMES, ESTIMATE_UNITS, PUSH_NAMES,
                        PUSH_UNITS, TRUTH_NAMES, Run, TwinRun)
 from twin.sensors import SensorConfig
-
-CHUNK = 4096  # control steps gathered before they move into the log's arrays (twin.recorder.Recorder's chunk)
+from twin.sim.simulate import CHUNK
 
 __all__ = ["ACTUATION_NAMES", "COMMAND_NAMES", "COMMAND_UNITS", "ESTIMATE_NAMES", "ESTIMATE_UNITS", "PUSH_NAMES",
            "PUSH_UNITS", "Run", "TRUTH_NAMES", "TwinRun", "check_log_every", "simulate_twin"]
@@ -79,88 +74,20 @@ def simulate_twin(controller, experiment: Experiment, config: TwinConfig | None 
 
     The twin (the plant) is closed when the run ends, fallen or not.
     """
-    from twin.loop import ClosedLoop
-    from twin.registry import BuildContext, build_estimator
+    from twin.sim.simulate import simulate
+    from twin.sim.spec import InitialState, Logging, Plugin, RunSpec, Sensing
 
     config = config if config is not None else TwinConfig()
-    plant_name, motor = "twin", config.motor
-    if isinstance(plant, str):
-        from twin.plant import build_plant
-
-        plant = None if plant == "bullet" else build_plant(plant, config, experiment.theta0, alpha0, position)
-    if plant is not None:
-        from twin.plant import check_plant
-        from twin.plant.analytic_plant import AnalyticPlant
-        from twin.plant.bullet import BulletTwin
-        from twin.protocols import describe_object
-
-        check_plant(plant, sensors is not None)
+    if plant is not None and not isinstance(plant, str):
         own = getattr(plant, "config", None)
-        if isinstance(own, TwinConfig):
-            config = own
-        if isinstance(plant, BulletTwin):
-            motor = plant.config.motor
-        else:  # the analytic plant's torque sources are ideal; one's own plant says nothing of motors
-            motor = None
-            plant_name = "analytic" if isinstance(plant, AnalyticPlant) else describe_object(plant)
-    rate = config.control_rate if plant is None else float(plant.control_rate)
-    duration = experiment.duration if duration is None else float(duration)
-    control_dt = 1.0 / rate
-    if not (math.isfinite(duration) and duration >= control_dt):
-        raise TwinError(f"duration must be at least one control period ({control_dt:g} s), got {duration:g} s")
+        config = own if isinstance(own, TwinConfig) else config
     if sensors is not None and not isinstance(sensors, SensorConfig):
         raise TwinError(f"sensors must be a SensorConfig or None (ideal sensing), got {sensors!r}")
-    if sensors is not None:
-        sensors.steps(rate)  # rates and latencies fit the control period: check before building
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise TwinError(f"seed must be a non-negative integer, got {seed!r}")
-    every = check_log_every(log_every)
-    if every > 1 and log_filter:
-        raise TwinError(f"log_filter needs every control step (the filter's lagged states are matched to the truth "
-                        f"step by step), so log_every must be 1 with it, got {log_every!r}")
-    ideal = sensors is None
-    if ideal and not (estimator in ("ekf", "ideal") if isinstance(estimator, str)
-                      else getattr(estimator, "reads_truth", False)):
-        raise TwinError(f"sensors=None is ideal sensing (the 'ideal' estimator reads the truth), so estimator "
-                        f"{estimator!r} would not run; give sensors=SensorConfig(...) to use it")
-    if isinstance(estimator, str) or ideal:
-        kind = "ideal" if ideal else estimator
-        context = BuildContext(rate, model_params, motor, sensors, experiment.targets, alpha0)
-        filt = build_estimator(kind, estimator_params, context)
-        sensing = kind
-    else:
-        filt, sensing = estimator, getattr(estimator, "name", type(estimator).__name__)
-    loop = ClosedLoop(config if plant is None else plant, filt, controller, sensors, experiment.targets,
-                      experiment.theta0, alpha0, position, limits=config.limits)
-    n_ctrl = int(round(duration / control_dt))
-    report_every = max(1, int(round(rate)))
-    rec = Recorder.for_loop(loop, n_ctrl + 1, log_every=every, diagnostics=log_filter, chunk=CHUNK)
-    instant, period = rec.instant, rec.period
-    diagnostics = loop.diagnostics if log_filter else None
-    with loop:
-        res = loop.reset(seed)
-        command, step = loop.command, loop.step
-        for i in range(n_ctrl + 1):
-            if res.status == "diverged":  # the non-finite state is not logged: the log ends with the last finite one
-                break
-            d = None if diagnostics is None else diagnostics()
-            c = command()
-            instant(res, c, d)
-            if i == n_ctrl or res.status != "running":
-                break
-            if progress is not None and i % report_every == 0 and i:
-                progress(i, n_ctrl)
-            res = step(c)
-            period(res)  # what the motors and pushes did over [t_i, t_i+1)
-        status = "ok" if loop.status == "running" else loop.status
-        reason = "" if status == "ok" else loop.end_reason
-        stats = {} if ideal else loop.estimator_stats()
-        sensor_counts = {} if ideal else loop.sensor_counts()
-        sensor_truth = {} if ideal else loop.sensor_truth()
-        if progress is not None:
-            progress(n_ctrl, n_ctrl)
-    units = {**COMMAND_UNITS, **getattr(controller, "signal_units", {})}
-    return rec.run(status, reason, config, command_units=tuple(units.get(k, "1") for k in rec.command_names),
-                   experiment=experiment, controller=controller_name, sensing=sensing, estimator_stats=stats,
-                   sensor_counts=sensor_counts, seed=None if ideal else int(seed), sensor_truth=sensor_truth,
-                   sensor_config=sensors, model_params=model_params, plant=plant_name)
+    spec = RunSpec(
+        controller=Plugin(controller), plant=config, plant_model="bullet" if plant is None else plant,
+        estimator=Plugin(estimator, estimator_params if isinstance(estimator, str) else None),
+        initial=InitialState(experiment.theta0, alpha0, *position), targets=experiment.targets,
+        duration=experiment.duration if duration is None else duration, seed=seed, sensing=Sensing(sensors),
+        model=model_params, logging=Logging(log_every, log_filter), name=experiment.name,
+        description=experiment.description, label=controller_name)
+    return simulate(spec, progress)

@@ -141,6 +141,7 @@ def run_checks(scenarios, controllers=None, seeds: int = 1, workers: int = 1, pr
     (a :class:`twin.tolerances.Tolerances`, the command line's) over each scenario's
     ``[expect.golden]``."""
     from twin.registry import check_kinds, plugin_dirs, uses_design
+    from twin.scenarios.runner import plan as runs_of
     from twin.tolerances import Tolerances
 
     if not (isinstance(seeds, int) and 1 <= seeds <= 10_000):
@@ -154,9 +155,9 @@ def run_checks(scenarios, controllers=None, seeds: int = 1, workers: int = 1, pr
         design = sc.design() if any(uses_design(k) for k in kinds) else None
         paths = plugin_dirs([("controller", k) for k in kinds] + [("estimator", sc.estimator)])
         extra = []
-        for kind in kinds:
-            # a plugin that cannot be built is a user error: before anything runs
-            extra += getattr(sc.build_controller(kind), "signals", ())
+        # every plugin built once here: one that cannot be built is a user error, said before anything runs
+        for kind, spec in zip(kinds, runs_of(sc, kinds)):
+            extra += getattr(spec.controller.kind, "signals", ())
             plan.append((sc, kind, tuple(CheckTask(sc.data, sc.source, sc.overrides, design, kind, sc.seed + i,
                                                    paths, record is not None or golden is not None)
                                          for i in range(seeds))))

@@ -80,6 +80,7 @@ from __future__ import annotations
 import json
 import math
 import shlex
+from dataclasses import replace
 from os import PathLike
 
 import gymnasium
@@ -348,7 +349,8 @@ class TwinEnv(gymnasium.Env):
         and with ``randomize`` also ``root_seed``, ``sample``, ``level`` and
         ``sample_values`` (the sampled plant factors, tilt and pushes, units in the names).
         """
-        from twin.loop import ClosedLoop
+        from twin.sim.simulate import build_loop
+        from twin.sim.spec import Plugin
         from twin.sweep.sampling import sample_scenario
 
         super().reset(seed=seed)
@@ -374,11 +376,11 @@ class TwinEnv(gymnasium.Env):
             replay = f"--seed {run_seed}"
         self._next_estimator = None
         self._close_loop()
-        init = sc.data["initial"]
-        # the scenario's plant.model: the PyBullet twin from its config, or the plant it names
-        plant = config if sc.plant_model == "bullet" else sc.plant()
-        self.loop = loop = ClosedLoop(plant, estimator, None, sensors, exp.targets, exp.theta0, init["alpha"],
-                                      (init["x"], init["y"]))
+        # the episode's run: the scenario's (sample's) specification without a controller, the agent acting
+        spec = sc.run_spec(None, build=False)
+        if self.estimator_kind != sc.estimator:
+            spec = replace(spec, estimator=Plugin(self.estimator_kind))
+        self.loop = loop = build_loop(spec, estimator=estimator)
         self._episode = (sc, config, exp.targets)
         self._begin_episode(exp.targets)
         self._held[:] = [0.0] * 11

@@ -42,7 +42,7 @@ from twin.errors import PluginError, TwinError
 from twin.limits import limit_of
 from twin.scenarios.scenario import Scenario
 
-LOG_FORMATS = ("csv", "csv.gz")  # trajectory.csv, or the same text gzip-compressed
+from twin.sim.spec import LOG_FORMATS  # noqa: E402 -- trajectory.csv, or the same text gzip-compressed
 
 
 @dataclass
@@ -90,7 +90,7 @@ def plugins_of(scenario: Scenario, controllers) -> list[dict]:
 
 def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, video: bool | None = None,
                  progress=None, log_every: int = 1, log_format: str = "csv",
-                 keep_limited: bool = False) -> ScenarioResult:
+                 keep_limited: bool = False, specs=None) -> ScenarioResult:
     """Run ``scenario`` with each of ``controllers`` (kinds; None: the scenario's
     ``controller.kinds``) on identical conditions: same true plant, sensor seed,
     estimator kind, pushes and faults.
@@ -110,8 +110,12 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
     written (the manifest's exit status is then 2); if every run was stopped, the first
     one's PluginError is raised and nothing is written. False: that PluginError is raised
     at once, like any other.
+
+    ``specs``: the runs' specifications as :func:`plan` made them for these controllers
+    (their plugins built already, as ``twin run`` does before it prints anything); None:
+    planned here.
     """
-    from twin.bullet_loop import check_log_every
+    from twin.recorder import check_log_every
     from twin.registry import check_kinds, parse_controllers
 
     every = check_log_every(log_every)
@@ -122,13 +126,17 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
     else:
         kinds = check_kinds("controller", controllers if controllers is not None else scenario.controllers,
                             "controllers")
+    if specs is not None and [s.label for s in specs] != list(kinds):
+        raise TwinError(f"specs must be plan(scenario, {list(kinds)!r})'s, one per controller in that order, got "
+                        f"runs of {[s.label for s in specs]!r}")
     # checked before the runs simulate, so that a directory that cannot take them is said at once
     staged = rundir.StagedDirectory(out, "twin run") if out is not None else None
     try:
         # the figure's worker process starts now, to import matplotlib while the runs simulate
         worker = figure_worker.start() if out is not None else None
         try:
-            return _run_and_write(scenario, kinds, staged, video, progress, every, log_format, worker, keep_limited)
+            return _run_and_write(scenario, kinds, staged, video, progress, every, log_format, worker, keep_limited,
+                                  specs)
         finally:
             if worker is not None:  # ended before its staging goes: it may be writing figure.png there
                 worker.close()
@@ -143,51 +151,67 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
             staged.discard()
 
 
+class LazyDesign:
+    """The scenario's LMI design, solved (or taken from the design store) when a controller
+    first asks for it, with the time that took: only the fuzzy cascades, or a plugin that
+    asks, need it, and design.json is written only then."""
+
+    def __init__(self, scenario: Scenario):
+        self.scenario = scenario
+        self.solved = None
+        self.seconds = None
+
+    def __call__(self):
+        if self.solved is None:
+            t0 = time.perf_counter()
+            self.solved = self.scenario.design()
+            self.seconds = time.perf_counter() - t0
+        return self.solved
+
+
+def plan(scenario: Scenario, kinds) -> list:
+    """The :class:`twin.sim.spec.RunSpec` of each controller kind's run of ``scenario``, its
+    controller and estimator built once (:meth:`Scenario.run_spec`), so that a plugin that
+    cannot be built is one line before anything runs; the LMI design is solved only if a
+    controller asks for it (:class:`LazyDesign`)."""
+    context = scenario.build_context(LazyDesign(scenario))
+    return [scenario.run_spec(kind, context) for kind in kinds]
+
+
 def _run_and_write(scenario, kinds, staged, video, progress, every, log_format, worker,
-                   keep_limited: bool = False) -> ScenarioResult:
+                   keep_limited: bool = False, specs=None) -> ScenarioResult:
     """:func:`run_scenario` after its checks; ``staged`` a :class:`twin.rundir.StagedDirectory`
     (None: write nothing); ``worker`` a :class:`twin.figure_worker.FigureWorker` for the
     figure, or None (drawn here)."""
-    from twin.bullet_loop import simulate_twin
     from twin.metrics import run_metrics
+    from twin.sim.simulate import simulate
+    from twin.sim.spec import Logging
 
-    d = scenario.data
-    exp = scenario.experiment()
-    config = scenario.twin_config()
-    sensors = scenario.sensor_config()
     timings = {}
-    solved = []
-
-    def design():  # solved on first use: only the fuzzy cascades (or a plugin that asks) need it
-        if not solved:
-            t0 = time.perf_counter()
-            solved.append(scenario.design())
-            timings["design_s"] = time.perf_counter() - t0
-        return solved[0]
-
-    context = scenario.build_context(design)
+    if specs is None:
+        specs = plan(scenario, kinds)
+    lazy = specs[0].design if specs and isinstance(specs[0].design, LazyDesign) else None
     plugins = plugins_of(scenario, kinds)
     runs, metrics, controllers, errors = [], {}, [], {}
-    for kind in kinds:
-        controller = scenario.build_controller(kind, context)
+    for kind, spec in zip(kinds, specs):
+        spec = replace(spec, logging=Logging(every, format=log_format))
         cb = None if progress is None else (lambda done, total, k=kind: progress(f"run {k}", done, total))
         t0 = time.perf_counter()
         try:
-            run = simulate_twin(controller, exp, config, duration=scenario.duration, controller_name=kind,
-                                alpha0=d["initial"]["alpha"], position=(d["initial"]["x"], d["initial"]["y"]),
-                                sensors=sensors, estimator=scenario.build_estimator(context), seed=scenario.seed,
-                                model_params=context.model, progress=cb, log_every=every,
-                                plant=scenario.plant_model)
+            run = simulate(spec, cb)
         except PluginError as exc:
             if not keep_limited or limit_of(exc) is None:
                 raise
             errors[kind] = exc  # that controller's alone: the others run on
             continue
-        controllers.append((kind, controller))
+        controllers.append((kind, spec.controller.kind))
         run.sensing = scenario.estimator
         timings[f"run_{kind}_s"] = time.perf_counter() - t0
         runs.append(run)
         metrics[kind] = run_metrics(run)
+    solved = [] if lazy is None or lazy.solved is None else [lazy.solved]
+    if solved:
+        timings = {"design_s": lazy.seconds, **timings}
     if errors and not runs:  # nothing to write: the first limit's one line, as without keep_limited
         raise next(iter(errors.values()))
     from twin.fingerprint import digests
@@ -197,7 +221,7 @@ def _run_and_write(scenario, kinds, staged, video, progress, every, log_format, 
                             designs=digests(solved[0] if solved else None, controllers), errors=errors)
     if staged is None:
         return result
-    _write(result, staged, video, progress, every, log_format, worker, sensors, config)
+    _write(result, staged, video, progress, every, log_format, worker, specs[0].sensing.true, specs[0].plant)
     return result
 
 

@@ -128,6 +128,37 @@ class Scenario:
             where = "sensors.estimator_params" if params else "sensors.estimator"
             raise self._error(f"{where}: {exc}") from None
 
+    def run_spec(self, kind: str | None, context=None, build: bool = True):
+        """The :class:`twin.sim.spec.RunSpec` of a run of this scenario with controller ``kind``
+        (None: no controller; whoever steps the loop gives the torques, as a Gymnasium agent does).
+
+        ``build``: the controller and the estimator are built here (:meth:`build_controller`,
+        :meth:`build_estimator`, with ``context``: default :meth:`build_context`), once, so a
+        plugin that cannot be built is a one-line error naming the scenario's key before
+        anything runs, and the spec carries the objects; False: the spec carries the kinds
+        with their ``[controller.params.KIND]`` and ``sensors.estimator_params``, built by
+        each run of it (:func:`twin.sim.simulate.simulate`)."""
+        from twin.sim.spec import InitialState, Logging, Plugin, RunSpec, Sensing
+
+        d = self.data
+        i = d["initial"]
+        if build:
+            context = context or self.build_context()
+            estimator = Plugin(self.build_estimator(context))
+            controller = None if kind is None else Plugin(self.build_controller(kind, context))
+        else:
+            controller = None if kind is None else Plugin(kind, self.data["controller"]["params"].get(kind))
+            estimator = Plugin(self.estimator,
+                               None if self.estimator == "ideal" else d["sensors"]["estimator_params"])
+        config = self.twin_config()
+        return RunSpec(controller=controller, estimator=estimator, plant=config, plant_model=self.plant_model,
+                       initial=InitialState(i["theta"], i["alpha"], i["x"], i["y"]),
+                       targets=self.experiment().targets, duration=self.duration, seed=self.seed,
+                       sensing=Sensing(self.sensor_config(), self.believed_sensor_config()),
+                       design=self.design if context is None else context.design,
+                       options=self.cascade_options(), logging=Logging(), name=self.name,
+                       description=self.description, label=kind or "")
+
     def experiment(self):
         from twin.experiments import Experiment
 

@@ -1,0 +1,109 @@
+"""A run specification becomes a logged run: :func:`simulate` (and :func:`build_loop`, the
+closed loop of a specification, for those who step it themselves: the Gymnasium environments,
+a user's script).
+
+:func:`simulate` drives :class:`twin.loop.ClosedLoop`: reset, then the controller's command
+and a step per control period, each step's result handed to a :class:`twin.recorder.Recorder`
+(which builds the :class:`twin.runs.Run`), never reading the loop's internals. Logged at the
+control rate, one row per control instant, or at every N-th instant (``spec.logging.every``).
+Memory: the step results are gathered for a chunk of :data:`CHUNK` control steps at a time,
+then moved into preallocated float64 arrays, so a run costs about 8 bytes per logged number
+(some 0.27 GB per simulated hour at 200 Hz with sensors, every step logged).
+
+The plant is closed when the run ends, fallen or not.
+"""
+from __future__ import annotations
+
+from twin.recorder import Recorder
+from twin.runs import COMMAND_UNITS, Run
+from twin.sim.spec import RunSpec
+
+CHUNK = 4096  # control steps gathered before they move into the log's arrays (twin.recorder.Recorder's chunk)
+
+
+def build_loop(spec: RunSpec, controller=None, estimator=None):
+    """The :class:`twin.loop.ClosedLoop` of ``spec``, not yet reset.
+
+    ``controller``/``estimator``: objects already built for ``spec`` (default: built here,
+    :meth:`RunSpec.build_controller` and :meth:`RunSpec.build_estimator`); a spec without a
+    controller gives a loop stepped with commands."""
+    from twin.loop import ClosedLoop
+
+    context = spec.context() if controller is None or estimator is None else None
+    if estimator is None:
+        estimator = spec.build_estimator(context)
+    if controller is None and spec.controller is not None:
+        controller = spec.build_controller(context)
+    i = spec.initial
+    model = spec.plant_model
+    if model == "bullet":
+        plant = spec.plant  # a new PyBullet twin at every reset
+    elif isinstance(model, str):
+        from twin.plant import build_plant
+
+        plant = build_plant(model, spec.plant, i.theta, i.alpha, i.position)
+    else:
+        plant = model
+    return ClosedLoop(plant, estimator, controller, spec.sensing.true, spec.targets, i.theta, i.alpha, i.position,
+                      limits=config_of(spec).limits)
+
+
+def config_of(spec: RunSpec):
+    """The :class:`~twin.plant.bullet.TwinConfig` a run of ``spec`` records: the plant object's
+    own, if it has one (a BulletTwin, an AnalyticPlant), else ``spec.plant``."""
+    from twin.plant.bullet import TwinConfig
+
+    own = getattr(spec.plant_model, "config", None) if not isinstance(spec.plant_model, str) else None
+    return own if isinstance(own, TwinConfig) else spec.plant
+
+
+def simulate(spec: RunSpec, progress=None, controller=None, estimator=None) -> Run:
+    """Run ``spec`` and return its log (:class:`twin.runs.Run`).
+
+    ``progress(steps_done, steps_total)`` is called once per simulated second and at the end.
+    ``controller``/``estimator``: objects already built for ``spec`` (see :func:`build_loop`).
+    """
+    if spec.controller is None and controller is None:
+        spec.build_controller()  # the one-line error: a run needs a controller
+    loop = build_loop(spec, controller, estimator)
+    controller = loop.controller
+    ideal = spec.sensing.ideal
+    log_filter = spec.logging.diagnostics
+    rate = loop.control_rate
+    n_ctrl = int(round(spec.duration / loop.control_dt))
+    report_every = max(1, int(round(rate)))
+    rec = Recorder.for_loop(loop, n_ctrl + 1, log_every=spec.logging.every, diagnostics=log_filter, chunk=CHUNK)
+    instant, period = rec.instant, rec.period
+    diagnostics = loop.diagnostics if log_filter else None
+    with loop:
+        res = loop.reset(spec.seed)
+        command, step = loop.command, loop.step
+        for i in range(n_ctrl + 1):
+            if res.status == "diverged":  # the non-finite state is not logged: the log ends with the last finite one
+                break
+            d = None if diagnostics is None else diagnostics()
+            c = command()
+            instant(res, c, d)
+            if i == n_ctrl or res.status != "running":
+                break
+            if progress is not None and i % report_every == 0 and i:
+                progress(i, n_ctrl)
+            res = step(c)
+            period(res)  # what the motors and pushes did over [t_i, t_i+1)
+        status = "ok" if loop.status == "running" else loop.status
+        reason = "" if status == "ok" else loop.end_reason
+        stats = {} if ideal else loop.estimator_stats()
+        sensor_counts = {} if ideal else loop.sensor_counts()
+        sensor_truth = {} if ideal else loop.sensor_truth()
+        if progress is not None:
+            progress(n_ctrl, n_ctrl)
+    units = {**COMMAND_UNITS, **getattr(controller, "signal_units", {})}
+    label = spec.label or (spec.controller.kind if spec.controller is not None and spec.controller.is_kind else "")
+    config = config_of(spec)
+    return rec.run(status, reason, config, command_units=tuple(units.get(k, "1") for k in rec.command_names),
+                   experiment=spec.experiment, controller=label, sensing=spec.sensing_name, estimator_stats=stats,
+                   sensor_counts=sensor_counts, seed=None if ideal else int(spec.seed), sensor_truth=sensor_truth,
+                   sensor_config=spec.sensing.true, model_params=spec.model, plant=spec.plant_name)
+
+
+__all__ = ["CHUNK", "build_loop", "config_of", "simulate"]
