@@ -1,25 +1,30 @@
 """The README's tables of single runs, measured again with the code as it is.
 
-Run from the repository root (about 2 minutes on 2 cores)::
+Run from the repository root (about 2 minutes on 2 cores; the analytic table alone, a few
+seconds)::
 
-    python benchmarks/readme_tables.py [--set KEY=VALUE ...]
+    python benchmarks/readme_tables.py [--only analytic|twin|builtins ...] [--set KEY=VALUE ...]
 
 Prints three markdown tables, each from the command the README names:
 
-* "Results on the analytic model": ``twin analytic N --controller both`` (N = 1, 2, 3);
+* "Results on the analytic model": ``twin run paper-expN --controller it2,t1 --set
+  plant.model=analytic --set plant.scale={} --set sensors.sensing=ideal`` (N = 1, 2, 3:
+  equation (1) on the nominal plant, the controllers on the true state, 200 Hz control,
+  1 kHz RK4; what ``twin analytic N --controller both`` gave before issue 27, bit for bit);
 * "Measured on the twin": ``twin run paper-expN --set plant.scale={} --set sensors.sensing=ideal``
   (nominal plant, default motors, controllers on ground truth);
 * "IT2, type-1 and LQR on this twin": ``twin run NAME --controller it2,t1,lqr`` for every
   built-in scenario (seed 0, the EKF in the loop).
 
-``--set`` options are passed to every ``twin run`` (not to ``twin analytic``, which has
-no scenario and always uses the default design) (for example the nominal design of
-before issue 18: ``--set design.decay_rate=3 --set design.damping=0 --set 'design.uncertain={}'
---set design.all_vertices=false``).
+``--only`` prints the tables named (repeatable; default: all three). ``--set`` options are
+passed to every ``twin run``, the analytic model's included (for example the nominal
+design of before issue 18: ``--set design.decay_rate=3 --set design.damping=0 --set
+'design.uncertain={}' --set design.all_vertices=false``).
 """
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import subprocess
 import sys
@@ -40,7 +45,7 @@ def twin(*args: str) -> None:
 
 
 def runs(out: Path, key: str = "runs") -> dict:
-    """The metrics per controller in ``out/metrics.json`` (``twin analytic`` keys them "controllers")."""
+    """The metrics per controller in ``out/metrics.json``."""
     return json.loads((out / "metrics.json").read_text(encoding="utf-8"))[key]
 
 
@@ -54,30 +59,46 @@ def table(header: list[str], groups, cells) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for label, per_kind in groups:
         for i, (kind, m) in enumerate(per_kind.items()):
-            lines.append("| " + " | ".join([label if i == 0 else "", *cells(kind, m)]) + " |")
+            lines.append(("| " + label + " | " if i == 0 else "| | ") + " | ".join(cells(kind, m)) + " |")
     return "\n".join(lines)
+
+
+def below(value, bound: float, scale: float, bound_text: str, unit: str) -> str:
+    """An error as the README's analytic table gives it: "< 1 mm" below ``bound``, else the
+    value (× ``scale``, in ``unit``); "–" if none."""
+    if value is None:
+        return "–"
+    return f"< {bound_text}" if abs(value) < bound else f"{abs(value) * scale:.2g} {unit}"
 
 
 def short(kind: str) -> str:
     return "IT2" if kind == "it2" else "T1"
 
 
-def analytic(tmp: Path) -> str:
-    import numpy as np
+def max_total_torque(out: Path) -> dict:
+    """controller → max |ul_cmd + ur_cmd| in N·m over ``out/trajectory.csv``."""
+    totals: dict = {}
+    with open(out / "trajectory.csv", encoding="utf-8", newline="") as fh:
+        for row in csv.DictReader(fh):
+            total = abs(float(row["ul_cmd [N·m]"]) + float(row["ur_cmd [N·m]"]))
+            totals[row["controller"]] = max(totals.get(row["controller"], 0.0), total)
+    return totals
 
+
+def analytic(tmp: Path, extra: list[str]) -> str:
     def groups():
         for n in (1, 2, 3):
             out = tmp / f"analytic{n}"
-            twin("analytic", str(n), "--controller", "both", "--out", str(out))
-            yield EXPERIMENTS[n], {k: (out, m) for k, m in runs(out, "controllers").items()}
+            twin("run", f"paper-exp{n}", "--controller", "it2,t1", "--no-video", "--set", "plant.model=analytic",
+                 "--set", "plant.scale={}", "--set", "sensors.sensing=ideal", "--out", str(out), *extra)
+            totals = max_total_torque(out)
+            yield EXPERIMENTS[n], {k: (totals[k], m) for k, m in runs(out).items()}
 
     def cells(kind, item):
-        out, m = item
-        data = np.genfromtxt(out / f"trajectory_{kind}.csv", delimiter=",", names=True)
-        total = np.abs(data["ul_cmd_N·m"] + data["ur_cmd_N·m"]).max()
+        total, m = item
         pos, head = m.get("final_position_error_m"), m.get("final_heading_error_rad")
         return [short(kind), f"{m['settling_time_s']:.2f} s", f"{total:.3f} N·m",
-                "–" if pos is None else f"{abs(pos) * 1e3:.2g} mm", "–" if head is None else f"{abs(head):.2g} rad"]
+                below(pos, 1e-3, 1e3, "1 mm", "mm"), below(head, 1e-3, 1.0, "0.001 rad", "rad")]
 
     return table(["experiment", "controller", "θ settles below 0.01 rad", "max \\|ul + ur\\|", "final position error",
                   "final heading error"], groups(), cells)
@@ -123,13 +144,19 @@ def builtins(tmp: Path, extra: list[str]) -> str:
                   "IAE θ [rad·s]", "effort [N²m²s]", "peak torque [N·m]", "estimator θ RMSE [mrad]"], groups(), cells)
 
 
+TABLES = {"analytic": ("Results on the analytic model", analytic),
+          "twin": ("Measured on the twin (nominal plant, ground truth)", nominal_twin),
+          "builtins": ("IT2, type-1 and LQR on this twin", builtins)}
+
+
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", action="append", choices=TABLES, default=[],
+                    help="print this table only (repeatable; default: all three)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="passed to every 'twin run'")
     a = ap.parse_args()
     extra = [x for s in a.set for x in ("--set", s)]
+    chosen = [t for t in TABLES if t in a.only] if a.only else list(TABLES)
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        print("Results on the analytic model\n\n" + analytic(tmp) + "\n")
-        print("Measured on the twin (nominal plant, ground truth)\n\n" + nominal_twin(tmp, extra) + "\n")
-        print("IT2, type-1 and LQR on this twin\n\n" + builtins(tmp, extra))
+        print("\n\n".join(f"{TABLES[t][0]}\n\n{TABLES[t][1](tmp, extra)}" for t in chosen))

@@ -1,5 +1,6 @@
 """The command line as a user runs it: exit status, one-line errors, files written."""
 import json
+import re
 import subprocess
 import sys
 import tempfile
@@ -30,13 +31,13 @@ def test_design_writes_json(tmp_path):
     (["design", "--decay-rate", "500"], "decay rate must be a finite number in [0, 100]"),
     (["design", "--rho", "1e300"], "rho must be a finite number in (0, 1e+06]"),
     (["design", "--max-gain", "0.5"], "max gain 0.5 is below the designed gains' norm"),
-    (["analytic", "2", "--duration", "-1"], "--duration must be in (0, 3600] s"),
-    (["analytic", "2", "--duration", "nan"], "--duration must be in (0, 3600] s"),
+    (["run", "paper-exp2", "--set", "plant.model=analytic", "--duration", "-1"], "--duration must be in (0, 3600] s"),
+    (["run", "paper-exp2", "--set", "plant.model=analytic", "--duration", "nan"], "--duration must be in (0, 3600] s"),
     (["design", "--rho", "abc"], "Invalid value for '--rho': 'abc' is not a valid float"),
-    (["analytic", "7"], "'7' is not one of '1', '2', '3'"),
-    (["analytic"], "Missing argument 'EXPERIMENT'. Choose from: 1, 2, 3"),
+    (["run", "paper-exp7", "--set", "plant.model=analytic"], "'paper-exp7' is neither a built-in scenario"),
+    (["analytic"], "'twin analytic' gave way to 'twin run paper-expN --set plant.model=analytic"),
     (["surface", "speed"], "'speed' is not one of 'position', 'direction'"),
-    (["analytic", "2", "--duration", "0"], "--duration must be in (0, 3600] s"),
+    (["analytic", "2", "--duration", "0", "--gains", "g.json"], "'twin analytic' gave way to 'twin run paper-exp2"),
     (["physics", "2", "--duration", "3"], "'twin physics' gave way to 'twin run paper-exp2'"),
     (["design", "--nope"], "No such option '--nope'"),
     (["fly"], "No such command 'fly'"),
@@ -49,31 +50,39 @@ def test_user_errors_are_one_line(args, message):
     assert len(lines) == 1 and lines[0].startswith("error: ") and message in lines[0], r.stderr
 
 
-def test_bad_gains_file_is_one_line(tmp_path):
-    bad = tmp_path / "g.json"
-    bad.write_text('{"gains": [[1, 2, 3]]}')
-    r = twin("analytic", "1", "--gains", str(bad), "--out", str(tmp_path / "o"))
-    assert r.returncode == 2 and "'gains' must be 2 lists of 4" in r.stderr and "Traceback" not in r.stderr
-
-
-def test_gains_file_and_design_options_are_exclusive(tmp_path):
-    gains = tmp_path / "g.json"
-    gains.write_text('{"gains": [[1, 0, 0, 0], [1, 0, 0, 0]]}')
-    r = twin("analytic", "1", "--gains", str(gains), "--rho", "3", "--out", str(tmp_path / "o"))
-    assert r.returncode == 2 and "--gains uses a finished design; --rho would be ignored" in r.stderr
-
-
-def test_analytic_run_writes_outputs(tmp_path):
-    gains = tmp_path / "g.json"
-    assert twin("design", "--out", str(gains)).returncode == 0
-    out = tmp_path / "exp2"
-    r = twin("analytic", "2", "--controller", "both", "--gains", str(gains), "--out", str(out))
+def test_twin_analytic_names_the_twin_run_that_replaced_it_and_that_command_runs(tmp_path):
+    """'twin analytic 3' (issue 27): one line, exit status 2, no traceback, naming the twin run
+    that gives the same runs; the command named runs as it is written."""
+    r = twin("analytic", "3", "--controller", "both", "--out", str(tmp_path / "old"))
+    assert r.returncode == 2 and r.stdout == "" and "Traceback" not in r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: 'twin analytic' gave way to "), r.stderr
+    assert "--set design.decay_rate=" in lines[0] and "--gains" in lines[0]
+    assert not (tmp_path / "old").exists()
+    command = re.search(r"'(twin run [^']+)'", lines[0]).group(1)
+    assert command == ("twin run paper-exp3 --set plant.model=analytic --set plant.scale={} "
+                       "--set sensors.sensing=ideal")
+    out = tmp_path / "new"
+    r = twin(*command.split()[1:], "--duration", "1", "--no-video", "--out", str(out))
     assert r.returncode == 0, r.stderr
-    for name in ("figure.png", "metrics.json", "design.json", "trajectory_it2.csv", "trajectory_t1.csv"):
+    doc = json.loads((out / "metrics.json").read_text())
+    assert set(doc["runs"]) == {"it2", "t1"}  # the old --controller both is the scenario's default
+    assert doc["scenario"]["plant"]["model"] == "analytic" and doc["scenario"]["sensors"]["sensing"] == "ideal"
+
+
+def test_twin_run_on_the_analytic_model_writes_outputs_with_design_options(tmp_path):
+    """What 'twin analytic 2 --decay-rate 2.5' did, through twin run: outputs written, the
+    design's option recorded, the twin's columns in the trajectory."""
+    out = tmp_path / "exp2"
+    r = twin("run", "paper-exp2", "--set", "plant.model=analytic", "--set", "plant.scale={}", "--set",
+             "sensors.sensing=ideal", "--set", "design.decay_rate=2.5", "--no-video", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    for name in ("figure.png", "metrics.json", "design.json", "trajectory.csv"):
         assert (out / name).stat().st_size > 0
+    assert json.loads((out / "design.json").read_text())["decay_rate"] == 2.5
     m = json.loads((out / "metrics.json").read_text())
-    assert abs(m["controllers"]["it2"]["final_position_error_m"]) < 0.01
-    header = (out / "trajectory_it2.csv").read_text().splitlines()[0]
+    assert abs(m["runs"]["it2"]["final_position_error_m"]) < 0.01
+    header = (out / "trajectory.csv").read_text().splitlines()[0]
     assert "theta [rad]" in header and "ul_cmd [N·m]" in header and "torque_l [N·m]" in header  # the twin's columns
 
 

@@ -1,6 +1,6 @@
 """Every result file records the environment it came from and a digest of each design it used
-(issue 25): metrics.json of 'twin run' and of the paper experiments, the JUnit file of
-'twin check' (golden files: test_golden.py; sweep.json: test_sweep.py)."""
+(issue 25): metrics.json of 'twin run' (on the twin and on the analytic model), the JUnit file
+of 'twin check' (golden files: test_golden.py; sweep.json: test_sweep.py)."""
 from __future__ import annotations
 
 import json
@@ -56,19 +56,26 @@ def test_a_run_that_uses_no_lmi_design_records_none(short):
     assert "balance" not in designs and designs.get("lqr") == _lqr_digest()
 
 
-def test_a_paper_experiments_metrics_json_records_the_environment_too(tmp_path):
-    status, _, err = twin("analytic", "1", "--controller", "it2,lqr", "--duration", "0.5", "--out", tmp_path)
+def test_a_paper_experiment_on_the_analytic_model_records_the_environment_too(tmp_path):
+    """What 'twin analytic 1' recorded before issue 27, through twin run: the environment last,
+    the design's digest that of design.json (JSON keeps every bit of a float)."""
+    analytic = ("--set", "plant.model=analytic", "--set", "plant.scale={}", "--set", "sensors.sensing=ideal",
+                "--duration", "0.5", "--no-video")
+    status, _, err = twin("run", "paper-exp1", "--controller", "it2,lqr", *analytic, "--out", tmp_path)
     assert status == 0, err
     doc = json.loads((tmp_path / "metrics.json").read_text())
     assert list(doc)[-1] == "environment"
     design = json.loads((tmp_path / "design.json").read_text())
     assert doc["environment"]["designs"]["balance"] == fingerprint.design_digest(gains=design["gains"], P=design["P"])
     assert doc["environment"]["designs"].get("lqr") == _lqr_digest()
-    # a finished design from a file: the same digest (JSON keeps every bit of a float)
-    status, _, err = twin("analytic", "1", "--controller", "it2", "--duration", "0.5", "--gains",
-                          tmp_path / "design.json", "--out", tmp_path / "again")
+    here = fingerprint.environment()
+    for key in ("project", "python", "packages", "kernels"):
+        assert doc["environment"][key] == here[key], key
+    # the same design on the other plant: the same digest
+    status, _, err = twin("run", "paper-exp1", "--controller", "it2", "--no-video", "--duration", "0.5",
+                          "--out", tmp_path / "twin")
     assert status == 0, err
-    again = json.loads((tmp_path / "again" / "metrics.json").read_text())["environment"]["designs"]
+    again = json.loads((tmp_path / "twin" / "metrics.json").read_text())["environment"]["designs"]
     assert again == {"balance": doc["environment"]["designs"]["balance"]}
 
 

@@ -345,7 +345,8 @@ def test_a_new_run_replaces_the_whole_directory_and_refuses_one_holding_other_fi
 def test_a_directory_another_command_holds_is_refused(earlier, tmp_path):
     held = _copy(earlier, tmp_path)
     with rundir.lock(held, "twin sweep"):
-        for args in ([*RUN, "--no-video", "--out", held], ["analytic", "1", "--duration", "0.2", "--out", held],
+        for args in ([*RUN, "--no-video", "--out", held],
+                     ["run", "paper-exp1", "--set", "plant.model=analytic", "--duration", "0.2", "--out", held],
                      ["check", "paper-exp1", "--controller", "lqr", "--record", held],
                      ["compare", earlier, earlier, "--out", held]):
             status, out, err = twin(*args)
@@ -353,15 +354,35 @@ def test_a_directory_another_command_holds_is_refused(earlier, tmp_path):
     _unchanged(held, earlier)
 
 
-def test_twin_analytic_writes_its_directory_as_a_unit(tmp_path):
+def test_twin_run_on_the_analytic_model_writes_its_directory_as_a_unit(tmp_path):
+    """What 'twin analytic' wrote before issue 27, through twin run: a whole directory with its
+    manifest, which twin compare reads; an old 'twin analytic' directory is refused in one line
+    naming the twin run that makes a comparable one, and a twin run may replace it."""
     out = tmp_path / "exp1"
-    status, stdout, err = twin("analytic", "1", "--controller", "t1", "--duration", "0.5", "--out", out)
+    status, stdout, err = twin("run", "paper-exp1", "--controller", "t1", "--duration", "0.5", "--set",
+                               "plant.model=analytic", "--set", "plant.scale={}", "--set", "sensors.sensing=ideal",
+                               "--no-video", "--out", out)
     assert status == 0, err
     doc = _complete(out)
-    assert doc["command"] == "twin analytic" and sorted(doc["files"]) == [
-        "design.json", "figure.png", "metrics.json", "trajectory_t1.csv"]
-    status, stdout, err = twin("compare", out, out)  # a run directory, but not twin run's
-    assert_one_line_error(status, stdout, err, "(a paper experiment's of 'twin analytic')")
+    assert doc["command"] == "twin run" and sorted(doc["files"]) == [
+        "design.json", "figure.png", "metrics.json", "trajectory.csv"]
+    status, stdout, err = twin("compare", out, out)
+    assert status == 0, err
+    old = tmp_path / "old"  # what 'twin analytic 1 --controller t1' left
+    staged = rundir.StagedDirectory(old, "twin analytic", "paper experiment")
+    for name in ("design.json", "figure.png", "trajectory_t1.csv"):
+        (staged.path / name).write_bytes((out / name if name != "trajectory_t1.csv" else out / "trajectory.csv")
+                                         .read_bytes())
+    (staged.path / "metrics.json").write_text('{"experiment": "paper-exp1", "controllers": {"t1": {}}}')
+    staged.commit(0)
+    assert _complete(old)["command"] == "twin analytic"
+    status, stdout, err = twin("compare", out, old)
+    assert_one_line_error(status, stdout, err, f"{old}: a directory of 'twin analytic', which gave way to 'twin run'",
+                          "'twin run paper-expN --set plant.model=analytic --set plant.scale={} --set "
+                          "sensors.sensing=ideal'")
+    status, stdout, err = twin(*RUN, "--no-video", "--out", old)  # its outputs are a run's: replaced
+    assert status == 0, err
+    assert _complete(old)["command"] == "twin run"
 
 
 # ---- a full disk ---------------------------------------------------------------------------------------

@@ -1,10 +1,15 @@
 """The paper's three experiments on the analytic model, the reference against which the
-PyBullet twin is checked: a thin wrapper over :class:`twin.loop.ClosedLoop` (through
-:func:`twin.bullet_loop.simulate_twin`) with the analytic plant
-(:class:`twin.plant.analytic_plant.AnalyticPlant`: equation (1), RK4 at ``physics_dt``,
-ideal torque sources) and ideal sensing (the ``ideal`` estimator: the controllers see the
-true state). The same run as ``twin run SCENARIO --set plant.model=analytic --set
-sensors.sensing=ideal``; the controller's contract and the limits are checked by the loop.
+PyBullet twin is checked, for Python callers: a thin compatibility wrapper over
+:class:`twin.loop.ClosedLoop` (through :func:`twin.bullet_loop.simulate_twin`) with the
+analytic plant (:class:`twin.plant.analytic_plant.AnalyticPlant`: equation (1), RK4 at
+``physics_dt``, ideal torque sources) and ideal sensing (the ``ideal`` estimator: the
+controllers see the true state).
+
+On the command line this is ``twin run paper-expN --set plant.model=analytic --set
+plant.scale={} --set sensors.sensing=ideal`` (the scenarios' rates, 1 kHz physics and
+200 Hz control, are :func:`simulate`'s defaults): the same runs, bit for bit, with outputs,
+metrics and a figure; ``twin analytic`` gave way to it (issue 27). The controller's
+contract and the limits are checked by the loop.
 """
 from __future__ import annotations
 
@@ -25,7 +30,10 @@ def simulate(controller, experiment: Experiment, params: RobotParams = NOMINAL,
              x0=None, disturbance=None, controller_name: str = "", limits: PluginLimits | None = None) -> Run:
     """Run ``controller`` (a :class:`twin.protocols.Controller`) on the analytic plant ``params``
     (the "true plant"), reading the true state; returns a :class:`twin.runs.Run` like the twin's
-    (``plant`` "analytic", ``sensing`` "ideal").
+    (``plant`` "analytic", ``sensing`` "ideal"). The same run as ``twin run`` with
+    ``plant.model = "analytic"`` and ``sensors.sensing = "ideal"`` (for a paper experiment on the
+    nominal plant: ``twin run paper-expN --set plant.model=analytic --set plant.scale={} --set
+    sensors.sensing=ideal``); kept as a thin compatibility wrapper for Python callers.
 
     ``disturbance(t) -> (τ1, τ2, τ3)`` in N·m, optional. ``x0`` (8,) overrides the
     experiment's initial state [θ0, 0, …]. Logged at the control rate: the truth columns

@@ -21,8 +21,6 @@ import click  # noqa: E402
 
 from twin.errors import TwinError  # noqa: E402
 
-EXPERIMENT_CHOICES = ("1", "2", "3", "paper-exp1", "paper-exp2", "paper-exp3")
-
 
 class _Group(click.Group):
     """Turns usage errors, TwinError and file errors into one line and exit status 2, and
@@ -93,8 +91,8 @@ def main():
     \b
     Examples:
       twin design --decay-rate 3 --out gains.json
-      twin analytic 3 --controller both --out runs/exp3
       twin run paper-exp3
+      twin run paper-exp3 --set plant.model=analytic --set plant.scale={} --set sensors.sensing=ideal
       twin run paper-exp1 --controller it2,t1,lqr --set plant.scale={}
       twin sweep paper-exp3 --samples 50 --workers 2
       twin scenarios
@@ -371,78 +369,16 @@ def _print_region(d) -> None:
                    f"damping ratio ≥ {zeta_min:.3g}")
 
 
-def _load_design(path: Path | None, epsilon, rho, decay_rate, max_gain, damping, uncertain, all_vertices):
-    from twin.controllers.designs import balance_design
-
-    ctx = click.get_current_context()
-    given = [f"--{n.replace('_', '-')}" for n in ("epsilon", "rho", "decay_rate", "max_gain", "damping", "uncertain",
-                                                  "all_vertices")
-             if ctx.get_parameter_source(n) == click.core.ParameterSource.COMMANDLINE]
-    if path is not None and given:
-        raise TwinError(f"--gains uses a finished design; {', '.join(given)} would be ignored: give one or the other")
-    if path is None:
-        return balance_design(epsilon=epsilon, rho=rho, decay_rate=decay_rate, max_gain=max_gain, damping=damping,
-                              uncertain=_parse_uncertain(uncertain), all_vertices=all_vertices)
-    from types import SimpleNamespace
-
-    import numpy as np
-
-    try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-        gains = np.asarray(data["gains"], dtype=float)
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise TwinError(f"{path}: not a design file from 'twin design --out' ({exc})") from None
-    if gains.shape != (2, 4) or not np.all(np.isfinite(gains)):
-        raise TwinError(f"{path}: 'gains' must be 2 lists of 4 finite numbers, got shape {gains.shape}")
-
-    def digest():  # JSON keeps a float's every bit: a file with P has the digest of the design it holds
-        from twin.fingerprint import design_digest
-
-        try:
-            return design_digest(gains=gains, P=np.asarray(data["P"], dtype=float))
-        except (KeyError, TypeError, ValueError):
-            return design_digest(gains=gains)
-
-    return SimpleNamespace(gains=gains, to_json_dict=lambda: data, digest=digest)
-
-
-def _experiment_options(default_out: str):
-    """The arguments shared by the commands that run a paper experiment."""
-    def decorate(f):
-        f = _design_options(f)
-        f = click.option("--gains", "gains_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
-                         help="Use a design written by 'twin design --out' instead of designing anew.")(f)
-        f = click.option("--duration", type=float, default=None,
-                         help="Simulated time in s (default: the experiment's 15 s).")(f)
-        f = click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=Path(default_out),
-                         show_default=True, help="Output directory.")(f)
-        f = click.option("--controller", default="both", show_default=True, metavar="KINDS",
-                         help="Controllers, comma-separated: it2, t1, lqr, both (= it2,t1) or "
-                              "package.module:attribute.")(f)
-        return click.argument("experiment", type=click.Choice(EXPERIMENT_CHOICES), metavar="EXPERIMENT")(f)
-    return decorate
-
-
-@main.command()
-@_experiment_options("runs/analytic")
-def analytic(experiment, controller, out, duration, gains_file, epsilon, rho, decay_rate, max_gain, damping,
-             uncertain, all_vertices):
-    """Run a paper experiment on the analytic model (equation 1): figure, metrics, trajectories.
-
-    EXPERIMENT is 1 (balance from θ0 = 0.48 rad), 2 (+ position, p_d = 0.7 m) or
-    3 (+ direction, p_d = 1 m, α_d = 1.5 rad). Writes figure.png, metrics.json,
-    trajectory_<controller>.csv, design.json and manifest.json into --out, as a whole:
-    --out is the earlier directory until the new one is complete. The runs are those of
-    'twin run paper-expN --set plant.model=analytic --set plant.scale={} --set
-    sensors.sensing=ideal' (the same closed loop and plant; the same metrics).
-
-    \b
-    Examples:
-      twin analytic 3 --controller both --out runs/exp3
-      twin analytic 1 --controller t1 --duration 5
-    """
-    _paper_experiment(experiment, controller, out, duration, gains_file,
-                      (epsilon, rho, decay_rate, max_gain, damping, uncertain, all_vertices))
+@main.command(hidden=True, context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
+@click.argument("experiment", required=False)
+def analytic(experiment):
+    """Replaced by 'twin run paper-expN --set plant.model=analytic' (the same runs, one pipeline)."""
+    n = experiment[-1] if experiment and experiment[-1] in "123" else "N"
+    raise TwinError(f"'twin analytic' gave way to 'twin run paper-exp{n} --set plant.model=analytic --set "
+                    "plant.scale={} --set sensors.sensing=ideal' (the same runs and metrics; --controller, --duration "
+                    "and --out as before, --no-video for no video); the design options are --set design.decay_rate=A "
+                    "(and design.epsilon, rho, max_gain, damping, uncertain, all_vertices), and a --gains file has no "
+                    "equivalent: give the options that designed it")
 
 
 @main.command(hidden=True, context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
@@ -453,90 +389,6 @@ def physics(experiment):
     raise TwinError(f"'twin physics' gave way to 'twin run paper-exp{n}' (the same pipeline); for its nominal plant "
                     "add --set plant.scale={}, for ground truth --set sensors.sensing=ideal, for ideal motors "
                     "--set plant.motor=ideal")
-
-
-def _paper_experiment(experiment, controller, out, duration, gains_file, design_options):
-    """Run paper experiment N with one or both controllers on the analytic model and write the outputs
-    (as a unit: :class:`twin.rundir.StagedDirectory`)."""
-    from twin import rundir
-
-    if duration is not None and not (math.isfinite(duration) and 0 < duration <= 3600):
-        raise TwinError(f"--duration must be in (0, 3600] s, got {duration:g}")
-    staged = rundir.StagedDirectory(out, "twin analytic", "paper experiment")  # refused before anything runs
-    try:
-        _paper_experiment_in(staged, experiment, controller, out, duration, gains_file, design_options)
-    except KeyboardInterrupt as exc:
-        rundir.kept(exc, staged.unchanged())
-        raise
-    finally:
-        staged.discard()
-
-
-def _paper_experiment_in(staged, experiment, controller, out, duration, gains_file, design_options):
-    """:func:`_paper_experiment` after its checks, written into ``staged``."""
-    from twin import report, rundir
-    from twin.analytic_loop import simulate
-    from twin.experiments import PAPER_EXPERIMENTS
-    from twin.metrics import run_metrics
-
-    from twin.registry import BuildContext, build_controller, label, parse_controllers, provenance
-
-    number = int(experiment[-1])
-
-    kinds = parse_controllers(controller)
-    d = _load_design(gains_file, *design_options)
-    exp = PAPER_EXPERIMENTS[number]
-    description = "analytic model, nominal"
-    used = []  # whether a controller asked for the design (its digest is then recorded)
-
-    def design():
-        used.append(True)
-        return d
-
-    context = BuildContext(200.0, targets=exp.targets, design=design)  # the analytic loop's 5 ms control period
-    plugins = [p for p in (provenance("controller", k) for k in kinds) if p is not None]
-    _echo_plugins(plugins)
-    runs, metrics, controllers = [], {}, []
-    for kind in kinds:  # every run first: nothing is written unless all of them finish
-        built = build_controller(kind, None, context)
-        controllers.append((kind, built))
-        run = simulate(built, exp, duration=duration, controller_name=kind)
-        runs.append(run)
-        metrics[kind] = run_metrics(run)
-    names = {k: f"trajectory_{re.sub(r'[^A-Za-z0-9_-]+', '_', k)}.csv" for k in kinds}
-    doc = {"experiment": exp.name, "description": exp.description, "plant": description, "controllers": metrics}
-    if plugins:
-        doc["plugins"] = plugins
-    from twin.fingerprint import digests, record
-
-    doc["environment"] = record(digests(d if used else None, controllers))  # last: what precedes it is unchanged
-    # written as a unit (twin.rundir): the whole directory, or the earlier one untouched
-    writing = None
-    try:
-        where = staged.path
-        for kind, run in zip(kinds, runs):
-            writing = names[kind]
-            report.write_trajectory_csv(run, where / writing)
-        for writing, obj in (("metrics.json", doc), ("design.json", d.to_json_dict())):
-            report.write_json(obj, where / writing)
-        writing = "figure.png"
-        report.plot_runs(runs, where / writing, f"{exp.name}: {exp.description}\n{description}")
-        writing = rundir.MANIFEST
-        staged.commit(0)
-    except BaseException as exc:
-        staged.discard()
-        if isinstance(exc, OSError):  # a full disk, say: the file as the user will know it
-            raise rundir.kept(TwinError(f"cannot write {out / writing if writing else out}: "
-                                        f"{exc.strerror or exc}"), staged.unchanged()) from exc
-        raise rundir.kept(exc, staged.unchanged())
-    click.echo(f"{exp.name}: {exp.description} ({description})")
-    keys = ("settling_time_s", "theta_rms_rad", "final_theta_rad", "final_position_error_m", "final_heading_error_rad",
-            "iae_theta", "control_effort", "max_abs_torque_nm")
-    click.echo(f"  {'metric':28}" + "".join(f"{label(k)[:11]:>12}" for k in kinds))
-    for k in keys:
-        click.echo(f"  {k:28}" + "".join(f"{_fmt(metrics[c][k]):>12}" for c in kinds))
-    click.echo(f"wrote {out}/figure.png, metrics.json, design.json, " + ", ".join(names[k] for k in kinds)
-               + f", {rundir.MANIFEST}")
 
 
 @main.command()

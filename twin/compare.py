@@ -88,9 +88,10 @@ def _load_run(path: Path) -> Result:
     # the manifest first: a directory an interrupted or failed command left is said to be one,
     # rather than read as if its files belonged together
     manifest = rundir.read_manifest(path, None, "run directory", "run 'twin run' again")
-    if manifest.get("command") == "twin analytic":
-        raise TwinError(f"{mfile}: not the metrics.json of 'twin run' (a paper experiment's of 'twin analytic'); "
-                        "twin compare reads run directories of 'twin run' and golden .npz files")
+    if manifest.get("command") == "twin analytic":  # the command of before issue 27, which gave way to twin run
+        raise TwinError(f"{path}: a directory of 'twin analytic', which gave way to 'twin run'; for one twin compare "
+                        "reads, run 'twin run paper-expN --set plant.model=analytic --set plant.scale={} --set "
+                        "sensors.sensing=ideal'")
     rundir.check_all_present(path, manifest)
     try:
         raw = mfile.read_bytes()
@@ -102,9 +103,8 @@ def _load_run(path: Path) -> Result:
     except ValueError as exc:
         raise TwinError(f"{mfile}: not readable as JSON ({' '.join(str(exc).split())})") from None
     if not isinstance(doc, dict) or not isinstance(doc.get("runs"), dict):
-        other = " (a paper experiment's of 'twin analytic')" if isinstance(doc, dict) and "controllers" in doc else ""
-        raise TwinError(f"{mfile}: not the metrics.json of 'twin run'{other}; twin compare reads run directories "
-                        "of 'twin run' and golden .npz files")
+        raise TwinError(f"{mfile}: not the metrics.json of 'twin run'; twin compare reads run directories of "
+                        "'twin run' and golden .npz files")
     log = doc.get("log") or {}
     files = [path / n for n in ("trajectory.csv", "trajectory.csv.gz") if n in manifest["files"]]
     if not files:

@@ -1,6 +1,6 @@
 """Output directories: written as a unit, checked when read, and who is using one.
 
-* **Written as a unit.** ``twin run`` and ``twin analytic`` write their run directory as a
+* **Written as a unit.** ``twin run`` writes its run directory as a
   whole (:class:`StagedDirectory`: staged beside the target, renamed into its place when
   complete); ``twin check --record`` adds its references to a golden directory as one batch
   (:class:`FileBatch`). Either way a ``manifest.json`` is written last: every file with its
@@ -243,8 +243,8 @@ MANIFEST = "manifest.json"
 RECORD_COMMAND = "twin check --record"  # the command whose manifest a golden directory has
 MANIFEST_FORMAT = 1
 PARTIAL = ".twin-partial-"  # in the name of every file or directory a command has not finished
-# what 'twin run' and 'twin analytic' write into a run directory (and older versions left
-# there): a run may replace a directory holding these and nothing else
+# what 'twin run' writes into a run directory (and older versions left there, 'twin analytic''s
+# trajectory_<controller>.csv among them): a run may replace a directory holding these and nothing else
 RUN_OUTPUTS = ("metrics.json", "trajectory.csv", "trajectory.csv.gz", "figure.png", "video.mp4", "design.json",
                MANIFEST, LOCK_NAME)
 _RUN_PATTERNS = ("trajectory_*.csv", ".video.*.partial.mp4")
@@ -460,7 +460,7 @@ def _exchange(a: Path, b: Path) -> bool:
 
 
 class StagedDirectory:
-    """A run directory written as a unit (``twin run``, ``twin analytic``).
+    """A run directory written as a unit (``twin run``).
 
     The outputs are written into a hidden directory beside the target,
     ``.<name>.twin-partial-XXXX``, with a manifest last (every file's size and SHA-256 and
