@@ -170,3 +170,19 @@ def test_the_python_api_exports_the_spec_and_simulate():
     import twin
 
     assert twin.RunSpec is RunSpec and twin.simulate is simulate and twin.build_loop is build_loop
+
+
+def test_the_build_context_is_not_changed_after_it_is_made():
+    """The registry's context is a frozen value: its default model is the nominal one from the
+    start, and the default design comes from the design store, not a memo written into it."""
+    from twin.params import NOMINAL
+    from twin.registry import BuildContext
+
+    ctx = BuildContext()
+    assert ctx.model is NOMINAL and ctx.design is None
+    first = ctx.balance_design()
+    assert ctx.design is None and ctx.balance_design() is first  # the store's, once per process
+    with pytest.raises(TwinError, match="BuildContext.model must be a twin.params.RobotParams"):
+        BuildContext(200.0, None)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        ctx.model = None

@@ -50,6 +50,12 @@ class Kind:
     parameters: tuple = ()  # the keyword parameters a scenario may give it
 
 
+def _nominal():
+    from twin.params import NOMINAL
+
+    return NOMINAL
+
+
 @dataclass(frozen=True)
 class BuildContext:
     """What a factory may use to build a controller or an estimator for one run.
@@ -67,7 +73,7 @@ class BuildContext:
     """
 
     control_rate: float = 200.0
-    model: Any = None
+    model: Any = field(default_factory=_nominal)
     motor: Any = None
     sensors: Any = None
     targets: Targets = Targets()
@@ -76,17 +82,19 @@ class BuildContext:
     options: dict = field(default_factory=dict)
 
     def __post_init__(self):
-        if self.model is None:
-            from twin.params import NOMINAL
+        from twin.params import RobotParams
 
-            object.__setattr__(self, "model", NOMINAL)
+        if not isinstance(self.model, RobotParams):
+            raise TwinError(f"BuildContext.model must be a twin.params.RobotParams (the model the controllers "
+                            f"and the estimator assume; default the nominal one), got {shown(self.model)}")
 
     def balance_design(self):
+        """The LMI balance design: ``design()``, or (None) the design store's default design on
+        :attr:`model` (solved once per process, or read from the disk cache)."""
         if self.design is None:
             from twin.controllers.designs import balance_design
 
-            design = balance_design(self.model)
-            object.__setattr__(self, "design", lambda: design)
+            return balance_design(self.model)
         return self.design()
 
 
@@ -369,7 +377,8 @@ def build_estimator_for(kind: str, sensors, control_rate: float, motor, params, 
     """
     if compiled is not None:
         options["compiled"] = compiled
-    return build_estimator(kind, options, BuildContext(control_rate, params, motor, sensors, Targets(), alpha0))
+    model = params if params is not None else _nominal()
+    return build_estimator(kind, options, BuildContext(control_rate, model, motor, sensors, Targets(), alpha0))
 
 
 def provenance(role: str, kind: str) -> dict | None:
