@@ -43,7 +43,7 @@ def run_case(case: dict, work: Path) -> dict:
             target = case["scenario"]
         sc = load_scenario(target, case["overrides"])
         context = sc.build_context()
-        for kind in sc.controllers:  # as twin run's _check_plugins: every controller built once
+        for kind in sc.controllers:  # as twin run does (twin.scenarios.runner.plan): every controller built once
             sc.build_controller(kind, context)
         sc.build_estimator(context)
         if case["run"]:

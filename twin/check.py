@@ -116,10 +116,10 @@ def collect(targets, overrides=()) -> tuple[list, list[str]]:
                 raise TwinError(f"{path}: no .toml scenario files in this directory")
             for f in files:
                 sc = load_scenario(str(f), overrides)
-                (scenarios if sc.data["expect"] else skipped).append(sc if sc.data["expect"] else str(f))
+                (scenarios if sc.expect else skipped).append(sc if sc.expect else str(f))
             continue
         sc = load_scenario(str(target), overrides)
-        if not sc.data["expect"]:
+        if not sc.expect:
             raise TwinError(f"{sc.source}: no [expect] table, so nothing to check; add bounds such as "
                             "fell = false (see the README, 'twin check')")
         scenarios.append(sc)
@@ -176,7 +176,7 @@ def run_checks(scenarios, controllers=None, seeds: int = 1, workers: int = 1, pr
         done = [(t.seed, next(outcomes)) for t in ts]
         metrics = {seed: m for seed, (m, _, _, _) in done if m is not None}
         errors = {seed: e for seed, (_, e, _, _) in done if e}
-        bounds = parse_expect(sc.data["expect"])
+        bounds = parse_expect(sc.expect)
         verdicts = evaluate(bounds, kind, metrics) if metrics else []
         case = CaseResult(sc.name, sc.source, kind, tuple(t.seed for t in ts), metrics, errors, verdicts,
                           failed(verdicts, bounds), has_seed_bounds=bool(bounds.get("seeds")),
@@ -233,7 +233,7 @@ def _scenario_tolerances(sc, extra):
     """The scenario's ``[expect.golden]`` tolerances, their signals checked against those its runs log."""
     from twin.tolerances import Tolerances, parse_table
 
-    table = sc.data["expect"].get(GOLDEN)
+    table = sc.expect.get(GOLDEN)
     if table is None:
         return Tolerances()
     tol = parse_table(table, f"{sc.source}: expect.{GOLDEN}")  # valid: the scenario was validated on loading

@@ -441,7 +441,7 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample, log
       twin run paper-exp2 --duration 3600 --log-every 20 --log-format csv.gz --no-video   # an hour at 10 Hz
     """
     from twin.registry import label
-    from twin.scenarios.runner import controllers_of, plugins_of, run_scenario
+    from twin.scenarios.runner import controllers_of, plan, plugins_of, run_scenario
 
     from twin import rundir
 
@@ -453,19 +453,21 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample, log
     target = rundir.StagedDirectory(out, "twin run")  # a directory the run may not replace: said before anything runs
     try:
         kinds = controllers_of(controller, sc)
-        _check_plugins(sc, kinds)
+        picked, root = None, sc.seed
         if sample is not None:
             from twin.sweep import sample_scenario
 
-            s = sample_scenario(sc, sc.seed, sample)
-            click.echo(f"sample {s.index} of a sweep (root seed {sc.seed}): level λ = {s.level:g}, draw {s.draw}, "
-                       f"seed {s.seed}")
-            sc = s.scenario
+            picked = sample_scenario(sc, sc.seed, sample)
+            sc = picked.scenario
+        specs = plan(sc, kinds)  # every plugin built once, before anything runs or is said
+        if picked is not None:
+            click.echo(f"sample {picked.index} of a sweep (root seed {root}): level λ = {picked.level:g}, "
+                       f"draw {picked.draw}, seed {picked.seed}")
         click.echo(_title(sc))
         _echo_plugins(plugins_of(sc, kinds))
         with _Progress() as bar:
             result = run_scenario(sc, kinds, out=out, video=video, progress=bar.update, log_every=every,
-                                  log_format=log_format, keep_limited=True)
+                                  log_format=log_format, keep_limited=True, specs=specs)
     except KeyboardInterrupt as exc:  # what the run kept, if it got that far, stands
         rundir.kept(exc, target.unchanged())
         raise
@@ -508,15 +510,6 @@ def _log_every(text: str) -> int:
         raise TwinError(f"--log-every must be a whole number ≥ 1 (write every N-th control step; 1: every step), "
                         f"got {text!r}")
     return value
-
-
-def _check_plugins(sc, kinds) -> None:
-    """Build every controller and the estimator once before anything runs or is written, so a
-    plugin that cannot be loaded or lacks its methods is one line and exit status 2."""
-    context = sc.build_context()  # the design is solved only if a controller asks for it
-    for kind in kinds:
-        sc.build_controller(kind, context)
-    sc.build_estimator(context)
 
 
 def _echo_plugins(plugins) -> None:
@@ -589,7 +582,7 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
       twin sweep paper-exp2 --samples 100 --backend ray --ray-address auto
     """
     from twin import rundir
-    from twin.scenarios.runner import controllers_of, plugins_of
+    from twin.scenarios.runner import controllers_of, plan, plugins_of
     from twin.sweep import run_sweep
     from twin.sweep.runner import sweep_controllers
 
@@ -599,9 +592,9 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
     if out is None:
         out = rundir.child_of(Path("runs"), f"sweep-{sc.name}", "the scenario's name")
     rundir.refuse_if_in_use(out)
-    levels = sc.data["sweep"]["levels"]
+    levels = sc.sweep["levels"]
     kinds, reference = sweep_controllers(sc, controllers_of(controller, sc), reference)
-    _check_plugins(sc, kinds)
+    plan(sc, kinds)  # every plugin built once here: one that cannot be is one line before anything runs
     click.echo(_title(sc))
     _echo_plugins(plugins_of(sc, kinds))
     click.echo(f"  {draws} samples × {len(levels)} levels λ = {', '.join(f'{v:g}' for v in levels)}, "

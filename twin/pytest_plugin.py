@@ -92,7 +92,7 @@ class TwinScenarioFile(pytest.File):
             scenario = load_scenario(str(self.path))
         except TwinError as exc:
             raise TwinCheckFailure(str(exc)) from None
-        if not scenario.data["expect"]:
+        if not scenario.expect:
             raise TwinCheckFailure(f"{self.path}: a {NAMING_RULE} file needs an [expect] table (bounds such as "
                                    "fell = false)")
         for kind in scenario.controllers:

@@ -40,7 +40,7 @@ def check(scenario, controller=None, estimator: str | None = None, seeds: int = 
             scenario = load_scenario(_source_name(scenario), list(scenario.overrides) + extra + _expect(expect))
     else:
         scenario = load_scenario(str(scenario), extra + _expect(expect))
-    if not scenario.data["expect"]:
+    if not scenario.expect:
         raise TwinError(f"{scenario.source}: no [expect] table and no expect= given, so nothing to check")
     kinds = [controller] if isinstance(controller, str) else controller
     return run_checks([scenario], kinds, seeds, workers)

@@ -360,7 +360,7 @@ class TwinEnv(gymnasium.Env):
         info = {}
         if self.randomize:
             root = int(rng.integers(0, _SEED_BOUND, dtype=np.uint64))
-            levels = self.scenario.data["sweep"]["levels"]
+            levels = self.scenario.sweep["levels"]
             index = int(rng.integers(0, len(levels))) if self._level_draw else 0
             sample = sample_scenario(self.scenario, root, index)
             sc, run_seed = sample.scenario, sample.seed

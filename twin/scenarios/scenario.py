@@ -63,6 +63,16 @@ class Scenario:
         return self.data["video"]
 
     @property
+    def expect(self) -> dict:
+        """The ``[expect]`` table: the bounds ``twin check`` holds the runs to (empty: none)."""
+        return self.data["expect"]
+
+    @property
+    def sweep(self) -> dict:
+        """The ``[sweep]`` table: the uncertainty levels and what is drawn at each."""
+        return self.data["sweep"]
+
+    @property
     def changed_keys(self) -> tuple[str, ...]:
         """The top-level tables and keys that ``--set`` items changed (besides the seed and
         duration), so that a description written for the file can be read with care."""

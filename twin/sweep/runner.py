@@ -134,7 +134,7 @@ def run_sweep(scenario: Scenario, draws: int, out: Path, scenario_arg: str | Non
     from twin.registry import provenance
     from twin.sweep.sampling import SAMPLES_VERSION
 
-    levels = scenario.data["sweep"]["levels"]
+    levels = scenario.sweep["levels"]
     roles = [("controller", k) for k in kinds] + [("estimator", scenario.estimator)]
     manifest = {"scenario": scenario.data, "source": scenario.source, "scenario_arg": scenario_arg or scenario.name,
                 "overrides": [o for o in scenario.overrides if not o.startswith("seed=")],
@@ -245,7 +245,7 @@ def write_report(out: Path, manifest: dict, records, scenario: Scenario, referen
     files = [write_sweep_csv(rows, columns(vcols), out / "sweep.csv")]
     summary = statistics.summarize(rows, controllers=kinds)
     paired = statistics.paired_tests(rows, controllers=kinds, reference=reference)
-    sw = scenario.data["sweep"]
+    sw = scenario.sweep
     n = len(records)
     notes = [f"Scenario {scenario.name} ({manifest['source']}): {scenario.description}",
              f"{n} samples ({manifest['draws']} draw{'s' * (manifest['draws'] != 1)} × {len(sw['levels'])} levels λ = "
