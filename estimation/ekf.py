@@ -178,6 +178,9 @@ GROUPS = ("gyro", "accel", "encoders")
 # see the module docstring, "Consider states"
 CONSIDER = ("encoder_zero", "encoder_heading_zero", "gyro_scale_y", "gyro_scale_z", "accel_scale_x", "accel_scale_z")
 MAX_RIM_SPEED = 20.0  # m/s: encoder counts implying a faster wheel (relative to the body) are a fault
+_isfinite = math.isfinite
+_new = tuple.__new__
+
 
 def finite_reading(v) -> bool:
     """A sensor reading that arrived (not None) with every value finite."""
@@ -314,10 +317,14 @@ class EKFEstimator:
         """The state of one run, as before the first start(); start() calls it again when the
         filter is reused for another run, so that nothing of the previous one is kept."""
         # the filter core (estimation.ekf_core): filterpy's EKF, or the compiled kernel
-        self.core = make_core(self._compiled, _kernel if self._core_args is not None else None, self._core_args)
-        self.kf = self.core.kf  # its state (x, P, consider)
+        self.core = core = make_core(self._compiled, _kernel if self._core_args is not None else None,
+                                     self._core_args)
+        self.kf = core.kf  # its state (x, P, consider)
         # the IMU-driven step: fused in the core where it can (the kernel), else composed here
-        self._imu_step = self._imu_step_fused if self.core.fuses_imu_step else self._imu_step_composed
+        self._imu_step = self._imu_step_fused if core.fuses_imu_step else self._imu_step_composed
+        # what every step calls, bound once: the core's fused step and forward prediction
+        self._core_advance = core.advance if core.fuses_imu_step else None
+        self._forward = core.forwarder(self.state6, self.model.step6)
         self.holding = False  # the consider states are held (after learn_time)
         self.last_dof = 0
         self.k = -1
@@ -496,7 +503,8 @@ class EKFEstimator:
         # one filter step per due IMU instant; after the assumed latency shrinks several are due
         for m in range(self.m + self.every, last + 1, self.every):
             t = meas.t - (k - m) * self.model.dt
-            if self._consider.due(t, self.holding):
+            # (ConsiderStates.due, inline: every step)
+            if not self.holding and self.consider and t >= self._consider.learn_time - 1e-9:
                 self._hold()
             try:
                 self._advance(m, t)
@@ -517,9 +525,15 @@ class EKFEstimator:
         self.core.hold(self._consider_mask)
 
     def _store(self, meas, k: int) -> None:
-        ok = finite_reading
         gyro, accel, enc = meas.gyro, meas.accel, meas.encoders
-        g_ok, a_ok, e_ok = ok(gyro), ok(accel), ok(enc)
+        # all three arrived and finite (a finite sum proves it; see finite_reading), the common
+        # case, in one test; else each on its own
+        if gyro is not None and accel is not None and enc is not None and \
+                _isfinite(sum(gyro) + sum(accel) + sum(enc)):
+            g_ok = a_ok = e_ok = True
+        else:
+            ok = finite_reading
+            g_ok, a_ok, e_ok = ok(gyro), ok(accel), ok(enc)
         if not (g_ok and a_ok and e_ok):  # (the loop below only when a reading is missing or bad)
             for n, v, good in (("gyro", gyro, g_ok), ("accel", accel, a_ok), ("encoders", enc, e_ok)):
                 if v is not None and not good:
@@ -547,8 +561,12 @@ class EKFEstimator:
                     self._acc[k - self.d_acc] = accel
                 self._stale_in_row = 0
             self._last_imu = (g_new if g_ok else last_g, a_new if a_ok else last_a)
-        if self._watch is not None and k > 0:
-            self._watch_latency(meas.t, k, gyro if g_ok else None, a_ok)
+        watch = self._watch
+        if watch is not None and k > 0:  # (_watch_latency, inline: every step)
+            found = watch.observe(meas.t, k, gyro if g_ok else None, a_ok, self._commands.get(k - 1, (0.0, 0.0)),
+                                  self.d_gyro)
+            if found is not None:
+                self._latency_changed(meas.t, k, *found)
         if e_ok:
             if -self._enc_range <= enc[0] <= self._enc_range and -self._enc_range <= enc[1] <= self._enc_range:
                 self._enc[k - self.d_enc] = enc
@@ -590,8 +608,7 @@ class EKFEstimator:
 
     def _estimate(self, k: int) -> Estimate:
         """The filter's state predicted forward to control step ``k``; never non-finite."""
-        s, finite = self.core.forward([self._commands.get(j, (0.0, 0.0)) for j in range(self.m, k)], self.state6,
-                                      self.model.step6)
+        s, finite = self._forward([self._commands.get(j, (0.0, 0.0)) for j in range(self.m, k)])
         if not finite:  # s is then the filter's own state, finite as a rule
             self.events.append((k * self.model.dt, "forward prediction non-finite; handing out the filter's own state"))
             if not all(map(math.isfinite, s)):
@@ -599,7 +616,7 @@ class EKFEstimator:
                                                        "handing out the last finite one"))
                 s = self._last_estimate
         self._last_estimate = tuple(s)
-        return Estimate(*s)
+        return _new(Estimate, s)  # Estimate(*s) without its Python-level __new__
 
     def _advance(self, m: int, t: float) -> None:
         """Predict from the filter's time to t_m and update with the encoders there."""
@@ -779,9 +796,10 @@ class EKFEstimator:
         an outlier (the state then unchanged), else None."""
         sample = (imu[0][1], imu[0][2], imu[1][0], imu[1][2])
         T = (m - self._last_enc_m) * self.model.dt
-        code_i, sat, code_e, nis, dof, ok, acc_out, ex, ez, inside = self.core.advance(
+        # (EncoderGate.may_reject and AccelOutlierTest.params inline: every step)
+        code_i, sat, code_e, nis, dof, ok, acc_out, ex, ez, inside = self._core_advance(
             sample, enc, self._last_enc if enc is not None else None, T, command,
-            self._gate_policy.may_reject(self.in_row), self._acc_test())
+            self.in_row < self.max_rejects_in_row, self._accel.test)
         self._acc_out = bool(acc_out)
         self._acc_e = (ex, ez)
         if code_i == 2:

@@ -19,7 +19,7 @@ The implementations:
   and ``predict``/``update`` here, which run the same arithmetic on the mirror) works on the
   mirror. The kernel also *fuses* the whole IMU-driven step, the EKF's policies included
   (accelerometer outlier test, IMU outlier test, encoder gate, truncation into an unchanged
-  count), in :meth:`CompiledCore.advance`: ``fuses_imu_step`` says so, and the estimator
+  count), in ``CompiledCore.advance``: ``fuses_imu_step`` says so, and the estimator
   then books the kernel's decisions instead of taking them one by one in Python.
 
 Both implementations run the same sums in the same order (:mod:`estimation.detlinalg`), so
@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 import os
+from functools import partial
 from typing import Protocol
 
 import numpy as np
@@ -139,6 +140,9 @@ class FilterCore(Protocol):
 
     def forward(self, commands, state6, step6) -> tuple: ...
 
+    def forwarder(self, state6, step6):
+        """``forward`` with ``state6`` and ``step6`` bound: ``f(commands) -> (state, finite)``."""
+
 
 class KernelState:
     """The Python side of the compiled path's filter state: x (12,), P (12, 12) and the
@@ -239,6 +243,10 @@ class PythonCore(_Core):
             return s6, False
         return s, True
 
+    def forwarder(self, state6, step6):
+        """:meth:`forward` with ``state6`` and ``step6`` bound: a callable of the commands alone."""
+        return partial(self.forward, state6=state6, step6=step6)
+
 
 class CompiledCore(_Core):
     """The compiled kernel ``estimation._ekf`` (``kernel``, built from the filter's constants
@@ -251,6 +259,11 @@ class CompiledCore(_Core):
         self.kf = KernelState()
         self._kernel = kernel
         self._core = kernel.new(args)
+        # the whole IMU-driven step, called every control period: the kernel's own function
+        # bound to this core once (no Python frame in between); see advance() in estimation/_ekf.c:
+        # advance(sample, enc, last, T, command, may_reject, acc_test) ->
+        # (imu_code, saturated, enc_code, nis, dof, ok, acc_out, e_x, e_z, inside)
+        self.advance = partial(kernel.advance, self._core)
 
     def pull(self) -> None:
         x, P, self.w, self.w_prev = self._kernel.state(self._core)
@@ -283,10 +296,10 @@ class CompiledCore(_Core):
         """As :meth:`PythonCore.forward`, in the kernel (from the kernel's own state)."""
         return self._kernel.forward(self._core, commands)
 
-    def advance(self, sample, enc, last, T, command, may_reject, acc_test):
-        """The whole IMU-driven step in the kernel (see ``advance`` in estimation/_ekf.c):
-        (imu_code, saturated, enc_code, nis, dof, ok, acc_out, e_x, e_z, inside)."""
-        return self._kernel.advance(self._core, sample, enc, last, T, command, may_reject, acc_test)
+    def forwarder(self, state6=None, step6=None):
+        """:meth:`forward` as a callable of the commands alone: the kernel's own function, bound
+        to this core (called every control period: no Python frame in between)."""
+        return partial(self._kernel.forward, self._core)
 
 
 def make_core(compiled: bool | None, kernel, args) -> FilterCore:

@@ -130,17 +130,15 @@ class AccelOutlierTest:
         self.gate2, self.gyro_gate = gate2, gyro_gate
         self.history: list = []  # the last three innovations (m/s², (f_x, f_z))
         self.in_row = 0
+        # params() for the next sample, as an attribute the filter reads every step: seen()
+        # (the only change to what it depends on) recomputes it
+        self.test = (gate2, 0.0, 0.0, 0.0)
 
     def params(self):
         """(gate, b_x, b_z, may) for the next sample: b the median of the last three innovations;
-        ``may`` 0.0 until three are known and after :data:`ACCEL_MAX_IN_ROW` rejections in a row."""
-        h = self.history
-        if len(h) < 3:
-            return (self.gate2, 0.0, 0.0, 0.0)
-        (x0, z0), (x1, z1), (x2, z2) = h
-        bx = max(min(x0, x1), min(max(x0, x1), x2))  # the median of three
-        bz = max(min(z0, z1), min(max(z0, z1), z2))
-        return (self.gate2, bx, bz, float(self.in_row < ACCEL_MAX_IN_ROW))
+        ``may`` 0.0 until three are known and after :data:`ACCEL_MAX_IN_ROW` rejections in a row.
+        Also the attribute ``test``."""
+        return self.test
 
     def is_outlier(self, test, e, sx: float, sz: float, eg: float, sg: float) -> bool:
         """With ``test`` from :meth:`params`: innovation ``e`` (variances ``sx``, ``sz``) less the
@@ -151,11 +149,20 @@ class AccelOutlierTest:
 
     def seen(self, e, outlier: bool) -> None:
         """After a sample: its innovation ``e`` (None: not computed) and the verdict."""
+        h = self.history
         if e is not None and math.isfinite(e[0]) and math.isfinite(e[1]):
-            self.history.append(e)
-            if len(self.history) > 3:
-                del self.history[0]
-        self.in_row = self.in_row + 1 if outlier else 0
+            h.append(e)
+            if len(h) > 3:
+                del h[0]
+        self.in_row = in_row = self.in_row + 1 if outlier else 0
+        # the next sample's params() (may: 0.0 before three are known, or after too many in a row)
+        if len(h) < 3:
+            self.test = (self.gate2, 0.0, 0.0, 0.0)
+        else:
+            (x0, z0), (x1, z1), (x2, z2) = h
+            bx = max(min(x0, x1), min(max(x0, x1), x2))
+            bz = max(min(z0, z1), min(max(z0, z1), z2))
+            self.test = (self.gate2, bx, bz, float(in_row < ACCEL_MAX_IN_ROW))
 
 
 def _median(a: np.ndarray) -> float:
