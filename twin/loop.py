@@ -278,15 +278,13 @@ class ClosedLoop:
         ul, ur = command[0], command[1]
         if self._foreign:
             tr = self.truth = self._plant_step(twin, ul, ur)
+            act, push = self.actuation, self.push_force
         else:
             tr = self.truth = twin.step(ul, ur)
+            act, push = twin.actuation, twin.push_force
         self.k += 1
         self._command = None
         status = twin.status
-        if self._foreign:
-            act, push = self.actuation, self.push_force
-        else:
-            act, push = twin.actuation, twin.push_force
         if status == "diverged":  # a non-finite state: nothing more is read from it
             self.true_gyro_bias = None
             return StepResult(tr, self.measurement, self.estimate, status, twin.end_reason, None, act, push)
@@ -314,8 +312,9 @@ class ClosedLoop:
         if not isinstance(est, tuple):  # a buffer the plugin reuses: keep a copy
             est = tuple(float(v) for v in est)
         self.estimate = est
-        return StepResult(tr, meas, est, status, "" if status == "running" else twin.end_reason, self.true_gyro_bias,
-                          act, push)
+        # StepResult(...) without its Python-level __new__ (the same tuple, a step's cheapest)
+        return tuple.__new__(StepResult, (tr, meas, est, status, "" if status == "running" else twin.end_reason,
+                                          self.true_gyro_bias, act, push))
 
     def _read(self, tr) -> Measurement:
         suite = self.suite
