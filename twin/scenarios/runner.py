@@ -241,7 +241,9 @@ def _write(result, staged, video, progress, every, log_format, worker, sensors, 
     out = staged.path
     title = f"{scenario.name}: {scenario.description}\nseed {scenario.seed}, " + (
         "ideal sensing" if sensors is None else f"{scenario.estimator} estimator in the loop") + (
-        ", analytic model (equation 1)" if scenario.plant_model == "analytic" else "")
+        ", analytic model (equation 1)" if scenario.plant_model == "analytic" else "") + (
+        # the description was written for the file as it is: say which tables --set changed
+        f"; changed by --set: {', '.join(scenario.changed_keys)}" if scenario.changed_keys else "")
     want_video = video if video is not None else d["video"]["enabled"]
     stage, drawn, writing = "data", False, None
     try:
