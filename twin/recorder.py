@@ -228,8 +228,11 @@ class Recorder:
 def _array(rows, m: int, k: int) -> np.ndarray:
     """``rows`` (m rows of k numbers each) as an (m, k) float64 array, bit for bit as
     ``np.array(rows, dtype=float).reshape(m, k)`` gives it (each number converted alone, as
-    float()), in a third less time than that takes on tuples (namedtuples above all);
-    anything else (a row of another length, a value that does not convert) goes that way."""
+    float()), in a third less time than that takes on tuples (namedtuples above all). Rows
+    whose numbers do not add up to m·k, or a value that does not convert, go that way (and
+    fail as they did). The rows must be of one length: the loop's own are (truth, estimate,
+    actuation, push, gyro bias: fixed by their types and the loop's checks); the commands,
+    which a driver gives, :meth:`Recorder.flush` checks first."""
     try:
         a = np.fromiter(chain.from_iterable(rows), float)
     except (TypeError, ValueError):
