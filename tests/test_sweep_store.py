@@ -358,7 +358,9 @@ def test_an_interrupted_rerun_leaves_no_report_that_looks_complete(reference, tm
 
 def test_a_folder_a_sweep_is_using_is_refused_to_other_commands(reference, tmp_path):
     out = tmp_path / "busy"
-    proc = subprocess.Popen([sys.executable, "-m", "twin.cli", "sweep", "paper-exp2", "--samples", "4", *SETS,
+    # 40 samples of 3 s: still running when it is terminated below, also on a fast machine (with 8 it could
+    # reach its report, or exit, while the two commands ran: another window than the one tested here)
+    proc = subprocess.Popen([sys.executable, "-m", "twin.cli", "sweep", "paper-exp2", "--samples", "20", *SETS,
                              "--set", "duration=3.0", "--out", str(out), "--workers", "1"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
     try:
@@ -375,8 +377,8 @@ def test_a_folder_a_sweep_is_using_is_refused_to_other_commands(reference, tmp_p
         assert proc.poll() is None  # the sweep was not disturbed
     finally:
         proc.terminate()
-        proc.communicate(timeout=60)
-    assert proc.returncode == 143
+        _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143, err
     assert not (out / "metrics.json").exists()
 
 
