@@ -13,7 +13,7 @@ one seed: 12 runs of 15 s simulated):
 * **simulation alone** – ``simulate_twin`` for each run in this process (controllers and
   estimators built as the scenario says, the LMI design solved beforehand): the work a
   check cannot avoid;
-* **twin check, 1 worker** and **2 workers** – :func:`twin.check.run_checks` (scenario
+* **twin check, 1 worker** and **2 workers** – :func:`twin.verify.check.run_checks` (scenario
   loading, run_scenario with its metrics, the verdicts; worker start-up included). Their
   ratio is the speed-up (target: close to linear, about 2 on 2 cores), and
   (1 worker − simulation alone) / runs is the cost per check beyond the simulation.
@@ -35,8 +35,8 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="short smoke run (5 s runs)")
     ap.add_argument("--seeds", type=int, default=1, help="seeds per scenario and controller (default 1)")
     args = ap.parse_args(argv)
-    from twin.bullet_loop import simulate_twin
-    from twin.check import collect, run_checks
+    from twin.sim.bullet_loop import simulate_twin
+    from twin.verify.check import collect, run_checks
     from twin.scenarios.scenario import builtin_names
 
     overrides = ["duration=5"] if args.quick else []

@@ -46,7 +46,7 @@ from twin.registry import build_estimator_for as build_estimator  # noqa: E402
 from estimation import ekf as ekf_module  # noqa: E402
 from twin.controllers.cascade import build_cascade  # noqa: E402
 from twin.experiments import Experiment  # noqa: E402
-from twin.bullet_loop import simulate_twin  # noqa: E402
+from twin.sim.bullet_loop import simulate_twin  # noqa: E402
 from twin.controllers.lmi import design_balance_gains  # noqa: E402
 from twin.params import NOMINAL  # noqa: E402
 from twin.plant.bullet import BulletTwin, TwinConfig  # noqa: E402

@@ -26,7 +26,7 @@ from bench_twin import cpu_model, pybullet_version  # noqa: E402
 
 
 def main() -> int:
-    from twin.loop import ClosedLoop
+    from twin.sim.loop import ClosedLoop
     from twin.plant import bullet
     from twin.registry import build_controller
     from twin.scenarios import load_scenario

@@ -80,7 +80,7 @@ def env_episode(env, loop_env, scenario, targets, seed: int, on_estimate: bool):
 
 def sim_run(scenario, seed: int):
     """(wall s per control period, periods, the run) of simulate_twin on ``scenario``."""
-    from twin.bullet_loop import simulate_twin
+    from twin.sim.bullet_loop import simulate_twin
 
     ctrl = scenario.build_controller("it2", scenario.build_context())
     exp = scenario.experiment()

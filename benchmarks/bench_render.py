@@ -57,7 +57,7 @@ pc = time.perf_counter
 def make_run(duration: float):
     from twin.controllers.cascade import build_cascade
     from twin.experiments import PAPER_EXPERIMENTS
-    from twin.bullet_loop import simulate_twin
+    from twin.sim.bullet_loop import simulate_twin
     from twin.controllers.lmi import design_balance_gains
 
     exp = PAPER_EXPERIMENTS[3]

@@ -39,7 +39,7 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="short smoke run")
     args = ap.parse_args(argv)
     from twin.controllers.cascade import build_cascade
-    from twin.bullet_loop import simulate_twin
+    from twin.sim.bullet_loop import simulate_twin
     from twin.controllers.lmi import design_balance_gains
     from twin.scenarios import load_scenario
     from twin.scenarios.runner import run_scenario

@@ -9,7 +9,7 @@ Side by side, in one process, rounds interleaved (A B, B A, A B, ...: a machine 
 down or speeds up meanwhile weighs on both alike), each ``run_scenario`` writing into the
 same directory again, so that every round but the first replaces an earlier run:
 
-* **unit** – as ``twin run`` writes now (:class:`twin.rundir.StagedDirectory`): the outputs
+* **unit** – as ``twin run`` writes now (:class:`twin.outputs.rundir.StagedDirectory`): the outputs
   into a staging directory beside the target, ``manifest.json`` last (every file's size and
   SHA-256), then the exchange with the target and the earlier run's removal;
 * **direct** – the outputs written straight into the target as before issue 26 (the same
@@ -65,7 +65,7 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="3 s runs, fewer rounds")
     ap.add_argument("--rounds", type=int, default=None, help="rounds per variant (default 7, --quick 3)")
     args = ap.parse_args(argv)
-    from twin import rundir
+    from twin.outputs import rundir
     from twin.scenarios import load_scenario
     from twin.scenarios import runner
 

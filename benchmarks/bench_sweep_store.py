@@ -43,7 +43,7 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="8 samples of 2 s runs, fewer rounds")
     ap.add_argument("--rounds", type=int, default=None, help="rounds per variant (default 3, --quick 2)")
     args = ap.parse_args(argv)
-    from twin import rundir
+    from twin.outputs import rundir
     from twin.scenarios import load_scenario
     from twin.sweep import runner, store
 

@@ -354,7 +354,7 @@ def call_breakdown(config: TwinConfig, n_periods: int, periods_per_twin: int) ->
 def closed_loop(runs: int):
     from twin.controllers.cascade import build_cascade
     from twin.experiments import Experiment
-    from twin.bullet_loop import simulate_twin
+    from twin.sim.bullet_loop import simulate_twin
     from twin.controllers.lmi import design_balance_gains
 
     design = design_balance_gains()

@@ -97,7 +97,7 @@ from estimation import replay as replay_estimator  # noqa: E402
 from estimation.consistency import monte_carlo  # noqa: E402
 from twin.controllers.cascade import build_cascade  # noqa: E402
 from twin.experiments import Experiment  # noqa: E402
-from twin.bullet_loop import simulate_twin  # noqa: E402
+from twin.sim.bullet_loop import simulate_twin  # noqa: E402
 from twin.controllers.lmi import design_balance_gains  # noqa: E402
 from twin.params import NOMINAL  # noqa: E402
 from twin.sensors import Dropout, LatencyChange, SensorConfig, Spikes, Stuck  # noqa: E402

@@ -29,7 +29,7 @@ WINDOW = 300.0  # s
 
 
 def soak(name: str, seed: int, duration: float) -> dict:
-    from twin.loop import ClosedLoop
+    from twin.sim.loop import ClosedLoop
     from twin.scenarios import load_scenario
 
     sc = load_scenario(name, [f"duration={duration}", f"seed={seed}"])

@@ -23,7 +23,7 @@ def sha(data: bytes) -> str:
 
 def metrics_bytes(path: Path) -> bytes:
     """metrics.json without its environment fingerprint (which names the kernel by design),
-    serialised as twin.report.write_json does."""
+    serialised as twin.outputs.report.write_json does."""
     doc = json.loads(path.read_text(encoding="utf-8"))
     doc.pop("environment", None)
     return (json.dumps(doc, indent=2, ensure_ascii=False) + "\n").encode("utf-8")
@@ -36,7 +36,7 @@ def outputs(directory: Path) -> dict:
 
 def main() -> None:
     out, golden, mode = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3]
-    from twin import fingerprint
+    from twin.outputs import fingerprint
     from twin.controllers.designs import balance_design
     from twin.controllers.lmi import NOMINAL_DESIGN, design_balance_gains
     from twin.controllers.lqr import LQRController

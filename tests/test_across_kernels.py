@@ -31,7 +31,7 @@ from pathlib import Path
 
 import pytest
 
-from twin import golden
+from twin.verify import golden
 
 HERE = Path(__file__).resolve().parent
 CHILD = HERE / "kernels_child.py"
@@ -81,7 +81,7 @@ def test_every_kernel_gives_the_same_designs_trajectories_metrics_and_golden_che
     variants = {k: {"OPENBLAS_CORETYPE": k} for k in kernels[1:]}
     variants[f"{first}+numpy-baseline"] = {"OPENBLAS_CORETYPE": first,
                                            "NPY_DISABLE_CPU_FEATURES": _numpy_baseline_only()}
-    from twin.fingerprint import libm
+    from twin.outputs.fingerprint import libm
 
     sse2 = f"{first}+libm-sse2"
     if libm().get("x86_paths") == "fma":

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from twin.analytic_loop import run_paper_experiment, simulate
+from twin.sim.analytic_loop import run_paper_experiment, simulate
 from twin.controllers.cascade import build_cascade
 from twin.experiments import PAPER_EXPERIMENTS, Experiment
 from twin.errors import TwinError

@@ -103,7 +103,7 @@ def test_a_decimated_run_is_compared_on_its_rows_and_said_to_be(runs, tmp_path):
 def test_a_run_directory_whose_files_differ_from_its_metrics_is_refused(runs, tmp_path):
     import shutil
 
-    from twin import rundir
+    from twin.outputs import rundir
 
     broken = shutil.copytree(runs["a"], tmp_path / "mixed")
     doc = json.loads((broken / "metrics.json").read_text())
@@ -139,7 +139,7 @@ def test_no_controller_in_common_and_conflicting_options_are_one_line(runs, tmp_
 
 
 def test_a_trajectory_file_reads_back_as_the_golden_file_holds_it(runs):
-    from twin import compare
+    from twin.outputs import compare
 
     r = compare.load(runs["a"])
     ours, gold = r.trajectories["it2"], compare.load(runs["golden"]).trajectories["it2"]

@@ -84,7 +84,7 @@ except ImportError:  # numpy 1.x
 from threadpoolctl import threadpool_info
 from types import SimpleNamespace
 from twin.registry import build_estimator_for as build_estimator
-from twin.bullet_loop import simulate_twin
+from twin.sim.bullet_loop import simulate_twin
 from twin.controllers.cascade import build_cascade
 from twin.controllers.lqr import LQRController
 from twin.experiments import Experiment

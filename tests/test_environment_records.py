@@ -10,7 +10,7 @@ import pytest
 
 from test_golden import write_short
 from test_scenarios import twin
-from twin import fingerprint
+from twin.outputs import fingerprint
 from twin.registry import BuildContext, build_controller
 from twin.scenarios import load_scenario
 

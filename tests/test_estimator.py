@@ -24,7 +24,7 @@ from estimation.ekf import BY, BZ, C0, H0, N, SAX, SAZ, SY, SZ, TH, EKFEstimator
 from estimation.model import EstimatorModel
 from twin.controllers.cascade import build_cascade
 from twin.experiments import Experiment
-from twin.bullet_loop import simulate_twin
+from twin.sim.bullet_loop import simulate_twin
 from twin.errors import TwinError
 from twin.params import NOMINAL
 from twin.actuators.dc_motor import DEFAULT_MOTOR

@@ -18,7 +18,7 @@ import pytest
 from estimation import replay
 from twin.registry import build_estimator_for as build_estimator
 from estimation.ekf import EKFEstimator
-from twin.bullet_loop import simulate_twin
+from twin.sim.bullet_loop import simulate_twin
 from twin.controllers.cascade import build_cascade
 from twin.experiments import Experiment
 from twin.params import NOMINAL

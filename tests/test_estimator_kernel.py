@@ -11,7 +11,7 @@ from twin.registry import build_estimator_for as build_estimator
 from estimation import ekf as ekf_module
 from twin.controllers.cascade import build_cascade
 from twin.experiments import Experiment
-from twin.bullet_loop import simulate_twin
+from twin.sim.bullet_loop import simulate_twin
 from twin.controllers.lmi import design_balance_gains
 from twin.params import NOMINAL
 from twin.sensors import SensorConfig

@@ -285,7 +285,7 @@ def test_action_bound_from_the_motor_and_clipping():
 def test_same_trajectory_as_simulate_twin():
     """Driven by the IT2 cascade on the loop's estimate, the environment runs exactly the
     loop that simulate_twin runs (same scenario, same sensor seed)."""
-    from twin.bullet_loop import simulate_twin
+    from twin.sim.bullet_loop import simulate_twin
 
     env = make("mtwip/Track-v0", overrides=("duration=1",))
     try:

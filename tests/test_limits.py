@@ -155,7 +155,7 @@ class SlowEstimator:
 
 def closed_loop_run(controller, limits: dict, duration=0.5, slow_estimator=False):
     """paper-exp1 on the twin with ``controller`` and the scenario's sensors and estimator, with ``limits``."""
-    from twin.bullet_loop import simulate_twin
+    from twin.sim.bullet_loop import simulate_twin
     from twin.scenarios import load_scenario
 
     sc = load_scenario("paper-exp1", [f"limits.{k}={v!r}" for k, v in limits.items()])
@@ -209,19 +209,19 @@ def test_a_leaking_controller_stops_the_closed_loop():
 
 
 def test_without_limits_nothing_is_timed(monkeypatch):
-    import twin.loop
-    from twin.analytic_loop import simulate
+    import twin.sim.loop
+    from twin.sim.analytic_loop import simulate
     from twin.experiments import PAPER_EXPERIMENTS
 
     def refuse(*args, **kwargs):
         raise AssertionError("a RunGuard was built without limits")
 
-    monkeypatch.setattr(twin.loop, "RunGuard", refuse)
+    monkeypatch.setattr(twin.sim.loop, "RunGuard", refuse)
     run = closed_loop_run(Feedback(), {}, duration=0.1)
     assert run.control_steps == 21
     simulate(Feedback(), PAPER_EXPERIMENTS[1], duration=0.1)
     simulate(Feedback(), PAPER_EXPERIMENTS[1], duration=0.1, limits=PluginLimits())  # all None: none active
-    from twin.loop import ClosedLoop
+    from twin.sim.loop import ClosedLoop
     from twin.plant.bullet import TwinConfig
 
     loop = ClosedLoop(TwinConfig(limits=PluginLimits()), _Estimator(), Feedback())
@@ -253,7 +253,7 @@ def test_generous_limits_change_no_byte_of_a_run(tmp_path):
 # ---- the analytic loop ----------------------------------------------------------------------------------------
 
 def analytic(controller, duration=0.5, **limits):
-    from twin.analytic_loop import simulate
+    from twin.sim.analytic_loop import simulate
     from twin.experiments import PAPER_EXPERIMENTS
 
     return simulate(controller, PAPER_EXPERIMENTS[1], duration=duration, limits=PluginLimits(**limits))
@@ -280,7 +280,7 @@ def test_the_analytic_loop_keeps_the_limits():
         one_line_plugin_error(info, "the run of controller test_limits.Feedback (estimator estimation.ideal.IdealEstimator) "
                               "grew", "over limits.run_memory_mb = 30")
     with pytest.raises(TwinError, match="limits must be a twin.limits.PluginLimits or None"):
-        from twin.analytic_loop import simulate
+        from twin.sim.analytic_loop import simulate
         from twin.experiments import PAPER_EXPERIMENTS
 
         simulate(Feedback(), PAPER_EXPERIMENTS[1], duration=0.1, limits={"step_wall_s": 1})

@@ -19,7 +19,7 @@ import tempfile
 import numpy as np
 import pytest
 
-from twin.analytic_loop import run_paper_experiment
+from twin.sim.analytic_loop import run_paper_experiment
 from twin.controllers import design_cache, designs, lmi, lmi_regions
 from twin.controllers.lmi import NOMINAL_DESIGN, verify_certificate
 from twin.errors import InfeasibleDesign, TwinError

@@ -15,14 +15,14 @@ import tempfile
 import numpy as np
 import pytest
 
-from twin.bullet_loop import simulate_twin
+from twin.sim.bullet_loop import simulate_twin
 from twin.controllers.cascade import build_cascade
 from twin.errors import TwinError
 from twin.experiments import Experiment
-from twin.metrics import run_metrics
+from twin.outputs.metrics import run_metrics
 from twin.plant.bullet import TwinConfig
 from twin.plant.disturbances import Disturbances, Push
-from twin.runs import FULL_RATE_NAMES, MeasurementLog
+from twin.sim.runs import FULL_RATE_NAMES, MeasurementLog
 from twin.scenarios import load_scenario
 from twin.scenarios.runner import run_scenario
 from twin.sensors import Measurement, SensorConfig
@@ -246,7 +246,7 @@ def test_measurements_are_arrays_with_nan_where_nothing_arrived(design):
 def test_chunk_boundaries_change_nothing(design, monkeypatch, chunk):
     """The log moves into its arrays every CHUNK steps; chunks that do not line up with N (50)
     or do (64 with N = 8) give the same arrays as one chunk for the whole run."""
-    import twin.bullet_loop as bl
+    import twin.sim.bullet_loop as bl
 
     exp = Experiment("balance", "", theta0=0.2, p_d=0.3, duration=1.5)
     sensors = SensorConfig(imu=ImuSpec(rate=100.0, latency=0.01))

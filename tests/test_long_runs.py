@@ -79,7 +79,7 @@ def test_consider_states_are_held_after_the_learning_window_on_both_paths():
     from twin.registry import build_estimator_for as build_estimator
     from estimation.ekf import STATE_NAMES, _kernel
     from twin.actuators.dc_motor import DEFAULT_MOTOR
-    from twin.bullet_loop import simulate_twin
+    from twin.sim.bullet_loop import simulate_twin
     from twin.controllers.cascade import build_cascade
     from twin.controllers.lmi import design_balance_gains
     from twin.experiments import Experiment

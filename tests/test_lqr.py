@@ -433,7 +433,7 @@ def test_gains_are_bit_identical_under_every_blas_kernel_and_numpy_simd_target()
 
 
 def test_design_digest_is_the_gains_digest(ctrl):
-    from twin.fingerprint import design_digest
+    from twin.outputs.fingerprint import design_digest
 
     d = ctrl.design_digest()
     assert d == design_digest(K=ctrl.K, K_yaw=ctrl.K_yaw) and len(d) == 64

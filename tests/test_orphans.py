@@ -11,7 +11,7 @@ it runs nothing and holds nothing). Workers are kept busy by a slow plugin contr
 leaves a mark file per process on its first call, so the signal lands while they compute.
 
 The sweeps killed at the test points ``sweep-sample`` and ``sweep-report``
-(:func:`twin.rundir.test_point`) must leave a folder that is never mixed (no manifest.json,
+(:func:`twin.outputs.rundir.test_point`) must leave a folder that is never mixed (no manifest.json,
 every line of samples.jsonl a whole record of this sweep, a torn last line at most) and that
 a rerun finishes byte for byte as an uninterrupted sweep (tests/test_sweep_store.py's
 reference). The interrupted runs and records of ``twin run`` and ``twin check --record`` are
@@ -321,3 +321,26 @@ def test_the_reaper_kills_what_its_killed_parent_started_while_it_watched_and_no
     finally:
         for pid in _alive(noted):
             os.kill(pid, signal.SIGKILL)
+
+
+def test_an_interrupt_while_the_pool_starts_its_manager_thread_is_the_interrupt(monkeypatch):
+    """SIGTERM landing in Thread.start (the pool's manager thread, started by the first submit)
+    left a thread that never started, and the pool's shutdown then raised "cannot join thread
+    before it is started" over the interrupt: a traceback and exit status 1 instead of the one
+    line and 143 (seen once in a full test run under load)."""
+    import signal
+    import threading
+    from concurrent.futures import process
+
+    from twin.outputs.rundir import Interrupted
+    from twin.workers import process_pool
+
+    def interrupted_start(self):
+        self._executor_manager_thread = threading.Thread(target=lambda: None)  # made, never started
+        raise Interrupted(signal.SIGTERM)
+
+    monkeypatch.setattr(process.ProcessPoolExecutor, "_start_executor_manager_thread", interrupted_start)
+    with pytest.raises(Interrupted) as err:
+        with process_pool(1) as pool:
+            pool.submit(print)
+    assert err.value.signum == signal.SIGTERM

@@ -18,7 +18,7 @@ import pytest
 
 from twin.errors import PluginError, TwinError
 from twin.experiments import Experiment
-from twin.loop import ClosedLoop
+from twin.sim.loop import ClosedLoop
 from twin.params import NOMINAL
 from twin.plant.analytic_plant import AnalyticPlant, planar_kinematics
 from twin.plant.bullet import BulletTwin, GroundTruth, TwinConfig
@@ -114,7 +114,7 @@ def test_a_plant_written_outside_the_package_balances_under_the_closed_loop_with
 
 
 def test_a_plant_of_ones_own_runs_as_a_whole_run():
-    from twin.bullet_loop import simulate_twin
+    from twin.sim.bullet_loop import simulate_twin
 
     exp = Experiment("toy", "", theta0=0.2, p_d=0.3, duration=6.0)
     sensors, _, controller = _ekf_and("lqr", exp.targets)

@@ -18,7 +18,7 @@ from click.testing import CliRunner
 from twin.cli import main
 from twin.errors import PluginError, TwinError
 from twin.experiments import Experiment
-from twin.loop import ClosedLoop
+from twin.sim.loop import ClosedLoop
 from twin.protocols import Controller, Estimator, Targets
 from twin.registry import (BuildContext, build_controller, build_estimator, check_kind, label, parse_controllers,
                            provenance)
@@ -220,8 +220,8 @@ def test_plugins_give_identical_metrics_through_api_toml_run_and_sweep(plugin_di
     # 1. the Python API: the objects built by hand and handed to simulate_twin
     import my_plugins
 
-    from twin.bullet_loop import simulate_twin
-    from twin.metrics import run_metrics
+    from twin.sim.bullet_loop import simulate_twin
+    from twin.outputs.metrics import run_metrics
 
     sc = load_scenario("paper-exp3", SHORT)
     ctx = sc.build_context()
@@ -369,7 +369,7 @@ def test_an_estimate_returned_in_a_reused_buffer_is_logged_as_it_was(plugin_dir)
     """The loop keeps a copy: a filter that updates one list in place does not rewrite the log."""
     import bad_plugins
 
-    from twin.bullet_loop import simulate_twin
+    from twin.sim.bullet_loop import simulate_twin
 
     exp = Experiment("e", "", theta0=0.3, duration=0.5)
     run = simulate_twin(build_controller("lqr"), exp, sensors=None, estimator=bad_plugins.BufferEstimator())
@@ -380,7 +380,7 @@ def test_an_estimate_returned_in_a_reused_buffer_is_logged_as_it_was(plugin_dir)
 def test_ideal_sensing_refuses_an_estimator_it_would_not_run(plugin_dir):
     import my_plugins
 
-    from twin.bullet_loop import simulate_twin
+    from twin.sim.bullet_loop import simulate_twin
 
     exp = Experiment("e", "", theta0=0.1, duration=0.1)
     with pytest.raises(TwinError, match="sensors=None is ideal sensing .* would not run"):

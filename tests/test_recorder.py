@@ -1,4 +1,4 @@
-"""Recording apart from the loop: twin.recorder.Recorder, fed the step results ClosedLoop
+"""Recording apart from the loop: twin.sim.recorder.Recorder, fed the step results ClosedLoop
 publishes, gives the Run simulate_twin gives; one's own logger reads the same outputs; the
 IMU's lever-arm kinematics live with the sensors (twin.sensors.ImuMotion)."""
 from __future__ import annotations
@@ -6,16 +6,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from twin.bullet_loop import simulate_twin
+from twin.sim.bullet_loop import simulate_twin
 from twin.errors import TwinError
 from twin.experiments import Experiment
-from twin.loop import ClosedLoop
+from twin.sim.loop import ClosedLoop
 from twin.params import NOMINAL
 from twin.plant.analytic_plant import AnalyticPlant
 from twin.plant.bullet import TwinConfig
-from twin.recorder import Recorder
+from twin.sim.recorder import Recorder
 from twin.registry import BuildContext, build_controller, build_estimator
-from twin.runs import MeasurementLog
+from twin.sim.runs import MeasurementLog
 from twin.sensors import ImuMotion, ImuSpec, SensorConfig, imu_kinematics
 
 ARRAYS = ("t", "truth", "commands", "actuation", "push", "estimates", "gyro_bias")

@@ -3,7 +3,7 @@ type-1 and LQR, gives the same trajectory.csv and metrics.json, byte for byte, a
 the ClosedLoop refactor (and, LQR included, as before the run-specification refactor).
 
 The hashes in data/refactor_hashes.json were recorded at commit e7718e8 (before the loop
-was rebuilt around twin.loop.ClosedLoop and the registry), with the compiled kernels and
+was rebuilt around twin.sim.loop.ClosedLoop and the registry), with the compiled kernels and
 with TWIN_PURE_PYTHON=1 (the two paths agree to ~1e-13, not bit for bit).
 """
 from __future__ import annotations
@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from kernels_child import metrics_bytes
-from twin import golden
+from twin.verify import golden
 from twin.scenarios import load_scenario
 from twin.scenarios.runner import run_scenario
 

@@ -11,7 +11,7 @@ cv2 = pytest.importorskip("cv2")
 
 from twin.controllers.cascade import build_cascade  # noqa: E402
 from twin.experiments import PAPER_EXPERIMENTS, Experiment  # noqa: E402
-from twin.bullet_loop import simulate_twin  # noqa: E402
+from twin.sim.bullet_loop import simulate_twin  # noqa: E402
 from twin.errors import TwinError  # noqa: E402
 from twin.plant.bullet import WHEEL_JOINTS, BulletTwin, GroundTruth, TwinConfig, truth_from_states  # noqa: E402
 from twin.plant.disturbances import Disturbances, Ground, Push  # noqa: E402
@@ -645,7 +645,7 @@ def test_floor_markers_are_hidden_where_the_robot_stands_in_front(egl_loads):
 def test_hud_names_the_plant_when_it_is_not_the_pybullet_twin(design, run_exp1):
     """A video of the analytic model (equation (1)) or of a user's plant says so under the
     label; the PyBullet twin's overlay is as it was (no plant line)."""
-    from twin.analytic_loop import simulate
+    from twin.sim.analytic_loop import simulate
     from twin.render.video import _Track
 
     exp = PAPER_EXPERIMENTS[1]

@@ -1,11 +1,11 @@
-"""The run figure (twin.report.figure_runs): its panels, what is shaded and marked, and
+"""The run figure (twin.outputs.report.figure_runs): its panels, what is shaded and marked, and
 that every line has a legend entry; checked through the figure's axes."""
 import dataclasses
 
 import numpy as np
 import pytest
 
-from twin.report import FAULT_COLOUR, PUSH_COLOUR, figure_runs
+from twin.outputs.report import FAULT_COLOUR, PUSH_COLOUR, figure_runs
 from twin.scenarios import load_scenario
 from twin.scenarios.runner import run_scenario
 

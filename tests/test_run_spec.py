@@ -33,7 +33,7 @@ def _same_run(a, b) -> None:
 
 
 def test_a_scenario_gives_a_spec_that_simulate_runs_as_twin_run_does(short):
-    from twin.metrics import run_metrics
+    from twin.outputs.metrics import run_metrics
 
     spec = short.run_spec("it2")
     assert isinstance(spec, RunSpec) and spec.label == "it2" and spec.name == "paper-exp3"
@@ -53,7 +53,7 @@ def test_a_spec_of_kinds_builds_its_plugins_per_run_and_gives_the_same_run(short
 
 
 def test_simulate_twin_is_a_wrapper_of_simulate(short):
-    from twin.bullet_loop import simulate_twin
+    from twin.sim.bullet_loop import simulate_twin
 
     spec = short.run_spec("lqr")
     controller = spec.controller.kind

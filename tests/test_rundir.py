@@ -1,7 +1,7 @@
 """Issue 26: run directories written as a unit, safe output paths, and interrupts.
 
 Kill tests stop a real ``twin`` process (a subprocess) at a chosen point through the
-``TWIN_TEST_STOP_AT`` hook (twin.rundir.test_point: the process writes a marker file and
+``TWIN_TEST_STOP_AT`` hook (twin.outputs.rundir.test_point: the process writes a marker file and
 waits there for the signal), so that the stages aimed at (a trajectory half written, a video
 under way, a commit) are hit every time, whatever the machine's load. Afterwards every
 directory is either complete with its manifest (every file listed, as listed) or as it was
@@ -24,7 +24,8 @@ import pytest
 
 from test_golden import write_short
 from test_scenarios import assert_one_line_error, twin
-from twin import golden, rundir
+from twin.verify import golden
+from twin.outputs import rundir
 from twin.errors import TwinError
 
 RUN = ("run", "paper-exp1", "--duration", "1", "--controller", "lqr")  # no LMI design: a quick run

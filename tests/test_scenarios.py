@@ -20,7 +20,7 @@ import pytest
 from click.testing import CliRunner
 
 from twin.cli import main
-from twin.metrics import run_metrics
+from twin.outputs.metrics import run_metrics
 from twin.params import NOMINAL
 from twin.scenarios import ScenarioError, builtin_names, load_scenario
 from twin.scenarios.runner import run_scenario

@@ -132,17 +132,17 @@ def _scenario(tmp_path, text: str, overrides=()):
 
 
 def _spy_loops(monkeypatch) -> list:
-    """Every twin.loop.ClosedLoop the runner builds, kept for inspection."""
-    import twin.loop
+    """Every twin.sim.loop.ClosedLoop the runner builds, kept for inspection."""
+    import twin.sim.loop
 
     loops = []
 
-    class Spy(twin.loop.ClosedLoop):
+    class Spy(twin.sim.loop.ClosedLoop):
         def __init__(self, *args, **kwargs):
             super().__init__(*args, **kwargs)
             loops.append(self)
 
-    monkeypatch.setattr(twin.loop, "ClosedLoop", Spy)
+    monkeypatch.setattr(twin.sim.loop, "ClosedLoop", Spy)
     return loops
 
 

@@ -1,5 +1,5 @@
 """A cached ``twin run`` keeps heavy imports off its path (issue 17, item 5), and the figure
-drawn by the worker process (twin.figure_worker) is the one drawn in-process. Timings are
+drawn by the worker process (twin.outputs.figure_worker) is the one drawn in-process. Timings are
 not tested here: benchmarks/bench_startup.py measures them."""
 import math
 import subprocess
@@ -9,7 +9,7 @@ import tempfile
 import numpy as np
 import pytest
 
-from twin import figure_worker
+from twin.outputs import figure_worker
 from twin.scenarios import load_scenario
 from twin.scenarios.runner import run_scenario
 

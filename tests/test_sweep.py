@@ -267,7 +267,7 @@ def test_a_different_sweep_in_the_same_directory_is_refused(reference, tmp_path)
 # ---- the environment ----------------------------------------------------------------------------------
 
 def test_sweep_json_records_the_environment_and_the_designs(reference):
-    from twin import fingerprint
+    from twin.outputs import fingerprint
 
     doc = json.loads((reference / "sweep.json").read_text())
     assert list(doc)[-1] == "environment" and "resumed_in" not in doc

@@ -317,7 +317,7 @@ def test_the_report_states_the_draws_in_it_and_keeps_the_others(reference, tmp_p
 
 
 def stop_at(point: str, tmp_path: Path, cmd: list, cwd: Path):
-    """Start ``cmd`` with the test hook :func:`twin.rundir.test_point` set at ``point``; the
+    """Start ``cmd`` with the test hook :func:`twin.outputs.rundir.test_point` set at ``point``; the
     process once it waits there."""
     marker = tmp_path / f"stopped-at-{point}"
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=cwd,

@@ -1,4 +1,4 @@
-"""twin.testing and the pytest plugin: a user's own regression tests on the twin."""
+"""twin.verify.testing and the pytest plugin: a user's own regression tests on the twin."""
 from __future__ import annotations
 
 import textwrap
@@ -7,7 +7,7 @@ import pytest
 
 from twin.errors import TwinError
 from twin.scenarios.scenario import builtin_names
-from twin.testing import assert_expectations, check
+from twin.verify.testing import assert_expectations, check
 
 pytest_plugins = ["pytester"]
 
@@ -64,7 +64,7 @@ def test_the_plugin_collects_twin_files_and_a_users_test_file(pytester):
         duration = 1.5
     '''))
     pytester.makepyfile(test_mine=textwrap.dedent('''
-        from twin.testing import assert_expectations
+        from twin.verify.testing import assert_expectations
 
         def test_lqr_balances_paper_exp1():
             assert_expectations("paper-exp1", controller="lqr", overrides=["duration=2"],

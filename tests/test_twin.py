@@ -7,11 +7,11 @@ import pybullet
 import pytest
 
 from twin.actuators import DCMotorParams
-from twin.analytic_loop import simulate
+from twin.sim.analytic_loop import simulate
 from twin.controllers.cascade import build_cascade
 from twin.experiments import PAPER_EXPERIMENTS, Experiment
-from twin.bullet_loop import TRUTH_NAMES
-from twin.bullet_loop import simulate_twin as _simulate_twin
+from twin.sim.bullet_loop import TRUTH_NAMES
+from twin.sim.bullet_loop import simulate_twin as _simulate_twin
 from twin.controllers.lmi import NOMINAL_DESIGN, design_balance_gains
 from twin.errors import TwinError
 from twin.params import NOMINAL

@@ -8,7 +8,7 @@ import pytest
 from twin.actuators import DCMotorParams, MotorDriver
 from twin.controllers.cascade import build_cascade
 from twin.experiments import Experiment
-from twin.bullet_loop import simulate_twin as _simulate_twin
+from twin.sim.bullet_loop import simulate_twin as _simulate_twin
 from twin.plant import bullet
 from twin.plant.bullet import GroundTruth, TwinConfig, truth_from_states
 

@@ -27,7 +27,7 @@ class _Group(click.Group):
     SIGINT and SIGTERM into one line saying what was kept and exit status 130 or 143."""
 
     def main(self, args=None, prog_name=None, **extra):
-        from twin import rundir
+        from twin.outputs import rundir
 
         # SIGTERM (a CI runner's timeout, a container stopping, kill) otherwise ends the
         # process where it stands: no clean-up, no message; SIGINT's KeyboardInterrupt became
@@ -68,7 +68,7 @@ class _Group(click.Group):
 
 
 def _with_kept(text: str, exc: BaseException) -> str:
-    from twin import rundir
+    from twin.outputs import rundir
 
     kept = rundir.kept_text(exc)
     return f"{text}; {kept}" if kept else text
@@ -76,7 +76,7 @@ def _with_kept(text: str, exc: BaseException) -> str:
 
 def _interrupted(exc: BaseException):
     """One line on stderr, what was kept and the signal, then exit 130 (SIGINT) or 143 (SIGTERM)."""
-    from twin import rundir
+    from twin.outputs import rundir
 
     kept = rundir.kept_text(exc)
     click.echo(f"interrupted: {rundir.signal_name(exc)}" + (f"; {kept}" if kept else ""), err=True)
@@ -145,7 +145,7 @@ def _no_cache_option(f):
 
 
 def _tolerance_options(what: str):
-    """--atol, --rtol and --tolerance SIGNAL=ATOL[,RTOL] (twin.tolerances), for ``what``."""
+    """--atol, --rtol and --tolerance SIGNAL=ATOL[,RTOL] (twin.verify.tolerances), for ``what``."""
     def decorate(f):
         f = click.option("--tolerance", multiple=True, metavar="SIGNAL=ATOL[,RTOL]",
                          help="Tolerance of one signal (repeatable), e.g. theta=1e-6 or torque_l=1e-3,1e-6; "
@@ -161,7 +161,7 @@ def _tolerance_options(what: str):
 
 
 def _tolerances(atol, rtol, items):
-    from twin.tolerances import parse_options
+    from twin.verify.tolerances import parse_options
 
     return parse_options(atol, rtol, items)
 
@@ -297,7 +297,7 @@ def design(epsilon, rho, decay_rate, max_gain, damping, uncertain, all_vertices,
                        uncertain=_parse_uncertain(uncertain), all_vertices=all_vertices)
     _print_design(d)
     if out is not None:
-        from twin.report import write_json
+        from twin.outputs.report import write_json
 
         write_json(d.to_json_dict(), out)
         click.echo(f"wrote {out}")
@@ -369,26 +369,25 @@ def _print_region(d) -> None:
                    f"damping ratio ≥ {zeta_min:.3g}")
 
 
-@main.command(hidden=True, context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
-@click.argument("experiment", required=False)
-def analytic(experiment):
-    """Replaced by 'twin run paper-expN --set plant.model=analytic' (the same runs, one pipeline)."""
-    n = experiment[-1] if experiment and experiment[-1] in "123" else "N"
-    raise TwinError(f"'twin analytic' gave way to 'twin run paper-exp{n} --set plant.model=analytic --set "
-                    "plant.scale={} --set sensors.sensing=ideal' (the same runs and metrics; --controller, --duration "
-                    "and --out as before, --no-video for no video); the design options are --set design.decay_rate=A "
-                    "(and design.epsilon, rho, max_gain, damping, uncertain, all_vertices), and a --gains file has no "
-                    "equivalent: give the options that designed it")
+def _gave_way(name: str, instead) -> None:
+    """A hidden command ``twin NAME [N ...]`` that says in one line (exit status 2) what replaced
+    it: ``instead(n)``, n the paper experiment's number given ("N" if none)."""
+    @main.command(name, hidden=True, context_settings={"ignore_unknown_options": True, "allow_extra_args": True},
+                  help=f"Replaced: 'twin {name}' gave way to 'twin run'.")
+    @click.argument("experiment", required=False)
+    def gone(experiment):
+        n = experiment[-1] if experiment and experiment[-1] in "123" else "N"
+        raise TwinError(instead(n))
 
 
-@main.command(hidden=True, context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
-@click.argument("experiment", required=False)
-def physics(experiment):
-    """Replaced by 'twin run paper-expN' (the same closed loop, one pipeline)."""
-    n = experiment[-1] if experiment and experiment[-1] in "123" else "N"
-    raise TwinError(f"'twin physics' gave way to 'twin run paper-exp{n}' (the same pipeline); for its nominal plant "
-                    "add --set plant.scale={}, for ground truth --set sensors.sensing=ideal, for ideal motors "
-                    "--set plant.motor=ideal")
+_gave_way("analytic", lambda n: (
+    f"'twin analytic' gave way to 'twin run paper-exp{n} --set plant.model=analytic --set plant.scale={{}} --set "
+    "sensors.sensing=ideal' (the same runs and metrics; --controller, --duration and --out as before, --no-video for "
+    "no video); the design options are --set design.decay_rate=A (and design.epsilon, rho, max_gain, damping, "
+    "uncertain, all_vertices), and a --gains file has no equivalent: give the options that designed it"))
+_gave_way("physics", lambda n: (
+    f"'twin physics' gave way to 'twin run paper-exp{n}' (the same pipeline); for its nominal plant add --set "
+    "plant.scale={}, for ground truth --set sensors.sensing=ideal, for ideal motors --set plant.motor=ideal"))
 
 
 @main.command()
@@ -443,7 +442,7 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample, log
     from twin.registry import label
     from twin.scenarios.runner import controllers_of, plan, plugins_of, run_scenario
 
-    from twin import rundir
+    from twin.outputs import rundir
 
     every = _log_every(log_every)
     sc = _load(scenario, _limit_overrides(overrides, step_limit, run_limit, memory_limit), seed, duration)
@@ -581,7 +580,7 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
       twin sweep push-recovery --samples 20 --workers 2 --set sweep.push_count=2
       twin sweep paper-exp2 --samples 100 --backend ray --ray-address auto
     """
-    from twin import rundir
+    from twin.outputs import rundir
     from twin.scenarios.runner import controllers_of, plan, plugins_of
     from twin.sweep import run_sweep
     from twin.sweep.runner import sweep_controllers
@@ -669,7 +668,7 @@ def check(targets, controller, seeds, workers, overrides, junit, record, golden,
       twin check scenarios/ --controller my_filters:Tuned,it2 --seeds 20 --junit check.xml
       twin check paper-exp1 --golden gold/ --atol 1e-6 --tolerance theta=1e-8
     """
-    from twin.check import collect, failure_lines, format_table, run_checks, write_junit
+    from twin.verify.check import collect, failure_lines, format_table, run_checks, write_junit
     from twin.sweep.backends import default_workers
 
     if record is not None and golden is not None:
@@ -677,7 +676,7 @@ def check(targets, controller, seeds, workers, overrides, junit, record, golden,
                         "give one of them")
     if golden is not None and not golden.is_dir():
         raise TwinError(f"--golden {golden}: no such directory; record references first with --record {golden}")
-    from twin import rundir
+    from twin.outputs import rundir
 
     if golden is not None:  # references of a record that did not finish are not judged against
         rundir.read_manifest(golden, (rundir.RECORD_COMMAND,), "golden directory",
@@ -744,19 +743,19 @@ def compare_(a, b, atol, rtol, tolerance, figure_path, out):
       twin compare runs/seed0 runs/seed1 --atol 1e-6 --tolerance theta=1e-4 --figure cmp.png
       twin compare gold/paper-exp1/it2/seed-0.npz runs/paper-exp1 --out runs/cmp
     """
-    from twin import compare as cmp
+    from twin.outputs import compare as cmp
 
     if figure_path is not None and out is not None:
         raise TwinError("--figure PATH and --out DIR both say where the figure goes; give one of them")
     tolerances = _tolerances(atol, rtol, tolerance)
     if out is not None:
-        from twin.rundir import refuse_if_in_use
+        from twin.outputs.rundir import refuse_if_in_use
 
         refuse_if_in_use(out)
     result = cmp.compare(cmp.load(a), cmp.load(b), tolerances)
     click.echo(cmp.report(result))
     if out is not None:
-        from twin.report import write_json
+        from twin.outputs.report import write_json
 
         figure_path = out / "comparison.png"
         click.echo(f"wrote {write_json(cmp.as_json(result), out / 'comparison.json')}")
@@ -900,10 +899,10 @@ def surface(which, controller, points, out):
     """
     import numpy as np
 
-    from twin import report
+    from twin.outputs import report
     from twin.controllers import mamdani
 
-    from twin.rundir import refuse_if_in_use
+    from twin.outputs.rundir import refuse_if_in_use
 
     refuse_if_in_use(out)
     fls = mamdani.position_controller(controller) if which == "position" else mamdani.direction_controller(controller)

@@ -3,10 +3,10 @@ wall time per run, and the growth of the process's resident memory over a run.
 
 A scenario sets them with ``[limits]`` (``step_wall_s``, ``run_wall_s``, ``run_memory_mb``;
 absent: no limit); :class:`PluginLimits` carries them in the twin's
-:class:`~twin.plant.bullet.TwinConfig` to :class:`twin.loop.ClosedLoop`, which times each
+:class:`~twin.plant.bullet.TwinConfig` to :class:`twin.sim.loop.ClosedLoop`, which times each
 call of the controller and of the estimator with :class:`RunGuard` and stops the run with
 one :class:`~twin.errors.PluginError` line naming the plugin and the limit. Each run of a
-loop (each :meth:`~twin.loop.ClosedLoop.reset`) starts its own clock: in a scenario with
+loop (each :meth:`~twin.sim.loop.ClosedLoop.reset`) starts its own clock: in a scenario with
 several controllers, each controller's run has the whole budget, whatever the others took.
 
 What the limits cannot do: they are checked when a call returns, so a call that never
@@ -36,7 +36,7 @@ class PluginLimits:
 
     ``step_wall_s``: seconds of wall time one call of the controller (``__call__``) or of
     the estimator (``step``) may take; ``run_wall_s``: seconds of wall time one run may take
-    from its :meth:`~twin.loop.ClosedLoop.reset` (the twin's own time included);
+    from its :meth:`~twin.sim.loop.ClosedLoop.reset` (the twin's own time included);
     ``run_memory_mb``: MB (10⁶ bytes) by which the process's resident memory may grow over
     one run (Linux: the current resident set; elsewhere its peak)."""
 

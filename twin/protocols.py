@@ -1,6 +1,6 @@
 """The data that flows around the closed loop, and the contracts a user's code meets.
 
-One control period of :class:`twin.loop.ClosedLoop`::
+One control period of :class:`twin.sim.loop.ClosedLoop`::
 
     plant (GroundTruth) → sensors (Measurement) → Estimator (Estimate)
         → Controller (command: ul, ur [, signals]) → actuators → plant
@@ -23,7 +23,7 @@ the object and what was expected.
 
 The plant is one more such object (:class:`Plant`): the PyBullet twin, equation (1) or
 one's own, chosen by a scenario's ``plant.model`` (:func:`twin.plant.build_plant`) or
-handed to :class:`twin.loop.ClosedLoop` directly.
+handed to :class:`twin.sim.loop.ClosedLoop` directly.
 """
 from __future__ import annotations
 
@@ -96,7 +96,7 @@ class Estimator(Protocol):
     start(measurement) -> sequence of 6 floats
         The first readings (control step 0, the robot at rest on its wheels, tilted by
         the initial θ); returns the first estimate [θ, θ̇, ψ, ψ̇, α, α̇]. It begins a
-        run: an estimator reused by :meth:`twin.loop.ClosedLoop.reset` must forget any
+        run: an estimator reused by :meth:`twin.sim.loop.ClosedLoop.reset` must forget any
         previous run here (the built-in ones do).
     step(measurement, command) -> sequence of 6 floats
         The readings that arrived at this control instant (a
@@ -135,7 +135,7 @@ class Estimator(Protocol):
 @runtime_checkable
 class Plant(Protocol):
     """The robot being controlled: steps one control period with the two wheel torques and
-    reports the ground truth. :class:`twin.loop.ClosedLoop` runs any object with these
+    reports the ground truth. :class:`twin.sim.loop.ClosedLoop` runs any object with these
     members (structural typing: no base class to inherit); built in are the PyBullet twin
     (:class:`twin.plant.bullet.BulletTwin`, ``plant.model = "bullet"``) and equation (1)
     (:class:`twin.plant.analytic_plant.AnalyticPlant`, ``plant.model = "analytic"``).
@@ -159,7 +159,7 @@ class Plant(Protocol):
     reset(theta0, alpha0, position) -> GroundTruth
         Start a new run at rest: body pitch ``theta0`` and heading ``alpha0`` in rad, axle
         midpoint ``position`` (x, y) in m, all rates 0, wheel angles ψ_i = 0 at t = 0.
-        Returns the truth at t = 0. Called by every :meth:`twin.loop.ClosedLoop.reset`,
+        Returns the truth at t = 0. Called by every :meth:`twin.sim.loop.ClosedLoop.reset`,
         also after :meth:`close` (a plant is reused run after run).
     step(ul, ur) -> GroundTruth
         Apply the left and right wheel torque commands ``ul``, ``ur`` (N·m, each acting
@@ -207,18 +207,18 @@ class Plant(Protocol):
 
 
 class StepResult(NamedTuple):
-    """What one control instant of :class:`twin.loop.ClosedLoop` holds.
+    """What one control instant of :class:`twin.sim.loop.ClosedLoop` holds.
 
     ``truth`` the plant's ground truth; ``measurement`` what reached the estimator;
     ``estimate`` (6,) what the controller is given; ``status`` "running", "fell" or
     "diverged"; ``reason`` why it ended ("" while running).
 
-    Published with them, for loggers (:class:`twin.recorder.Recorder`, one's own):
+    Published with them, for loggers (:class:`twin.sim.recorder.Recorder`, one's own):
     ``gyro_bias`` (3,) rad/s the gyro's true bias in the sample taken at this instant (None
     without one: no sensors, or no IMU sample due); ``actuation``
     (:class:`~twin.plant.bullet.Actuation`) and ``push_force`` (3,) N, world axes, what the
     motors delivered and the pushes did over the control period that ended at this instant
-    (None at instant 0, from :meth:`~twin.loop.ClosedLoop.reset`)."""
+    (None at instant 0, from :meth:`~twin.sim.loop.ClosedLoop.reset`)."""
 
     truth: GroundTruth
     measurement: Measurement

@@ -345,7 +345,7 @@ def check_protocol(role: str, kind: str, obj) -> None:
         if not (isinstance(signals, (tuple, list)) and all(isinstance(s, str) and s.isidentifier() for s in signals)):
             raise PluginError(f"{role} {shown(kind)}: 'signals' must be a tuple of names (identifiers) of extra logged "
                               f"signals, got {shown(signals)}")
-        from twin.runs import ACTUATION_NAMES, ESTIMATE_NAMES, PUSH_NAMES, TRUTH_NAMES
+        from twin.sim.runs import ACTUATION_NAMES, ESTIMATE_NAMES, PUSH_NAMES, TRUTH_NAMES
 
         taken = set(TRUTH_NAMES + ESTIMATE_NAMES + ACTUATION_NAMES + PUSH_NAMES + ("ul_cmd", "ur_cmd"))
         clash = sorted({s for s in signals if s in taken or list(signals).count(s) > 1})

@@ -121,9 +121,14 @@ def process_pool(width: int):
         yield pool
     except BaseException:
         terminate(ctx.started)
+        try:
+            pool.shutdown(wait=True, cancel_futures=True)
+        except RuntimeError:
+            # an interrupt that came while the pool started its manager thread (Thread.start waits for
+            # it) leaves a thread that never started: nothing to join, and the interrupt is what to say
+            pass
         raise
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
+    pool.shutdown(wait=True, cancel_futures=True)
 
 
 # ---- a reaper for processes started by others (a local Ray instance) ---------------------------------------

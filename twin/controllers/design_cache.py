@@ -101,7 +101,7 @@ _versions_memo: dict | None = None
 def _versions() -> dict:
     global _versions_memo
     if _versions_memo is None:
-        from twin.fingerprint import dist_version
+        from twin.outputs.fingerprint import dist_version
 
         here = Path(__file__).resolve().parent
         code = hashlib.sha256()

@@ -227,9 +227,9 @@ class BalanceDesign:
         }
 
     def digest(self) -> str:
-        """SHA-256 of the gains and P by their exact bits (:func:`twin.fingerprint.design_digest`):
+        """SHA-256 of the gains and P by their exact bits (:func:`twin.outputs.fingerprint.design_digest`):
         equal digests, identical designs."""
-        from twin.fingerprint import design_digest
+        from twin.outputs.fingerprint import design_digest
 
         return design_digest(gains=self.gains, P=self.P)
 

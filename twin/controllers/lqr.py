@@ -391,9 +391,9 @@ class LQRController:
         self._r = float(params.r)
 
     def design_digest(self) -> str:
-        """SHA-256 (hex) of the gains' exact bits, K and K_yaw (:func:`twin.fingerprint.design_digest`):
+        """SHA-256 (hex) of the gains' exact bits, K and K_yaw (:func:`twin.outputs.fingerprint.design_digest`):
         equal digests, identical gains."""
-        from twin.fingerprint import design_digest
+        from twin.outputs.fingerprint import design_digest
 
         return design_digest(K=self.K, K_yaw=self.K_yaw)
 

@@ -1,7 +1,7 @@
 """``mtwip/Balance-v0``: keep the two-wheeled robot upright, from the scenario's initial tilt.
 
 The PyBullet twin with its simulated IMU and encoders and the estimator in the loop
-(:class:`twin.loop.ClosedLoop`), one control period (5 ms at the default 200 Hz) per
+(:class:`twin.sim.loop.ClosedLoop`), one control period (5 ms at the default 200 Hz) per
 step; the agent commands the two wheel torques. Default scenario ``paper-exp1`` (the
 paper's experiment 1: from θ0 = 0.48 rad on a true plant that differs from the nominal
 model, 15 s). Any built-in or scenario file runs: its targets, if any, are ignored here

@@ -1,10 +1,10 @@
-"""What every mtwip environment shares: a scenario driven through :class:`twin.loop.ClosedLoop`.
+"""What every mtwip environment shares: a scenario driven through :class:`twin.sim.loop.ClosedLoop`.
 
 The task environments (:mod:`twin.envs.balance`, :mod:`twin.envs.track`) subclass
 :class:`TwinEnv` and add their default scenario, their task observation (after the six
 or eleven entries below) and their reward. Everything else is here, once:
 
-* **The loop.** One :class:`~twin.loop.ClosedLoop` per episode (the twin, the simulated
+* **The loop.** One :class:`~twin.sim.loop.ClosedLoop` per episode (the twin, the simulated
   IMU and encoders, the estimator), built from the scenario; the agent's action is its
   ``step(command)``. No controller runs: the action *is* the command. One PyBullet
   client is alive per environment at a time (the loop's twin); :meth:`close` releases it.

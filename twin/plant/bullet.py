@@ -163,7 +163,7 @@ class TwinConfig:
         position creep (0.08 rad per 100 s at α = 0.1 rad; see
         docs/investigations/yaw-creep.md); 1e-14 removes it for about 20 % more time.
     limits : PluginLimits or None
-        Not part of the plant: what a :class:`twin.loop.ClosedLoop` on this twin allows the
+        Not part of the plant: what a :class:`twin.sim.loop.ClosedLoop` on this twin allows the
         controller and the estimator it calls (wall time per step and per run, memory
         growth per run; :mod:`twin.limits`); None: no limits.
     """

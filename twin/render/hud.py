@@ -46,7 +46,7 @@ PLANT_NAME_MAX = 36  # characters of a user's plant name on the overlay (its end
 
 
 def plant_caption(plant: str) -> str:
-    """What the overlay says of a run's plant (:attr:`twin.runs.Run.plant`): nothing for the
+    """What the overlay says of a run's plant (:attr:`twin.sim.runs.Run.plant`): nothing for the
     PyBullet twin, ``"analytic model (eq. 1)"`` for the analytic one, else the user's plant
     as the run names it (its module and class), in ASCII (the Hershey fonts have nothing
     else) and at most :data:`PLANT_NAME_MAX` characters."""

@@ -131,7 +131,7 @@ class _Track:
     """A run's log, sampled at frame times (clamped to the run: its last state is held)."""
 
     def __init__(self, run, label: str):
-        from twin.bullet_loop import TRUTH_NAMES
+        from twin.sim.bullet_loop import TRUTH_NAMES
 
         self.t = np.asarray(run.t, dtype=float)
         self.duration = float(self.t[-1] - self.t[0])
@@ -154,7 +154,7 @@ class _Track:
         # the estimator's θ, ψ, α, for the ghost (none with ideal sensing: it would be the body)
         self.est = {}
         if run.sensing != "ideal" and run.estimates is not None and self.box is not None:
-            from twin.runs import ESTIMATE_NAMES
+            from twin.sim.runs import ESTIMATE_NAMES
 
             self.est = {f"{n}_est": np.asarray(run.estimates[:, ESTIMATE_NAMES.index(f"{n}_est")], dtype=float)
                         for n in _GHOST}
@@ -183,7 +183,7 @@ class _Track:
 
 
 def _check_runs(runs) -> list:
-    from twin.bullet_loop import TRUTH_NAMES, TwinRun
+    from twin.sim.bullet_loop import TRUTH_NAMES, TwinRun
 
     if isinstance(runs, TwinRun):
         runs = [runs]
@@ -194,7 +194,7 @@ def _check_runs(runs) -> list:
         raise TwinError("runs is empty: give a TwinRun or a sequence of at least one")
     for i, r in enumerate(runs):
         if not isinstance(r, TwinRun):
-            raise TwinError(f"runs[{i}] must be a TwinRun (from twin.bullet_loop.simulate_twin), "
+            raise TwinError(f"runs[{i}] must be a TwinRun (from twin.sim.bullet_loop.simulate_twin), "
                             f"got {type(r).__name__}")
         t, truth = np.asarray(r.t, dtype=float), np.asarray(r.truth, dtype=float)
         n = len(t)
@@ -444,7 +444,7 @@ def render_video(runs, path, fps: float = 30, size=(640, 480),
     Parameters
     ----------
     runs : TwinRun or sequence of TwinRun
-        What to show (from :func:`twin.bullet_loop.simulate_twin`), one panel each, left
+        What to show (from :func:`twin.sim.bullet_loop.simulate_twin`), one panel each, left
         to right.
     path : str or PathLike
         The video file; must end in ``.mp4``. Its directory is made if missing; an

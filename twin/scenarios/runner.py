@@ -8,7 +8,7 @@ Outputs in the run directory:
   ``log_every`` N > 1, one row per N control steps; with ``log_format="csv.gz"`` the same
   text gzip-compressed, as ``trajectory.csv.gz``;
 - ``metrics.json``: the scenario (complete, defaults filled in), the seed, and one
-  object per controller run (:func:`twin.metrics.run_metrics`, always from every control
+  object per controller run (:func:`twin.outputs.metrics.run_metrics`, always from every control
   step); when the trajectory is decimated or compressed, a ``log`` object says so (which
   rows were written, how many of how many, the file); with ``keep_limited``, an
   ``errors`` object holds the controllers whose runs a limit of ``[limits]`` stopped
@@ -18,7 +18,7 @@ Outputs in the run directory:
 - ``video.mp4``: offscreen rendering, the controllers side by side (optional);
 - ``design.json``: the LMI design the balance controllers used;
 - ``manifest.json``, written last: every file with its size and SHA-256, the command's exit
-  status and whether every output is there (:mod:`twin.rundir`).
+  status and whether every output is there (:mod:`twin.outputs.rundir`).
 
 The directory is written as a unit: staged beside the target and put in its place when
 complete, so it never mixes this run's files with an earlier run's.
@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from twin import figure_worker, rundir
+from twin.outputs import figure_worker, rundir
 from twin.errors import PluginError, TwinError
 from twin.limits import limit_of
 from twin.scenarios.scenario import Scenario
@@ -64,7 +64,7 @@ class ScenarioResult:
 
     def environment(self) -> dict:
         """What these runs ran on, with their designs' digests (metrics.json's "environment")."""
-        from twin.fingerprint import record
+        from twin.outputs.fingerprint import record
 
         return record(self.designs)
 
@@ -96,11 +96,11 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
     estimator kind, pushes and faults.
 
     ``out``: the run directory (None: write nothing), written as a unit with its manifest
-    (:class:`twin.rundir.StagedDirectory`: the directory is the earlier one until this one is
+    (:class:`twin.outputs.rundir.StagedDirectory`: the directory is the earlier one until this one is
     complete; see :func:`_write` for what an error or interrupt keeps); ``video``: render the
     MP4 (None: as the scenario says); ``progress(stage, done, total)``: called as the runs and the video advance;
     ``log_every`` N: keep and write every N-th control step only (the metrics still come
-    from every step; see :func:`twin.bullet_loop.simulate_twin`); ``log_format``: "csv"
+    from every step; see :func:`twin.sim.bullet_loop.simulate_twin`); ``log_format``: "csv"
     (trajectory.csv) or "csv.gz" (trajectory.csv.gz, gzip). Nothing is written unless every
     run finished (a run that falls is a result; a plugin that breaks its contract is an error).
 
@@ -115,7 +115,7 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
     (their plugins built already, as ``twin run`` does before it prints anything); None:
     planned here.
     """
-    from twin.recorder import check_log_every
+    from twin.sim.recorder import check_log_every
     from twin.registry import check_kinds, parse_controllers
 
     every = check_log_every(log_every)
@@ -180,10 +180,10 @@ def plan(scenario: Scenario, kinds) -> list:
 
 def _run_and_write(scenario, kinds, staged, video, progress, every, log_format, worker,
                    keep_limited: bool = False, specs=None) -> ScenarioResult:
-    """:func:`run_scenario` after its checks; ``staged`` a :class:`twin.rundir.StagedDirectory`
-    (None: write nothing); ``worker`` a :class:`twin.figure_worker.FigureWorker` for the
+    """:func:`run_scenario` after its checks; ``staged`` a :class:`twin.outputs.rundir.StagedDirectory`
+    (None: write nothing); ``worker`` a :class:`twin.outputs.figure_worker.FigureWorker` for the
     figure, or None (drawn here)."""
-    from twin.metrics import run_metrics
+    from twin.outputs.metrics import run_metrics
     from twin.sim.simulate import simulate
     from twin.sim.spec import Logging
 
@@ -214,7 +214,7 @@ def _run_and_write(scenario, kinds, staged, video, progress, every, log_format, 
         timings = {"design_s": lazy.seconds, **timings}
     if errors and not runs:  # nothing to write: the first limit's one line, as without keep_limited
         raise next(iter(errors.values()))
-    from twin.fingerprint import digests
+    from twin.outputs.fingerprint import digests
 
     result = ScenarioResult(scenario, runs, metrics, timings=timings, plugins=plugins,
                             design=solved[0] if solved else None,
@@ -226,7 +226,7 @@ def _run_and_write(scenario, kinds, staged, video, progress, every, log_format, 
 
 
 def _write(result, staged, video, progress, every, log_format, worker, sensors, config) -> None:
-    """Write the run directory of ``result`` as a unit (:class:`twin.rundir.StagedDirectory`).
+    """Write the run directory of ``result`` as a unit (:class:`twin.outputs.rundir.StagedDirectory`).
 
     The data (metrics.json, the trajectory, design.json) is the result; the figure and the
     video are pictures of it. Until the data is written, an error or an interrupt leaves the
@@ -234,7 +234,7 @@ def _write(result, staged, video, progress, every, log_format, worker, sensors, 
     figure or the video is made commits the data (and the figure, if finished) with a manifest
     that says what is missing, what stopped the command and its exit status, rather than
     throwing away a simulation that may have taken an hour."""
-    from twin import report
+    from twin.outputs import report
 
     scenario, runs, metrics, solved = result.scenario, result.runs, result.metrics, result.design
     d = scenario.data

@@ -2,9 +2,9 @@
 closed loop of a specification, for those who step it themselves: the Gymnasium environments,
 a user's script).
 
-:func:`simulate` drives :class:`twin.loop.ClosedLoop`: reset, then the controller's command
-and a step per control period, each step's result handed to a :class:`twin.recorder.Recorder`
-(which builds the :class:`twin.runs.Run`), never reading the loop's internals. Logged at the
+:func:`simulate` drives :class:`twin.sim.loop.ClosedLoop`: reset, then the controller's command
+and a step per control period, each step's result handed to a :class:`twin.sim.recorder.Recorder`
+(which builds the :class:`twin.sim.runs.Run`), never reading the loop's internals. Logged at the
 control rate, one row per control instant, or at every N-th instant (``spec.logging.every``).
 Memory: the step results are gathered for a chunk of :data:`CHUNK` control steps at a time,
 then moved into preallocated float64 arrays, so a run costs about 8 bytes per logged number
@@ -14,20 +14,20 @@ The plant is closed when the run ends, fallen or not.
 """
 from __future__ import annotations
 
-from twin.recorder import Recorder
-from twin.runs import COMMAND_UNITS, Run
+from twin.sim.recorder import Recorder
+from twin.sim.runs import COMMAND_UNITS, Run
 from twin.sim.spec import RunSpec
 
-CHUNK = 4096  # control steps gathered before they move into the log's arrays (twin.recorder.Recorder's chunk)
+CHUNK = 4096  # control steps gathered before they move into the log's arrays (twin.sim.recorder.Recorder's chunk)
 
 
 def build_loop(spec: RunSpec, controller=None, estimator=None):
-    """The :class:`twin.loop.ClosedLoop` of ``spec``, not yet reset.
+    """The :class:`twin.sim.loop.ClosedLoop` of ``spec``, not yet reset.
 
     ``controller``/``estimator``: objects already built for ``spec`` (default: built here,
     :meth:`RunSpec.build_controller` and :meth:`RunSpec.build_estimator`); a spec without a
     controller gives a loop stepped with commands."""
-    from twin.loop import ClosedLoop
+    from twin.sim.loop import ClosedLoop
 
     context = spec.context() if controller is None or estimator is None else None
     if estimator is None:
@@ -58,7 +58,7 @@ def config_of(spec: RunSpec):
 
 
 def simulate(spec: RunSpec, progress=None, controller=None, estimator=None) -> Run:
-    """Run ``spec`` and return its log (:class:`twin.runs.Run`).
+    """Run ``spec`` and return its log (:class:`twin.sim.runs.Run`).
 
     ``progress(steps_done, steps_total)`` is called once per simulated second and at the end.
     ``controller``/``estimator``: objects already built for ``spec`` (see :func:`build_loop`).

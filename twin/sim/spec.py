@@ -26,7 +26,7 @@ from twin.errors import TwinError
 from twin.params import NOMINAL, RobotParams
 from twin.plant.bullet import TwinConfig
 from twin.protocols import Targets
-from twin.recorder import check_log_every
+from twin.sim.recorder import check_log_every
 from twin.sensors import SensorConfig
 
 LOG_FORMATS = ("csv", "csv.gz")  # trajectory.csv, or the same text gzip-compressed
@@ -295,7 +295,7 @@ class RunSpec:
 
     @property
     def experiment(self):
-        """The run's task as :class:`twin.runs.Run` records it (:class:`twin.experiments.Experiment`)."""
+        """The run's task as :class:`twin.sim.runs.Run` records it (:class:`twin.experiments.Experiment`)."""
         from twin.experiments import Experiment
 
         t = self.targets

@@ -12,13 +12,13 @@ Outputs in the sweep directory:
   the reference (by default the last one listed: IT2 against type-1 for the default
   pair) (:mod:`twin.sweep.statistics`);
 - ``success.png``, ``distributions.png``, ``paired.png``: the figures;
-- ``manifest.json``, written last (:func:`twin.rundir.seal`): every file with its size and
+- ``manifest.json``, written last (:func:`twin.outputs.rundir.seal`): every file with its size and
   SHA-256. The report of an earlier run is deleted before any sample runs, so a directory
   without ``manifest.json`` holds a sweep that did not finish, never an out-of-date report.
 
 The report depends only on the finished samples, never on the backend, the number of
 workers, the finishing order or on interruptions. The directory is held
-(:func:`twin.rundir.lock`) from the first sample to the manifest.
+(:func:`twin.outputs.rundir.lock`) from the first sample to the manifest.
 
 Limits: each controller's run of a sample is bounded by the scenario's ``[limits]``
 (:mod:`twin.limits`); where it sets no ``run_wall_s`` the sweep sets
@@ -130,7 +130,7 @@ def run_sweep(scenario: Scenario, draws: int, out: Path, scenario_arg: str | Non
         raise TwinError(f"--workers must be an integer from 1 to 1024, got {workers!r}")
     kinds, reference = sweep_controllers(scenario, controllers, reference)
     preflight(scenario, kinds)
-    from twin import rundir
+    from twin.outputs import rundir
     from twin.registry import provenance
     from twin.sweep.sampling import SAMPLES_VERSION
 
@@ -215,7 +215,7 @@ def environment_of(scenario: Scenario, kinds, design) -> dict:
     controllers use (the LMI balance design when one of them asks for it, and each
     controller's own ``design_digest()``). The controllers are built here for that, once:
     every sample's controllers are designed on the same nominal model."""
-    from twin.fingerprint import digests, record
+    from twin.outputs.fingerprint import digests, record
 
     asked = []
 
@@ -232,7 +232,7 @@ def write_report(out: Path, manifest: dict, records, scenario: Scenario, referen
     """``sweep.csv``, the summary and the figures of the finished ``records``; the paired
     statistics compare each controller with ``reference`` (default: the last; it is not part
     of the manifest, so a finished sweep can be reported against another reference)."""
-    from twin import report
+    from twin.outputs import report
     from twin.registry import label
     from twin.sweep import figures, statistics
 

@@ -6,7 +6,7 @@
   (samples.jsonl may hold more, from a larger run: they are kept for a later one);
   ``config_sha256``, the hash of the sample configuration (:func:`config_of`); last, the
   ``environment`` the first samples ran in, with the designs' digests
-  (:func:`twin.fingerprint.record`). A rerun in another environment (another machine, BLAS
+  (:func:`twin.outputs.fingerprint.record`). A rerun in another environment (another machine, BLAS
   kernel or commit) may resume the sweep, and its environment is added to ``resumed_in``:
   its samples may differ from the others' in the last digits.
 - ``samples.jsonl``: one JSON line per finished sample, in finishing order, each carrying
@@ -18,7 +18,7 @@
 A rerun resumes only samples whose configuration is this sweep's: a ``sweep.json`` of
 another configuration, a ``samples.jsonl`` without a ``sweep.json`` (copied from another
 sweep), or a line of another configuration is refused in one line naming what differs.
-The directory is held (:func:`twin.rundir.lock`) while the store is open, so that no other
+The directory is held (:func:`twin.outputs.rundir.lock`) while the store is open, so that no other
 command writes into it meanwhile.
 """
 from __future__ import annotations
@@ -154,7 +154,7 @@ class SweepStore:
     without the configuration hash), holding the directory until :meth:`close`."""
 
     def __init__(self, out: Path, manifest: dict):
-        from twin import rundir
+        from twin.outputs import rundir
 
         self.out = Path(out)
         self._fd = None
@@ -201,7 +201,7 @@ class SweepStore:
         (once: each environment the sweep ran in is listed one time)."""
         if ENV not in manifest:
             return
-        from twin.fingerprint import differences
+        from twin.outputs.fingerprint import differences
 
         here, first = manifest[ENV], old.get(ENV)  # first None: a sweep begun before environments were recorded
         resumed = list(old.get(RESUMED, []))

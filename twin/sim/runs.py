@@ -5,10 +5,10 @@ Row i holds the ground truth at t_i, what the controllers were given at t_i
 pushes did over [t_i, t_i+1) (period means). A run that falls stops at the row where that
 was detected; its last row's actuation is zero, because nothing was applied after it. A
 run that diverges (a non-finite state from the physics) stops at the last finite row: no
-NaN is logged. :func:`twin.metrics.run_metrics` gives every run's figures of merit.
+NaN is logged. :func:`twin.outputs.metrics.run_metrics` gives every run's figures of merit.
 
 A long run may keep only every N-th control step (``log_every``, see
-:func:`twin.bullet_loop.simulate_twin`): row i is then control step i·N, and the few
+:func:`twin.sim.bullet_loop.simulate_twin`): row i is then control step i·N, and the few
 signals the metrics need are kept at every step in ``full_rate``, so that the metrics do not
 depend on N.
 """
@@ -23,7 +23,7 @@ import numpy as np
 
 from twin.errors import TwinError
 from twin.experiments import Experiment
-from twin.metrics import settling_time
+from twin.outputs.metrics import settling_time
 from twin.params import RobotParams
 from twin.plant.bullet import ACTUATION_UNITS, TRUTH_UNITS, Actuation, GroundTruth, TwinConfig
 from twin.sensors import Measurement, SensorConfig
@@ -37,7 +37,7 @@ COMMAND_UNITS = dict(ul_cmd="N·m", ur_cmd="N·m", u="N·m", theta_off="rad", u_
 ACTUATION_NAMES = Actuation._fields
 PUSH_NAMES = ("push_fx", "push_fy", "push_fz")
 PUSH_UNITS = dict(push_fx="N", push_fy="N", push_fz="N")
-# the signals twin.metrics.run_metrics reads, kept at every control step when the log keeps every N-th
+# the signals twin.outputs.metrics.run_metrics reads, kept at every control step when the log keeps every N-th
 FULL_RATE_NAMES = ("t", "theta", "theta_est", "torque_l", "torque_r", "distance", "alpha")
 
 
@@ -148,8 +148,8 @@ class MeasurementLog(Sequence):
 class Run:
     """A closed-loop trajectory (see the module docstring for the row layout).
 
-    ``plant`` is "twin" (:func:`twin.bullet_loop.simulate_twin`) or "analytic"
-    (:func:`twin.analytic_loop.simulate`: equation (1), ideal torque sources, the
+    ``plant`` is "twin" (:func:`twin.sim.bullet_loop.simulate_twin`) or "analytic"
+    (:func:`twin.sim.analytic_loop.simulate`: equation (1), ideal torque sources, the
     controllers reading the truth; its ``config`` is None).
 
     ``truth`` (n, 15) columns :data:`TRUTH_NAMES`; ``estimates`` (n, 6)
@@ -276,7 +276,7 @@ class Run:
         get, t = (self.full_signal, self.full_signal("t")) if full else (self.signal, self.t)
         keep = t >= start - 1e-9
         err = get(name + "_est")[keep] - get(name)[keep]
-        from twin.metrics import exact_mean
+        from twin.outputs.metrics import exact_mean
 
         return math.sqrt(exact_mean(err * err)) if err.size else math.nan
 

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
-from twin.figure import FAULT_COLOUR, PUSH_COLOUR  # noqa: F401 (named here too, where they always were)
+from twin.outputs.figure import FAULT_COLOUR, PUSH_COLOUR  # noqa: F401 (named here too, where they always were)
 from twin.registry import label as kind_label
-from twin.runs import Run
+from twin.sim.runs import Run
 from twin.sensors.faults import fault_windows
 
 _COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:gray",
@@ -28,7 +28,7 @@ def _pyplot():
 
 def plot_runs(runs: list, path: Path, title: str = "") -> Path:
     """The figure of a scenario's runs (:func:`figure_runs`), written to ``path`` (PNG)."""
-    from twin.figure import save_figure
+    from twin.outputs.figure import save_figure
 
     path.parent.mkdir(parents=True, exist_ok=True)
     save_figure(figure_runs(runs, title), path)
@@ -42,10 +42,10 @@ def figure_runs(runs: list, title: str = ""):
     the motor driver saturated marked; dψ/dt; the distance p = rψ and the heading α with
     their targets. Pushes and sensor-fault windows are shaded on every panel, and every
     line is in a legend. A matplotlib Figure (axes titled by their quantity and unit),
-    drawn by :mod:`twin.figure` from :func:`figure_data`.
+    drawn by :mod:`twin.outputs.figure` from :func:`figure_data`.
 
-    ``runs``: :class:`~twin.runs.Run` (from the twin or the analytic model)."""
-    from twin.figure import fill_figure, new_figure
+    ``runs``: :class:`~twin.sim.runs.Run` (from the twin or the analytic model)."""
+    from twin.outputs.figure import fill_figure, new_figure
 
     fig, axes = new_figure()
     return fill_figure(fig, axes, figure_data(runs), title)
@@ -53,7 +53,7 @@ def figure_runs(runs: list, title: str = ""):
 
 def figure_data(runs: list) -> dict:
     """What :func:`figure_runs` draws, as plain data (floats, strings, NumPy arrays; picklable
-    without the twin's classes, for :mod:`twin.figure_worker`): per run its name, colour,
+    without the twin's classes, for :mod:`twin.outputs.figure_worker`): per run its name, colour,
     settling time (s, NaN if never settled), sensing, and (t, y) pairs thinned by
     :func:`_envelope` for θ, θ̂ − θ (None under ideal sensing), each wheel's torque and its
     saturated samples (None if none), dψ/dt, p and α; the experiment's targets p_d, α_d

@@ -2,7 +2,7 @@
 
 ::
 
-    from twin.testing import assert_expectations
+    from twin.verify.testing import assert_expectations
 
     def test_my_filter_keeps_the_robot_up():
         assert_expectations("paper-exp3", controller="it2", estimator="my_filters:Tuned",
@@ -13,11 +13,11 @@
 one or more seeds and judges the runs by the scenario's ``[expect]`` table (or ``expect``,
 which replaces it); :func:`assert_expectations` raises an ``AssertionError`` whose message
 is the table of every bound with its measured value and the failing lines. The pytest
-plugin (:mod:`twin.pytest_plugin`) turns scenario files into test items the same way.
+plugin (:mod:`twin.verify.pytest_plugin`) turns scenario files into test items the same way.
 """
 from __future__ import annotations
 
-from twin.check import CheckResult, failure_lines, format_table, run_checks
+from twin.verify.check import CheckResult, failure_lines, format_table, run_checks
 
 
 def check(scenario, controller=None, estimator: str | None = None, seeds: int = 1, overrides=(), expect=None,

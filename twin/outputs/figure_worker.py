@@ -3,9 +3,9 @@
 Why: of a 20 s ``twin run`` process on the project's 2-core machine, matplotlib took about
 0.45 s to import and the figure 0.3-0.5 s to draw, one after the other after the
 simulation. A worker started when the scenario starts imports matplotlib, builds the empty
-figure and draws it once (fonts loaded, tick objects made: :func:`twin.figure.warm_up`) on
+figure and draws it once (fonts loaded, tick objects made: :func:`twin.outputs.figure.warm_up`) on
 the other core while this process simulates. When the runs end their figure data (plain
-arrays and strings, :func:`twin.report.figure_data`) is handed over, and the worker draws and
+arrays and strings, :func:`twin.outputs.report.figure_data`) is handed over, and the worker draws and
 writes figure.png while this process writes trajectory.csv and metrics.json.
 
 The command waits for the worker (:meth:`FigureWorker.finish`) and always ends it
@@ -29,9 +29,9 @@ import sys
 import tempfile
 from pathlib import Path
 
-_ROOT = str(Path(__file__).resolve().parent.parent)  # the directory holding this twin package
+_ROOT = str(Path(__file__).resolve().parents[2])  # the directory holding this twin package
 # the worker imports this very twin package (not another one on its path or in its cwd)
-_CODE = f"import sys; sys.path.insert(0, {_ROOT!r}); from twin.figure_worker import main; main()"
+_CODE = f"import sys; sys.path.insert(0, {_ROOT!r}); from twin.outputs.figure_worker import main; main()"
 
 
 def wanted() -> bool:
@@ -89,7 +89,7 @@ class FigureWorker:
         self._payload = None
 
     def submit(self, data: dict, title: str, path: Path) -> bool:
-        """Hand over the figure's data (:func:`twin.report.figure_data`), its title and the
+        """Hand over the figure's data (:func:`twin.outputs.report.figure_data`), its title and the
         PNG's path; False if the worker is gone (then draw it here)."""
         fd, self._payload = tempfile.mkstemp(prefix="mtwip-figure-", suffix=".pickle")
         with os.fdopen(fd, "wb") as fh:
@@ -158,7 +158,7 @@ def main() -> None:
     from twin.workers import subprocess_worker_init
 
     subprocess_worker_init()  # first: it goes with a killed parent at once, not when its warm-up ends
-    from twin.figure import fill_figure, new_figure, save_figure, warm_up
+    from twin.outputs.figure import fill_figure, new_figure, save_figure, warm_up
 
     fig, axes = new_figure()
     if not _data_waiting():

@@ -5,11 +5,11 @@
 vector, every logged signal (ground truth, estimates, commands, actuation, pushes; the
 columns of ``trajectory.csv``), their names and units, the run's status and metrics, the
 build it came from (whether the compiled kernels ran) and its environment with a digest
-of each design it used (:mod:`twin.fingerprint`). ``twin check --golden DIR`` compares a
+of each design it used (:mod:`twin.outputs.fingerprint`). ``twin check --golden DIR`` compares a
 new run with it, signal by signal, and reports the first time and signal where they part,
 and whether the environment or a design differs from the reference's.
 
-A record is written as a unit (:class:`twin.rundir.FileBatch`): ``DIR/manifest.json`` lists
+A record is written as a unit (:class:`twin.outputs.rundir.FileBatch`): ``DIR/manifest.json`` lists
 every reference with its size and SHA-256. :func:`load` refuses a reference that sits in a
 record directory whose manifest is missing or does not list it as it is (a record that was
 killed, or a file changed since); a reference copied out of its directory is read on its
@@ -18,7 +18,7 @@ own (it was written whole, by a rename, and its archive's checksums catch damage
 What is compared how, and why:
 
 * **The same build** (the compiled kernels on both sides, or the pure-Python paths on
-  both): every value **bit for bit**, unless tolerances are set (:mod:`twin.tolerances`).
+  both): every value **bit for bit**, unless tolerances are set (:mod:`twin.verify.tolerances`).
   The twin is deterministic (one seeded generator, one physics server per run, sums in a
   fixed order), so any difference at all is a change in the code, the scenario, the
   libraries or the machine's arithmetic (another BLAS kernel), and the first one is
@@ -46,15 +46,15 @@ from pathlib import Path
 import numpy as np
 
 from twin.errors import TwinError
-from twin.tolerances import BUILD_ATOL, BUILD_RTOL, Tolerances
+from twin.verify.tolerances import BUILD_ATOL, BUILD_RTOL, Tolerances
 
 ATOL, RTOL = BUILD_ATOL, BUILD_RTOL  # the tolerance between builds (in each signal's SI unit; a fraction)
-FORMAT = 2  # 2: the meta records the environment and the design digests (twin.fingerprint)
+FORMAT = 2  # 2: the meta records the environment and the design digests (twin.outputs.fingerprint)
 
 
 def build() -> str:
     """"compiled" if every optional kernel runs here, "pure" if none does, "mixed" otherwise."""
-    from twin.fingerprint import kernels
+    from twin.outputs.fingerprint import kernels
 
     built = list(kernels().values())
     return "compiled" if all(built) else "pure" if not any(built) else "mixed"
@@ -105,7 +105,7 @@ class Trajectory:
 
 def record(path: Path, traj: Trajectory, meta: dict) -> Path:
     """Store ``traj`` (with ``meta``: scenario, controller, seed, ...) at ``path``, compressed."""
-    from twin.rundir import PARTIAL
+    from twin.outputs.rundir import PARTIAL
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -177,7 +177,7 @@ def load(path: Path) -> tuple[Trajectory, dict]:
     if "status" not in meta:
         raise TwinError(f"{not_ours} (its meta has no status)")
     if _in_record(path, meta):
-        from twin import rundir
+        from twin.outputs import rundir
 
         root = path.parents[2]
         doc = rundir.read_manifest(root, (rundir.RECORD_COMMAND,), "golden directory", RECORD_AGAIN)

@@ -1,6 +1,6 @@
 """A run's log, kept apart from the loop: :class:`Recorder` is fed what
-:class:`twin.loop.ClosedLoop` publishes (its :class:`~twin.protocols.StepResult` at every
-control instant and the command computed from it) and makes the :class:`twin.runs.Run`.
+:class:`twin.sim.loop.ClosedLoop` publishes (its :class:`~twin.protocols.StepResult` at every
+control instant and the command computed from it) and makes the :class:`twin.sim.runs.Run`.
 
 It reads nothing of the loop's internals, the way a logger is attached to a system's
 outputs: whoever drives the loop hands it what the loop returned::
@@ -18,13 +18,13 @@ outputs: whoever drives the loop hands it what the loop returned::
         rec.period(res)                     # row i's actuation and push, over [t_i, t_i+1)
     run = rec.run(status, reason, config, experiment=...)
 
-:func:`twin.bullet_loop.simulate_twin` is that driver. One's own logger is fed the same
+:func:`twin.sim.bullet_loop.simulate_twin` is that driver. One's own logger is fed the same
 way (the step results carry everything; see :class:`~twin.protocols.StepResult`).
 
 Memory: the step results are gathered for a chunk of ``chunk`` control steps at a time
 (the cheapest thing to append in the loop), then moved into preallocated float64 arrays,
 so a run costs about 8 bytes per logged number. With ``log_every`` N > 1 only every N-th
-step is kept, and :data:`twin.runs.FULL_RATE_NAMES` at every step (``Run.full_rate``).
+step is kept, and :data:`twin.sim.runs.FULL_RATE_NAMES` at every step (``Run.full_rate``).
 """
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ from operator import attrgetter, is_
 import numpy as np
 
 from twin.errors import TwinError
-from twin.runs import (ACTUATION_NAMES, ESTIMATE_NAMES, FULL_RATE_NAMES, PUSH_NAMES, TRUTH_NAMES, MeasurementLog,
+from twin.sim.runs import (ACTUATION_NAMES, ESTIMATE_NAMES, FULL_RATE_NAMES, PUSH_NAMES, TRUTH_NAMES, MeasurementLog,
                        Run)
 
 CHUNK = 4096  # control steps gathered before they move into the log's arrays
@@ -109,7 +109,7 @@ class Recorder:
     @classmethod
     def for_loop(cls, loop, steps: int, *, log_every: int = 1, diagnostics: bool = False,
                  chunk: int = CHUNK) -> "Recorder":
-        """A recorder for what ``loop`` (a :class:`twin.loop.ClosedLoop`) publishes: its
+        """A recorder for what ``loop`` (a :class:`twin.sim.loop.ClosedLoop`) publishes: its
         controller's ``signals``, whether it has ``sensors``, and whether its estimator
         ``reads_truth`` (public attributes, read once)."""
         return cls(steps, ("ul_cmd", "ur_cmd") + tuple(loop.signals), measured=loop.sensors is not None,
@@ -207,7 +207,7 @@ class Recorder:
         self._due = min(self.steps, self._start + self.chunk)
 
     def run(self, status: str, reason: str, config, command_units=None, **fields) -> Run:
-        """The :class:`twin.runs.Run` of what was recorded: ``status`` "ok", "fell" or "diverged",
+        """The :class:`twin.sim.runs.Run` of what was recorded: ``status`` "ok", "fell" or "diverged",
         ``reason`` why it ended, ``config`` the TwinConfig (or None); ``command_units`` one unit
         per command column (default "1" each, "N·m" for the torques); ``fields`` the Run's other
         fields (experiment, controller, sensing, estimator_stats, sensor_counts, seed,

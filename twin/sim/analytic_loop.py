@@ -1,6 +1,6 @@
 """The paper's three experiments on the analytic model, the reference against which the
 PyBullet twin is checked, for Python callers: a thin compatibility wrapper over
-:class:`twin.loop.ClosedLoop` (through :func:`twin.bullet_loop.simulate_twin`) with the
+:class:`twin.sim.loop.ClosedLoop` (through :func:`twin.sim.bullet_loop.simulate_twin`) with the
 analytic plant (:class:`twin.plant.analytic_plant.AnalyticPlant`: equation (1), RK4 at
 ``physics_dt``, ideal torque sources) and ideal sensing (the ``ideal`` estimator: the
 controllers see the true state).
@@ -21,7 +21,7 @@ from twin.errors import TwinError
 from twin.experiments import PAPER_EXPERIMENTS, Experiment
 from twin.limits import PluginLimits
 from twin.params import NOMINAL, RobotParams
-from twin.runs import Run
+from twin.sim.runs import Run
 from twin.timing import steps_per_control
 
 
@@ -29,7 +29,7 @@ def simulate(controller, experiment: Experiment, params: RobotParams = NOMINAL,
              duration: float | None = None, physics_dt: float = 0.001, control_dt: float = 0.005,
              x0=None, disturbance=None, controller_name: str = "", limits: PluginLimits | None = None) -> Run:
     """Run ``controller`` (a :class:`twin.protocols.Controller`) on the analytic plant ``params``
-    (the "true plant"), reading the true state; returns a :class:`twin.runs.Run` like the twin's
+    (the "true plant"), reading the true state; returns a :class:`twin.sim.runs.Run` like the twin's
     (``plant`` "analytic", ``sensing`` "ideal"). The same run as ``twin run`` with
     ``plant.model = "analytic"`` and ``sensors.sensing = "ideal"`` (for a paper experiment on the
     nominal plant: ``twin run paper-expN --set plant.model=analytic --set plant.scale={} --set
@@ -42,7 +42,7 @@ def simulate(controller, experiment: Experiment, params: RobotParams = NOMINAL,
     ``limits``: the controller's wall-time and memory limits, as on the twin
     (:class:`twin.limits.PluginLimits`); None: none.
     """
-    from twin.bullet_loop import simulate_twin
+    from twin.sim.bullet_loop import simulate_twin
     from twin.plant.analytic_plant import AnalyticPlant
     from twin.plant.bullet import TwinConfig
 

@@ -76,7 +76,7 @@ def pytest_collection_modifyitems(session, config, items):
 
 
 def _scenarios(names):
-    from twin.check import collect
+    from twin.verify.check import collect
 
     return collect(names)[0]
 
@@ -116,8 +116,8 @@ class TwinCheckItem(pytest.Item):
         self.scenario, self.kind = scenario, kind
 
     def runtest(self):
-        from twin.check import run_checks
-        from twin.testing import report
+        from twin.verify.check import run_checks
+        from twin.verify.testing import report
 
         result = run_checks([self.scenario], [self.kind], self.config.getoption("twin_seeds"), 1)
         if not result.passed:

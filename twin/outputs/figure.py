@@ -1,7 +1,7 @@
 """The run figure drawn from plain data: six panels, matplotlib's object API on the Agg canvas.
 
-Split from the data (:func:`twin.report.figure_data`, which reads the runs) so that the
-drawing can happen in another process (:mod:`twin.figure_worker`) from arrays and strings
+Split from the data (:func:`twin.outputs.report.figure_data`, which reads the runs) so that the
+drawing can happen in another process (:mod:`twin.outputs.figure_worker`) from arrays and strings
 alone; this module imports nothing of the twin, and matplotlib only inside its functions.
 
 Drawn for speed, the figure looking the same as with matplotlib's defaults: no pyplot (no
@@ -65,7 +65,7 @@ def warm_up(fig) -> None:
 
 
 def fill_figure(fig, axes, data: dict, title: str = ""):
-    """Draw ``data`` (:func:`twin.report.figure_data`) into the empty figure of
+    """Draw ``data`` (:func:`twin.outputs.report.figure_data`) into the empty figure of
     :func:`new_figure`: θ with each run's settling time marked; the estimator's error
     θ̂ − θ beside it; each wheel's delivered torque with the saturated samples marked;
     dψ/dt; p = rψ and α with their targets. Pushes and sensor-fault windows shaded on every

@@ -1,5 +1,5 @@
-"""A whole run, logged as a :class:`twin.runs.Run`: :func:`simulate_twin` drives
-:class:`twin.loop.ClosedLoop` on the PyBullet twin (by default) or on any
+"""A whole run, logged as a :class:`twin.sim.runs.Run`: :func:`simulate_twin` drives
+:class:`twin.sim.loop.ClosedLoop` on the PyBullet twin (by default) or on any
 :class:`twin.protocols.Plant` (``plant``: "analytic" for equation (1), or one's own object).
 
 Sensing. By default the controllers act on the estimator's output, computed from the
@@ -7,8 +7,8 @@ simulated IMU and encoders (:mod:`twin.sensors`, :mod:`estimation`); ``sensors=N
 asks for ideal sensing (the ``ideal`` estimator passes the ground truth through), kept
 as a reference.
 
-Logged at the control rate, one row per control instant (see :mod:`twin.runs`), or at
-every N-th instant (``log_every``), by a :class:`twin.recorder.Recorder` fed what the loop
+Logged at the control rate, one row per control instant (see :mod:`twin.sim.runs`), or at
+every N-th instant (``log_every``), by a :class:`twin.sim.recorder.Recorder` fed what the loop
 publishes (its step results and the commands), never the loop's internals. Memory: the
 step results are gathered for a chunk of :data:`CHUNK` control steps at a time, then
 moved into preallocated float64 arrays, so a run costs about 8 bytes per logged number
@@ -20,8 +20,8 @@ from twin.errors import TwinError
 from twin.experiments import Experiment
 from twin.params import NOMINAL, RobotParams
 from twin.plant.bullet import TwinConfig
-from twin.recorder import check_log_every
-from twin.runs import (ACTUATION_NAMES, COMMAND_NAMES, COMMAND_UNITS, ESTIMATE_NAMES, ESTIMATE_UNITS, PUSH_NAMES,
+from twin.sim.recorder import check_log_every
+from twin.sim.runs import (ACTUATION_NAMES, COMMAND_NAMES, COMMAND_UNITS, ESTIMATE_NAMES, ESTIMATE_UNITS, PUSH_NAMES,
                        PUSH_UNITS, TRUTH_NAMES, Run, TwinRun)
 from twin.sensors import SensorConfig
 from twin.sim.simulate import CHUNK
@@ -37,8 +37,8 @@ def simulate_twin(controller, experiment: Experiment, config: TwinConfig | None 
                   progress=None, estimator_params: dict | None = None, log_every: int = 1, plant=None) -> Run:
     """Run ``controller`` on a new twin built from ``config`` (or on ``plant``) from the experiment's θ0.
 
-    A driver of :class:`twin.loop.ClosedLoop`: reset, then the controller's command and a
-    step per control period, each step's result handed to a :class:`twin.recorder.Recorder`
+    A driver of :class:`twin.sim.loop.ClosedLoop`: reset, then the controller's command and a
+    step per control period, each step's result handed to a :class:`twin.sim.recorder.Recorder`
     (see the module docstring).
 
     Parameters
@@ -69,7 +69,7 @@ def simulate_twin(controller, experiment: Experiment, config: TwinConfig | None 
     log_every : int
         Log every N-th control step (N ≥ 1): row i of the run is step i·N (t = i·N·T); the
         other steps are not kept. The signals the metrics read are kept at every step
-        (``Run.full_rate``), so :func:`twin.metrics.run_metrics` gives the same figures for
+        (``Run.full_rate``), so :func:`twin.outputs.metrics.run_metrics` gives the same figures for
         every N. N > 1 excludes ``log_filter`` (the EKF's consistency checks need every step).
 
     The twin (the plant) is closed when the run ends, fallen or not.

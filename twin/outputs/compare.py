@@ -1,17 +1,17 @@
 """Two results side by side (``twin compare A B``): metrics, environments and trajectories.
 
 A result is a run directory of ``twin run`` (``metrics.json`` and ``trajectory.csv`` or
-``trajectory.csv.gz``, with the ``manifest.json`` that lists them, :mod:`twin.rundir`) or a
+``trajectory.csv.gz``, with the ``manifest.json`` that lists them, :mod:`twin.outputs.rundir`) or a
 golden trajectory of ``twin check --record`` (``.npz``). A directory without a manifest,
 or whose files are not the ones it lists, is refused as incomplete (one line). A is
 taken as the reference and B as the run compared with it, as in ``twin check --golden``:
 
 * for each controller both hold: its metrics, with B − A and (B − A)/|A| where that means
   something; the first departure of each signal of B from A's, under the tolerances of
-  :mod:`twin.tolerances` (none set: bit for bit, as golden trajectories on one build);
+  :mod:`twin.verify.tolerances` (none set: bit for bit, as golden trajectories on one build);
   and whether the runs end alike (rows, last time, status);
 * the controllers only one side holds are named, not compared;
-* what the environments and the designs differ in (:func:`twin.fingerprint.differences`).
+* what the environments and the designs differ in (:func:`twin.outputs.fingerprint.differences`).
 
 They agree when every common controller's trajectories agree (same signals, rows and
 status, every value within its tolerance). Metrics are shown, not judged: they are
@@ -31,8 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from twin.errors import TwinError
-from twin.golden import Departure, Trajectory, ends_text, first_departures, signals_text
-from twin.tolerances import Tolerances
+from twin.verify.golden import Departure, Trajectory, ends_text, first_departures, signals_text
+from twin.verify.tolerances import Tolerances
 
 _HEADER = re.compile(r"^(?P<name>.+) \[(?P<unit>[^\]]*)\]$")
 
@@ -67,7 +67,7 @@ def load(path) -> Result:
 
 
 def _load_golden(path: Path) -> Result:
-    from twin import golden
+    from twin.verify import golden
 
     if path.suffix != ".npz":
         raise TwinError(f"{path}: neither a run directory nor a golden trajectory (.npz); give a directory of "
@@ -80,7 +80,7 @@ def _load_golden(path: Path) -> Result:
 
 
 def _load_run(path: Path) -> Result:
-    from twin import rundir
+    from twin.outputs import rundir
 
     mfile = path / "metrics.json"
     if not mfile.is_file() and not (path / rundir.MANIFEST).is_file():
@@ -208,8 +208,8 @@ class Comparison:
 
 def compare(a: Result, b: Result, tolerances: Tolerances | None = None) -> Comparison:
     """A and B side by side (see the module docstring); a one-line error if they share no controller."""
-    from twin.fingerprint import differences
-    from twin.tolerances import known_signals
+    from twin.outputs.fingerprint import differences
+    from twin.verify.tolerances import known_signals
 
     tolerances = tolerances or Tolerances()
     common = [k for k in a.trajectories if k in b.trajectories]
@@ -376,7 +376,7 @@ def as_json(c: Comparison) -> dict:
 def figure(c: Comparison, path: Path) -> Path:
     """θ, the total wheel torque, dψ/dt and the distance over time, A solid and B dashed, a
     colour per controller, each one's first departure marked (a dotted vertical line)."""
-    from twin.report import plot_comparison
+    from twin.outputs.report import plot_comparison
 
     series = []
     for cc in c.controllers:

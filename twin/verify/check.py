@@ -4,7 +4,7 @@ Every (scenario, controller, seed) is one run of :func:`twin.scenarios.runner.ru
 on local worker processes when there are several (spawned, like the sweeps'; the LMI
 design is solved once per scenario here and shipped). Seeds are the scenario's ``seed``,
 ``seed + 1``, … so that any run replays with ``twin run SCENARIO --seed S``. The verdicts
-come from :mod:`twin.expectations`. Nothing here depends on the number of workers or the
+come from :mod:`twin.verify.expectations`. Nothing here depends on the number of workers or the
 order in which runs finish.
 """
 from __future__ import annotations
@@ -14,9 +14,9 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from twin.errors import TwinError
-from twin.rundir import MANIFEST, RECORD_COMMAND, FileBatch, kept, test_point
-from twin.expectations import GOLDEN, evaluate, failed, parse_expect
-from twin.tolerances import known_signals
+from twin.outputs.rundir import MANIFEST, RECORD_COMMAND, FileBatch, kept, test_point
+from twin.verify.expectations import GOLDEN, evaluate, failed, parse_expect
+from twin.verify.tolerances import known_signals
 
 
 @dataclass(frozen=True)
@@ -37,7 +37,7 @@ class CheckTask:
 def run_task(task: CheckTask) -> tuple[dict | None, str, object, dict | None]:
     """(metrics, "", trajectory or None, environment) of one run, or (None, error message, None,
     None) if it raised; the environment is the one it ran in, with its designs' digests
-    (:func:`twin.fingerprint.record`)."""
+    (:func:`twin.outputs.fingerprint.record`)."""
     from twin.registry import use_plugin_dirs
     from twin.scenarios.runner import run_scenario
     from twin.scenarios.scenario import Scenario
@@ -52,7 +52,7 @@ def run_task(task: CheckTask) -> tuple[dict | None, str, object, dict | None]:
         return None, f"{type(exc).__name__}: {' '.join(str(exc).split())}", None, None
     traj = None
     if task.trajectory:
-        from twin.golden import Trajectory
+        from twin.verify.golden import Trajectory
 
         traj = Trajectory.of(result.runs[0])
     return result.metrics[task.kind], "", traj, result.environment()
@@ -137,12 +137,12 @@ def run_checks(scenarios, controllers=None, seeds: int = 1, workers: int = 1, pr
     """Run every scenario with each controller (None: each scenario's ``controller.kinds``) on
     ``seeds`` seeds, on ``workers`` processes, and judge the runs by the ``[expect]`` tables;
     ``record``: store each run as a golden trajectory under this directory; ``golden``:
-    compare each run with the one stored there (:mod:`twin.golden`), with ``tolerances``
-    (a :class:`twin.tolerances.Tolerances`, the command line's) over each scenario's
+    compare each run with the one stored there (:mod:`twin.verify.golden`), with ``tolerances``
+    (a :class:`twin.verify.tolerances.Tolerances`, the command line's) over each scenario's
     ``[expect.golden]``."""
     from twin.registry import check_kinds, plugin_dirs, uses_design
     from twin.scenarios.runner import plan as runs_of
-    from twin.tolerances import Tolerances
+    from twin.verify.tolerances import Tolerances
 
     if not (isinstance(seeds, int) and 1 <= seeds <= 10_000):
         raise TwinError(f"--seeds must be an integer from 1 to 10000, got {seeds!r}")
@@ -204,10 +204,10 @@ def _with_test_point(progress, total: int):
 
 
 def _record(batch, items, exit_status: int) -> int:
-    """Store every run of ``items`` as a golden trajectory, as one unit (:class:`twin.rundir.FileBatch`):
+    """Store every run of ``items`` as a golden trajectory, as one unit (:class:`twin.outputs.rundir.FileBatch`):
     an interrupt or an error while they are written leaves the directory as it was; the
     number stored."""
-    from twin import golden as g
+    from twin.verify import golden as g
 
     try:
         with batch:
@@ -231,7 +231,7 @@ def _record(batch, items, exit_status: int) -> int:
 
 def _scenario_tolerances(sc, extra):
     """The scenario's ``[expect.golden]`` tolerances, their signals checked against those its runs log."""
-    from twin.tolerances import Tolerances, parse_table
+    from twin.verify.tolerances import Tolerances, parse_table
 
     table = sc.expect.get(GOLDEN)
     if table is None:
@@ -243,8 +243,8 @@ def _scenario_tolerances(sc, extra):
 
 def _golden(case: CaseResult, sc, kind: str, seed: int, traj, env, golden, tolerances) -> None:
     """Compare the run with its reference under ``golden`` (with ``tolerances``), if given."""
-    from twin import golden as g
-    from twin.fingerprint import differences
+    from twin.verify import golden as g
+    from twin.outputs.fingerprint import differences
 
     if golden is None:
         return

@@ -1,6 +1,6 @@
 """The steppable closed loop: plant → sensors → estimator → controller → actuators.
 
-:class:`ClosedLoop` is the one loop every consumer drives: :func:`twin.bullet_loop.simulate_twin`
+:class:`ClosedLoop` is the one loop every consumer drives: :func:`twin.sim.bullet_loop.simulate_twin`
 (and through it the scenario runner and the sweeps), the Gymnasium environment and a
 user's own script or test.
 
@@ -20,8 +20,8 @@ reached the estimator), :attr:`estimate` (6,) and, after a step, :attr:`actuatio
 Outputs. ``reset`` and ``step`` return a :class:`~twin.protocols.StepResult`: everything
 the loop publishes at the instant (truth, measurement, the gyro's true bias, estimate,
 status) and over the period that ended there (actuation, push force). A logger is fed
-these, never the loop's internals: :class:`twin.recorder.Recorder` (what
-:func:`twin.bullet_loop.simulate_twin` logs into a :class:`twin.runs.Run`) or one's own::
+these, never the loop's internals: :class:`twin.sim.recorder.Recorder` (what
+:func:`twin.sim.bullet_loop.simulate_twin` logs into a :class:`twin.sim.runs.Run`) or one's own::
 
     rows = [loop.reset(seed)]
     while loop.status == "running":

@@ -72,7 +72,7 @@ def dist_version(name: str) -> str:
 def _commit() -> str | None:
     """The git commit of the checkout this package runs from (None if it is not one, e.g.
     an installed wheel), read from .git without running git."""
-    root = Path(__file__).resolve().parent.parent
+    root = Path(__file__).resolve().parents[2]
     git = root / ".git"
     try:
         if git.is_file():  # a worktree: "gitdir: <path>"

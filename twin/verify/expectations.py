@@ -15,11 +15,11 @@ The TOML form reads like the bound it states, one key per bound::
     pass_rate = ">= 0.95"                     # fraction of seeds on which every bound above holds
     "p95(iae_theta)" = "<= 0.8"               # a statistic over the seeds: mean, median, min, max, pNN
 
-    [expect.golden]                           # tolerances of 'twin check --golden' (twin.tolerances)
+    [expect.golden]                           # tolerances of 'twin check --golden' (twin.verify.tolerances)
     atol = 1e-6                               # in each signal's SI unit
     signals = { theta = { atol = 1e-5 } }
 
-Why this form: the key is the quantity (a metric of :func:`twin.metrics.run_metrics`,
+Why this form: the key is the quantity (a metric of :func:`twin.outputs.metrics.run_metrics`,
 optionally ``|…|`` and a statistic over seeds) and the value is the comparison
 (``<=``, ``<``, ``>=``, ``>``, ``==`` and a number, or true/false for ``fell``), so a
 bound is read exactly as it is written in a report: ``|final_position_error_m| <= 0.02``.
@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 from twin.errors import TwinError
 
-# the metrics of twin.metrics.run_metrics that a bound may name, with their units
+# the metrics of twin.outputs.metrics.run_metrics that a bound may name, with their units
 METRICS = {
     "fell": "true/false", "settling_time_s": "s", "theta_rms_rad": "rad", "oscillation_peak_to_peak_rad": "rad",
     "final_theta_rad": "rad", "final_distance_m": "m", "final_heading_rad": "rad", "final_position_error_m": "m",
@@ -51,7 +51,7 @@ METRICS = {
 OPS = {"<=": operator.le, "<": operator.lt, ">=": operator.ge, ">": operator.gt, "==": operator.eq}
 ALL = "*"  # the scope of the bounds that apply to every controller
 SEEDS = "seeds"  # the table of bounds over seeds
-GOLDEN = "golden"  # the tolerances of golden comparisons (twin.tolerances), not bounds
+GOLDEN = "golden"  # the tolerances of golden comparisons (twin.verify.tolerances), not bounds
 _KEY = re.compile(r"^(?:(?P<stat>mean|median|min|max|p\d{1,2})\()?(?P<bar>\|)?(?P<metric>[a-z_]+)(?P<bar2>\|)?"
                   r"(?P<close>\))?$")
 _VALUE = re.compile(r"^\s*(?P<op><=|>=|==|<|>)\s*(?P<num>[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?)\s*$")
@@ -139,7 +139,7 @@ def parse_bound(key: str, value, where: str, over_seeds: bool) -> Bound:
 def parse_expect(table, path: str = "expect") -> dict[str, tuple[Bound, ...]]:  # noqa: C901
     """The ``[expect]`` table as scope → bounds: :data:`ALL` for every controller, a kind for one,
     :data:`SEEDS` for the statistics over seeds (and ``pass_rate``). ``[expect.golden]`` holds
-    tolerances, not bounds: validated here, read by :mod:`twin.check`."""
+    tolerances, not bounds: validated here, read by :mod:`twin.verify.check`."""
     from twin.registry import check_kind
 
     if not isinstance(table, dict):
@@ -147,7 +147,7 @@ def parse_expect(table, path: str = "expect") -> dict[str, tuple[Bound, ...]]:  
     out: dict[str, list[Bound]] = {}
     for key, value in table.items():
         if key == GOLDEN:
-            from twin.tolerances import parse_table
+            from twin.verify.tolerances import parse_table
 
             try:
                 parse_table(value, f"{path}.{GOLDEN}")
@@ -211,7 +211,7 @@ def _stat(name: str, values: list[float], undefined: float = math.inf) -> float:
 
 
 def evaluate(bounds: dict[str, tuple[Bound, ...]], controller: str, runs: dict[int, dict]) -> list[Verdict]:
-    """The verdicts of ``controller``'s runs (seed → :func:`twin.metrics.run_metrics` dict)."""
+    """The verdicts of ``controller``'s runs (seed → :func:`twin.outputs.metrics.run_metrics` dict)."""
     per_run = bounds.get(ALL, ()) + bounds.get(controller, ())
     over = bounds.get(SEEDS, ())
     out = []

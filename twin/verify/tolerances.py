@@ -19,7 +19,7 @@ or ``--tolerance NAME=...``) if that sets it, else the overall ``atol`` / ``rtol
 are 0: the comparison is bit for bit, as it has to be on one build (the twin is
 deterministic). Between builds (the compiled kernels on one side, the pure-Python paths
 on the other), which agree to about 1e-13 and not bit for bit, each is at least the
-builds' floor :data:`BUILD_ATOL`, :data:`BUILD_RTOL` (see :mod:`twin.golden`).
+builds' floor :data:`BUILD_ATOL`, :data:`BUILD_RTOL` (see :mod:`twin.verify.golden`).
 """
 from __future__ import annotations
 
@@ -98,7 +98,7 @@ class Tolerances:
 def known_signals(extra=()) -> tuple[str, ...]:
     """Every signal a twin run logs (truth, estimates, commands, actuation, pushes), then ``extra``
     (a controller's own, its ``signals`` attribute)."""
-    from twin.runs import ACTUATION_NAMES, COMMAND_NAMES, ESTIMATE_NAMES, PUSH_NAMES, TRUTH_NAMES
+    from twin.sim.runs import ACTUATION_NAMES, COMMAND_NAMES, ESTIMATE_NAMES, PUSH_NAMES, TRUTH_NAMES
 
     names = TRUTH_NAMES + ESTIMATE_NAMES + COMMAND_NAMES + tuple(extra) + ACTUATION_NAMES + PUSH_NAMES
     return tuple(dict.fromkeys(names))

@@ -1,0 +1,4 @@
+"""Holding runs to account: a scenario's ``[expect]`` bounds (:mod:`~twin.verify.expectations`),
+``twin check`` (:mod:`~twin.verify.check`), golden trajectories and their tolerances
+(:mod:`~twin.verify.golden`, :mod:`~twin.verify.tolerances`), and a user's own regression
+tests (:mod:`~twin.verify.testing`, the pytest plugin :mod:`~twin.verify.pytest_plugin`)."""
