@@ -65,7 +65,7 @@ from typing import Sequence
 
 import numpy as np
 
-from twin.errors import PluginError, TwinError
+from twin.errors import PluginError, TwinError, shown
 from twin.limits import MEMORY_EVERY, RunGuard
 from twin.plant.bullet import Actuation, BulletTwin, GroundTruth, TwinConfig
 from twin.protocols import StepResult, Targets, describe_object, one_line
@@ -343,7 +343,7 @@ class ClosedLoop:
         tr = self._check_truth(tr, "step", 1)
         status = getattr(plant, "status", None)
         if status not in ("running", "fell", "diverged", "closed"):
-            raise PluginError(f"plant {describe_object(plant)}: status is {_short(status)} after step() at t = "
+            raise PluginError(f"plant {describe_object(plant)}: status is {shown(status)} after step() at t = "
                               f"{(self.k + 1) * self.control_dt:.3f} s; expected \"running\", \"fell\" or "
                               f"\"diverged\" (see twin.protocols.Plant)")
         return tr
@@ -358,7 +358,7 @@ class ClosedLoop:
             except (TypeError, ValueError):
                 values = ()
         if len(values) != len(GroundTruth._fields):
-            raise PluginError(f"plant {describe_object(self._given)}: {where}() returned {_short(tr)} at t = "
+            raise PluginError(f"plant {describe_object(self._given)}: {where}() returned {shown(tr)} at t = "
                               f"{(self.k + ahead) * self.control_dt:.3f} s; expected a GroundTruth, "
                               f"{len(GroundTruth._fields)} numbers ({', '.join(GroundTruth._fields)}; SI units) "
                               f"(see twin.protocols.Plant)")
@@ -370,7 +370,7 @@ class ClosedLoop:
         except TypeError:
             ok = False
         if not ok:
-            raise PluginError(f"estimator {describe_object(self.estimator)}: {where}() returned {_short(est)} at "
+            raise PluginError(f"estimator {describe_object(self.estimator)}: {where}() returned {shown(est)} at "
                               f"t = {self.k * self.control_dt:.3f} s; expected 6 finite numbers "
                               f"[θ, θ̇, ψ, ψ̇, α, α̇] (rad, rad/s)")
         return est
@@ -385,7 +385,7 @@ class ClosedLoop:
         if not ok:
             who = "step(command)" if external else f"controller {describe_object(self.controller)}"
             names = ", ".join(("ul", "ur") + (() if external else self.signals))
-            raise PluginError(f"{who} returned {_short(out)} at t = {self.k * self.control_dt:.3f} s; expected "
+            raise PluginError(f"{who} returned {shown(out)} at t = {self.k * self.control_dt:.3f} s; expected "
                               f"{n} finite numbers ({names}; torques in N·m)")
         return out
 
@@ -478,11 +478,6 @@ def _is_builtin(plant) -> bool:
     from twin.plant.analytic_plant import AnalyticPlant
 
     return type(plant) in (BulletTwin, AnalyticPlant)
-
-
-def _short(v) -> str:
-    text = " ".join(repr(v).split())  # one line, whatever the object's repr
-    return text if len(text) <= 80 else text[:77] + "..."
 
 
 __all__ = ["ClosedLoop"]
