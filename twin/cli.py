@@ -412,10 +412,13 @@ _gave_way("physics", lambda n: (
                    "still computed from every step. metrics.json's 'log' says what was dropped.")
 @click.option("--log-format", "log_format", type=click.Choice(["csv", "csv.gz"]), default="csv", show_default=True,
               help="trajectory.csv, or trajectory.csv.gz: the same text gzip-compressed (pandas.read_csv reads it).")
+@click.option("--log-sensors", "log_sensors", is_flag=True,
+              help="Also write each controller's run as a sensor log (sensor-logs/KIND/: log.toml, imu.csv, "
+                   "encoders.csv, commands.csv, truth.csv), the format a robot's logs take for 'twin replay'.")
 @_limit_options("")
 @_no_cache_option
-def run(scenario, controller, seed, duration, overrides, out, video, sample, log_every, log_format, step_limit,
-        run_limit, memory_limit, no_cache):
+def run(scenario, controller, seed, duration, overrides, out, video, sample, log_every, log_format, log_sensors,
+        step_limit, run_limit, memory_limit, no_cache):
     """Run a scenario on the PyBullet twin: trajectory, metrics, figure and video.
 
     SCENARIO is a built-in name (see 'twin scenarios') or a scenario .toml file. Writes
@@ -466,7 +469,7 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample, log
         _echo_plugins(plugins_of(sc, kinds))
         with _Progress() as bar:
             result = run_scenario(sc, kinds, out=out, video=video, progress=bar.update, log_every=every,
-                                  log_format=log_format, keep_limited=True, specs=specs)
+                                  log_format=log_format, keep_limited=True, specs=specs, log_sensors=log_sensors)
     except KeyboardInterrupt as exc:  # what the run kept, if it got that far, stands
         rundir.kept(exc, target.unchanged())
         raise
@@ -535,6 +538,56 @@ def _title(sc) -> str:
     description was written for the file as it is)."""
     changed = sc.changed_keys
     return f"{sc.name}: {sc.description}" + (f" [changed by --set: {', '.join(changed)}]" if changed else "")
+
+
+@main.command()
+@click.argument("logs", nargs=-1, required=True, type=click.Path(path_type=Path), metavar="LOG...")
+@click.option("--estimator", "estimators", default="ekf", show_default=True, metavar="KINDS",
+              help="Estimators to replay, comma-separated: ekf, complementary, kalman2 or package.module:attribute.")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=Path("runs/replay"),
+              show_default=True, help="Output directory: replay.json, estimates.csv, manifest.json.")
+def replay(logs, estimators, out):
+    """Replay estimators on sensor logs (a robot's, or the twin's from 'twin run --log-sensors').
+
+    No physics: each log's readings and commands go to each estimator one control instant at a
+    time. Reports the θ, ψ, α errors where the log has truth, NIS per degree of freedom where
+    the estimator reports it, rejected readings and the cost per step.
+
+    \b
+    Examples:
+      twin run paper-exp3 --log-sensors --no-video --out runs/exp3
+      twin replay runs/exp3/sensor-logs/it2 --estimator ekf,complementary,kalman2
+    """
+    from twin.logs.replay import replay_logs, write_estimates_csv
+    from twin.outputs import report, rundir
+    from twin.registry import check_kinds
+
+    kinds = check_kinds("estimator", [k.strip() for k in estimators.split(",") if k.strip()], "--estimator")
+    if "ideal" in kinds:
+        raise TwinError("--estimator: 'ideal' reads the truth, which a log's readings are not; allowed: ekf, "
+                        "complementary, kalman2 or package.module:attribute")
+    staged = rundir.StagedDirectory(out, "twin replay")
+    try:
+        doc, replays = replay_logs(logs, kinds)
+        report.write_json(doc, staged.path / "replay.json")
+        write_estimates_csv(replays, staged.path / "estimates.csv")
+        staged.commit(0)
+    except BaseException as exc:
+        staged.discard()
+        raise rundir.kept(exc, staged.unchanged())
+    finally:
+        staged.discard()
+    for path, entry in doc["logs"].items():
+        click.echo(f"{path}: {entry['instants']} instants, {entry['duration_s']:g} s at {entry['control_rate_hz']:g} Hz"
+                   + ("" if entry["has_truth"] else " (no truth: errors not computed)"))
+        click.echo(f"  {'estimator':16}{'θ RMSE rad':>12}{'θ max rad':>12}{'ψ RMSE rad':>12}{'α RMSE rad':>12}"
+                   f"{'NIS/dof':>9}{'rejected':>10}{'µs/step':>9}")
+        for kind, e in entry["estimators"].items():
+            err, c = e["errors"] or {}, e["consistency"]
+            click.echo(f"  {kind:16}{_fmt(err.get('theta_rmse_rad')):>12}{_fmt(err.get('theta_max_abs_rad')):>12}"
+                       f"{_fmt(err.get('psi_rmse_rad')):>12}{_fmt(err.get('alpha_rmse_rad')):>12}"
+                       f"{_fmt(c.get('nis_per_dof')):>9}{e['rejected_total']:>10}{e['step_us']:>9.1f}")
+    click.echo(f"wrote {out}/: replay.json, estimates.csv, {rundir.MANIFEST}")
 
 
 @main.command()

@@ -31,6 +31,7 @@ from __future__ import annotations
 import csv
 import gzip
 import io
+import re
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -90,7 +91,7 @@ def plugins_of(scenario: Scenario, controllers) -> list[dict]:
 
 def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, video: bool | None = None,
                  progress=None, log_every: int = 1, log_format: str = "csv",
-                 keep_limited: bool = False, specs=None) -> ScenarioResult:
+                 keep_limited: bool = False, specs=None, log_sensors: bool = False) -> ScenarioResult:
     """Run ``scenario`` with each of ``controllers`` (kinds; None: the scenario's
     ``controller.kinds``) on identical conditions: same true plant, sensor seed,
     estimator kind, pushes and faults.
@@ -111,6 +112,10 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
     one's PluginError is raised and nothing is written. False: that PluginError is raised
     at once, like any other.
 
+    ``log_sensors``: also write each controller's run as a sensor log (:mod:`twin.logs.format`:
+    the readings, commands and truth) in ``sensor-logs/KIND/`` (needs simulated sensors and
+    every control step kept).
+
     ``specs``: the runs' specifications as :func:`plan` made them for these controllers
     (their plugins built already, as ``twin run`` does before it prints anything); None:
     planned here.
@@ -129,6 +134,13 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
     if specs is not None and [s.label for s in specs] != list(kinds):
         raise TwinError(f"specs must be plan(scenario, {list(kinds)!r})'s, one per controller in that order, got "
                         f"runs of {[s.label for s in specs]!r}")
+    if log_sensors:  # said before anything runs
+        if scenario.sensor_config() is None:
+            raise TwinError("--log-sensors needs simulated sensors: sensors.sensing is \"ideal\" here (nothing is "
+                            "measured); allowed: sensors.sensing = \"estimated\"")
+        if every != 1:
+            raise TwinError(f"--log-sensors needs every control step (a sensor log holds every reading), so "
+                            f"--log-every must be 1, got {every}")
     # checked before the runs simulate, so that a directory that cannot take them is said at once
     staged = rundir.StagedDirectory(out, "twin run") if out is not None else None
     try:
@@ -136,7 +148,7 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
         worker = figure_worker.start() if out is not None else None
         try:
             return _run_and_write(scenario, kinds, staged, video, progress, every, log_format, worker, keep_limited,
-                                  specs)
+                                  specs, log_sensors)
         finally:
             if worker is not None:  # ended before its staging goes: it may be writing figure.png there
                 worker.close()
@@ -179,7 +191,7 @@ def plan(scenario: Scenario, kinds) -> list:
 
 
 def _run_and_write(scenario, kinds, staged, video, progress, every, log_format, worker,
-                   keep_limited: bool = False, specs=None) -> ScenarioResult:
+                   keep_limited: bool = False, specs=None, log_sensors: bool = False) -> ScenarioResult:
     """:func:`run_scenario` after its checks; ``staged`` a :class:`twin.outputs.rundir.StagedDirectory`
     (None: write nothing); ``worker`` a :class:`twin.outputs.figure_worker.FigureWorker` for the
     figure, or None (drawn here)."""
@@ -221,11 +233,13 @@ def _run_and_write(scenario, kinds, staged, video, progress, every, log_format, 
                             designs=digests(solved[0] if solved else None, controllers), errors=errors)
     if staged is None:
         return result
-    _write(result, staged, video, progress, every, log_format, worker, specs[0].sensing.true, specs[0].plant)
+    _write(result, staged, video, progress, every, log_format, worker, specs[0].sensing.true, specs[0].plant,
+           log_sensors)
     return result
 
 
-def _write(result, staged, video, progress, every, log_format, worker, sensors, config) -> None:
+def _write(result, staged, video, progress, every, log_format, worker, sensors, config,
+           log_sensors: bool = False) -> None:
     """Write the run directory of ``result`` as a unit (:class:`twin.outputs.rundir.StagedDirectory`).
 
     The data (metrics.json, the trajectory, design.json) is the result; the figure and the
@@ -265,6 +279,12 @@ def _write(result, staged, video, progress, every, log_format, worker, sensors, 
         if solved is not None:
             writing = "design.json"
             report.write_json(solved.to_json_dict(), out / writing)
+        if log_sensors:
+            from twin.logs.format import write_log
+
+            for run in runs:
+                writing = f"sensor-logs/{re.sub(r'[^A-Za-z0-9_.-]+', '_', run.controller)}"  # a plugin's "a.b:C"
+                write_log(run, out / writing, scenario)
         stage, writing = "figure", "figure.png"
         failed = worker.finish() if handed else None
         if failed is not None:
@@ -280,7 +300,8 @@ def _write(result, staged, video, progress, every, log_format, worker, sensors, 
             staged.commit(2, stopped="; ".join(f"{k}: {limit_text(exc)}" for k, exc in result.errors.items()))
         else:
             staged.commit(0)
-        written = ["metrics.json", name] + ["design.json"] * (solved is not None) + ["figure.png"] + \
+        written = ["metrics.json", name] + ["design.json"] * (solved is not None) + \
+            ["sensor-logs/"] * log_sensors + ["figure.png"] + \
             ["video.mp4"] * bool(want_video) + [rundir.MANIFEST]  # in the order they were written
         result.files += [staged.shown / n for n in written]
     except BaseException as exc:

@@ -1,0 +1,211 @@
+"""Sensor logs (issue 28): the documented format written by hand replays with the built-in
+estimators; the twin's own logs (``twin run --log-sensors``) replay to the very estimates of
+the run; irregular timing, gaps and duplicates are handled as documented; a malformed log is
+one line and exit status 2."""
+from __future__ import annotations
+
+import csv
+import math
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from twin.errors import TwinError
+from twin.logs.format import read_log, write_log
+from twin.logs.replay import build_for, errors, instants, replay
+from twin.scenarios import load_scenario
+from twin.scenarios.runner import run_scenario
+
+MANIFEST = """format = "mtwip-sensor-log"
+version = 1
+control_rate = 200.0
+wheel_radius = 0.04
+track = 0.30
+encoder_counts = 1200
+imu_position = [0.0, 0.0, 0.1]
+"""
+
+
+def write_by_hand(d: Path, seconds: float = 2.0, jitter: bool = False, tilt: float = 0.05) -> Path:
+    """A robot standing still at a small tilt, written from the format's description alone:
+    IMU and encoders at 200 Hz (with ``jitter``: up to 0.4 ms late, a 50 ms gap in the
+    encoders and a duplicated IMU row), zero torque commands, and the truth."""
+    d.mkdir(parents=True, exist_ok=True)
+    (d / "log.toml").write_text(MANIFEST, encoding="utf-8")
+    rng = np.random.default_rng(7)
+    n = int(seconds * 200) + 1
+    g = 9.81
+    with open(d / "imu.csv", "w", encoding="utf-8") as fh:
+        fh.write("t,gyro_x,gyro_y,gyro_z,accel_x,accel_y,accel_z\n")
+        for k in range(n):
+            t = k / 200 + (rng.uniform(0, 4e-4) if jitter else 0.0)
+            gy = rng.normal(0, 1e-3, 3)
+            a = np.array([-g * math.sin(tilt), 0.0, g * math.cos(tilt)]) + rng.normal(0, 0.02, 3)
+            row = f"{t!r}," + ",".join(repr(float(v)) for v in (*gy, *a)) + "\n"
+            fh.write(row)
+            if jitter and k == 100:
+                fh.write(row)  # a duplicated timestamp
+    with open(d / "encoders.csv", "w", encoding="utf-8") as fh:
+        fh.write("t,left,right\n")
+        for k in range(n):
+            if jitter and 200 <= k < 210:
+                continue  # a 50 ms gap
+            fh.write(f"{k / 200 + (3e-4 if jitter else 0.0)!r},0,0\n")
+    with open(d / "commands.csv", "w", encoding="utf-8") as fh:
+        fh.write("t,ul,ur\n")
+        for k in range(n):
+            fh.write(f"{k / 200!r},0.0,0.0\n")
+    with open(d / "truth.csv", "w", encoding="utf-8") as fh:
+        fh.write("t,theta,theta_dot,psi,psi_dot,alpha,alpha_dot\n")
+        for k in range(n):
+            fh.write(f"{k / 200!r},{tilt!r},0.0,0.0,0.0,0.0,0.0\n")
+    return d
+
+
+@pytest.mark.parametrize("kind", ["ekf", "complementary"])
+def test_a_log_written_by_hand_replays(tmp_path, kind):
+    log = read_log(write_by_hand(tmp_path / "hand"))
+    assert log.control_rate == 200.0 and log.counts_per_rev == 1200 and log.truth is not None
+    r = replay(log, build_for(log, kind), kind)
+    assert r.estimates.shape == (401, 6) and np.isfinite(r.estimates).all()
+    e = errors(log, r)
+    assert e["rows"] == 401
+    assert e["theta_rmse_rad"] < 0.01  # it finds the 0.05 rad tilt from gravity's direction
+    assert abs(r.estimates[-1, 0] - 0.05) < 0.01
+
+
+def test_irregular_timing_gaps_and_duplicates_are_handled_as_documented(tmp_path):
+    log = read_log(write_by_hand(tmp_path / "jitter", jitter=True))
+    t, ms, commands = instants(log)
+    # the first IMU reading is up to 0.4 ms late: the replay starts at the first command after it
+    assert len(t) == 400 and t[0] == 0.005 and t[1] == 0.005 + 1 / 200
+    assert ms[0].gyro is not None and ms[0].accel is not None and ms[0].encoders == (0.0, 0.0)
+    # encoder row k (at k/200 + 0.3 ms) reaches instant k; the gap leaves instants 200..209 without
+    assert all(ms[k].encoders is None for k in range(200, 210)) and ms[210].encoders is not None
+    assert all(ms[k].encoders is not None for k in range(1, 200))
+    # the duplicated row: one reading at its instant (the last of the two)
+    assert ms[100].gyro is not None
+    assert commands.shape == (400, 2) and not commands.any()
+    r = replay(log, build_for(log, "ekf"), "ekf")
+    assert np.isfinite(r.estimates).all() and errors(log, r)["theta_rmse_rad"] < 0.01
+
+
+@pytest.fixture(scope="module")
+def twin_runs():
+    sc = load_scenario("paper-exp3", ["duration=3"])
+    return sc, run_scenario(sc, ["it2", "lqr"]).runs
+
+
+def test_the_twins_log_replays_to_the_runs_estimates_bit_for_bit(twin_runs, tmp_path):
+    sc, runs = twin_runs
+    for run in runs:
+        log = read_log(write_log(run, tmp_path / run.controller, sc))
+        r = replay(log, build_for(log, sc.estimator), "ekf")
+        assert np.allclose(r.t, run.t, rtol=0, atol=1e-12)  # the instants (the truth's clock may differ by an ulp)
+        assert r.estimates.tobytes() == run.estimates.tobytes(), run.controller
+        assert r.stats["rejected_total"] == run.estimator_stats["rejected_total"]
+
+
+def test_the_twins_log_through_the_command_line_bit_for_bit(tmp_path):
+    env_run = [sys.executable, "-m", "twin.cli"]
+    out = tmp_path / "run"
+    r = subprocess.run([*env_run, "run", "paper-exp2", "--duration", "4", "--controller", "lqr", "--no-video",
+                        "--log-sensors", "--out", str(out)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    log_dir = out / "sensor-logs" / "lqr"
+    assert sorted(p.name for p in log_dir.iterdir()) == ["commands.csv", "encoders.csv", "imu.csv", "log.toml",
+                                                         "truth.csv"]
+    rp = tmp_path / "replay"
+    r = subprocess.run([*env_run, "replay", str(log_dir), "--estimator", "ekf", "--out", str(rp)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    with open(out / "trajectory.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    with open(rp / "estimates.csv", newline="") as fh:
+        got = list(csv.DictReader(fh))
+    assert len(rows) == len(got) == 801
+    for a, b in zip(rows, got):
+        assert a["theta_est [rad]"] == b["theta [rad]"] and a["alpha_dot_est [rad/s]"] == b["alpha_dot [rad/s]"]
+    assert "ekf" in r.stdout and (rp / "replay.json").is_file() and (rp / "manifest.json").is_file()
+
+
+def _twin(*args, cwd=None):
+    r = subprocess.run([sys.executable, "-m", "twin.cli", *args], capture_output=True, text=True, timeout=300,
+                       cwd=cwd)
+    return r.returncode, r.stdout, r.stderr
+
+
+def _break(d: Path, how: str) -> None:
+    if how == "no manifest":
+        (d / "log.toml").unlink()
+    elif how == "version":
+        (d / "log.toml").write_text(MANIFEST.replace("version = 1", "version = 7"))
+    elif how == "no stream":
+        (d / "encoders.csv").unlink()
+    elif how == "backwards":
+        lines = (d / "imu.csv").read_text().splitlines()
+        lines[10] = "0.01" + lines[10][lines[10].index(","):]  # row 11 at t = 0.01 s after t = 0.045 s
+        (d / "imu.csv").write_text("\n".join(lines) + "\n")
+    elif how == "float counts":
+        lines = (d / "encoders.csv").read_text().splitlines()
+        lines[5] = lines[5].rsplit(",", 1)[0] + ",1.5"
+        (d / "encoders.csv").write_text("\n".join(lines) + "\n")
+    elif how == "accel in g":
+        rows = [r.split(",") for r in (d / "imu.csv").read_text().splitlines()]
+        out = [",".join(rows[0])] + [",".join(r[:4] + [repr(float(v) / 9.81) for v in r[4:]]) for r in rows[1:]]
+        (d / "imu.csv").write_text("\n".join(out) + "\n")
+    elif how == "gravity on x":
+        rows = [r.split(",") for r in (d / "imu.csv").read_text().splitlines()]
+        out = [",".join(rows[0])] + [",".join(r[:4] + [r[6], r[5], r[4]]) for r in rows[1:]]
+        (d / "imu.csv").write_text("\n".join(out) + "\n")
+    elif how == "nan":
+        lines = (d / "commands.csv").read_text().splitlines()
+        lines[3] = lines[3].split(",")[0] + ",nan,0.0"
+        (d / "commands.csv").write_text("\n".join(lines) + "\n")
+    elif how == "units":
+        (d / "log.toml").write_text(MANIFEST + '[units]\naccel = "g"\n')
+
+
+@pytest.mark.parametrize("how, says", [
+    ("no manifest", "log.toml: missing"),
+    ("version", "version: 7 is not known here; allowed: 1"),
+    ("no stream", "encoders.csv: missing"),
+    ("backwards", "imu.csv: row 11: t = 0.01 s runs backwards"),
+    ("float counts", "encoders.csv: row 6: right = '1.5' is not a whole number of counts"),
+    ("accel in g", "imu.csv: rows from 2: the accelerometer reads 1 on average, gravity in g; allowed: m/s²"),
+    ("gravity on x", "imu.csv: rows from 2: gravity is on +x"),
+    ("nan", "commands.csv: row 4: ul = nan; allowed: a finite number"),
+    ("units", "units.accel: 'g'; allowed: 'm/s^2'"),
+])
+def test_a_malformed_log_is_one_line_and_exit_status_2(tmp_path, how, says):
+    d = write_by_hand(tmp_path / "bad", seconds=0.5)
+    _break(d, how)
+    with pytest.raises(TwinError) as err:
+        read_log(d)
+    assert says in str(err.value) and "\n" not in str(err.value)
+    status, stdout, stderr = _twin("replay", str(d), "--out", str(tmp_path / "out"))
+    assert status == 2 and "Traceback" not in stderr and len(stderr.strip().splitlines()) == 1, stderr
+    assert says in stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_log_sensors_is_refused_where_a_log_cannot_be_whole(tmp_path):
+    status, _, stderr = _twin("run", "paper-exp1", "--duration", "0.5", "--no-video", "--log-sensors",
+                              "--set", "sensors.sensing=ideal", "--out", str(tmp_path / "a"))
+    assert status == 2 and "--log-sensors needs simulated sensors" in stderr and len(stderr.splitlines()) == 1
+    status, _, stderr = _twin("run", "paper-exp1", "--duration", "0.5", "--no-video", "--log-sensors",
+                              "--log-every", "5", "--out", str(tmp_path / "b"))
+    assert status == 2 and "--log-every must be 1" in stderr and len(stderr.splitlines()) == 1
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_replay_refuses_the_ideal_estimator_and_unknown_kinds(tmp_path):
+    d = write_by_hand(tmp_path / "ok", seconds=0.5)
+    status, _, stderr = _twin("replay", str(d), "--estimator", "ideal", "--out", str(tmp_path / "o"))
+    assert status == 2 and "'ideal' reads the truth" in stderr
+    status, _, stderr = _twin("replay", str(d), "--estimator", "ekff", "--out", str(tmp_path / "o"))
+    assert status == 2 and len(stderr.splitlines()) == 1 and "ekff" in stderr

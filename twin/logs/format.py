@@ -1,0 +1,426 @@
+"""The sensor-log format (version 1): what a robot recorded, as an outsider writes it.
+
+A log is a directory::
+
+    log.toml        the manifest (below)
+    imu.csv         t, gyro_x, gyro_y, gyro_z, accel_x, accel_y, accel_z      s, rad/s, m/s²
+    encoders.csv    t, left, right                                             s, counts (integers)
+    commands.csv    t, ul, ur                                                  s, N·m (or PWM duty)
+    truth.csv       t, theta, theta_dot, psi, psi_dot, alpha, alpha_dot        s, rad, rad/s (optional)
+
+Every stream's ``t`` is in seconds on one clock shared by all streams: for a reading, when it
+became available to the estimator (on a robot, when the control loop read it); for a command,
+the control instant it was computed at (applied until the next one). Axes are the body's, as in
+:mod:`twin.protocols`: x forward, y along the axle to the left, z up the body; at rest and
+upright the accelerometer reads +g on z. Encoders count since power-up, each the wheel's angle
+relative to the body (counts_per_rev per revolution), forward positive.
+
+Timing: rows need not be regular. Rows are read in time order; a row up to
+:data:`TIME_TOLERANCE` s earlier than the one before it counts as simultaneous, one earlier
+than that is an error; simultaneous rows of a stream (duplicated timestamps) are kept in file
+order, and the last one reaching the estimator at an instant is the one it gets. An empty
+reading (gyro, accel, left and right, or a truth row) means nothing arrived of it; a gap is
+simply no rows. NaN and infinities are errors.
+
+``log.toml``::
+
+    format = "mtwip-sensor-log"
+    version = 1
+    control_rate = 200.0          # Hz: the commands' (and the estimator's) rate
+    wheel_radius = 0.04           # m
+    track = 0.30                  # m, between the wheels' contact points (2b)
+    encoder_counts = 1200         # counts per wheel revolution
+    imu_position = [0.0, 0.0, 0.1]  # m, body axes, from the axle midpoint
+    initial_heading = 0.0         # rad, α at the first command (optional, default 0)
+    scenario = "paper-exp1"       # optional: a built-in, or a .toml file beside log.toml, whose
+    set = ["sensors.imu=\\"mpu6050\\""]  # [sensors] (with these --set items) give the sensors'
+                                  # specification and [plant.motor] the motors; default: the defaults
+    [robot]                       # optional: the model the estimators assume, twin.params.RobotParams
+    m_b = 2.58                    # keys in SI (default Table III; r and b come from the keys above)
+    [commands]
+    unit = "N·m"                  # or "duty": PWM duty in [-1, 1], torque = duty × the motor's stall torque
+    [units]                       # optional; if given, exactly these
+    time = "s"
+    gyro = "rad/s"
+    accel = "m/s^2"
+    encoders = "counts"
+    commands = "N·m"              # or "duty"
+
+Anything wrong that can be detected is one :class:`~twin.errors.TwinError` line naming the
+file (and the row or key) and what is allowed: a missing manifest or stream, an unknown format
+or version, an unknown key, non-numeric or non-finite values, counts that are not integers, time
+that runs backwards, an accelerometer in g rather than m/s², gravity on another axis than z.
+"""
+from __future__ import annotations
+
+import csv
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from twin.errors import TwinError, shown
+
+FORMAT = "mtwip-sensor-log"
+VERSION = 1
+TIME_TOLERANCE = 1e-6  # s: a row this much earlier than the previous one counts as simultaneous
+STREAMS = {
+    "imu": ("t", "gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z"),
+    "encoders": ("t", "left", "right"),
+    "commands": ("t", "ul", "ur"),
+    "truth": ("t", "theta", "theta_dot", "psi", "psi_dot", "alpha", "alpha_dot"),
+}
+REQUIRED = ("imu", "encoders", "commands")
+UNITS = {"time": "s", "gyro": "rad/s", "accel": "m/s^2", "encoders": "counts"}
+COMMAND_UNITS = ("N·m", "duty")
+_KEYS = {"format", "version", "control_rate", "wheel_radius", "track", "encoder_counts", "imu_position",
+         "initial_heading", "scenario", "set", "robot", "commands", "units", "source"}
+
+
+@dataclass(frozen=True)
+class SensorLog:
+    """A log as read (:func:`read_log`): its manifest's figures and the streams as arrays.
+
+    ``imu_t`` (n,) s with ``gyro`` (n, 3) rad/s and ``accel`` (n, 3) m/s², NaN rows where a
+    row held none; ``encoders_t`` (m,) s with ``counts`` (m, 2) int64 (``has_counts`` (m,)
+    where a row held them); ``commands_t`` (k,) s with ``commands`` (k, 2) N·m (duty
+    converted); ``truth_t`` and ``truth`` (j, 6) [θ, θ̇, ψ, ψ̇, α, α̇] or None."""
+
+    path: Path
+    manifest: dict
+    control_rate: float
+    model: object  # RobotParams: the model the estimators assume
+    sensors: object  # SensorConfig: the sensors as the estimators believe them
+    motor: object  # DCMotorParams or None
+    initial_heading: float
+    imu_t: np.ndarray
+    gyro: np.ndarray
+    accel: np.ndarray
+    encoders_t: np.ndarray
+    counts: np.ndarray
+    has_counts: np.ndarray
+    commands_t: np.ndarray
+    commands: np.ndarray
+    truth_t: np.ndarray | None = None
+    truth: np.ndarray | None = None
+    scenario: object = field(default=None, repr=False)  # the Scenario the manifest names, if any
+
+    @property
+    def counts_per_rev(self) -> int:
+        return int(self.manifest["encoder_counts"])
+
+    @property
+    def duration(self) -> float:
+        """s from the first command to the last."""
+        return float(self.commands_t[-1] - self.commands_t[0])
+
+    def context(self):
+        """The :class:`twin.registry.BuildContext` an estimator is built with for this log."""
+        from twin.protocols import Targets
+        from twin.registry import BuildContext
+
+        return BuildContext(self.control_rate, self.model, self.motor, self.sensors, Targets(), self.initial_heading)
+
+
+# ---- reading ---------------------------------------------------------------------------------------
+def read_log(path) -> SensorLog:
+    """The log in directory ``path``, checked (see the module docstring)."""
+    from twin.params import NOMINAL, RobotParams
+
+    root = Path(path)
+    if not root.is_dir():
+        raise TwinError(f"{root}: not a sensor log (a directory holding log.toml and the streams)")
+    mfile = root / "log.toml"
+    if not mfile.is_file():
+        raise TwinError(f"{mfile}: missing; a sensor log's manifest says format = \"{FORMAT}\", version, "
+                        f"control_rate, wheel_radius, track, encoder_counts and imu_position")
+    try:
+        m = tomllib.loads(mfile.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise TwinError(f"{mfile}: not valid TOML ({' '.join(str(exc).split())})") from None
+    where = str(mfile)
+    if m.get("format") != FORMAT:
+        raise TwinError(f"{where}: format: {shown(m.get('format'))} is not a sensor log's; allowed: \"{FORMAT}\"")
+    if m.get("version") != VERSION:
+        raise TwinError(f"{where}: version: {shown(m.get('version'))} is not known here; allowed: {VERSION} "
+                        f"(a newer twin may read it)")
+    unknown = sorted(set(m) - _KEYS)
+    if unknown:
+        raise TwinError(f"{where}: unknown key {unknown[0]!r}; allowed: {', '.join(sorted(_KEYS))}")
+    rate = _number(m, "control_rate", where, 0.0, 1e5, "Hz", lo_open=True)
+    radius = _number(m, "wheel_radius", where, 0.0, 1.0, "m", lo_open=True)
+    track = _number(m, "track", where, 0.0, 5.0, "m", lo_open=True)
+    heading = _number(m, "initial_heading", where, -1e3, 1e3, "rad", default=0.0)
+    counts = m.get("encoder_counts")
+    if isinstance(counts, bool) or not isinstance(counts, int) or not 4 <= counts <= 10_000_000:
+        raise TwinError(f"{where}: encoder_counts: {shown(counts)}; allowed: an integer from 4 to 10000000 "
+                        f"(counts per wheel revolution)")
+    pos = m.get("imu_position")
+    if not (isinstance(pos, list) and len(pos) == 3 and all(_is_number(v) and abs(v) <= 1.0 for v in pos)):
+        raise TwinError(f"{where}: imu_position: {shown(pos)}; allowed: [x, y, z] in m, body axes from the "
+                        f"axle midpoint, each within ±1 m")
+    units = m.get("units", {})
+    if not isinstance(units, dict):
+        raise TwinError(f"{where}: units must be a table, got {shown(units)}")
+    c = m.get("commands", {})
+    if not isinstance(c, dict) or set(c) - {"unit"}:
+        raise TwinError(f"{where}: commands: a table with unit = \"N·m\" or \"duty\", got {shown(c)}")
+    cunit = c.get("unit", "N·m")
+    if cunit not in COMMAND_UNITS:
+        raise TwinError(f"{where}: commands.unit: {shown(cunit)}; allowed: {', '.join(map(repr, COMMAND_UNITS))}")
+    for k, v in units.items():
+        want = cunit if k == "commands" else UNITS.get(k)
+        if want is None:
+            raise TwinError(f"{where}: units.{k}: unknown stream quantity; allowed: "
+                            f"{', '.join(list(UNITS) + ['commands'])}")
+        if v != want:
+            raise TwinError(f"{where}: units.{k}: {shown(v)}; allowed: {want!r} (the format's units are SI: convert "
+                            f"when writing the log)")
+
+    scenario = _scenario(root, m, where, counts, pos)
+    robot = m.get("robot", {})
+    if not isinstance(robot, dict):
+        raise TwinError(f"{where}: robot must be a table of twin.params.RobotParams keys, got {shown(robot)}")
+    for k in ("r", "b"):
+        if k in robot:
+            raise TwinError(f"{where}: robot.{k}: give it as {'wheel_radius' if k == 'r' else 'track (= 2 b)'}")
+    try:
+        fields = {**{k: getattr(NOMINAL, k) for k in NOMINAL.__dataclass_fields__ if k != "n_xb"}, **robot,
+                  "r": radius, "b": track / 2.0}
+        if "n_xb" in robot:
+            fields["n_xb"] = robot["n_xb"]
+        model = RobotParams(**fields)
+    except TypeError as exc:
+        raise TwinError(f"{where}: robot: {' '.join(str(exc).split())}; allowed keys: "
+                        f"{', '.join(k for k in NOMINAL.__dataclass_fields__ if k not in ('r', 'b'))}") from None
+    except TwinError as exc:
+        raise TwinError(f"{where}: robot: {exc}") from None
+    sensors = scenario.believed_sensor_config()
+    if sensors is None:
+        raise TwinError(f"{where}: scenario: its sensors.sensing is \"ideal\"; a log holds readings: the scenario "
+                        f"must have simulated sensors")
+    motor = scenario.twin_config().motor
+    if cunit == "duty" and motor is None:
+        raise TwinError(f"{where}: commands.unit = \"duty\" needs the motor's figures (the scenario's "
+                        f"plant.motor = \"dc\")")
+
+    imu = _stream(root, "imu", required=True)
+    enc = _stream(root, "encoders", required=True, integers=True)
+    cmd = _stream(root, "commands", required=True, need_all=True)
+    tru = _stream(root, "truth", required=False)
+    t_imu, gyro, accel = imu[:, 0], imu[:, 1:4], imu[:, 4:7]
+    _check_gravity(root / "imu.csv", accel, t_imu)
+    ecount = enc[:, 1:3]
+    has = np.isfinite(ecount).all(axis=1)
+    counts_i = np.zeros(ecount.shape, dtype=np.int64)
+    counts_i[has] = ecount[has].astype(np.int64)
+    commands = cmd[:, 1:3]
+    if cunit == "duty":
+        if np.any(np.abs(commands) > 1.0):
+            row = int(np.argmax((np.abs(commands) > 1.0).any(axis=1)))
+            raise TwinError(f"{root / 'commands.csv'}: row {row + 2}: a PWM duty outside [-1, 1]")
+        commands = commands * motor.stall_torque
+    if len(cmd) < 2:
+        raise TwinError(f"{root / 'commands.csv'}: {len(cmd)} row(s); a log needs at least 2 control instants")
+    return SensorLog(root, m, rate, model, sensors, motor, heading, t_imu, gyro, accel, enc[:, 0], counts_i, has,
+                     cmd[:, 0], commands, None if tru is None else tru[:, 0], None if tru is None else tru[:, 1:],
+                     scenario)
+
+
+def _is_number(v) -> bool:
+    return not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
+
+
+def _number(m: dict, key: str, where: str, lo: float, hi: float, unit: str, lo_open=False, default=None) -> float:
+    v = m.get(key, default)
+    ok = _is_number(v) and (lo < v if lo_open else lo <= v) and v <= hi
+    if not ok:
+        what = "missing" if v is None else shown(v)
+        raise TwinError(f"{where}: {key}: {what}; allowed: a number in {'(' if lo_open else '['}{lo:g}, {hi:g}] {unit}")
+    return float(v)
+
+
+def _scenario(root: Path, m: dict, where: str, counts: int, pos):
+    """The scenario the manifest names (default: the defaults), with its ``set`` items and the
+    manifest's encoder counts and IMU position."""
+    from twin.scenarios import load_scenario
+
+    name = m.get("scenario", "paper-exp1")
+    items = m.get("set", [])
+    if not isinstance(name, str) or not name:
+        raise TwinError(f"{where}: scenario: {shown(name)}; allowed: a built-in name or a .toml file beside log.toml")
+    if not (isinstance(items, list) and all(isinstance(s, str) for s in items)):
+        raise TwinError(f"{where}: set: {shown(items)}; allowed: a list of \"KEY=VALUE\" strings (as --set takes)")
+    if name.endswith(".toml"):
+        name = str(root / name)
+    items = [*items, f"sensors.encoder_counts={counts}", f"sensors.imu_position=[{', '.join(map(repr, pos))}]",
+             "sensors.sensing=\"estimated\""]
+    try:
+        return load_scenario(name, items)
+    except TwinError as exc:
+        raise TwinError(f"{where}: scenario: {exc}") from None
+
+
+def _stream(root: Path, name: str, required: bool, integers: bool = False, need_all: bool = False):
+    """Stream ``name`` as a float array (rows, columns), in file order; None if absent and optional."""
+    path = root / f"{name}.csv"
+    cols = STREAMS[name]
+    if not path.is_file():
+        if required:
+            raise TwinError(f"{path}: missing; a sensor log needs {', '.join(s + '.csv' for s in REQUIRED)} "
+                            f"(truth.csv is optional)")
+        return None
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            rows = list(csv.reader(fh))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise TwinError(f"{path}: cannot be read ({exc})") from None
+    if not rows or tuple(h.strip() for h in rows[0]) != cols:
+        raise TwinError(f"{path}: row 1: the header must be {','.join(cols)}, got "
+                        f"{shown(','.join(rows[0]) if rows else '')}")
+    out = np.empty((len(rows) - 1, len(cols)))
+    groups = {"imu": ((1, 4), (4, 7)), "encoders": ((1, 3),), "commands": ((1, 3),), "truth": ((1, 7),)}[name]
+    last = -math.inf
+    for i, row in enumerate(rows[1:]):
+        line = i + 2
+        if len(row) != len(cols):
+            raise TwinError(f"{path}: row {line}: {len(row)} fields; allowed: {len(cols)} ({','.join(cols)})")
+        cells = [c.strip() for c in row]
+        t = _cell(cells[0], path, line, "t")
+        if t is None:
+            raise TwinError(f"{path}: row {line}: t is empty; every row needs its time in s")
+        if t < last - TIME_TOLERANCE:
+            raise TwinError(f"{path}: row {line}: t = {t!r} s runs backwards ({last!r} s on the row before); "
+                            f"allowed: rows in time order (equal times, or up to {TIME_TOLERANCE:g} s earlier, "
+                            f"count as simultaneous)")
+        last = max(last, t)
+        out[i, 0] = t
+        for a, b in groups:
+            vals = [_cell(cells[j], path, line, cols[j], integers) for j in range(a, b)]
+            empty = [v is None for v in vals]
+            if all(empty) and not need_all:
+                out[i, a:b] = np.nan
+            elif any(empty):
+                missing = cols[a + empty.index(True)]
+                raise TwinError(f"{path}: row {line}: {missing} is empty while {', '.join(cols[a:b])} are not; "
+                                f"allowed: all of them, or none (nothing arrived)" if not need_all else
+                                f"{path}: row {line}: {missing} is empty; every command row needs ul and ur")
+            else:
+                out[i, a:b] = vals
+    return out
+
+
+def _cell(text: str, path: Path, line: int, col: str, integer: bool = False):
+    if text == "":
+        return None
+    if integer:
+        sign = text[1:] if text[:1] in "+-" else text
+        if not sign.isdigit():
+            raise TwinError(f"{path}: row {line}: {col} = {shown(text)} is not a whole number of counts; "
+                            f"allowed: integers (encoders count, they do not measure angles)")
+        return float(int(text))
+    try:
+        v = float(text)
+    except ValueError:
+        raise TwinError(f"{path}: row {line}: {col} = {shown(text)} is not a number") from None
+    if not math.isfinite(v):
+        raise TwinError(f"{path}: row {line}: {col} = {text}; allowed: a finite number (an empty field: "
+                        f"nothing arrived)")
+    return v
+
+
+def _check_gravity(path: Path, accel: np.ndarray, t: np.ndarray) -> None:
+    """The accelerometer's mean over its first 0.1 s of readings (the robot at rest): about g, mostly on +z."""
+    ok = np.isfinite(accel).all(axis=1)
+    if not ok.any():
+        raise TwinError(f"{path}: no accelerometer reading; the estimators start from gravity's direction")
+    first = ok & (t <= t[ok][0] + 0.1)
+    mean = accel[first].mean(axis=0)
+    norm = float(np.linalg.norm(mean))
+    row = int(np.flatnonzero(ok)[0]) + 2
+    if 0.5 <= norm <= 2.0:
+        raise TwinError(f"{path}: rows from {row}: the accelerometer reads {norm:.3g} on average, gravity in g; "
+                        f"allowed: m/s² (multiply by 9.80665)")
+    if not 5.0 <= norm <= 15.0:
+        raise TwinError(f"{path}: rows from {row}: the accelerometer reads {norm:.3g} m/s² on average over the "
+                        f"first 0.1 s; allowed: about 9.8 m/s² (the robot starts at rest)")
+    axis = int(np.argmax(np.abs(mean)))
+    if axis != 2 or mean[2] <= 0:
+        name = "xyz"[axis]
+        raise TwinError(f"{path}: rows from {row}: gravity is on {'-' if mean[axis] < 0 else '+'}{name} "
+                        f"({mean[axis]:+.3g} m/s²); allowed: body axes with z up (+g on accel_z at rest, upright)")
+
+
+# ---- writing ---------------------------------------------------------------------------------------
+def write_log(run, out, scenario=None, initial_heading: float | None = None) -> Path:
+    """Write twin run ``run`` (a :class:`twin.sim.runs.Run` logged at every control step, with
+    simulated sensors) as a sensor log in directory ``out``, the truth stream included.
+
+    ``scenario``: the :class:`~twin.scenarios.Scenario` it ran (its name or file, and --set
+    items, go into log.toml, so the estimators are built for the same sensors and motors);
+    ``initial_heading`` (rad): α at t = 0 as the run's estimator was told it (default: the
+    scenario's ``initial.alpha``, else the truth's first α)."""
+    if run.measurements is None or run.sensor_config is None:
+        raise TwinError("a sensor log needs a run with simulated sensors (sensing is ideal here)")
+    if getattr(run, "log_every", 1) != 1:
+        raise TwinError(f"a sensor log needs every control step (log_every = 1), got {run.log_every}")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    cfg, sensors = run.config, run.sensor_config
+    heading = initial_heading if initial_heading is not None else (
+        scenario.data["initial"]["alpha"] if scenario is not None else float(run.signal("alpha")[0]))
+    ms = run.measurements
+    res = 1.0 / (sensors.encoders.counts_per_rev / (2.0 * math.pi))  # as the twin's encoders (twin.sensors.suite)
+    with open(out / "imu.csv", "w", newline="", encoding="utf-8") as fh:
+        fh.write(",".join(STREAMS["imu"]) + "\n")
+        for i in np.flatnonzero(ms.has_gyro | ms.has_accel):
+            g = [repr(float(v)) for v in ms.gyro[i]] if ms.has_gyro[i] else ["", "", ""]
+            a = [repr(float(v)) for v in ms.accel[i]] if ms.has_accel[i] else ["", "", ""]
+            fh.write(",".join([repr(float(ms.t[i])), *g, *a]) + "\n")
+    with open(out / "encoders.csv", "w", newline="", encoding="utf-8") as fh:
+        fh.write(",".join(STREAMS["encoders"]) + "\n")
+        for i in np.flatnonzero(ms.has_encoders):
+            c = [round(float(v) / res) for v in ms.encoders[i]]
+            if any(k * res != float(v) for k, v in zip(c, ms.encoders[i])):
+                raise TwinError(f"the twin's encoder reading at t = {ms.t[i]:g} s is not a whole number of counts "
+                                f"(an encoder spike fault adds an angle): it cannot be written as counts")
+            fh.write(f"{float(ms.t[i])!r},{c[0]},{c[1]}\n")
+    ul, ur = run.signal("ul_cmd"), run.signal("ur_cmd")  # what the estimator was given (the commands)
+    t = run.t
+    with open(out / "commands.csv", "w", newline="", encoding="utf-8") as fh:
+        fh.write(",".join(STREAMS["commands"]) + "\n")
+        for i in range(len(t)):
+            fh.write(f"{float(t[i])!r},{float(ul[i])!r},{float(ur[i])!r}\n")
+    with open(out / "truth.csv", "w", newline="", encoding="utf-8") as fh:
+        fh.write(",".join(STREAMS["truth"]) + "\n")
+        cols = [run.signal(n) for n in STREAMS["truth"][1:]]
+        for i in range(len(t)):
+            fh.write(",".join([repr(float(t[i]))] + [repr(float(c[i])) for c in cols]) + "\n")
+    p = run.model_params
+    lines = [f'format = "{FORMAT}"', f"version = {VERSION}", f"control_rate = {float(cfg.control_rate)!r}",
+             f"wheel_radius = {float(p.r)!r}", f"track = {float(2.0 * p.b)!r}",
+             f"encoder_counts = {int(sensors.encoders.counts_per_rev)}",
+             f"imu_position = [{', '.join(repr(float(v)) for v in sensors.imu.position)}]",
+             f"initial_heading = {float(heading)!r}"]
+    if scenario is not None:
+        src = scenario.source.split(" with --set ")[0]
+        name = src[len("built-in scenario "):] if src.startswith("built-in scenario ") else None
+        if name is None:  # a file of one's own: copied beside the log, so the log stands alone
+            (out / "scenario.toml").write_bytes(Path(src).read_bytes())
+            name = "scenario.toml"
+        lines += [f"scenario = {_toml_str(name)}",
+                  "set = [" + ", ".join(_toml_str(o) for o in scenario.overrides) + "]"]
+    robot = [f"{k} = {float(getattr(p, k))!r}" for k in p.__dataclass_fields__ if k not in ("r", "b", "n_xb")]
+    lines += ["source = \"twin run\"", "", "[robot]", *robot, f"n_xb = {float(p.n_xb)!r}", "", "[commands]",
+              'unit = "N·m"', ""]
+    (out / "log.toml").write_text("\n".join(lines), encoding="utf-8")
+    return out
+
+
+def _toml_str(s: str) -> str:
+    return '"' + s.replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+__all__ = ["COMMAND_UNITS", "FORMAT", "STREAMS", "SensorLog", "TIME_TOLERANCE", "VERSION", "read_log", "write_log"]
