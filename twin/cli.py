@@ -95,6 +95,8 @@ def main():
       twin run paper-exp3 --set plant.model=analytic --set plant.scale={} --set sensors.sensing=ideal
       twin run paper-exp1 --controller it2,t1,lqr --set plant.scale={}
       twin sweep paper-exp3 --samples 50 --workers 2
+      twin run paper-exp3 --log-sensors --no-video --out runs/exp3
+      twin replay runs/exp3/sensor-logs/it2 --estimator ekf,complementary
       twin scenarios
       twin kinds
       twin surface position --out runs/surfaces
