@@ -209,3 +209,56 @@ def test_replay_refuses_the_ideal_estimator_and_unknown_kinds(tmp_path):
     assert status == 2 and "'ideal' reads the truth" in stderr
     status, _, stderr = _twin("replay", str(d), "--estimator", "ekff", "--out", str(tmp_path / "o"))
     assert status == 2 and len(stderr.splitlines()) == 1 and "ekff" in stderr
+
+
+# ---- regression bounds on replays ---------------------------------------------------------------------
+
+
+def _bounded(tmp_path, table: str) -> Path:
+    d = write_by_hand(tmp_path / "robot-log", seconds=1.0)
+    with open(d / "log.toml", "a", encoding="utf-8") as fh:
+        fh.write(table)
+    return d
+
+
+def test_twin_check_passes_a_logs_bounds_and_fails_one_naming_estimator_log_and_metric(tmp_path):
+    ok = _bounded(tmp_path / "a", '\n[expect.ekf]\ntheta_rmse_rad = "<= 0.01"\n[expect.complementary]\n'
+                                   'theta_rmse_rad = "<= 0.02"\n')
+    status, stdout, stderr = _twin("check", str(ok), "--junit", str(tmp_path / "a.xml"))
+    assert status == 0, stderr
+    assert "log:robot-log" in stdout and "all bounds hold" in stdout
+    xml = (tmp_path / "a.xml").read_text()
+    assert 'name="estimator ekf"' in xml and 'failures="0"' in xml
+    bad = _bounded(tmp_path / "b", '\n[expect.ekf]\ntheta_rmse_rad = "<= 1e-9"\n')
+    status, stdout, stderr = _twin("check", str(bad), "--junit", str(tmp_path / "b.xml"))
+    assert status == 1
+    line = [s for s in stderr.splitlines() if s.startswith("FAIL")]
+    assert len(line) == 1 and "log:robot-log" in line[0] and "estimator ekf" in line[0] \
+        and "theta_rmse_rad" in line[0] and "bound theta_rmse_rad <= 1e-09" in line[0], stderr
+    assert "<failure" in (tmp_path / "b.xml").read_text()
+
+
+def test_a_check_file_beside_the_tests_names_the_log_and_a_bad_bound_is_one_line(tmp_path):
+    d = write_by_hand(tmp_path / "logs" / "hall", seconds=1.0)
+    f = tmp_path / "hall-check.toml"
+    f.write_text('log = "logs/hall"\n[expect.kalman2]\n"|theta_max_abs_rad|" = "<= 0.05"\nrejected_total = "== 0"\n')
+    status, stdout, stderr = _twin("check", str(f))
+    assert status == 0, stderr
+    assert "log:hall-check" in stdout and ("Kalman" in stdout or "kalman2" in stdout)
+    f.write_text('log = "logs/hall"\n[expect.ekf]\nsettling_time_s = "<= 1"\n')
+    status, _, stderr = _twin("check", str(f))
+    assert status == 2 and len(stderr.strip().splitlines()) == 1 and "unknown metric 'settling_time_s'" in stderr
+    f.write_text('log = "logs/nowhere"\n[expect.ekf]\nnis_per_dof = "<= 2"\n')
+    status, _, stderr = _twin("check", str(f))
+    assert status == 2 and "is not a sensor log" in stderr
+    assert d.is_dir()
+
+
+def test_the_pytest_plugin_collects_a_twin_toml_naming_a_log(tmp_path):
+    write_by_hand(tmp_path / "logs" / "hall", seconds=1.0)
+    (tmp_path / "twin_hall.toml").write_text('log = "logs/hall"\n[expect.ekf]\ntheta_rmse_rad = "<= 0.01"\n'
+                                             '[expect.complementary]\ntheta_rmse_rad = "<= 1e-9"\n')
+    r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(tmp_path)],
+                       capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert r.returncode == 1, r.stdout + r.stderr
+    assert "1 failed, 1 passed" in r.stdout and "estimator complementary" in r.stdout, r.stdout

@@ -9,6 +9,7 @@ import math
 import os
 import re
 import sys
+import time
 from pathlib import Path
 
 # One OpenBLAS thread unless the user says otherwise, set before NumPy loads: the twin's
@@ -746,21 +747,39 @@ def check(targets, controller, seeds, workers, overrides, junit, record, golden,
         from twin.registry import parse_controllers
 
         kinds = parse_controllers(controller)
-    scenarios, skipped = collect(targets, _limit_overrides(overrides, step_limit, run_limit, memory_limit))
+    from twin.logs.expect import is_log_target, load_log_check, run_log_checks
+
+    logs = [load_log_check(t) for t in targets if is_log_target(t)]  # sensor logs: replays with bounds
+    targets = [t for t in targets if not is_log_target(t)]
+    scenarios, skipped = collect(targets, _limit_overrides(overrides, step_limit, run_limit, memory_limit)) \
+        if targets or not logs else ([], [])
     for f in skipped:
         click.echo(f"  skipped {f}: no [expect] table")
-    if not scenarios:
+    if not scenarios and not logs:
         raise TwinError("no scenario with an [expect] table to check")
-    bar = _SweepBar("runs")
-    try:
-        result = run_checks(scenarios, kinds, seeds, workers or default_workers(), progress=bar.update, record=record,
-                            golden=golden, tolerances=tolerances)
-    except BaseException as exc:
-        if record is not None:  # the record's own clause, where it got that far, stands
-            rundir.kept(exc, f"nothing recorded: {record} is as it was")
-        raise
-    finally:
-        bar.close()
+    if logs and (record is not None or golden is not None):
+        raise TwinError("--record and --golden are for scenarios' runs; a sensor log's replay has no golden "
+                        "trajectory: check logs without them")
+    from twin.verify.check import CheckResult
+
+    result = CheckResult([])
+    if scenarios:
+        bar = _SweepBar("runs")
+        try:
+            result = run_checks(scenarios, kinds, seeds, workers or default_workers(), progress=bar.update,
+                                record=record, golden=golden, tolerances=tolerances)
+        except BaseException as exc:
+            if record is not None:  # the record's own clause, where it got that far, stands
+                rundir.kept(exc, f"nothing recorded: {record} is as it was")
+            raise
+        finally:
+            bar.close()
+    if logs:
+        t0 = time.perf_counter()
+        cases = run_log_checks(logs)
+        result.cases += cases
+        result.runs += len(cases)
+        result.wall_s += time.perf_counter() - t0
     click.echo(format_table(result))
     n_bad = sum(not c.passed for c in result.cases)
     click.echo(f"  {len(result.cases)} checks ({result.runs} runs) in {result.wall_s:.1f} s: "

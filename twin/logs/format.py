@@ -76,7 +76,7 @@ REQUIRED = ("imu", "encoders", "commands")
 UNITS = {"time": "s", "gyro": "rad/s", "accel": "m/s^2", "encoders": "counts"}
 COMMAND_UNITS = ("N·m", "duty")
 _KEYS = {"format", "version", "control_rate", "wheel_radius", "track", "encoder_counts", "imu_position",
-         "initial_heading", "scenario", "set", "robot", "commands", "units", "source"}
+         "initial_heading", "scenario", "set", "robot", "commands", "units", "source", "expect"}
 
 
 @dataclass(frozen=True)

@@ -74,6 +74,7 @@ class CaseResult:
     golden: dict = field(default_factory=dict)  # seed → Departure, or a message (no reference), or None (agrees)
     has_seed_bounds: bool = False  # the scenario has [expect.seeds] bounds
     environment: dict | None = None  # what the first run ran on, with its designs' digests
+    kind_of: str = "scenario"  # or "log": an estimator replayed on a sensor log (twin.logs.expect)
 
     @property
     def departures(self) -> dict:
@@ -326,7 +327,8 @@ def format_table(result: CheckResult) -> str:
             text = "matches" if dep is None else str(dep)
             rows.append((case.scenario, label(case.controller), f"golden trajectory, seed {seed}",
                          text if len(text) <= 70 else text[:67] + "...", "ok" if dep is None else "FAIL"))
-    head = ("scenario", "controller", "bound", "measured", "result")
+    logs = any(c.kind_of == "log" for c in result.cases)
+    head = ("scenario" + " or log" * logs, "controller" + " or estimator" * logs, "bound", "measured", "result")
     widths = [max(len(r[i]) for r in rows + [head]) for i in range(5)]
     return "\n".join("  " + "  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in [head] + rows)
 
@@ -335,6 +337,13 @@ def failure_lines(result: CheckResult) -> list[str]:
     """One line per failed bound or run: scenario, controller, seed, metric, measured value and bound."""
     out = []
     for case in result.cases:
+        if case.kind_of == "log":  # a replay: the log, the estimator and the metric
+            for v in case.failures:
+                out.append(f"FAIL {case.scenario} estimator {case.controller}: {v.bound.key} = "
+                           f"{v.measured_text(full=True)} {v.bound.unit}, bound {v.bound} ({case.source})")
+            for error in case.errors.values():
+                out.append(f"FAIL {case.scenario} estimator {case.controller}: {error}")
+            continue
         for v in case.failures:
             seed = f" seed {v.seed}" if v.seed is not None else f" over {len(case.seeds)} seeds"
             out.append(f"FAIL {case.scenario} {case.controller}{seed}: {v.bound.key} = {v.measured_text(full=True)} "
@@ -389,7 +398,8 @@ def write_junit(result: CheckResult, path: Path) -> Path:
         suite = suites.get(case.source)
         if suite is None:
             suite = suites[case.source] = ET.SubElement(root, "testsuite", name=case.scenario, tests="0", failures="0")
-        groups = [(seed, f"{case.controller} seed {seed}") for seed in case.seeds]
+        groups = [(seed, f"{case.controller} seed {seed}" if case.kind_of != "log" else f"estimator {case.controller}")
+                  for seed in case.seeds]
         if case.has_seed_bounds:
             groups.append((None, f"{case.controller} over {len(case.seeds)} seeds"))
         for seed, name in groups:

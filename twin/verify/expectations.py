@@ -48,6 +48,11 @@ METRICS = {
     "final_heading_error_rad": "rad", "iae_theta": "rad·s", "control_effort": "N²·m²·s", "max_abs_torque_nm": "N·m",
     "estimator_theta_rmse_rad": "rad", "rejected_measurements": "1", "duration_s": "s",
 }
+# the metrics of a replay on a sensor log (twin.logs.replay) that a log's [expect] may name
+REPLAY_METRICS = {
+    "theta_rmse_rad": "rad", "theta_max_abs_rad": "rad", "psi_rmse_rad": "rad", "psi_max_abs_rad": "rad",
+    "alpha_rmse_rad": "rad", "alpha_max_abs_rad": "rad", "nis_per_dof": "1", "rejected_total": "1",
+}
 OPS = {"<=": operator.le, "<": operator.lt, ">=": operator.ge, ">": operator.gt, "==": operator.eq}
 ALL = "*"  # the scope of the bounds that apply to every controller
 SEEDS = "seeds"  # the table of bounds over seeds
@@ -78,7 +83,7 @@ class Bound:
 
     @property
     def unit(self) -> str:
-        return "1" if self.metric == "pass_rate" else METRICS[self.metric]
+        return "1" if self.metric == "pass_rate" else {**METRICS, **REPLAY_METRICS}[self.metric]
 
     def measure(self, metrics: dict):
         """This bound's quantity in one run's metrics (None where undefined)."""
@@ -96,8 +101,9 @@ class Bound:
         return bool(OPS[self.op](float(measured), self.value))
 
 
-def parse_bound(key: str, value, where: str, over_seeds: bool) -> Bound:
-    """One ``key = value`` of an ``[expect]`` table; ``where`` names it in errors."""
+def parse_bound(key: str, value, where: str, over_seeds: bool, metrics: dict = METRICS) -> Bound:
+    """One ``key = value`` of an ``[expect]`` table; ``where`` names it in errors; ``metrics``
+    the quantities it may name (a run's, :data:`METRICS`, or a replay's, :data:`REPLAY_METRICS`)."""
     if over_seeds and key == "pass_rate":
         stat, metric, absolute = None, "pass_rate", False
     else:
@@ -105,10 +111,10 @@ def parse_bound(key: str, value, where: str, over_seeds: bool) -> Bound:
         if not m or bool(m["bar"]) != bool(m["bar2"]) or bool(m["stat"]) != bool(m["close"]):
             raise ExpectError(f"{where}: {key!r} is not a bound's quantity; allowed: a metric, |metric|"
                               + (", stat(metric) with stat mean, median, min, max or pNN, or pass_rate" if over_seeds
-                                 else "") + f" (metrics: {', '.join(METRICS)})")
+                                 else "") + f" (metrics: {', '.join(metrics)})")
         stat, metric, absolute = m["stat"], m["metric"], bool(m["bar"])
-        if metric not in METRICS:
-            raise ExpectError(f"{where}: unknown metric {metric!r}; allowed: {', '.join(METRICS)}")
+        if metric not in metrics:
+            raise ExpectError(f"{where}: unknown metric {metric!r}; allowed: {', '.join(metrics)}")
         if over_seeds != (stat is not None):
             raise ExpectError(f"{where}: " + (f"{key!r} needs a statistic over seeds here (mean, median, min, max, "
                                               f"pNN), e.g. 'p95({key})', or pass_rate" if over_seeds else
@@ -124,11 +130,11 @@ def parse_bound(key: str, value, where: str, over_seeds: bool) -> Bound:
     m = _VALUE.match(value) if isinstance(value, str) else None
     if not m:
         raise ExpectError(f"{where}: {value!r} is not a bound; allowed: a string \"<op> number\" with op one of "
-                          f"<=, <, >=, >, == (e.g. \"<= 0.02\", in {METRICS.get(metric, '1')})")
+                          f"<=, <, >=, >, == (e.g. \"<= 0.02\", in {metrics.get(metric, '1')})")
     number = float(m["num"])
     if not math.isfinite(number):
         raise ExpectError(f"{where}: {value!r} is not a finite number")
-    if m["op"] == "==" and metric not in ("rejected_measurements",) and not (metric == "fell"):
+    if m["op"] == "==" and metric not in ("rejected_measurements", "rejected_total") and not (metric == "fell"):
         raise ExpectError(f"{where}: == on a real-valued metric holds only by accident of rounding; use <= and >= "
                           f"(== is for whole numbers: rejected_measurements)")
     if metric == "pass_rate" and not 0.0 <= number <= 1.0:
@@ -136,10 +142,12 @@ def parse_bound(key: str, value, where: str, over_seeds: bool) -> Bound:
     return Bound(key, metric, absolute, stat, m["op"], number)
 
 
-def parse_expect(table, path: str = "expect") -> dict[str, tuple[Bound, ...]]:  # noqa: C901
+def parse_expect(table, path: str = "expect", metrics: dict = METRICS,  # noqa: C901
+                 role: str = "controller") -> dict[str, tuple[Bound, ...]]:
     """The ``[expect]`` table as scope → bounds: :data:`ALL` for every controller, a kind for one,
     :data:`SEEDS` for the statistics over seeds (and ``pass_rate``). ``[expect.golden]`` holds
-    tolerances, not bounds: validated here, read by :mod:`twin.verify.check`."""
+    tolerances, not bounds: validated here, read by :mod:`twin.verify.check`. A sensor log's
+    ``[expect]`` names :data:`REPLAY_METRICS` and estimator kinds (``role`` "estimator")."""
     from twin.registry import check_kind
 
     if not isinstance(table, dict):
@@ -158,14 +166,14 @@ def parse_expect(table, path: str = "expect") -> dict[str, tuple[Bound, ...]]:  
             over = key == SEEDS
             if not over:
                 try:
-                    check_kind("controller", key)
+                    check_kind(role, key)
                 except TwinError as exc:
                     raise ExpectError(f"{path}.{key}: a sub-table is [expect.seeds], [expect.golden] or "
-                                      f"[expect.KIND] for one controller; {exc}") from None
+                                      f"[expect.KIND] for one {role}; {exc}") from None
             for k, v in value.items():
-                out.setdefault(key, []).append(parse_bound(k, v, f"{path}.{key}.{k}", over))
+                out.setdefault(key, []).append(parse_bound(k, v, f"{path}.{key}.{k}", over, metrics))
         else:
-            out.setdefault(ALL, []).append(parse_bound(key, value, f"{path}.{key}", False))
+            out.setdefault(ALL, []).append(parse_bound(key, value, f"{path}.{key}", False, metrics))
     return {k: tuple(v) for k, v in out.items()}
 
 
@@ -239,5 +247,5 @@ def failed(verdicts: list[Verdict], bounds: dict[str, tuple[Bound, ...]]) -> lis
     return [v for v in verdicts if not v.holds and (v.seed is None or not has_rate)]
 
 
-__all__ = ["ALL", "Bound", "ExpectError", "GOLDEN", "METRICS", "SEEDS", "Verdict", "evaluate", "failed", "parse_bound",
+__all__ = ["ALL", "Bound", "ExpectError", "GOLDEN", "METRICS", "REPLAY_METRICS", "SEEDS", "Verdict", "evaluate", "failed", "parse_bound",
            "parse_expect"]

@@ -1,6 +1,7 @@
 """pytest plugin (entry point ``pytest11``): scenario files with an ``[expect]`` table become tests.
 
-Two ways in, one test item per scenario and controller (its seeds inside):
+Two ways in, one test item per scenario and controller (its seeds inside), or per log and
+estimator for a ``twin_*.toml`` that names a sensor log (``log = "DIR"``, :mod:`twin.logs.expect`):
 
 * ``pytest --twin-scenarios DIR|FILE|builtin`` (repeatable): the ``.toml`` files of a
   directory that have an ``[expect]`` table, a file, or ``builtin`` for every built-in
@@ -86,8 +87,17 @@ class TwinScenarioFile(pytest.File):
 
     def collect(self):
         from twin.errors import TwinError
+        from twin.logs.expect import is_log_target, load_log_check
         from twin.scenarios import load_scenario
 
+        if is_log_target(self.path):  # log = "DIR": bounds on estimators replayed on a sensor log
+            try:
+                check = load_log_check(self.path)
+            except TwinError as exc:
+                raise TwinCheckFailure(str(exc)) from None
+            for kind in check.kinds:
+                yield TwinLogItem.from_parent(self, name=kind, check=check, kind=kind)
+            return
         try:
             scenario = load_scenario(str(self.path))
         except TwinError as exc:
@@ -130,3 +140,30 @@ class TwinCheckItem(pytest.Item):
 
     def reportinfo(self):
         return Path(self.scenario.source.split(" with --set ")[0]), None, f"{self.scenario.name} {self.kind}"
+
+
+class TwinLogItem(pytest.Item):
+    """One estimator replayed on a sensor log, judged by the log's bounds (:mod:`twin.logs.expect`)."""
+
+    def __init__(self, *, check, kind, **kwargs):
+        super().__init__(**kwargs)
+        self.check, self.kind = check, kind
+
+    def runtest(self):
+        from dataclasses import replace
+
+        from twin.logs.expect import run_log_checks
+        from twin.verify.check import CheckResult
+        from twin.verify.testing import report
+
+        result = CheckResult(run_log_checks([replace(self.check, kinds=(self.kind,))]))
+        if not result.passed:
+            raise TwinCheckFailure(report(result))
+
+    def repr_failure(self, excinfo):
+        if isinstance(excinfo.value, TwinCheckFailure):
+            return str(excinfo.value)
+        return super().repr_failure(excinfo)
+
+    def reportinfo(self):
+        return Path(self.check.source), None, f"{self.check.name} {self.kind}"

@@ -1,0 +1,136 @@
+"""Regression bounds on replays: an ``[expect]`` table over the metrics of estimators replayed
+on a sensor log, checked by ``twin check`` and the pytest plugin like a scenario's.
+
+Two places hold the bounds:
+
+* the log's own ``log.toml``::
+
+      [expect.ekf]                        # per estimator kind (quote an import path)
+      theta_rmse_rad = "<= 0.005"         # rad, against the log's truth
+      nis_per_dof = "<= 2"                # 1 for an honest filter; needs no truth
+      rejected_total = "<= 20"
+
+* or a file of its own beside one's tests (a log recorded on a robot stays as it was)::
+
+      log = "logs/hallway-2026-11-20"     # the log's directory, relative to this file
+      [expect.ekf]
+      nis_per_dof = "<= 2"
+
+Bounds in ``[expect]`` itself apply to every estimator named in a sub-table (an estimator is
+replayed because a sub-table names it). The metrics are
+:data:`twin.verify.expectations.REPLAY_METRICS`; one that is undefined (an error without
+truth, NIS from an estimator that reports none) fails its bound.
+"""
+from __future__ import annotations
+
+import time
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+from twin.errors import TwinError
+
+
+@dataclass(frozen=True)
+class LogCheck:
+    """A log with bounds: its ``name`` (the log directory's), ``source`` (the file the bounds
+    are in), the log's directory, the estimator kinds to replay and the parsed bounds."""
+
+    name: str
+    source: str
+    log: Path
+    kinds: tuple
+    bounds: dict
+
+
+def is_log_target(target) -> bool:
+    """A sensor log's directory, or a .toml file that names one (``log = "..."``)."""
+    p = Path(target)
+    if p.is_dir():
+        return (p / "log.toml").is_file()
+    if p.suffix == ".toml" and p.is_file():
+        try:
+            return "log" in tomllib.loads(p.read_text(encoding="utf-8"))
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError, OSError):
+            return False
+    return False
+
+
+def load_log_check(target) -> LogCheck:
+    """The bounds of ``target`` (see the module docstring); a one-line error without any."""
+    from twin.verify.expectations import ALL, ExpectError, REPLAY_METRICS, parse_expect
+
+    p = Path(target)
+    file = p / "log.toml" if p.is_dir() else p
+    try:
+        doc = tomllib.loads(file.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise TwinError(f"{file}: not valid TOML ({' '.join(str(exc).split())})") from None
+    if p.is_dir():
+        log = p
+    else:
+        extra = sorted(set(doc) - {"log", "expect"})
+        if extra:
+            raise TwinError(f"{file}: unknown key {extra[0]!r}; a replay check holds log = \"DIR\" and [expect]")
+        if not isinstance(doc["log"], str) or not doc["log"]:
+            raise TwinError(f"{file}: log must be the log's directory (relative to this file), got {doc['log']!r}")
+        log = (file.parent / doc["log"]).resolve() if not Path(doc["log"]).is_absolute() else Path(doc["log"])
+        if not (log / "log.toml").is_file():
+            raise TwinError(f"{file}: log: {log} is not a sensor log (no log.toml there)")
+    table = doc.get("expect")
+    if not table:
+        raise TwinError(f"{file}: no [expect] table, so nothing to check; add bounds such as [expect.ekf] "
+                        f"nis_per_dof = \"<= 2\" (see the README, 'A robot's logs')")
+    try:
+        bounds = parse_expect(table, f"{file}: expect", REPLAY_METRICS, "estimator")
+    except ExpectError:
+        raise
+    kinds = tuple(k for k in bounds if k != ALL)
+    if not kinds:
+        raise TwinError(f"{file}: expect: no [expect.KIND] table names an estimator to replay; add one, e.g. "
+                        f"[expect.ekf]")
+    for bad in ("seeds", "golden"):
+        if bad in kinds:
+            raise TwinError(f"{file}: expect.{bad}: a replay has no seeds or golden trajectory; allowed: "
+                            f"[expect.KIND] for an estimator kind")
+    name = log.name if p.is_dir() else file.stem
+    return LogCheck(name, str(file), log, kinds, bounds)
+
+
+def replay_metrics(entry: dict) -> dict:
+    """The :data:`~twin.verify.expectations.REPLAY_METRICS` of one estimator's replay entry
+    (``replay_logs``'s ``doc["logs"][path]["estimators"][kind]``); None where undefined."""
+    from twin.verify.expectations import REPLAY_METRICS
+
+    errors, c = entry.get("errors") or {}, entry.get("consistency") or {}
+    out = {k: errors.get(k) for k in REPLAY_METRICS if k.startswith(("theta_", "psi_", "alpha_"))}
+    out["nis_per_dof"] = c.get("nis_per_dof")
+    out["rejected_total"] = entry.get("rejected_total")
+    return out
+
+
+def run_log_checks(checks) -> list:
+    """A :class:`twin.verify.check.CaseResult` per log and estimator (seed 0: a replay has none)."""
+    from twin.logs.replay import replay_logs
+    from twin.verify.check import CaseResult
+    from twin.verify.expectations import evaluate, failed
+
+    cases = []
+    for chk in checks:
+        t0 = time.perf_counter()
+        try:
+            doc, _ = replay_logs([chk.log], chk.kinds)
+            entries = doc["logs"][str(chk.log)]["estimators"]
+            errors = {}
+        except TwinError as exc:
+            entries, errors = {}, {0: f"{type(exc).__name__}: {' '.join(str(exc).split())}"}
+        for kind in chk.kinds:
+            metrics = {0: replay_metrics(entries[kind])} if kind in entries else {}
+            verdicts = evaluate(chk.bounds, kind, metrics) if metrics else []
+            cases.append(CaseResult(f"log:{chk.name}", chk.source, kind, (0,), metrics, dict(errors), verdicts,
+                                    failed(verdicts, chk.bounds), kind_of="log"))
+        del t0
+    return cases
+
+
+__all__ = ["LogCheck", "is_log_target", "load_log_check", "replay_metrics", "run_log_checks"]
