@@ -262,3 +262,19 @@ def test_the_pytest_plugin_collects_a_twin_toml_naming_a_log(tmp_path):
                        capture_output=True, text=True, timeout=300, cwd=tmp_path)
     assert r.returncode == 1, r.stdout + r.stderr
     assert "1 failed, 1 passed" in r.stdout and "estimator complementary" in r.stdout, r.stdout
+
+
+def test_commands_as_pwm_duty_become_torques_through_the_motors_stall_torque(tmp_path):
+    d = write_by_hand(tmp_path / "duty", seconds=0.5)
+    (d / "log.toml").write_text(MANIFEST + '[commands]\nunit = "duty"\n')
+    lines = (d / "commands.csv").read_text().splitlines()
+    (d / "commands.csv").write_text("\n".join([lines[0]] + [ln.split(",")[0] + ",0.25,-0.5" for ln in lines[1:]])
+                                    + "\n")
+    log = read_log(d)
+    stall = log.motor.stall_torque
+    assert stall > 0 and np.array_equal(log.commands, np.tile([0.25 * stall, -0.5 * stall], (len(lines) - 1, 1)))
+    lines = (d / "commands.csv").read_text().splitlines()
+    lines[4] = lines[4].split(",")[0] + ",1.5,0.0"
+    (d / "commands.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(TwinError, match=r"commands.csv: row 5: a PWM duty outside \[-1, 1\]"):
+        read_log(d)
