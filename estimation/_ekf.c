@@ -26,6 +26,8 @@
      forward(core, commands) -> ([θ, θ̇, ψ, ψ̇, α, α̇] predicted over the commands, finite)
      state6(core) -> the filter's own [θ, θ̇, ψ, ψ̇, α, α̇]
      set_consider(core, mask)          mask (12,): 1.0 for a state the updates leave alone (Schmidt)
+     innovation(core) -> (y, S)        the last encoder update's innovation (dof,) rad and its
+                                       covariance (dof × dof, row-major) rad², for diagnostics()
 
    Built by setup.py with -ffp-contract=off like the other kernels. */
 #define PY_SSIZE_T_CLEAN
@@ -51,6 +53,9 @@ typedef struct {
     /* state */
     double x[NX], P[NX * NX], w[2], w_prev[2];
     double xg[NX], Pg[NX * NX], wg[2], wpg[2];
+    /* the last encoder update's innovation y (inn_dof,) and its covariance S: diagnostics only */
+    double inn_y[2], inn_S[4];
+    int inn_dof;
 } Core;
 
 #define NCONST 52 /* doubles before x */
@@ -303,6 +308,7 @@ static void cov_predict(const double *F, const double *P, const double *Q, doubl
 typedef struct {
     int dof;
     double z[2], off[2], R[2], H[2][NX];
+    double y[2], S[2][2]; /* encoder_fit's innovation and its covariance (kept for diagnostics) */
 } EncMeas;
 
 /* the innovation y = z − h(x), P Hᵀ and S = H P Hᵀ + R of the rows of em */
@@ -366,7 +372,8 @@ static double encoder_fit(const Core *c, const double *enc, const double *last, 
         em->H[n][H0] = sgn;
     }
     if (em->dof == 0) return NAN;
-    double y[2], PHt[NX][2], S[2][2];
+    double PHt[NX][2];
+    double *y = em->y, (*S)[2] = em->S;
     innovation(x, Pp, em, y, PHt, S);
     if (em->dof == 1) return y[0] * y[0] / S[0][0];
     double det = S[0][0] * S[1][1] - S[0][1] * S[1][0];
@@ -643,6 +650,13 @@ static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs
     c->w[1] = smp[1];
     if (has_enc) nis = encoder_fit(c, enc, last, T, c->x, c->w, c->P, 0, &em);
     int dof = em.dof;
+    if (dof > 0) { /* what innovation(core) reports: the update's y and S, as the NIS above used them */
+        c->inn_dof = dof;
+        for (int a = 0; a < 2; a++) {
+            c->inn_y[a] = em.y[a];
+            for (int b = 0; b < 2; b++) c->inn_S[2 * a + b] = em.S[a][b];
+        }
+    }
     int inside = 0;
     if (has_enc) {
         if (dof == 0)
@@ -673,6 +687,18 @@ static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs
         ok = 0;
     }
     return Py_BuildValue("(iiidiiiddi)", 1, saturated, enc_code, nis, dof, ok, acc_out, e[0], e[1], inside);
+}
+
+/* innovation(core) -> (y, S): the last encoder update's innovation y (dof,) rad and its covariance
+   S (dof × dof, row-major) rad², dof 0 (empty tuples) before any */
+static PyObject *py_innovation(PyObject *self, PyObject *arg) {
+    Core *c = get(arg);
+    if (!c) return NULL;
+    int m = c->inn_dof;
+    double S[4];
+    for (int a = 0; a < m; a++)
+        for (int b = 0; b < m; b++) S[a * m + b] = c->inn_S[2 * a + b];
+    return Py_BuildValue("(NN)", tuple_of(c->inn_y, m), tuple_of(S, m * m));
 }
 
 static PyObject *forward(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
@@ -708,6 +734,7 @@ static PyMethodDef methods[] = {
     {"state6", py_state6, METH_O, "The filter's [θ, θ̇, ψ, ψ̇, α, α̇]."},
     {"advance", (PyCFunction)(void (*)(void))advance, METH_FASTCALL, "One filter step with an IMU sample."},
     {"forward", (PyCFunction)(void (*)(void))forward, METH_FASTCALL, "Predict the state over commands."},
+    {"innovation", py_innovation, METH_O, "The last encoder update's (y, S)."},
     {NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_ekf", "Compiled path of the twin's EKF.", -1, methods};

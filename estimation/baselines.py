@@ -16,6 +16,11 @@ not tuned here, so that they are neither helped nor handicapped:
 For the rest of the controllers' state both use what such a robot does: odometry from
 the encoders (ψ = ē + θ − θ(0), α = α_0 + (r/b) ẽ), the wheel rate as the change of ψ
 over the last four periods, the yaw rate from the gyro (ω_z / cos θ).
+
+Innovations (the optional ``diagnostics()`` hook of :class:`twin.protocols.Estimator`): the
+two-state Kalman filter reports its accelerometer-angle update's innovation and its
+covariance, converted from its degrees to rad; the complementary filter has no covariance,
+so no normalised innovation to report, and has no ``diagnostics()`` at all.
 """
 from __future__ import annotations
 
@@ -143,6 +148,7 @@ class AngleBiasKalman(_TiltBaseline):
         self.bias = 0.0  # degrees per second
         self.rate = 0.0
         self.P = [[0.0, 0.0], [0.0, 0.0]]
+        self._innov = None  # the last step's update (y, S) in degrees and degrees², None: no update
 
     def _init_angle(self, theta: float) -> None:
         self.angle = theta * _DEG
@@ -150,6 +156,7 @@ class AngleBiasKalman(_TiltBaseline):
     def _filter(self, rate: float, theta_acc) -> None:
         # Kalman::getAngle(newAngle, newRate, dt), with the update skipped without an angle
         dt, P = self.dt, self.P
+        self._innov = None
         self.rate = rate * _DEG - self.bias
         self.angle += dt * self.rate
         P[0][0] += dt * (dt * P[1][1] - P[0][1] - P[1][0] + self.Q_angle)
@@ -161,6 +168,7 @@ class AngleBiasKalman(_TiltBaseline):
         S = P[0][0] + self.R_measure
         K0, K1 = P[0][0] / S, P[1][0] / S
         y = theta_acc * _DEG - self.angle
+        self._innov = (y, S)
         self.angle += K0 * y
         self.bias += K1 * y
         P00, P01 = P[0][0], P[0][1]
@@ -171,3 +179,13 @@ class AngleBiasKalman(_TiltBaseline):
 
     def angle_and_rate(self):
         return self.angle / _DEG, self.rate / _DEG
+
+    def diagnostics(self) -> dict:
+        """The :class:`twin.protocols.Estimator` hook about the last step: where the
+        accelerometer angle updated the filter, its ``innovation`` (1,) rad (θ_acc less the
+        predicted angle) and ``innovation_cov`` (1, 1) rad² (P₀₀ + R_measure, the library's
+        own belief), with ``nis`` = y²/S and ``nis_dof`` 1; else ``nis`` NaN, ``nis_dof`` 0."""
+        if self._innov is None:
+            return {"nis": math.nan, "nis_dof": 0}
+        y, S = self._innov
+        return {"nis": y * y / S, "nis_dof": 1, "innovation": [y / _DEG], "innovation_cov": [[S / _DEG ** 2]]}

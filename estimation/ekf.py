@@ -180,6 +180,7 @@ CONSIDER = ("encoder_zero", "encoder_heading_zero", "gyro_scale_y", "gyro_scale_
 MAX_RIM_SPEED = 20.0  # m/s: encoder counts implying a faster wheel (relative to the body) are a fault
 _isfinite = math.isfinite
 _new = tuple.__new__
+_KERNEL = object()  # diagnostics(): the last update's innovation is the compiled core's to report
 
 
 def finite_reading(v) -> bool:
@@ -346,6 +347,8 @@ class EKFEstimator:
         self.rejected = dict.fromkeys(GROUPS, 0)
         self.in_row = 0
         self.last_nis = math.nan
+        self._innov = None  # the last encoder update's (y, S), or _KERNEL: ask the compiled core
+        self._fit = None  # _encoder_fit's last (y, S), which _gate takes when it sets last_nis
         self.predict_only = 0
         self.unchanged_encoders = 0
         self.interval_updates = 0  # truncated updates that brought the estimate back into a count
@@ -430,9 +433,20 @@ class EKFEstimator:
         """The :class:`twin.protocols.Estimator` hook, about the last start/step: the filter's
         state ``x`` (12,) and covariance ``P`` (12, 12) at its own time t_{k − lag}, the
         encoder update's ``nis`` (NaN where none was tried) with ``nis_dof`` (the number of
-        wheels whose count changed; 0 where none was tried), and ``lag`` (control periods)."""
-        return {"x": self.x.copy(), "P": self.P.copy(), "nis": self.last_nis, "nis_dof": self.last_dof,
-                "lag": self.lag}
+        wheels whose count changed; 0 where none was tried), and ``lag`` (control periods);
+        where an update was tried, also its ``innovation`` y (nis_dof,) rad (the measured edge
+        position less the predicted, one row per wheel whose count changed, left first) and
+        ``innovation_cov`` S (nis_dof, nis_dof) rad², with nis = yᵀ S⁻¹ y."""
+        d = {"x": self.x.copy(), "P": self.P.copy(), "nis": self.last_nis, "nis_dof": self.last_dof,
+             "lag": self.lag}
+        if self.last_dof:
+            inn = self._innov
+            if inn is _KERNEL:  # the compiled core kept the update's y and S (estimation/_ekf.c)
+                y, S = _kernel.innovation(self.core._core)
+                inn = (np.array(y), np.array(S).reshape(len(y), len(y)))
+            if inn is not None:
+                d["innovation"], d["innovation_cov"] = np.array(inn[0], float), np.array(inn[1], float)
+        return d
 
     def stats(self) -> dict:
         return {"accepted": dict(self.accepted), "rejected": dict(self.rejected),
@@ -813,6 +827,7 @@ class EKFEstimator:
             self.predict_only += 1
         else:
             self.last_nis, self.last_dof = nis, dof
+            self._innov = _KERNEL
             if code_e == 3:
                 self.rejected["encoders"] += 1
                 self.in_row += 1
@@ -1021,12 +1036,15 @@ class EKFEstimator:
         z, off, R = np.array(z), np.array(off), np.diag(R)
         y = z - affine(off, H, x)
         S = mm(H, mm(Pp, H.T)) + R
+        if not test:
+            self._fit = (y, S)  # for diagnostics(), should _gate take this fit
         return (z, off, H, R), quad_inv(y, S)
 
     def _gate(self, em, t: float, eps: float) -> bool:
         """The χ² gate for encoder measurement ``em`` whose NIS is ``eps``: True to use it."""
         dof = len(em[0])
         self.last_nis, self.last_dof = eps, dof
+        self._innov = self._fit
         gate = self.gates[dof]
         if not self._gate_policy.passes(eps, dof):
             if self._gate_policy.may_reject(self.in_row):

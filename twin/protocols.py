@@ -117,8 +117,28 @@ class Estimator(Protocol):
         present, is reported as the run's ``rejected_measurements``.
     diagnostics() -> dict
         What the last ``start``/``step`` did (for example the EKF's state, covariance and
-        normalised innovation). Asked for after every step when a run logs them; the
-        estimator owns and resets these values itself.
+        normalised innovation). Asked for after every step when a run logs them, and by
+        ``twin replay``; the estimator owns and resets these values itself. Keys the twin
+        reads, all optional, each about the last ``start``/``step`` alone:
+
+        ``nis`` float and ``nis_dof`` int
+            The normalised innovation squared yᵀ S⁻¹ y of the update made at this step and
+            its degrees of freedom (the measurement's dimension m); NaN and 0 where no update
+            was made. ``twin replay`` reports NIS per degree of freedom (1 if consistent).
+        ``innovation`` (m,) and ``innovation_cov`` (m, m)
+            That update's innovation y (measured less predicted) and its covariance S as the
+            estimator believes it, in the measurement's units and their square (rad and rad²
+            for encoder angles or an accelerometer angle, m/s² and m²/s⁴ for a specific
+            force); absent where no update was made. ``twin replay`` whitens each with S and
+            tests the sequence for whiteness (:mod:`twin.logs.replay`); no truth is needed,
+            so this works on a real robot's log.
+        ``x`` (n,), ``P`` (n, n) and ``lag`` int (the EKF's own)
+            The built-in EKF's 12 states, their covariance and the periods its state lags
+            the instant; with a log's state truth, ``twin replay`` reports NEES from them.
+
+        The built-in EKF gives all of these (its encoder update); the two-state Kalman
+        filter (``kalman2``) its accelerometer-angle update's; the complementary filter has
+        no covariance and no hook.
 
     Attributes
     ----------

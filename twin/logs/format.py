@@ -7,6 +7,7 @@ A log is a directory::
     encoders.csv    t, left, right                                             s, counts (integers)
     commands.csv    t, ul, ur                                                  s, N·m (or PWM duty)
     truth.csv       t, theta, theta_dot, psi, psi_dot, alpha, alpha_dot        s, rad, rad/s (optional)
+                    [, psi_l, psi_r, gyro_bias_x, gyro_bias_y, gyro_bias_z]    rad, rad/s (optional)
 
 Every stream's ``t`` is in seconds on one clock shared by all streams: for a reading, when it
 became available to the estimator (on a robot, when the control loop read it); for a command,
@@ -45,6 +46,19 @@ simply no rows. NaN and infinities are errors.
     accel = "m/s^2"
     encoders = "counts"
     commands = "N·m"              # or "duty"
+    [truth]                       # optional: the sensors' true constants (see "State truth" below)
+    gyro_scale = [0.0, 0.003, -0.001]    # scale-factor errors, x y z (reading = (1 + s) × rate + bias)
+    accel_scale = [0.002, 0.0, -0.004]   # x y z
+    encoder_phase = [0.31, 0.77]         # counts: where each encoder's first edge lies in a count, left right
+    wheel_radius = 0.0401                # m: the true radius (the manifest's is the model's)
+
+State truth (optional, for the EKF's NEES in ``twin replay``): the EKF estimates 12 states, six
+of which the truth columns above do not give. A log may add, all together, five truth columns
+``psi_l, psi_r`` (rad, each wheel's absolute angle, forward positive) and ``gyro_bias_x,
+gyro_bias_y, gyro_bias_z`` (rad/s, the gyro's true bias in the sample of that instant; empty
+where no sample was taken), and the ``[truth]`` table of the sensors' constants. The twin writes
+both (``twin run --log-sensors``); a robot's log with motion capture usually has neither, and
+then replay reports no NEES (NIS and whiteness need no truth).
 
 Anything wrong that can be detected is one :class:`~twin.errors.TwinError` line naming the
 file (and the row or key) and what is allowed: a missing manifest or stream, an unknown format
@@ -72,11 +86,17 @@ STREAMS = {
     "commands": ("t", "ul", "ur"),
     "truth": ("t", "theta", "theta_dot", "psi", "psi_dot", "alpha", "alpha_dot"),
 }
+TRUTH_STATE = ("psi_l", "psi_r", "gyro_bias_x", "gyro_bias_y", "gyro_bias_z")  # optional truth.csv columns
+# the optional [truth] table: key -> (length, what; None: a scalar number)
+TRUTH_KEYS = {"gyro_scale": (3, "gyro scale-factor errors x, y, z"),
+              "accel_scale": (3, "accelerometer scale-factor errors x, y, z"),
+              "encoder_phase": (2, "counts: each encoder's first edge within a count, left, right"),
+              "wheel_radius": (None, "m: the true wheel radius")}
 REQUIRED = ("imu", "encoders", "commands")
 UNITS = {"time": "s", "gyro": "rad/s", "accel": "m/s^2", "encoders": "counts"}
 COMMAND_UNITS = ("N·m", "duty")
 _KEYS = {"format", "version", "control_rate", "wheel_radius", "track", "encoder_counts", "imu_position",
-         "initial_heading", "scenario", "set", "robot", "commands", "units", "source", "expect"}
+         "initial_heading", "scenario", "set", "robot", "commands", "units", "source", "expect", "truth"}
 
 
 @dataclass(frozen=True)
@@ -86,7 +106,10 @@ class SensorLog:
     ``imu_t`` (n,) s with ``gyro`` (n, 3) rad/s and ``accel`` (n, 3) m/s², NaN rows where a
     row held none; ``encoders_t`` (m,) s with ``counts`` (m, 2) int64 (``has_counts`` (m,)
     where a row held them); ``commands_t`` (k,) s with ``commands`` (k, 2) N·m (duty
-    converted); ``truth_t`` and ``truth`` (j, 6) [θ, θ̇, ψ, ψ̇, α, α̇] or None."""
+    converted); ``truth_t`` and ``truth`` (j, 6) [θ, θ̇, ψ, ψ̇, α, α̇] or None;
+    ``truth_state`` (j, 5) [ψ_l, ψ_r rad, gyro bias x, y, z rad/s] where truth.csv has those
+    columns, else None, and ``truth_constants`` the manifest's ``[truth]`` table (a dict of
+    floats and tuples), else None."""
 
     path: Path
     manifest: dict
@@ -106,6 +129,8 @@ class SensorLog:
     truth_t: np.ndarray | None = None
     truth: np.ndarray | None = None
     scenario: object = field(default=None, repr=False)  # the Scenario the manifest names, if any
+    truth_state: np.ndarray | None = None
+    truth_constants: dict | None = None
 
     @property
     def counts_per_rev(self) -> int:
@@ -210,6 +235,7 @@ def read_log(path) -> SensorLog:
     enc = _stream(root, "encoders", required=True, integers=True)
     cmd = _stream(root, "commands", required=True, need_all=True)
     tru = _stream(root, "truth", required=False)
+    constants = _truth_table(m.get("truth"), where) if "truth" in m else None
     t_imu, gyro, accel = imu[:, 0], imu[:, 1:4], imu[:, 4:7]
     _check_gravity(root / "imu.csv", accel, t_imu)
     ecount = enc[:, 1:3]
@@ -225,8 +251,27 @@ def read_log(path) -> SensorLog:
     if len(cmd) < 2:
         raise TwinError(f"{root / 'commands.csv'}: {len(cmd)} row(s); a log needs at least 2 control instants")
     return SensorLog(root, m, rate, model, sensors, motor, heading, t_imu, gyro, accel, enc[:, 0], counts_i, has,
-                     cmd[:, 0], commands, None if tru is None else tru[:, 0], None if tru is None else tru[:, 1:],
-                     scenario)
+                     cmd[:, 0], commands, None if tru is None else tru[:, 0], None if tru is None else tru[:, 1:7],
+                     scenario, None if tru is None or tru.shape[1] == 7 else tru[:, 7:], constants)
+
+
+def _truth_table(t, where: str) -> dict:
+    """The manifest's optional ``[truth]`` table, checked: every key of :data:`TRUTH_KEYS`."""
+    if not isinstance(t, dict):
+        raise TwinError(f"{where}: truth must be a table ({', '.join(TRUTH_KEYS)}), got {shown(t)}")
+    unknown = sorted(set(t) - set(TRUTH_KEYS))
+    if unknown:
+        raise TwinError(f"{where}: truth.{unknown[0]}: unknown key; allowed: {', '.join(TRUTH_KEYS)}")
+    out = {}
+    for k, (n, what) in TRUTH_KEYS.items():
+        v = t.get(k)
+        ok = (_is_number(v) and 0.0 < v <= 1.0) if n is None else (
+            isinstance(v, list) and len(v) == n and all(_is_number(e) for e in v))
+        if not ok:
+            want = "a number in (0, 1]" if n is None else f"a list of {n} numbers"
+            raise TwinError(f"{where}: truth.{k}: {'missing' if v is None else shown(v)}; allowed: {want} ({what})")
+        out[k] = float(v) if n is None else tuple(float(e) for e in v)
+    return out
 
 
 def _is_number(v) -> bool:
@@ -277,11 +322,15 @@ def _stream(root: Path, name: str, required: bool, integers: bool = False, need_
             rows = list(csv.reader(fh))
     except (OSError, UnicodeDecodeError) as exc:
         raise TwinError(f"{path}: cannot be read ({exc})") from None
-    if not rows or tuple(h.strip() for h in rows[0]) != cols:
-        raise TwinError(f"{path}: row 1: the header must be {','.join(cols)}, got "
+    groups = {"imu": ((1, 4), (4, 7)), "encoders": ((1, 3),), "commands": ((1, 3),), "truth": ((1, 7),)}[name]
+    header = tuple(h.strip() for h in rows[0]) if rows else ()
+    if name == "truth" and header == cols + TRUTH_STATE:  # the optional state truth (see the docstring)
+        cols, groups = header, ((1, 7), (7, 9), (9, 12))
+    if not rows or header != cols:
+        also = f" (optionally followed by {','.join(TRUTH_STATE)})" if name == "truth" else ""
+        raise TwinError(f"{path}: row 1: the header must be {','.join(cols)}{also}, got "
                         f"{shown(','.join(rows[0]) if rows else '')}")
     out = np.empty((len(rows) - 1, len(cols)))
-    groups = {"imu": ((1, 4), (4, 7)), "encoders": ((1, 3),), "commands": ((1, 3),), "truth": ((1, 7),)}[name]
     last = -math.inf
     for i, row in enumerate(rows[1:]):
         line = i + 2
@@ -393,11 +442,20 @@ def write_log(run, out, scenario=None, initial_heading: float | None = None) -> 
         fh.write(",".join(STREAMS["commands"]) + "\n")
         for i in range(len(t)):
             fh.write(f"{float(t[i])!r},{float(ul[i])!r},{float(ur[i])!r}\n")
+    # the truth, with the state truth the EKF's NEES needs (wheel angles, the gyro's bias in each
+    # sample: empty where none was taken) when the run recorded it
+    st = run.sensor_truth or {}
+    state = run.gyro_bias is not None and all(k in st for k in ("gyro_scale", "accel_scale", "encoder_phase"))
     with open(out / "truth.csv", "w", newline="", encoding="utf-8") as fh:
-        fh.write(",".join(STREAMS["truth"]) + "\n")
+        fh.write(",".join(STREAMS["truth"] + (TRUTH_STATE if state else ())) + "\n")
         cols = [run.signal(n) for n in STREAMS["truth"][1:]]
+        wheels = [run.signal("psi_l"), run.signal("psi_r")] if state else []
+        bias = run.gyro_bias
         for i in range(len(t)):
-            fh.write(",".join([repr(float(t[i]))] + [repr(float(c[i])) for c in cols]) + "\n")
+            row = [repr(float(t[i]))] + [repr(float(c[i])) for c in cols] + [repr(float(w[i])) for w in wheels]
+            if state:
+                row += [repr(float(v)) for v in bias[i]] if np.isfinite(bias[i]).all() else ["", "", ""]
+            fh.write(",".join(row) + "\n")
     p = run.model_params
     lines = [f'format = "{FORMAT}"', f"version = {VERSION}", f"control_rate = {float(cfg.control_rate)!r}",
              f"wheel_radius = {float(p.r)!r}", f"track = {float(2.0 * p.b)!r}",
@@ -415,6 +473,10 @@ def write_log(run, out, scenario=None, initial_heading: float | None = None) -> 
     robot = [f"{k} = {float(getattr(p, k))!r}" for k in p.__dataclass_fields__ if k not in ("r", "b", "n_xb")]
     lines += ["source = \"twin run\"", "", "[robot]", *robot, f"n_xb = {float(p.n_xb)!r}", "", "[commands]",
               'unit = "N·m"', ""]
+    if state:  # the sensors' drawn constants and the plant's radius: the rest of the EKF's state truth
+        vec = lambda v: "[" + ", ".join(repr(float(e)) for e in v) + "]"  # noqa: E731
+        lines += ["[truth]", f"gyro_scale = {vec(st['gyro_scale'])}", f"accel_scale = {vec(st['accel_scale'])}",
+                  f"encoder_phase = {vec(st['encoder_phase'])}", f"wheel_radius = {float(cfg.params.r)!r}", ""]
     (out / "log.toml").write_text("\n".join(lines), encoding="utf-8")
     return out
 
@@ -423,4 +485,5 @@ def _toml_str(s: str) -> str:
     return '"' + s.replace("\\", "\\\\").replace('"', '\\"') + '"'
 
 
-__all__ = ["COMMAND_UNITS", "FORMAT", "STREAMS", "SensorLog", "TIME_TOLERANCE", "VERSION", "read_log", "write_log"]
+__all__ = ["COMMAND_UNITS", "FORMAT", "STREAMS", "SensorLog", "TIME_TOLERANCE", "TRUTH_KEYS", "TRUTH_STATE",
+           "VERSION", "read_log", "write_log"]

@@ -11,6 +11,23 @@ instant: the last one is what arrives (as in the twin, where a newer sample supe
 on its way). The estimator gets ``start(m_0)``, then ``step(m_k, u_{k-1})`` with the command of
 the instant before (the torques applied over the period that just ended), so a log the twin
 wrote replays to the very estimates of its run.
+
+Consistency (:func:`consistency`), from the estimator's ``diagnostics()`` (the optional keys
+:class:`twin.protocols.Estimator` documents):
+
+* NIS per degree of freedom over every instant with an update (1 for a consistent filter).
+* NEES of the EKF where the log carries the state truth (:mod:`twin.logs.format`: the truth
+  columns ``psi_l … gyro_bias_z`` at every instant and the ``[truth]`` table): the arithmetic of
+  :mod:`estimation.consistency` on the replay's ``x``, ``P``, ``lag`` and that truth, averaged
+  over the instants at least :data:`NEES_START` s after the first (12 for a consistent filter);
+  over several logs of one estimator, :func:`monte_carlo` gives the Monte Carlo χ² tests of
+  :func:`estimation.consistency.monte_carlo` (each log one run).
+* Whiteness of the innovations (``innovation`` y and ``innovation_cov`` S): each update's
+  normalised innovation s_k = 1ᵀ L⁻¹ y / √m (L the Cholesky factor of S, m = dim y), which is
+  N(0, 1) for a consistent filter whatever m, and white if the innovations are; its sample
+  autocorrelation ρ(l) at lags l = 1 … :data:`WHITENESS_LAGS` counted in updates (not in time:
+  the EKF updates only when a count changed), against the 95 % band ±1.96/√N of a white
+  sequence of N updates; a white sequence has about 5 % of lags outside. Needs no truth.
 """
 from __future__ import annotations
 
@@ -25,6 +42,9 @@ from twin.logs.format import SensorLog
 from twin.sensors import Measurement
 
 INSTANT_TOLERANCE = 1e-6  # of a control period: a reading this much after an instant counts as at it
+NEES_START = 0.5  # s after the first instant: the EKF's start-up transient of the encoder zeros is left out
+WHITENESS_LAGS = 20  # lags (in updates) of the innovations' autocorrelation: 0.1 s of 200 Hz updates at most
+WHITENESS_Z = 1.959963984540054  # the two-sided 95 % point of N(0, 1): the band is ±z/√N
 
 
 @dataclass
@@ -156,28 +176,152 @@ def errors(log: SensorLog, r: Replay) -> dict | None:
     return out
 
 
-__all__ = ["INSTANT_TOLERANCE", "Replay", "build_for", "errors", "instants", "replay"]
+__all__ = ["INSTANT_TOLERANCE", "NEES_START", "Replay", "WHITENESS_LAGS", "build_for", "consistency", "errors",
+           "filter_record", "instants", "monte_carlo", "normalised_innovations", "replay", "replay_logs",
+           "state_truth", "whiteness", "write_estimates_csv", "write_figure"]
 
 
-def consistency(r: Replay) -> dict:
-    """NIS per degree of freedom (1 for a consistent filter) over the instants with an update,
-    from the estimator's ``diagnostics()`` (``nis``, ``nis_dof``): needs no truth."""
+def consistency(r: Replay, log: SensorLog | None = None, start: float = NEES_START) -> dict:
+    """From the estimator's ``diagnostics()`` (see the module docstring): ``nis_per_dof`` (1 for a
+    consistent filter) and ``nis_updates`` over the instants with an update; ``nees_mean`` (12 for
+    the EKF if consistent), ``nees_rows`` and ``nees_start_s`` where ``log`` has the state truth
+    (``start`` s after the first instant on); ``whiteness`` (:func:`whiteness`) and its
+    ``whiteness_outside_fraction`` where the estimator reports innovations. {} if it reports none
+    of these."""
     if not r.diagnostics:
         return {}
-    nis = np.array([d.get("nis", math.nan) if isinstance(d, dict) else math.nan for d in r.diagnostics], float)
-    dof = np.array([d.get("nis_dof", 0) if isinstance(d, dict) else 0 for d in r.diagnostics], float)
+    out = {}
+    ds = [d if isinstance(d, dict) else {} for d in r.diagnostics]
+    nis = np.array([d.get("nis", math.nan) for d in ds], float)
+    dof = np.array([d.get("nis_dof", 0) for d in ds], float)
     on = np.isfinite(nis) & (dof > 0)
-    if not on.any():
-        return {}
-    return {"nis_per_dof": float(nis[on].sum() / dof[on].sum()), "nis_updates": int(on.sum())}
+    if on.any():
+        out.update(nis_per_dof=float(nis[on].sum() / dof[on].sum()), nis_updates=int(on.sum()))
+    rec = filter_record(log, r) if log is not None else None
+    if rec is not None and rec.truth is not None:
+        from estimation.consistency import nees
+
+        e = nees(rec)
+        keep = (rec.t >= start - 1e-9) & np.isfinite(e)
+        if keep.any():
+            out.update(nees_mean=float(e[keep].mean()), nees_dim=int(rec.filter_log["x"].shape[1]),
+                       nees_rows=int(keep.sum()), nees_start_s=float(start))
+    w = whiteness(r)
+    if w is not None:
+        out.update(whiteness_outside_fraction=w["outside_fraction"], whiteness=w)
+    return out
+
+
+def normalised_innovations(r: Replay) -> tuple[np.ndarray, np.ndarray]:
+    """(t (N,) s, s (N,)) at the instants with an ``innovation`` and ``innovation_cov``: s_k =
+    1ᵀ L⁻¹ y / √m, L the Cholesky factor of S, m = dim y (N(0, 1) for a consistent filter)."""
+    ts, ss = [], []
+    for t, d in zip(r.t.tolist(), r.diagnostics or []):
+        if not isinstance(d, dict) or "innovation" not in d or "innovation_cov" not in d:
+            continue
+        y = np.atleast_1d(np.asarray(d["innovation"], float))
+        S = np.atleast_2d(np.asarray(d["innovation_cov"], float))
+        if y.size == 0:
+            continue
+        if S.shape != (y.size, y.size) or not np.isfinite(y).all() or not np.isfinite(S).all():
+            raise PluginError(f"estimator {r.estimator}: diagnostics() at t = {t:.3f} s: innovation {y.shape} and "
+                              f"innovation_cov {S.shape}; allowed: finite (m,) and (m, m) (see "
+                              f"twin.protocols.Estimator)")
+        try:
+            w = np.linalg.solve(np.linalg.cholesky(S), y)
+        except np.linalg.LinAlgError:
+            raise PluginError(f"estimator {r.estimator}: diagnostics() at t = {t:.3f} s: innovation_cov is not "
+                              f"positive definite; allowed: a covariance (symmetric, positive definite)") from None
+        ts.append(t)
+        ss.append(float(w.sum()) / math.sqrt(y.size))
+    return np.array(ts), np.array(ss)
+
+
+def whiteness(r: Replay, lags: int = WHITENESS_LAGS) -> dict | None:
+    """The normalised innovations' sample autocorrelation ρ(l) = Σ_k (s_k − s̄)(s_{k+l} − s̄) /
+    Σ_k (s_k − s̄)² at l = 1 … ``lags`` (in updates) against the 95 % band ±1.96/√N of a white
+    sequence of N: {"updates": N, "lags": lags, "band": 1.96/√N, "autocorrelation": [ρ(1) …],
+    "outside_fraction": the fraction of lags with |ρ| above the band, "mean", "variance": of s
+    (0 and 1 if consistent)}; None without innovations or with fewer than 2 × ``lags`` updates."""
+    _, s = normalised_innovations(r)
+    n = len(s)
+    if n < 2 * lags:
+        return None
+    c = s - s.mean()
+    den = float(c @ c)
+    rho = [float(c[:-l] @ c[l:]) / den if den > 0 else 0.0 for l in range(1, lags + 1)]
+    band = WHITENESS_Z / math.sqrt(n)
+    return {"updates": n, "lags": lags, "band": band, "autocorrelation": rho,
+            "outside_fraction": float(np.mean(np.abs(rho) > band)), "mean": float(s.mean()),
+            "variance": float(s.var())}
+
+
+def state_truth(log: SensorLog, t: np.ndarray):
+    """The :class:`estimation.consistency.StateTruth` of ``log`` at the instants ``t`` (s), or
+    None unless the log has the state truth (the extra truth columns and the ``[truth]`` table)
+    with a truth row at every instant."""
+    if log.truth is None or log.truth_state is None or log.truth_constants is None:
+        return None
+    from estimation.consistency import StateTruth
+
+    k = np.round((log.truth_t - t[0]) * log.control_rate).astype(np.int64)
+    on = (k >= 0) & (k < len(t)) & np.isclose(t[np.clip(k, 0, len(t) - 1)], log.truth_t, atol=1e-9, rtol=0)
+    rows = np.full(len(t), -1, dtype=np.int64)
+    rows[k[on]] = np.flatnonzero(on)  # the last truth row at an instant, as for the readings
+    if (rows < 0).any():
+        return None
+    tr, st, c = log.truth[rows], log.truth_state[rows], log.truth_constants
+    model, sensors = log.model, log.sensors
+    return StateTruth(theta=tr[:, 0], theta_dot=tr[:, 1], psi_l=st[:, 0], psi_r=st[:, 1], psi=tr[:, 2],
+                      psi_dot=tr[:, 3], alpha=tr[:, 4], gyro_bias=st[:, 2:5], gyro_scale=c["gyro_scale"],
+                      accel_scale=c["accel_scale"], encoder_phase=c["encoder_phase"],
+                      imu_position=tuple(sensors.imu.position), wheel_radius=c["wheel_radius"],
+                      b_over_r=float(model.b / model.r), resolution=float(sensors.encoders.resolution))
+
+
+def filter_record(log: SensorLog | None, r: Replay):
+    """The :class:`estimation.consistency.FilterRecord` of replay ``r`` (t from the first
+    instant, s) with ``log``'s state truth (None if it has none), or None unless the estimator
+    reported the EKF's ``x``, ``P`` and ``lag`` at every instant."""
+    from estimation.consistency import FilterRecord
+    from twin.sim.recorder import _filter_log  # the arrays Run.filter_log holds, built the same way
+
+    ds = r.diagnostics
+    if not ds or not all(isinstance(d, dict) and {"x", "P", "lag"} <= set(d) for d in ds):
+        return None
+    keys = ("x", "P", "nis", "nis_dof", "lag")
+    flog = _filter_log([{k: d[k] for k in keys if k in d} for d in ds], len(ds))
+    if "nis" not in flog:
+        flog["nis"], flog["nis_dof"] = np.full(len(ds), math.nan), np.zeros(len(ds), dtype=int)
+    t = r.t - r.t[0]
+    return FilterRecord(t, flog, None if log is None else state_truth(log, r.t))
+
+
+def monte_carlo(records, start: float = NEES_START) -> dict | None:
+    """:func:`estimation.consistency.monte_carlo` over the :func:`filter_record` of several logs of
+    one estimator (each log an independent run; truncated to the shortest), in JSON: ``runs``,
+    ``dim``, ``rows``, ``start_s``, ``nees_mean`` with its 95 % χ² ``nees_bounds`` and Student-t
+    ``nees_mean_interval``, ``nees_inside`` (the fraction of instants whose average NEES lies in
+    the bounds), ``nis_inside`` and ``nis_per_dof``; None with fewer than 2 records with truth."""
+    from estimation.consistency import monte_carlo as mc
+
+    recs = [x for x in records if x is not None and x.truth is not None]
+    if len(recs) < 2:
+        return None
+    m = mc(recs, start=start)
+    return {"runs": m["runs"], "dim": m["dim"], "rows": m["rows"], "start_s": float(start),
+            "nees_mean": m["nees_mean"], "nees_bounds": list(m["nees_bounds"]),
+            "nees_mean_interval": list(m["nees_mean_interval"]), "nees_inside": m["nees_inside"],
+            "nis_inside": m["nis_inside"], "nis_per_dof": m["nis_per_dof"]}
 
 
 def replay_logs(paths, kinds) -> dict:
     """Every estimator kind of ``kinds`` on every log of ``paths``: {"logs": {path: {"duration_s", "instants",
-    "estimators": {kind: {"errors", "consistency", "rejected_total", "step_us", ...}}}}} and the replays."""
+    "estimators": {kind: {"errors", "consistency", "rejected_total", "step_us", ...}}}}, "estimators": {kind:
+    {"monte_carlo": :func:`monte_carlo` over the logs with the state truth, or None}}} and the replays."""
     from twin.logs.format import read_log
 
-    doc, replays = {"logs": {}}, {}
+    doc, replays, records = {"logs": {}}, {}, {k: [] for k in kinds}
     for p in paths:
         log = read_log(p)
         entry = {"duration_s": log.duration, "control_rate_hz": log.control_rate, "has_truth": log.truth is not None,
@@ -187,11 +331,13 @@ def replay_logs(paths, kinds) -> dict:
             r = replay(log, est, kind, diagnostics=callable(getattr(est, "diagnostics", None)))
             replays[(str(p), kind)] = r
             entry["instants"] = len(r.t)
+            records[kind].append(filter_record(log, r))
             entry["estimators"][kind] = {
-                "errors": errors(log, r), "consistency": consistency(r),
+                "errors": errors(log, r), "consistency": consistency(r, log),
                 "rejected_total": int(r.stats.get("rejected_total", 0)), "step_us": r.step_s * 1e6,
                 "events": list(r.stats.get("events", []))}
         doc["logs"][str(p)] = entry
+    doc["estimators"] = {k: {"monte_carlo": monte_carlo(records[k])} for k in kinds}
     return doc, replays
 
 
@@ -206,3 +352,75 @@ def write_estimates_csv(replays: dict, path) -> None:
         for (log, kind), r in replays.items():
             for t, row in zip(r.t.tolist(), r.estimates.tolist()):
                 fh.write(",".join([log, kind, repr(t)] + [repr(v) for v in row]) + "\r\n")
+
+
+FIGURE_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown")
+
+
+def write_figure(doc: dict, replays: dict, path, confidence: float = 0.95) -> None:
+    """``figure.png`` of a replay: for the first log of ``doc``, θ, ψ and α of every estimator
+    against the truth (black; without truth, against each other), and every NIS-reporting
+    estimator's NIS per degree of freedom at each update, on a log scale, with the two-sided
+    ``confidence`` χ² bounds of one update of each dof present (χ²_d quantiles / d). Drawn as
+    :mod:`twin.outputs.figure` draws: matplotlib's object API on the Agg canvas, no pyplot."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    from scipy.stats import chi2
+
+    from twin.logs.format import read_log
+    from twin.outputs.figure import DPI, PNG_COMPRESSION
+
+    first = next(iter(doc["logs"]))
+    log = read_log(first)
+    runs = [(kind, r) for (p, kind), r in replays.items() if p == first]
+    fig = Figure(figsize=(12.0, 8.0), dpi=DPI)
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(2, 2, sharex=True).ravel()
+    panels = (("θ [rad]", 0, 0), ("ψ [rad] (mean wheel angle)", 2, 1), ("heading α [rad]", 4, 2))
+    truth = None if log.truth is None else (log.truth_t, log.truth)
+    for ax, (title, j, _) in zip(axes, panels):
+        ax.set_title(title, fontsize=9)
+        if truth is not None:
+            ax.plot(truth[0], truth[1][:, j], color="k", lw=1.6, label="truth")
+        for i, (kind, r) in enumerate(runs):
+            ax.plot(r.t, r.estimates[:, j], color=FIGURE_COLOURS[i % len(FIGURE_COLOURS)], lw=1.0, label=kind)
+    ax = axes[3]
+    ax.set_title(f"NIS per degree of freedom at each update ({confidence:.0%} χ² bounds of one update dashed)",
+                 fontsize=9)
+    a = 0.5 * (1.0 - confidence)
+    dofs = set()
+    for i, (kind, r) in enumerate(runs):
+        if not r.diagnostics:
+            continue
+        ds = [d if isinstance(d, dict) else {} for d in r.diagnostics]
+        nis = np.array([d.get("nis", math.nan) for d in ds], float)
+        dof = np.array([d.get("nis_dof", 0) for d in ds], int)
+        on = np.isfinite(nis) & (dof > 0)
+        if not on.any():
+            continue
+        c = FIGURE_COLOURS[i % len(FIGURE_COLOURS)]
+        per = doc["logs"][first]["estimators"][kind]["consistency"].get("nis_per_dof", math.nan)
+        ax.plot(r.t[on], np.maximum(nis[on] / dof[on], 1e-6), ls="none", marker=".", ms=2.5, color=c,
+                label=f"{kind} (mean {per:.3g})")
+        dofs |= set(dof[on].tolist())
+    for d in sorted(dofs):
+        lo, hi = chi2.ppf([a, 1.0 - a], d) / d
+        ls = "--" if d == 1 else ":"
+        ax.axhline(lo, color="0.3", ls=ls, lw=0.9, label=f"bounds, {d} dof: {lo:.2g}, {hi:.3g}")
+        ax.axhline(hi, color="0.3", ls=ls, lw=0.9)
+    if dofs:
+        ax.set_yscale("log")
+    else:
+        ax.text(0.5, 0.5, "no estimator reports NIS", ha="center", va="center", transform=ax.transAxes,
+                fontsize=9, color="0.4")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        if ax.lines:
+            ax.legend(loc="best", fontsize=7)
+    for ax in axes[2:]:
+        ax.set_xlabel("time [s]")
+    more = len(doc["logs"]) - 1
+    fig.suptitle(f"twin replay: {first}" + (f" (the first of {more + 1} logs)" if more else "")
+                 + ("" if log.truth is not None else ": no truth, the estimators against each other"), fontsize=10)
+    fig.set_layout_engine("tight", rect=(0, 0, 1, 0.96))
+    fig.savefig(path, dpi=DPI, pil_kwargs={"compress_level": PNG_COMPRESSION})
