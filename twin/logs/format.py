@@ -403,14 +403,15 @@ def _check_gravity(path: Path, accel: np.ndarray, t: np.ndarray) -> None:
 
 
 # ---- writing ---------------------------------------------------------------------------------------
-def write_log(run, out, scenario=None, initial_heading: float | None = None) -> Path:
+def write_log(run, out, scenario=None, initial_heading: float | None = None, source: str = "twin run") -> Path:
     """Write twin run ``run`` (a :class:`twin.sim.runs.Run` logged at every control step, with
     simulated sensors) as a sensor log in directory ``out``, the truth stream included.
 
     ``scenario``: the :class:`~twin.scenarios.Scenario` it ran (its name or file, and --set
     items, go into log.toml, so the estimators are built for the same sensors and motors);
     ``initial_heading`` (rad): α at t = 0 as the run's estimator was told it (default: the
-    scenario's ``initial.alpha``, else the truth's first α)."""
+    scenario's ``initial.alpha``, else the truth's first α); ``source``: what wrote it (log.toml's
+    free-text ``source``; a sweep's sample adds which sample it is)."""
     if run.measurements is None or run.sensor_config is None:
         raise TwinError("a sensor log needs a run with simulated sensors (sensing is ideal here)")
     if getattr(run, "log_every", 1) != 1:
@@ -463,7 +464,12 @@ def write_log(run, out, scenario=None, initial_heading: float | None = None) -> 
              f"imu_position = [{', '.join(repr(float(v)) for v in sensors.imu.position)}]",
              f"initial_heading = {float(heading)!r}"]
     if scenario is not None:
-        src = scenario.source.split(" with --set ")[0]
+        # a sweep's sample (twin.sweep.sampling) is its scenario's file and --set items with other
+        # draws (plant, tilt, pushes, seed), never other sensors or motors: name that file, say the sample
+        base, _, sample = scenario.source.partition(", sweep sample ")
+        src = base.split(" with --set ")[0]
+        if sample:
+            source = f"{source}, sweep sample {sample}"
         name = src[len("built-in scenario "):] if src.startswith("built-in scenario ") else None
         if name is None:  # a file of one's own: copied beside the log, so the log stands alone
             (out / "scenario.toml").write_bytes(Path(src).read_bytes())
@@ -471,7 +477,7 @@ def write_log(run, out, scenario=None, initial_heading: float | None = None) -> 
         lines += [f"scenario = {_toml_str(name)}",
                   "set = [" + ", ".join(_toml_str(o) for o in scenario.overrides) + "]"]
     robot = [f"{k} = {float(getattr(p, k))!r}" for k in p.__dataclass_fields__ if k not in ("r", "b", "n_xb")]
-    lines += ["source = \"twin run\"", "", "[robot]", *robot, f"n_xb = {float(p.n_xb)!r}", "", "[commands]",
+    lines += [f"source = {_toml_str(source)}", "", "[robot]", *robot, f"n_xb = {float(p.n_xb)!r}", "", "[commands]",
               'unit = "N·m"', ""]
     if state:  # the sensors' drawn constants and the plant's radius: the rest of the EKF's state truth
         vec = lambda v: "[" + ", ".join(repr(float(e)) for e in v) + "]"  # noqa: E731

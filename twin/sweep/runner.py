@@ -12,6 +12,9 @@ Outputs in the sweep directory:
   the reference (by default the last one listed: IT2 against type-1 for the default
   pair) (:mod:`twin.sweep.statistics`);
 - ``success.png``, ``distributions.png``, ``paired.png``: the figures;
+- ``sensor-logs/sample-K/KIND/``, for the samples chosen (``log_sensors``): each controller's
+  run of sample K as a sensor log (:mod:`twin.logs.format`), exactly the log
+  ``twin run SCENARIO --sample K --seed ROOT --log-sensors`` writes (:func:`write_sample_logs`);
 - ``manifest.json``, written last (:func:`twin.outputs.rundir.seal`): every file with its size and
   SHA-256. The report of an earlier run is deleted before any sample runs, so a directory
   without ``manifest.json`` holds a sweep that did not finish, never an out-of-date report.
@@ -47,6 +50,7 @@ RUN_WALL_BASE_S = 60.0
 RUN_WALL_PER_SIMULATED_S = 10.0
 COMMAND = "twin sweep"
 REPORT_FILES = ("sweep.csv", "summary.md", "summary.json", "success.png", "distributions.png", "paired.png")
+LOGS_DIR = "sensor-logs"  # the chosen samples' sensor logs: LOGS_DIR/sample-K/KIND/
 
 
 @dataclass
@@ -62,6 +66,8 @@ class SweepResult:
     ran: int = 0           # samples run by this call
     resumed: int = 0       # samples found finished in the directory
     wall_s: float = 0.0    # time spent running samples in this call
+    logs: dict = field(default_factory=dict)  # (sample, kind) → the sensor log's directory (log_sensors)
+    log_notes: list = field(default_factory=list)  # what to say about those logs (a run that differs, say)
     environment_changes: list = field(default_factory=list)  # this call's environment against the first samples'
     failure: str | None = None  # why the sweep measured nothing usable (the command exits 2), or None
 
@@ -111,7 +117,7 @@ def preflight(scenario: Scenario, kinds, duration: float = 0.05) -> None:
 
 def run_sweep(scenario: Scenario, draws: int, out: Path, scenario_arg: str | None = None, workers: int | None = None,
               backend: str = "local", address: str | None = None, progress=None, controllers=None,
-              reference: str | None = None) -> SweepResult:
+              reference: str | None = None, log_sensors=()) -> SweepResult:
     """Run ``draws`` samples at each level of ``scenario``'s ``[sweep]`` (every controller on each),
     resuming any finished samples found in ``out``, then write the report.
 
@@ -119,7 +125,8 @@ def run_sweep(scenario: Scenario, draws: int, out: Path, scenario_arg: str | Non
     ``workers``: processes or Ray CPUs (default: the cores here, or the Ray cluster's);
     ``progress(done, total)``: called as samples finish; ``controllers``: the kinds compared
     on identical samples (None: the scenario's ``controller.kinds``); ``reference``: the one
-    the paired statistics compare each other with (default: the last).
+    the paired statistics compare each other with (default: the last); ``log_sensors``: sample
+    numbers whose runs are also written as sensor logs (:func:`write_sample_logs`).
     """
     from twin.registry import plugin_dirs
     if not (isinstance(draws, int) and 1 <= draws <= MAX_DRAWS):
@@ -129,6 +136,7 @@ def run_sweep(scenario: Scenario, draws: int, out: Path, scenario_arg: str | Non
     if workers is not None and not (isinstance(workers, int) and 1 <= workers <= 1024):
         raise TwinError(f"--workers must be an integer from 1 to 1024, got {workers!r}")
     kinds, reference = sweep_controllers(scenario, controllers, reference)
+    log_sensors = check_log_samples(scenario, log_sensors, draws * len(scenario.sweep["levels"]))
     preflight(scenario, kinds)
     from twin.outputs import rundir
     from twin.registry import provenance
@@ -151,6 +159,10 @@ def run_sweep(scenario: Scenario, draws: int, out: Path, scenario_arg: str | Non
                        paths, store.config)
         for name in (rundir.MANIFEST, *REPORT_FILES):  # the earlier report is no longer this directory's
             (store.out / name).unlink(missing_ok=True)
+        if (store.out / LOGS_DIR).exists():  # nor are the logs an earlier call chose (this one may choose others)
+            import shutil
+
+            shutil.rmtree(store.out / LOGS_DIR)
         total = draws * len(levels)
         todo = [k for k in range(total) if k not in store.records]
         resumed = total - len(todo)
@@ -177,12 +189,80 @@ def run_sweep(scenario: Scenario, draws: int, out: Path, scenario_arg: str | Non
         records = [store.records[k] for k in range(total)]
         result = write_report(out, store.manifest, records, scenario, reference)
         rundir.test_point("sweep-report")  # the kill tests' stop: the report written, not yet sealed
+        if log_sensors:
+            result.logs, result.log_notes = write_sample_logs(job, log_sensors, records, store.out)
+            result.files.append(store.out / LOGS_DIR)
         result.failure = failure_of(result.rows)
         result.ran, result.resumed, result.wall_s = len(todo), resumed, wall
         result.environment_changes = store.environment_changes
         rundir.seal(store.out, COMMAND, exit_status=2 if result.failure else 0)  # last: the report is complete
         result.files.append(store.out / rundir.MANIFEST)
     return result
+
+
+def check_log_samples(scenario: Scenario, samples, total: int) -> tuple[int, ...]:
+    """``samples`` (the sample numbers ``--log-sensors`` chose) as a sorted tuple without repeats,
+    each checked to be one of the sweep's ``total`` samples, and the scenario checked to simulate
+    sensors; one line otherwise, before anything runs or is written."""
+    samples = tuple(samples or ())
+    if not samples:
+        return ()
+    bad = next((k for k in samples if isinstance(k, bool) or not isinstance(k, int) or not 0 <= k < total), None)
+    if bad is not None:
+        raise TwinError(f"--log-sensors: {bad!r} is not a sample of this sweep; allowed: sample numbers from 0 to "
+                        f"{total - 1} (the 'sample' column of sweep.csv: draws × levels)")
+    if scenario.sensor_config() is None:
+        raise TwinError("--log-sensors needs simulated sensors: sensors.sensing is \"ideal\" here (nothing is "
+                        "measured); allowed: sensors.sensing = \"estimated\"")
+    return tuple(sorted(set(samples)))
+
+
+def log_dir_name(kind: str) -> str:
+    """A controller kind as a directory name (a plugin's "pkg.mod:Cls" has a colon), as twin run names it."""
+    import re
+
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", kind)
+
+
+def write_sample_logs(job: SweepJob, samples, records, out: Path) -> tuple[dict, list]:
+    """Write each controller's run of each of ``samples`` as a sensor log in
+    ``out/sensor-logs/sample-K/KIND/``; ({(K, kind): directory}, notes).
+
+    The samples are run again here, in this process, at every control step: a sample is a
+    deterministic function of the scenario, the root seed and K (:mod:`twin.sweep.sampling`), so
+    the run is the one the sweep stored, whether it finished in this call, in a worker, or in an
+    earlier call this one resumed (whose workers kept no readings). Each run's metrics are
+    compared with the stored ones: a difference (a sweep resumed in another environment, say) is
+    a note, the log being of the run made here. A controller whose run of the sample ended in an
+    error has no log. log.toml names the sweep's scenario and --set items (a sample differs from
+    it only in plant, tilt, pushes and seed, none of which the estimators' sensors and motors
+    depend on) and says which sample it is in ``source``.
+    """
+    import json
+
+    from twin.logs.format import write_log
+    from twin.scenarios.runner import run_scenario
+    from twin.sweep.sampling import sample_scenario
+
+    sc = job.scenario()  # exactly what the workers ran: the sweep's limits and design
+    logs, notes = {}, []
+    for k in samples:
+        sample = sample_scenario(sc, job.root_seed, k)
+        stored = records[k]["runs"]
+        for kind in job.controllers:
+            if kind not in stored:
+                notes.append(f"sample {k}, {kind}: no sensor log (its run ended in an error: "
+                             f"{(records[k].get('errors') or {}).get(kind, records[k]['error'])})")
+                continue
+            done = run_scenario(sample.scenario, (kind,))  # as the worker runs it (twin.sweep.worker)
+            run, metrics = done.runs[0], done.metrics[kind]
+            if json.dumps(metrics, sort_keys=True) != json.dumps(
+                    {m: v for m, v in stored[kind].items() if m != "success"}, sort_keys=True):
+                notes.append(f"sample {k}, {kind}: the run logged differs from the one sweep.csv holds (resumed "
+                             f"in another environment?); the log is of the run made now")
+            d = out / LOGS_DIR / f"sample-{k}" / log_dir_name(kind)
+            logs[(k, kind)] = write_log(run, d, sample.scenario, source=COMMAND)
+    return logs, notes
 
 
 def sweep_data(data: dict) -> dict:
