@@ -208,3 +208,21 @@ def test_whiteness_passes_white_innovations_and_fails_correlated_ones():
     w = whiteness(_fake(ar))
     assert w["autocorrelation"][0] == pytest.approx(0.5, abs=0.05) and w["outside_fraction"] >= 0.2
     assert whiteness(_fake(white[:30])) is None  # fewer than 2 × 20 updates
+
+
+def test_twin_replay_writes_the_figure_and_the_monte_carlo(batch, tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    _, paths, _, _ = batch
+    out = tmp_path / "rp"
+    r = subprocess.run([sys.executable, "-m", "twin.cli", "replay", str(paths[0]), str(paths[1]), "--estimator",
+                        "ekf,kalman2", "--out", str(out)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert (out / "figure.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    doc = json.loads((out / "replay.json").read_text(encoding="utf-8"))
+    assert doc["estimators"]["ekf"]["monte_carlo"]["runs"] == 2
+    c = doc["logs"][str(paths[0])]["estimators"]["ekf"]["consistency"]
+    assert {"nees_mean", "nis_per_dof", "whiteness_outside_fraction"} <= set(c)
+    assert "ekf over 2 logs from 0.5 s: mean NEES" in r.stdout

@@ -553,15 +553,18 @@ def replay(logs, estimators, out):
     """Replay estimators on sensor logs (a robot's, or the twin's from 'twin run --log-sensors').
 
     No physics: each log's readings and commands go to each estimator one control instant at a
-    time. Reports the θ, ψ, α errors where the log has truth, NIS per degree of freedom where
-    the estimator reports it, rejected readings and the cost per step.
+    time. Reports the θ, ψ, α errors where the log has truth, NIS per degree of freedom and the
+    innovations' whiteness where the estimator reports them, the EKF's NEES where the log has
+    the state truth (the twin's logs do; over several logs also the Monte Carlo χ² tests),
+    rejected readings and the cost per step. Writes replay.json, estimates.csv and figure.png
+    (the first log: θ, ψ, α against the truth, NIS with its χ² bounds).
 
     \b
     Examples:
       twin run paper-exp3 --log-sensors --no-video --out runs/exp3
       twin replay runs/exp3/sensor-logs/it2 --estimator ekf,complementary,kalman2
     """
-    from twin.logs.replay import replay_logs, write_estimates_csv
+    from twin.logs.replay import replay_logs, write_estimates_csv, write_figure
     from twin.outputs import report, rundir
     from twin.registry import check_kinds
 
@@ -574,6 +577,7 @@ def replay(logs, estimators, out):
         doc, replays = replay_logs(logs, kinds)
         report.write_json(doc, staged.path / "replay.json")
         write_estimates_csv(replays, staged.path / "estimates.csv")
+        write_figure(doc, replays, staged.path / "figure.png")
         staged.commit(0)
     except BaseException as exc:
         staged.discard()
@@ -584,13 +588,23 @@ def replay(logs, estimators, out):
         click.echo(f"{path}: {entry['instants']} instants, {entry['duration_s']:g} s at {entry['control_rate_hz']:g} Hz"
                    + ("" if entry["has_truth"] else " (no truth: errors not computed)"))
         click.echo(f"  {'estimator':16}{'θ RMSE rad':>12}{'θ max rad':>12}{'ψ RMSE rad':>12}{'α RMSE rad':>12}"
-                   f"{'NIS/dof':>9}{'rejected':>10}{'µs/step':>9}")
+                   f"{'NIS/dof':>9}{'NEES':>8}{'ρ out':>8}{'rejected':>10}{'µs/step':>9}")
         for kind, e in entry["estimators"].items():
             err, c = e["errors"] or {}, e["consistency"]
+            out_frac = c.get("whiteness_outside_fraction")  # lags outside the 95 % band (about 5 % if white)
             click.echo(f"  {kind:16}{_fmt(err.get('theta_rmse_rad')):>12}{_fmt(err.get('theta_max_abs_rad')):>12}"
                        f"{_fmt(err.get('psi_rmse_rad')):>12}{_fmt(err.get('alpha_rmse_rad')):>12}"
-                       f"{_fmt(c.get('nis_per_dof')):>9}{e['rejected_total']:>10}{e['step_us']:>9.1f}")
-    click.echo(f"wrote {out}/: replay.json, estimates.csv, {rundir.MANIFEST}")
+                       f"{_fmt(c.get('nis_per_dof')):>9}{_fmt(c.get('nees_mean')):>8}"
+                       f"{'-' if out_frac is None else f'{out_frac:.0%}':>8}{e['rejected_total']:>10}"
+                       f"{e['step_us']:>9.1f}")
+    for kind, mc in doc.get("estimators", {}).items():
+        if mc.get("monte_carlo"):
+            m = mc["monte_carlo"]
+            click.echo(f"{kind} over {m['runs']} logs from {m['start_s']:g} s: mean NEES {m['nees_mean']:.3g} "
+                       f"(95 % bounds {m['nees_bounds'][0]:.3g} to {m['nees_bounds'][1]:.3g}, dim {m['dim']}), "
+                       f"{m['nees_inside']:.0%} of instants inside; NIS per dof {m['nis_per_dof']:.3g}, "
+                       f"{m['nis_inside']:.0%} of update instants inside")
+    click.echo(f"wrote {out}/: replay.json, estimates.csv, figure.png, {rundir.MANIFEST}")
 
 
 @main.command()
@@ -615,22 +629,17 @@ def replay(logs, estimators, out):
                    "package.module:attribute. Default: the scenario's controller.kinds.")
 @click.option("--reference", default=None, metavar="KIND",
               help="The controller each other one is paired with in the paired statistics (default: the last listed).")
-@click.option("--log-sensors", "log_sensors", default=None, metavar="K[,K...]",
-              help="Also write each controller's run of samples K (the 'sample' column of sweep.csv) as sensor "
-                   "logs, in sensor-logs/sample-K/KIND/: the logs 'twin run SCENARIO --sample K --log-sensors' "
-                   "writes.")
 @_limit_options(" for each controller's run of a sample",
                 "the scenario's, else 60 s + 10 × the simulated time in s (210 s for 15 s)")
 def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overrides, out, controller, reference,
-          log_sensors, step_limit, run_limit, memory_limit):
+          step_limit, run_limit, memory_limit):
     """Monte Carlo sweep: controllers compared on sampled plants, noise, tilts and pushes.
 
     The scenario's [sweep] table says what is sampled (see the README). Each sample's
     seed and sampled values are in sweep.csv, and 'twin run SCENARIO --sample K'
     replays sample K exactly. Finished samples are kept as they finish: rerun the
     same command after an interruption and only the rest runs. Writes sweep.csv,
-    summary.md, summary.json, success.png, distributions.png and paired.png (and, with
-    --log-sensors, the chosen samples' sensor logs for 'twin replay'). A run
+    summary.md, summary.json, success.png, distributions.png and paired.png. A run
     stopped by a limit (--step-limit, --run-limit, --memory-limit; by default each run
     may take 60 s + 10 s per simulated s) is an error of that controller on that sample.
 
@@ -640,23 +649,20 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
       twin sweep paper-exp3 --samples 50 --controller it2,t1,lqr --reference lqr
       twin sweep push-recovery --samples 20 --workers 2 --set sweep.push_count=2
       twin sweep paper-exp2 --samples 100 --backend ray --ray-address auto
-      twin sweep paper-exp3 --samples 50 --log-sensors 0,17   # and samples 0 and 17 as sensor logs
     """
     from twin.outputs import rundir
     from twin.scenarios.runner import controllers_of, plan, plugins_of
     from twin.sweep import run_sweep
-    from twin.sweep.runner import check_log_samples, sweep_controllers
+    from twin.sweep.runner import sweep_controllers
 
     if ray_address is not None and backend != "ray":
         raise TwinError("--ray-address needs --backend ray")
-    chosen = _sample_numbers(log_sensors)
     sc = _load(scenario, _limit_overrides(overrides, step_limit, run_limit, memory_limit), seed, duration)
     if out is None:
         out = rundir.child_of(Path("runs"), f"sweep-{sc.name}", "the scenario's name")
     rundir.refuse_if_in_use(out)
     levels = sc.sweep["levels"]
     kinds, reference = sweep_controllers(sc, controllers_of(controller, sc), reference)
-    chosen = check_log_samples(sc, chosen, draws * len(levels))  # said before anything is
     plan(sc, kinds)  # every plugin built once here: one that cannot be is one line before anything runs
     click.echo(_title(sc))
     _echo_plugins(plugins_of(sc, kinds))
@@ -665,8 +671,7 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
     bar = _SweepBar()
     try:
         result = run_sweep(sc, draws, out, scenario_arg=scenario, workers=workers, backend=backend,
-                           address=ray_address, progress=bar.update, controllers=kinds, reference=reference,
-                           log_sensors=chosen)
+                           address=ray_address, progress=bar.update, controllers=kinds, reference=reference)
     except KeyboardInterrupt as exc:
         bar.close()
         if bar.total and bar.done >= bar.total:  # stopped while the report was written
@@ -685,12 +690,6 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
                + (f", {60 * result.ran / result.wall_s:.1f} samples/min" if result.ran and result.wall_s > 0 else "")
                + (f"; {result.resumed} were already finished" if result.resumed else ""))
     click.echo(_success_table(result.summary))
-    if result.logs:
-        logged = sorted({k for k, _ in result.logs})
-        click.echo(f"  sensor logs of sample{'s' * (len(logged) > 1)} {', '.join(map(str, logged))}: "
-                   f"{len(result.logs)} in {out}/sensor-logs/sample-K/KIND/ (for twin replay)")
-    for note in result.log_notes:
-        click.echo(f"  note: {note}")
     click.echo(f"wrote {out}/: " + ", ".join(Path(f).name for f in result.files))
     if result.rows and all(r["status"] == "error" for r in result.rows):
         first = result.rows[0]
@@ -702,18 +701,6 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
         raise TwinError(f"{len(broken)} run{'s' * (len(broken) > 1)} ended with a plugin error (first: sample "
                         f"{first['sample']}, {first['error'][len('PluginError: '):]}); the other runs are stored "
                         f"in {out}")
-
-
-def _sample_numbers(text: str | None) -> tuple[int, ...]:
-    """--log-sensors K[,K...] as sample numbers (whether each is one of the sweep's is checked
-    by twin.sweep.runner.check_log_samples, which knows how many there are)."""
-    if text is None:
-        return ()
-    parts = [p.strip() for p in text.split(",")]
-    if not all(re.fullmatch(r"\d+", p) for p in parts):
-        raise TwinError(f"--log-sensors must be sample numbers, comma-separated (the 'sample' column of sweep.csv, "
-                        f"e.g. 0,17), got {text!r}")
-    return tuple(int(p) for p in parts)
 
 
 @main.command()
