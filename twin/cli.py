@@ -629,17 +629,22 @@ def replay(logs, estimators, out):
                    "package.module:attribute. Default: the scenario's controller.kinds.")
 @click.option("--reference", default=None, metavar="KIND",
               help="The controller each other one is paired with in the paired statistics (default: the last listed).")
+@click.option("--log-sensors", "log_sensors", default=None, metavar="K[,K...]",
+              help="Also write each controller's run of samples K (the 'sample' column of sweep.csv) as sensor "
+                   "logs, in sensor-logs/sample-K/KIND/: the logs 'twin run SCENARIO --sample K --log-sensors' "
+                   "writes.")
 @_limit_options(" for each controller's run of a sample",
                 "the scenario's, else 60 s + 10 × the simulated time in s (210 s for 15 s)")
 def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overrides, out, controller, reference,
-          step_limit, run_limit, memory_limit):
+          log_sensors, step_limit, run_limit, memory_limit):
     """Monte Carlo sweep: controllers compared on sampled plants, noise, tilts and pushes.
 
     The scenario's [sweep] table says what is sampled (see the README). Each sample's
     seed and sampled values are in sweep.csv, and 'twin run SCENARIO --sample K'
     replays sample K exactly. Finished samples are kept as they finish: rerun the
     same command after an interruption and only the rest runs. Writes sweep.csv,
-    summary.md, summary.json, success.png, distributions.png and paired.png. A run
+    summary.md, summary.json, success.png, distributions.png and paired.png (and, with
+    --log-sensors, the chosen samples' sensor logs for 'twin replay'). A run
     stopped by a limit (--step-limit, --run-limit, --memory-limit; by default each run
     may take 60 s + 10 s per simulated s) is an error of that controller on that sample.
 
@@ -649,20 +654,23 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
       twin sweep paper-exp3 --samples 50 --controller it2,t1,lqr --reference lqr
       twin sweep push-recovery --samples 20 --workers 2 --set sweep.push_count=2
       twin sweep paper-exp2 --samples 100 --backend ray --ray-address auto
+      twin sweep paper-exp3 --samples 50 --log-sensors 0,17   # and samples 0 and 17 as sensor logs
     """
     from twin.outputs import rundir
     from twin.scenarios.runner import controllers_of, plan, plugins_of
     from twin.sweep import run_sweep
-    from twin.sweep.runner import sweep_controllers
+    from twin.sweep.runner import check_log_samples, sweep_controllers
 
     if ray_address is not None and backend != "ray":
         raise TwinError("--ray-address needs --backend ray")
+    chosen = _sample_numbers(log_sensors)
     sc = _load(scenario, _limit_overrides(overrides, step_limit, run_limit, memory_limit), seed, duration)
     if out is None:
         out = rundir.child_of(Path("runs"), f"sweep-{sc.name}", "the scenario's name")
     rundir.refuse_if_in_use(out)
     levels = sc.sweep["levels"]
     kinds, reference = sweep_controllers(sc, controllers_of(controller, sc), reference)
+    chosen = check_log_samples(sc, chosen, draws * len(levels))  # said before anything is
     plan(sc, kinds)  # every plugin built once here: one that cannot be is one line before anything runs
     click.echo(_title(sc))
     _echo_plugins(plugins_of(sc, kinds))
@@ -671,7 +679,8 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
     bar = _SweepBar()
     try:
         result = run_sweep(sc, draws, out, scenario_arg=scenario, workers=workers, backend=backend,
-                           address=ray_address, progress=bar.update, controllers=kinds, reference=reference)
+                           address=ray_address, progress=bar.update, controllers=kinds, reference=reference,
+                           log_sensors=chosen)
     except KeyboardInterrupt as exc:
         bar.close()
         if bar.total and bar.done >= bar.total:  # stopped while the report was written
@@ -690,6 +699,12 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
                + (f", {60 * result.ran / result.wall_s:.1f} samples/min" if result.ran and result.wall_s > 0 else "")
                + (f"; {result.resumed} were already finished" if result.resumed else ""))
     click.echo(_success_table(result.summary))
+    if result.logs:
+        logged = sorted({k for k, _ in result.logs})
+        click.echo(f"  sensor logs of sample{'s' * (len(logged) > 1)} {', '.join(map(str, logged))}: "
+                   f"{len(result.logs)} in {out}/sensor-logs/sample-K/KIND/ (for twin replay)")
+    for note in result.log_notes:
+        click.echo(f"  note: {note}")
     click.echo(f"wrote {out}/: " + ", ".join(Path(f).name for f in result.files))
     if result.rows and all(r["status"] == "error" for r in result.rows):
         first = result.rows[0]
@@ -701,6 +716,18 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
         raise TwinError(f"{len(broken)} run{'s' * (len(broken) > 1)} ended with a plugin error (first: sample "
                         f"{first['sample']}, {first['error'][len('PluginError: '):]}); the other runs are stored "
                         f"in {out}")
+
+
+def _sample_numbers(text: str | None) -> tuple[int, ...]:
+    """--log-sensors K[,K...] as sample numbers (whether each is one of the sweep's is checked
+    by twin.sweep.runner.check_log_samples, which knows how many there are)."""
+    if text is None:
+        return ()
+    parts = [p.strip() for p in text.split(",")]
+    if not all(re.fullmatch(r"\d+", p) for p in parts):
+        raise TwinError(f"--log-sensors must be sample numbers, comma-separated (the 'sample' column of sweep.csv, "
+                        f"e.g. 0,17), got {text!r}")
+    return tuple(int(p) for p in parts)
 
 
 @main.command()
