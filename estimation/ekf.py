@@ -442,8 +442,9 @@ class EKFEstimator:
         if self.last_dof:
             inn = self._innov
             if inn is _KERNEL:  # the compiled core kept the update's y and S (estimation/_ekf.c)
-                y, S = _kernel.innovation(self.core._core)
-                inn = (np.array(y), np.array(S).reshape(len(y), len(y)))
+                hook = getattr(_kernel, "innovation", None)  # None: a kernel built before it had one
+                y, S = hook(self.core._core) if hook is not None else ((), ())
+                inn = (np.array(y), np.array(S).reshape(len(y), len(y))) if len(y) else None
             if inn is not None:
                 d["innovation"], d["innovation_cov"] = np.array(inn[0], float), np.array(inn[1], float)
         return d
