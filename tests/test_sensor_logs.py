@@ -278,3 +278,31 @@ def test_commands_as_pwm_duty_become_torques_through_the_motors_stall_torque(tmp
     (d / "commands.csv").write_text("\n".join(lines) + "\n")
     with pytest.raises(TwinError, match=r"commands.csv: row 5: a PWM duty outside \[-1, 1\]"):
         read_log(d)
+
+
+def test_the_motors_figures_in_the_manifest(tmp_path):
+    d = write_by_hand(tmp_path / "motor", seconds=0.5)
+    (d / "log.toml").write_text(MANIFEST + '[motor]\nstall_torque = 0.8\n[commands]\nunit = "duty"\n')
+    lines = (d / "commands.csv").read_text().splitlines()
+    (d / "commands.csv").write_text("\n".join([lines[0]] + [ln.split(",")[0] + ",0.5,0.5" for ln in lines[1:]]) + "\n")
+    log = read_log(d)
+    assert log.motor.stall_torque == 0.8 and np.all(log.commands == 0.4)
+    assert log.context().motor is log.motor  # the EKF is built for these motors too
+    (d / "log.toml").write_text(MANIFEST + '[motor]\nstall_torq = 0.8\n')
+    with pytest.raises(TwinError, match=r"motor.stall_torq: unknown; allowed: .*stall_torque"):
+        read_log(d)
+    (d / "log.toml").write_text(MANIFEST + '[motor]\nstall_torque = -1\n')
+    with pytest.raises(TwinError, match=r"log.toml: motor: .*stall_torque"):
+        read_log(d)
+
+
+def test_nees_and_whiteness_are_bounds_a_twin_logs_check_may_name(twin_runs, tmp_path):
+    sc, runs = twin_runs
+    d = write_log(runs[0], tmp_path / "it2", sc)
+    with open(d / "log.toml", "a", encoding="utf-8") as fh:
+        fh.write('\n[expect.ekf]\nnees_mean = "<= 1e6"\nwhiteness_outside_fraction = "<= 1"\n'
+                 '[expect.complementary]\nnees_mean = "<= 1e6"\n')
+    status, stdout, stderr = _twin("check", str(d))
+    assert status == 1  # the complementary filter reports no covariance: its NEES is undefined, and fails
+    assert "FAIL log:it2 estimator complementary: nees_mean = undefined" in stderr and "estimator ekf" not in stderr, \
+        stderr

@@ -105,6 +105,8 @@ def replay_metrics(entry: dict) -> dict:
     errors, c = entry.get("errors") or {}, entry.get("consistency") or {}
     out = {k: errors.get(k) for k in REPLAY_METRICS if k.startswith(("theta_", "psi_", "alpha_"))}
     out["nis_per_dof"] = c.get("nis_per_dof")
+    out["nees_mean"] = c.get("nees_mean")  # needs the log's state truth (twin logs hold it)
+    out["whiteness_outside_fraction"] = c.get("whiteness_outside_fraction")
     out["rejected_total"] = entry.get("rejected_total")
     return out
 

@@ -38,6 +38,8 @@ simply no rows. NaN and infinities are errors.
                                   # specification and [plant.motor] the motors; default: the defaults
     [robot]                       # optional: the model the estimators assume, twin.params.RobotParams
     m_b = 2.58                    # keys in SI (default Table III; r and b come from the keys above)
+    [motor]                       # optional: the motors and drivers (twin.actuators.DCMotorParams keys,
+    stall_torque = 1.2            # SI; default the scenario's plant.motor), for "duty" commands and the EKF
     [commands]
     unit = "N·m"                  # or "duty": PWM duty in [-1, 1], torque = duty × the motor's stall torque
     [units]                       # optional; if given, exactly these
@@ -96,7 +98,7 @@ REQUIRED = ("imu", "encoders", "commands")
 UNITS = {"time": "s", "gyro": "rad/s", "accel": "m/s^2", "encoders": "counts"}
 COMMAND_UNITS = ("N·m", "duty")
 _KEYS = {"format", "version", "control_rate", "wheel_radius", "track", "encoder_counts", "imu_position",
-         "initial_heading", "scenario", "set", "robot", "commands", "units", "source", "expect", "truth"}
+         "initial_heading", "scenario", "set", "robot", "commands", "units", "source", "expect", "truth", "motor"}
 
 
 @dataclass(frozen=True)
@@ -227,6 +229,21 @@ def read_log(path) -> SensorLog:
         raise TwinError(f"{where}: scenario: its sensors.sensing is \"ideal\"; a log holds readings: the scenario "
                         f"must have simulated sensors")
     motor = scenario.twin_config().motor
+    if "motor" in m:  # the robot's motors and drivers: twin.actuators.DCMotorParams keys, SI
+        from twin.actuators.dc_motor import DEFAULT_MOTOR, DCMotorParams
+
+        table = m["motor"]
+        if not isinstance(table, dict):
+            raise TwinError(f"{where}: motor must be a table of twin.actuators.DCMotorParams keys, got {shown(table)}")
+        try:
+            motor = DCMotorParams(**{**{k: getattr(motor or DEFAULT_MOTOR, k)
+                                        for k in DCMotorParams.__dataclass_fields__}, **table})
+        except TypeError:
+            bad = sorted(set(table) - set(DCMotorParams.__dataclass_fields__))
+            raise TwinError(f"{where}: motor.{bad[0] if bad else '?'}: unknown; allowed: "
+                            f"{', '.join(DCMotorParams.__dataclass_fields__)}") from None
+        except TwinError as exc:
+            raise TwinError(f"{where}: motor: {exc}") from None
     if cunit == "duty" and motor is None:
         raise TwinError(f"{where}: commands.unit = \"duty\" needs the motor's figures (the scenario's "
                         f"plant.motor = \"dc\")")

@@ -52,6 +52,7 @@ METRICS = {
 REPLAY_METRICS = {
     "theta_rmse_rad": "rad", "theta_max_abs_rad": "rad", "psi_rmse_rad": "rad", "psi_max_abs_rad": "rad",
     "alpha_rmse_rad": "rad", "alpha_max_abs_rad": "rad", "nis_per_dof": "1", "rejected_total": "1",
+    "nees_mean": "1", "whiteness_outside_fraction": "1",
 }
 OPS = {"<=": operator.le, "<": operator.lt, ">=": operator.ge, ">": operator.gt, "==": operator.eq}
 ALL = "*"  # the scope of the bounds that apply to every controller
