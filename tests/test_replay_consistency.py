@@ -106,9 +106,7 @@ def test_a_log_without_the_state_truth_has_nis_and_whiteness_but_no_nees(batch, 
     """A robot's log with motion capture (the six truth columns, no [truth] table)."""
     _, paths, _, _ = batch
     dst = tmp_path / "robot"
-    dst.mkdir()
-    for f in paths[0].iterdir():
-        (dst / f.name).write_bytes(f.read_bytes())
+    _copy_log(paths[0], dst)
     text = (dst / "log.toml").read_text(encoding="utf-8")
     (dst / "log.toml").write_text(text[:text.index("[truth]")], encoding="utf-8")
     rows = (dst / "truth.csv").read_text(encoding="utf-8").splitlines()
@@ -126,9 +124,7 @@ def test_a_log_without_the_state_truth_has_nis_and_whiteness_but_no_nees(batch, 
 def test_a_malformed_truth_table_is_one_line(batch, tmp_path, edit, words):
     _, paths, _, _ = batch
     dst = tmp_path / "bad"
-    dst.mkdir()
-    for f in paths[0].iterdir():
-        (dst / f.name).write_bytes(f.read_bytes())
+    _copy_log(paths[0], dst)
     (dst / "log.toml").write_text(edit((dst / "log.toml").read_text(encoding="utf-8")), encoding="utf-8")
     with pytest.raises(TwinError) as exc:
         read_log(dst)
@@ -139,9 +135,7 @@ def test_a_malformed_truth_table_is_one_line(batch, tmp_path, edit, words):
 def test_a_partial_state_truth_row_is_one_line(batch, tmp_path):
     _, paths, _, _ = batch
     dst = tmp_path / "partial"
-    dst.mkdir()
-    for f in paths[0].iterdir():
-        (dst / f.name).write_bytes(f.read_bytes())
+    _copy_log(paths[0], dst)
     rows = (dst / "truth.csv").read_text(encoding="utf-8").splitlines()
     cells = rows[5].split(",")
     cells[7] = ""  # psi_l empty, psi_r not
@@ -226,3 +220,10 @@ def test_twin_replay_writes_the_figure_and_the_monte_carlo(batch, tmp_path):
     c = doc["logs"][str(paths[0])]["estimators"]["ekf"]["consistency"]
     assert {"nees_mean", "nis_per_dof", "whiteness_outside_fraction"} <= set(c)
     assert "ekf over 2 logs from 0.5 s: mean NEES" in r.stdout
+
+
+def _copy_log(src, dst) -> None:
+    """A copy of the log directory ``src`` at ``dst``, to alter."""
+    dst.mkdir()
+    for f in src.iterdir():
+        (dst / f.name).write_bytes(f.read_bytes())

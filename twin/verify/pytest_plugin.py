@@ -118,52 +118,52 @@ class TwinCheckFailure(Exception):
     """A check that failed; its message is the report."""
 
 
-class TwinCheckItem(pytest.Item):
+class _CheckItem(pytest.Item):
+    """A check whose failure report is the table of bounds and the failed ones (``_result()``)."""
+
+    def runtest(self):
+        from twin.verify.testing import report
+
+        result = self._result()
+        if not result.passed:
+            raise TwinCheckFailure(report(result))
+
+    def repr_failure(self, excinfo):
+        if isinstance(excinfo.value, TwinCheckFailure):
+            return str(excinfo.value)
+        return super().repr_failure(excinfo)
+
+
+class TwinCheckItem(_CheckItem):
     """One scenario and controller, over ``--twin-seeds`` seeds."""
 
     def __init__(self, *, scenario, kind, **kwargs):
         super().__init__(**kwargs)
         self.scenario, self.kind = scenario, kind
 
-    def runtest(self):
+    def _result(self):
         from twin.verify.check import run_checks
-        from twin.verify.testing import report
 
-        result = run_checks([self.scenario], [self.kind], self.config.getoption("twin_seeds"), 1)
-        if not result.passed:
-            raise TwinCheckFailure(report(result))
-
-    def repr_failure(self, excinfo):
-        if isinstance(excinfo.value, TwinCheckFailure):
-            return str(excinfo.value)
-        return super().repr_failure(excinfo)
+        return run_checks([self.scenario], [self.kind], self.config.getoption("twin_seeds"), 1)
 
     def reportinfo(self):
         return Path(self.scenario.source.split(" with --set ")[0]), None, f"{self.scenario.name} {self.kind}"
 
 
-class TwinLogItem(pytest.Item):
+class TwinLogItem(_CheckItem):
     """One estimator replayed on a sensor log, judged by the log's bounds (:mod:`twin.logs.expect`)."""
 
     def __init__(self, *, check, kind, **kwargs):
         super().__init__(**kwargs)
         self.check, self.kind = check, kind
 
-    def runtest(self):
+    def _result(self):
         from dataclasses import replace
 
         from twin.logs.expect import run_log_checks
         from twin.verify.check import CheckResult
-        from twin.verify.testing import report
 
-        result = CheckResult(run_log_checks([replace(self.check, kinds=(self.kind,))]))
-        if not result.passed:
-            raise TwinCheckFailure(report(result))
-
-    def repr_failure(self, excinfo):
-        if isinstance(excinfo.value, TwinCheckFailure):
-            return str(excinfo.value)
-        return super().repr_failure(excinfo)
+        return CheckResult(run_log_checks([replace(self.check, kinds=(self.kind,))]))
 
     def reportinfo(self):
         return Path(self.check.source), None, f"{self.check.name} {self.kind}"
