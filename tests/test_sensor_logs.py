@@ -306,3 +306,22 @@ def test_nees_and_whiteness_are_bounds_a_twin_logs_check_may_name(twin_runs, tmp
     assert status == 1  # the complementary filter reports no covariance: its NEES is undefined, and fails
     assert "FAIL log:it2 estimator complementary: nees_mean = undefined" in stderr and "estimator ekf" not in stderr, \
         stderr
+
+
+def test_encoder_glitches_are_whole_counts_so_a_run_with_them_is_a_log(tmp_path):
+    """sensor-faults spikes the encoders by ±0.05 rad: whole counts (±10 of 1200 per revolution), as an
+    encoder's every reading, so the run can be written as a log and replays bit for bit."""
+    import math
+
+    sc = load_scenario("sensor-faults")
+    run = run_scenario(sc, ["it2"]).runs[0]
+    ms, res = run.measurements, 2.0 * math.pi / 1200
+    enc = ms.encoders[ms.has_encoders]
+    counts = np.round(enc / (1.0 / (1200 / (2.0 * math.pi))))
+    assert np.array_equal(counts * (1.0 / (1200 / (2.0 * math.pi))), enc)  # every reading a whole count
+    assert run.sensor_counts["encoders"]["spiked"] > 0  # the glitches happened
+    jumps = np.abs(np.diff(np.round(enc / res), axis=0))
+    assert (jumps >= 10).any()  # a ±10-count glitch (the wheels turn far less in 5 ms)
+    log = read_log(write_log(run, tmp_path / "faults", sc))
+    r = replay(log, build_for(log, "ekf"), "ekf")
+    assert r.estimates.tobytes() == run.estimates.tobytes()

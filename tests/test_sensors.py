@@ -661,7 +661,7 @@ def test_spikes_are_outliers_of_the_given_magnitude_and_are_counted():
     against the same seed without the fault, spiked readings differ by exactly ±1 on every axis
     (both signs occur), the others not at all; their number is ``fault_counts()["gyro"]["spiked"]``
     and is 400 ± 5σ (measured 369). With magnitude 30 (beyond ±250 °/s) the outliers read exactly
-    the full-scale codes. Encoders spiked at every step by ±0.3 rad, unclipped."""
+    the full-scale codes. Encoders spiked at every step by ±0.3 rad as whole counts (±57), unclipped."""
     clean, _ = _run(SensorConfig(), 11)
     faulty, suite = _run(SensorConfig(faults=(Spikes("gyro", start=0.5, duration=4.0, rate=100.0, magnitude=1.0),)),
                          11)
@@ -688,8 +688,10 @@ def test_spikes_are_outliers_of_the_given_magnitude_and_are_counted():
     assert suite.fault_counts()["gyro"]["spiked"] == 50 and suite.fault_counts()["accel"]["spiked"] == 50
 
     faulty, suite = _run(SensorConfig(faults=(Spikes("encoders", rate=1e4, magnitude=0.3),)), 11, 50)
-    for c, f in zip(clean, faulty):
-        assert np.allclose(np.abs(np.subtract(f.encoders, c.encoders)), 0.3, atol=1e-12)
+    res = 2.0 * math.pi / 1200
+    for c, f in zip(clean, faulty):  # an encoder's glitch is whole counts: 0.3 rad is 57 counts (0.29845 rad)
+        assert np.allclose(np.abs(np.subtract(f.encoders, c.encoders)), 57 * res, atol=1e-12)
+        assert np.allclose(np.round(np.divide(f.encoders, res)), np.divide(f.encoders, res), atol=1e-9)
         assert f.gyro == c.gyro
     assert suite.fault_counts()["encoders"]["spiked"] == 50
 

@@ -69,7 +69,8 @@ class Stuck(_Window):
 @dataclass(frozen=True)
 class Spikes(_Window):
     """Outliers: probability ``rate`` (1/s) × sample interval per sample, offset ±``magnitude``
-    on every axis (rad/s, m/s² or rad of wheel angle, the sensor's unit)."""
+    on every axis (rad/s, m/s² or rad of wheel angle, the sensor's unit). An encoder's glitch
+    is a whole number of counts: ±``magnitude`` rounded to counts, at least one."""
 
     rate: float = 2.0
     magnitude: float = 1.0

@@ -93,8 +93,10 @@ class _Channel:
     """One sensor's samples on their way out: faults, then the latency queue."""
 
     def __init__(self, name: str, latency: int, faults, rng: np.random.Generator, sample_dt: float,
-                 control_dt: float, clip=None):
+                 control_dt: float, clip=None, quantum: float | None = None):
         self.name = name
+        # an encoder's reading is a whole number of counts (quantum rad each): so is a glitch
+        self.quantum = quantum
         self.latency = latency
         self.control_dt = control_dt
         self.dropouts = [f for f in faults if isinstance(f, Dropout) and name in f.sensors]
@@ -128,7 +130,12 @@ class _Channel:
         for f, p in self.spikes:
             if f.active(t) and self.rng.random() < p:
                 signs = self.rng.integers(0, 2, len(values))
-                values = tuple(v + (f.magnitude if s else -f.magnitude) for v, s in zip(values, signs))
+                if self.quantum is None:
+                    values = tuple(v + (f.magnitude if s else -f.magnitude) for v, s in zip(values, signs))
+                else:  # ±magnitude as whole counts (at least one): count × quantum, as every encoder reading
+                    q = self.quantum
+                    n = max(1, round(f.magnitude / q))
+                    values = tuple((round(v / q) + (n if s else -n)) * q for v, s in zip(values, signs))
                 if self.clip is not None:
                     values = tuple(self.clip(v) for v in values)
                 self.counts["spiked"] += 1
@@ -202,7 +209,8 @@ class SensorSuite:
         self.channels = {
             "gyro": _Channel("gyro", d_imu, config.faults, gf_rng, imu_dt, T, self.gyro.clip),
             "accel": _Channel("accel", d_imu, config.faults, af_rng, imu_dt, T, self.accel.clip),
-            "encoders": _Channel("encoders", d_enc, config.faults, ef_rng, T, T),
+            "encoders": _Channel("encoders", d_enc, config.faults, ef_rng, T, T,
+                                 quantum=1.0 / self.counts_per_rad),
         }
         self.last_gyro_bias = self.gyro.bias
 
