@@ -325,3 +325,12 @@ def test_encoder_glitches_are_whole_counts_so_a_run_with_them_is_a_log(tmp_path)
     log = read_log(write_log(run, tmp_path / "faults", sc))
     r = replay(log, build_for(log, "ekf"), "ekf")
     assert r.estimates.tobytes() == run.estimates.tobytes()
+
+
+def test_replay_draws_a_figure_per_log(tmp_path):
+    a, b = write_by_hand(tmp_path / "a", seconds=0.5), write_by_hand(tmp_path / "b", seconds=0.5, tilt=0.1)
+    status, stdout, stderr = _twin("replay", str(a), str(b), "--estimator", "ekf", "--out", str(tmp_path / "o"))
+    assert status == 0, stderr
+    names = sorted(p.name for p in (tmp_path / "o").iterdir())
+    assert names == ["estimates.csv", "figure-2.png", "figure.png", "manifest.json", "replay.json"]
+    assert "figure.png, figure-2.png" in stdout

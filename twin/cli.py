@@ -564,7 +564,7 @@ def replay(logs, estimators, out):
       twin run paper-exp3 --log-sensors --no-video --out runs/exp3
       twin replay runs/exp3/sensor-logs/it2 --estimator ekf,complementary,kalman2
     """
-    from twin.logs.replay import replay_logs, write_estimates_csv, write_figure
+    from twin.logs.replay import figure_name, replay_logs, write_estimates_csv, write_figure
     from twin.outputs import report, rundir
     from twin.registry import check_kinds
 
@@ -577,7 +577,9 @@ def replay(logs, estimators, out):
         doc, replays = replay_logs(logs, kinds)
         report.write_json(doc, staged.path / "replay.json")
         write_estimates_csv(replays, staged.path / "estimates.csv")
-        write_figure(doc, replays, staged.path / "figure.png")
+        figures = [figure_name(k) for k in range(len(doc["logs"]))]
+        for k, name in enumerate(figures):  # one per log: figure.png, figure-2.png, ...
+            write_figure(doc, replays, staged.path / name, which=k)
         staged.commit(0)
     except BaseException as exc:
         staged.discard()
@@ -604,7 +606,7 @@ def replay(logs, estimators, out):
                        f"(95 % bounds {m['nees_bounds'][0]:.3g} to {m['nees_bounds'][1]:.3g}, dim {m['dim']}), "
                        f"{m['nees_inside']:.0%} of instants inside; NIS per dof {m['nis_per_dof']:.3g}, "
                        f"{m['nis_inside']:.0%} of update instants inside")
-    click.echo(f"wrote {out}/: replay.json, estimates.csv, figure.png, {rundir.MANIFEST}")
+    click.echo(f"wrote {out}/: replay.json, estimates.csv, {', '.join(figures)}, {rundir.MANIFEST}")
 
 
 @main.command()

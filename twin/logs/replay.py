@@ -357,8 +357,13 @@ def write_estimates_csv(replays: dict, path) -> None:
 FIGURE_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown")
 
 
-def write_figure(doc: dict, replays: dict, path, confidence: float = 0.95) -> None:
-    """``figure.png`` of a replay: for the first log of ``doc``, θ, ψ and α of every estimator
+def figure_name(k: int) -> str:
+    """The figure of log number ``k`` (0-based) of a replay: figure.png, figure-2.png, ..."""
+    return "figure.png" if k == 0 else f"figure-{k + 1}.png"
+
+
+def write_figure(doc: dict, replays: dict, path, confidence: float = 0.95, which: int = 0) -> None:
+    """The figure of a replay's log number ``which`` (0: the first) of ``doc``: θ, ψ and α of every estimator
     against the truth (black; without truth, against each other), and every NIS-reporting
     estimator's NIS per degree of freedom at each update, on a log scale, with the two-sided
     ``confidence`` χ² bounds of one update of each dof present (χ²_d quantiles / d). Drawn as
@@ -370,7 +375,7 @@ def write_figure(doc: dict, replays: dict, path, confidence: float = 0.95) -> No
     from twin.logs.format import read_log
     from twin.outputs.figure import DPI, PNG_COMPRESSION
 
-    first = next(iter(doc["logs"]))
+    first = list(doc["logs"])[which]
     log = read_log(first)
     runs = [(kind, r) for (p, kind), r in replays.items() if p == first]
     fig = Figure(figsize=(12.0, 8.0), dpi=DPI)
@@ -419,8 +424,8 @@ def write_figure(doc: dict, replays: dict, path, confidence: float = 0.95) -> No
             ax.legend(loc="best", fontsize=7)
     for ax in axes[2:]:
         ax.set_xlabel("time [s]")
-    more = len(doc["logs"]) - 1
-    fig.suptitle(f"twin replay: {first}" + (f" (the first of {more + 1} logs)" if more else "")
+    n = len(doc["logs"])
+    fig.suptitle(f"twin replay: {first}" + (f" (log {which + 1} of {n})" if n > 1 else "")
                  + ("" if log.truth is not None else ": no truth, the estimators against each other"), fontsize=10)
     fig.set_layout_engine("tight", rect=(0, 0, 1, 0.96))
     fig.savefig(path, dpi=DPI, pil_kwargs={"compress_level": PNG_COMPRESSION})
