@@ -149,3 +149,28 @@ def test_a_samples_log_names_its_scenario_without_any_set_item(tmp_path):
     assert log.manifest["scenario"] == "paper-exp2" and log.manifest["set"] == []
     assert log.manifest["source"] == "twin run, sweep sample 1 (root seed 0)"
     assert replay(log, build_for(log, "ekf"), "ekf").estimates.tobytes() == run.estimates.tobytes()
+
+
+def test_a_sweep_interrupted_while_it_writes_its_logs_is_finished_by_the_same_command(tmp_path):
+    """SIGTERM after the first log is written: exit 143 with one line, the samples kept, no
+    manifest (the folder is not complete); the same command again writes the logs and seals it."""
+    import subprocess
+    import sys
+
+    from test_sweep_store import stop_at
+
+    out = tmp_path / "sw"
+    cmd = [sys.executable, "-m", "twin.cli", "sweep", "paper-exp2", "--samples", "2", *SETS, "--out", str(out),
+           "--workers", "1", "--log-sensors", "1"]
+    proc = stop_at("sweep-logs", tmp_path, cmd, tmp_path)
+    proc.terminate()
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143, err
+    assert err.splitlines()[-1].startswith("interrupted: SIGTERM; "), err
+    assert not (out / "manifest.json").exists()
+    assert (out / "samples.jsonl").read_bytes().count(b"\n") == 4  # every sample kept
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert sorted(f for f in manifest["files"] if f.startswith("sensor-logs/")) == sorted(
+        f"sensor-logs/sample-1/{k}/{n}" for k in KINDS for n in ("log.toml",) + STREAMS)

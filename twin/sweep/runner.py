@@ -241,6 +241,7 @@ def write_sample_logs(job: SweepJob, samples, records, out: Path) -> tuple[dict,
     import json
 
     from twin.logs.format import write_log
+    from twin.outputs import rundir
     from twin.scenarios.runner import run_scenario
     from twin.sweep.sampling import sample_scenario
 
@@ -262,6 +263,7 @@ def write_sample_logs(job: SweepJob, samples, records, out: Path) -> tuple[dict,
                              f"in another environment?); the log is of the run made now")
             d = out / LOGS_DIR / f"sample-{k}" / log_dir_name(kind)
             logs[(k, kind)] = write_log(run, d, sample.scenario, source=COMMAND)
+            rundir.test_point("sweep-logs")  # the kill tests' stop: a log written, the folder not yet sealed
     return logs, notes
 
 
