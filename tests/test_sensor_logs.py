@@ -334,3 +334,23 @@ def test_replay_draws_a_figure_per_log(tmp_path):
     names = sorted(p.name for p in (tmp_path / "o").iterdir())
     assert names == ["estimates.csv", "figure-2.png", "figure.png", "manifest.json", "replay.json"]
     assert "figure.png, figure-2.png" in stdout
+
+
+def test_a_users_own_estimator_replays_as_the_built_ins_do(tmp_path):
+    """An estimator by import path (examples/my_plugins.py, outside the package) on a log, through
+    the command line, beside the EKF; and a bound on it checked by twin check."""
+    examples = Path(__file__).resolve().parent.parent / "examples"
+    d = write_by_hand(tmp_path / "own", seconds=1.0)
+    status, stdout, stderr = _twin("replay", str(d), "--estimator", "my_plugins:TiltFilter,ekf", "--out",
+                                   str(tmp_path / "o"), cwd=examples)
+    assert status == 0, stderr
+    assert "my_plugins:TiltFilter" in stdout
+    import json as _json
+
+    doc = _json.loads((tmp_path / "o" / "replay.json").read_text())
+    e = doc["logs"][str(d)]["estimators"]["my_plugins:TiltFilter"]["errors"]
+    assert e["rows"] == 201 and e["theta_rmse_rad"] < 0.02
+    with open(d / "log.toml", "a", encoding="utf-8") as fh:
+        fh.write('\n[expect."my_plugins:TiltFilter"]\ntheta_rmse_rad = "<= 1e-9"\n')
+    status, _, stderr = _twin("check", str(d), cwd=examples)
+    assert status == 1 and "estimator my_plugins:TiltFilter: theta_rmse_rad" in stderr, stderr

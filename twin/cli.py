@@ -589,12 +589,13 @@ def replay(logs, estimators, out):
     for path, entry in doc["logs"].items():
         click.echo(f"{path}: {entry['instants']} instants, {entry['duration_s']:g} s at {entry['control_rate_hz']:g} Hz"
                    + ("" if entry["has_truth"] else " (no truth: errors not computed)"))
-        click.echo(f"  {'estimator':16}{'θ RMSE rad':>12}{'θ max rad':>12}{'ψ RMSE rad':>12}{'α RMSE rad':>12}"
+        w = max([16] + [len(k) + 2 for k in entry["estimators"]])  # a plugin's import path may be long
+        click.echo(f"  {'estimator':{w}}{'θ RMSE rad':>12}{'θ max rad':>12}{'ψ RMSE rad':>12}{'α RMSE rad':>12}"
                    f"{'NIS/dof':>9}{'NEES':>8}{'ρ out':>8}{'rejected':>10}{'µs/step':>9}")
         for kind, e in entry["estimators"].items():
             err, c = e["errors"] or {}, e["consistency"]
             out_frac = c.get("whiteness_outside_fraction")  # lags outside the 95 % band (about 5 % if white)
-            click.echo(f"  {kind:16}{_fmt(err.get('theta_rmse_rad')):>12}{_fmt(err.get('theta_max_abs_rad')):>12}"
+            click.echo(f"  {kind:{w}}{_fmt(err.get('theta_rmse_rad')):>12}{_fmt(err.get('theta_max_abs_rad')):>12}"
                        f"{_fmt(err.get('psi_rmse_rad')):>12}{_fmt(err.get('alpha_rmse_rad')):>12}"
                        f"{_fmt(c.get('nis_per_dof')):>9}{_fmt(c.get('nees_mean')):>8}"
                        f"{'-' if out_frac is None else f'{out_frac:.0%}':>8}{e['rejected_total']:>10}"

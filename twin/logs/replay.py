@@ -52,7 +52,7 @@ class Replay:
     """One estimator's replay of one log: ``t`` (N,) s the control instants, ``estimates``
     (N, 6) [θ, θ̇, ψ, ψ̇, α, α̇], ``diagnostics`` the estimator's ``diagnostics()`` at each
     instant when asked for (else None), ``stats`` its ``stats()`` at the end, and the wall time
-    per step ``step_s`` (s)."""
+    per step ``step_s`` (s); ``log`` the log replayed."""
 
     estimator: str
     t: np.ndarray
@@ -60,6 +60,7 @@ class Replay:
     diagnostics: list | None
     stats: dict
     step_s: float
+    log: SensorLog | None = None
 
 
 def instants(log: SensorLog) -> tuple[np.ndarray, list, np.ndarray]:
@@ -128,14 +129,14 @@ def replay(log: SensorLog, estimator, name: str = "", diagnostics: bool = False)
             out[k] = _checked(est, who, t[k])
             if diag is not None:
                 diag.append(estimator.diagnostics())
-    except (TwinError, PluginError):
+    except TwinError:  # a PluginError too: already one line naming the plugin
         raise
     except Exception as exc:  # noqa: BLE001 -- a plugin's failure is one line naming it
         raise PluginError(f"estimator {who}: raised {type(exc).__name__}: {' '.join(str(exc).split())[:300]} on "
                           f"the log {log.path}") from None
     wall = time.perf_counter() - t_start
     stats = dict(estimator.stats()) if callable(getattr(estimator, "stats", None)) else {}
-    return Replay(who, t, out, diag, stats, wall / len(t))
+    return Replay(who, t, out, diag, stats, wall / len(t), log)
 
 
 def _checked(est, who: str, t: float):
@@ -376,8 +377,8 @@ def write_figure(doc: dict, replays: dict, path, confidence: float = 0.95, which
     from twin.outputs.figure import DPI, PNG_COMPRESSION
 
     first = list(doc["logs"])[which]
-    log = read_log(first)
     runs = [(kind, r) for (p, kind), r in replays.items() if p == first]
+    log = runs[0][1].log if runs and runs[0][1].log is not None else read_log(first)  # read once, by the replay
     fig = Figure(figsize=(12.0, 8.0), dpi=DPI)
     FigureCanvasAgg(fig)
     axes = fig.subplots(2, 2, sharex=True).ravel()
