@@ -168,7 +168,7 @@ from estimation.ekf_core import _kernel  # noqa: F401 - golden.py and the tests 
 from estimation.ekf_policies import (ACCEL_MAX_IN_ROW, INSIDE_MARGIN, WATCH_EVERY, WATCH_MARGIN,  # noqa: F401
                                      WATCH_MAX_LAG, WATCH_PERSIST, WATCH_RHO, WATCH_WINDOW, AccelOutlierTest,
                                      ConsiderStates, EncoderGate, KeepInside, LatencyWatch, truncated_measurement)
-from estimation.model import TORQUE_TOLERANCE, EstimatorModel
+from estimation.model import MODEL_UNCERTAINTY, TORQUE_TOLERANCE, EstimatorModel
 from twin.errors import TwinError
 from twin.protocols import Estimate
 
@@ -178,9 +178,22 @@ GROUPS = ("gyro", "accel", "encoders")
 # see the module docstring, "Consider states"
 CONSIDER = ("encoder_zero", "encoder_heading_zero", "gyro_scale_y", "gyro_scale_z", "accel_scale_x", "accel_scale_z")
 MAX_RIM_SPEED = 20.0  # m/s: encoder counts implying a faster wheel (relative to the body) are a fault
+# a reading this many white-noise σ from the end of its range is censored, not a measurement:
+# its noise is cut by the rail (see EKFEstimator._railed)
+RAIL_SIGMAS = 3.0
 _isfinite = math.isfinite
 _new = tuple.__new__
 _KERNEL = object()  # diagnostics(): the last update's innovation is the compiled core's to report
+
+
+def _checked_uncertainty(unc) -> dict:
+    from twin.params import PARAMETER_DOCS
+
+    if not isinstance(unc, dict) or not all(isinstance(k, str) and k in PARAMETER_DOCS for k in unc) or \
+            not all(not isinstance(v, bool) and isinstance(v, (int, float)) and 0.0 <= v <= 1.0 for v in unc.values()):
+        raise TwinError("model_uncertainty must map parameter names (" + ", ".join(PARAMETER_DOCS) +
+                        f") to relative half-ranges in [0, 1], got {unc!r}")
+    return {k: float(v) for k, v in unc.items()}
 
 
 def finite_reading(v) -> bool:
@@ -226,6 +239,12 @@ class EKFEstimator:
     learn_time : float
         s; how long the consider states are estimated like the others (the initial
         alignment, through the robot's first recovery).
+    model_uncertainty : mapping of str to float
+        The box the robot's parameters are assumed in: parameter name (Table III, as
+        :data:`twin.params.PARAMETER_DOCS`) → relative half-range in [0, 1] (0.3: ±30 %), each
+        uniform inside it. Enters only where equation (1) stands in for a sensor (dropouts,
+        rejected or clipped IMU samples; see :meth:`_coast`). Default
+        :data:`~estimation.model.MODEL_UNCERTAINTY`; ``{}``: the parameters are taken as exact.
     compiled : bool or None
         Run the filter step in the compiled kernel (``estimation._ekf``, the same
         algorithm without filterpy's per-call overhead); None: when it is built. False:
@@ -236,7 +255,8 @@ class EKFEstimator:
 
     def __init__(self, model: EstimatorModel, imu_every: int = 1, imu_latency: int = 1, encoder_latency: int = 0,
                  alpha0: float = 0.0, gate_probability: float = 1e-4, max_rejects_in_row: int = 5,
-                 consider=CONSIDER, learn_time: float = 10.0, compiled: bool | None = None):
+                 consider=CONSIDER, learn_time: float = 10.0, model_uncertainty=None,
+                 compiled: bool | None = None):
         if not (0.0 < gate_probability < 0.5):
             raise TwinError(f"gate_probability must be in (0, 0.5), got {gate_probability!r}")
         if isinstance(consider, str) or not isinstance(consider, (list, tuple)) or \
@@ -250,6 +270,11 @@ class EKFEstimator:
             raise TwinError(f"learn_time must be a finite time >= 0 in s, got {learn_time!r}")
         self.learn_time = self._consider.learn_time = float(learn_time)
         self.model = model
+        unc = dict(MODEL_UNCERTAINTY if model_uncertainty is None else _checked_uncertainty(model_uncertainty))
+        self.model_uncertainty = {k: v for k, v in unc.items() if v > 0.0}
+        self._unc_names = tuple(self.model_uncertainty)
+        # σ (1) of each relative parameter error, uniform in its box
+        self._unc_var = np.array([(h / math.sqrt(3.0)) ** 2 for h in self.model_uncertainty.values()])
         self.every, self.d_imu, self.d_enc = int(imu_every), int(imu_latency), int(encoder_latency)
         self.lag = max(self.d_imu, self.d_enc)
         # the latency watch (see _watch_latency): θ̈ responds to the wheel torques at once, so
@@ -291,6 +316,9 @@ class EKFEstimator:
         g, a = model.imu.gyro, model.imu.accel
         # the largest readings the ADC can give (a sample there may be clipped)
         self._limits = (g.lsb * ((1 << (g.bits - 1)) - 1),) * 2 + (a.lsb * ((1 << (a.bits - 1)) - 1),) * 2
+        # a reading within RAIL_SIGMAS white-noise σ of them is no measurement (see _railed)
+        self._rails = tuple(lim - RAIL_SIGMAS * tr.white_sigma(self.dt)
+                            for lim, tr in zip(self._limits, (g, g, a, a)))
         # a stale (repeated) triad is told from a real one where the white noise per sample
         # spans ≥ 4 ADC steps: three axes then repeat by chance with probability < 4e-4
         self._stale_check = tuple(t.white_sigma(self.dt) >= 4.0 * t.lsb for t in (model.imu.gyro, model.imu.accel))
@@ -357,7 +385,8 @@ class EKFEstimator:
         self._last_imu = None
         self._stale_in_row = 0
         self.stale = 0
-        self._aug = None  # the coasting covariance of (x, ω, ω₋₁), see _coast
+        self._aug = None  # the coasting covariance of (x, ω, ω₋₁, δp), see _coast
+        self._dp = None  # the model parameters' relative errors while coasting (model_uncertainty's order)
         self._implausible = 0
         self.events: list[tuple[float, str]] = []
         self.resets = 0
@@ -642,6 +671,15 @@ class EKFEstimator:
         command = self._commands.get(m - self.every, (0.0, 0.0))
         enc = self._screen_encoders(self._enc.get(m), m, t)
         if imu is not None:
+            rail = self._railed(imu)
+            if rail is not None:  # the model stands in for the clipped axes
+                self.saturated += 1
+                self.accepted["gyro"] += 1
+                self.accepted["accel"] += 1
+                self._acc_out = False
+                self._accel.seen(None, False)
+                self._coast(m, t, True, enc, command, rail)
+                return
             eps_imu = self._imu_step(m, t, imu, enc, command)
             acc_out = self._acc_out
             self._accel.seen(self._acc_e, acc_out)
@@ -712,6 +750,23 @@ class EKFEstimator:
         self._implausible = 0
         self.events.append((t, f"encoder counts stayed {self.max_rejects_in_row} samples away from the estimate: "
                                f"re-based their zeros by ({y[0]:.4g}, {y[1]:.4g}) rad"))
+
+    def _railed(self, imu):
+        """None, or the IMU reading (ω_y, ω_z, f_x, f_z) and which axes of it are censored.
+
+        A clipped reading says only "at least this much": it measures neither the rate nor the
+        scale factor nor the bias, so it must not be fused as a measurement (PX4's EKF2 likewise
+        counts clipped IMU samples and stops learning the biases on a clipped axis). A reading
+        within :data:`RAIL_SIGMAS` σ of the rail is censored too: its noise is cut off by the rail
+        (a censored Gaussian is not the white noise the filter assumes). Such an axis is taken
+        from equation (1), with the model's uncertainty, by :meth:`_coast`; the other axes stay
+        readings."""
+        (_, wy, wz), (fx, _, fz) = imu[0], imu[1]
+        r = self._rails
+        if abs(wy) < r[0] and abs(wz) < r[1] and abs(fx) < r[2] and abs(fz) < r[3]:
+            return None
+        v = (wy, wz, fx, fz)
+        return v, tuple(abs(a) >= b for a, b in zip(v, r))
 
     def _imu_sample(self, x, imu, command, acc_test: bool = False):
         """(sample, synthetic, saturated, accel outlier): the IMU reading as ((ω_y, ω_z, f_x,
@@ -846,72 +901,103 @@ class EKFEstimator:
                                    "failed numerically; restored the last good estimate"))
         return None
 
-    def _coast(self, m: int, t: float, had_imu: bool, enc, command) -> None:
-        """One step without a (trustworthy) IMU sample: equation (1) predicts it from the
-        state and the command.
+    def _coast(self, m: int, t: float, had_imu: bool, enc, command, rail=None) -> None:
+        """One step where equation (1) stands in for the IMU: without a (trustworthy) sample, or
+        (``rail`` from :meth:`_railed`: the reading and which of its axes are censored) for
+        the axes of a sample at the end of their range, the others kept as readings.
 
         The predicted sample depends on the state, and on θ̇, which is no state of the
         filter but the gyro's last two samples ω, ω₋₁: while coasting these join the state
-        (16 in all, covariance ``_aug``; at the first coasting step ω, ω₋₁ are the readings
-        with the gyro's white noise, uncorrelated). The Jacobian of the step then holds the
-        pendulum's own instability, so the covariance grows as the model's error does and
-        the encoders, which see the wheels, correct θ and θ̇ through the model. The first
-        real IMU sample ends it (ω becomes a reading again). Always the Python path: coasting
-        is rare, and one implementation serves both."""
+        (at the first coasting step ω, ω₋₁ are the readings with the gyro's white noise,
+        uncorrelated). The Jacobian of the step then holds the pendulum's own instability, so
+        the covariance grows as the model's error does and the encoders, which see the
+        wheels, correct θ and θ̇ through the model. The model's parameters (``model_uncertainty``)
+        join the state too, as random constants (relative errors δp with mean 0 and the box's
+        variance at the first coasting step; state augmentation, Simon, *Optimal State
+        Estimation*, 2006, §7.4): a wrong mass or height biases every synthetic sample the same
+        way, so the errors of consecutive samples add up coherently, as white noise they would
+        not (with the clipped samples of a catch from 0.48 rad the filter claimed about 8× too
+        little, mean NEES 76). A synthetic gyro value is (1 + s_y) ω_model + b_y, so the step's
+        Jacobian through it cancels its dependence on the scale factor and the bias: clipped
+        samples teach the filter neither. The first real sample ends it (ω becomes a reading
+        again). Always the Python path: coasting is rare, and one implementation serves both."""
         kf = self.kf
         self.core.take_over()
         if not had_imu:
             self.predict_only += 1
+        names = self._unc_names
+        K = len(names)
+        na = N + 4 + K
         Pa = self._aug
         if Pa is None:
-            Pa = np.zeros((N + 4, N + 4))
+            Pa = np.zeros((na, na))
             Pa[:N, :N] = kf.P
-            Pa[N:, N:] = np.eye(4) * self._g_var
+            Pa[N:N + 4, N:N + 4] = np.eye(4) * self._g_var
+            Pa[N + 4:, N + 4:] = np.diag(self._unc_var)
+            self._dp = np.zeros(K)
         x, w, wp = kf.x, self.core.w, self.core.w_prev
+        rep = (True,) * 4 if rail is None else rail[1]
         syn = self._synthetic(x, command, w, wp)
-        x1, F, Q, w1, L = self._propagate(x, syn, with_L=True)
+        # the model's sample by its parameters (only the axes it stands in for)
+        Dp = self.model.sensitivity(names, self.state6(x, w, wp), command, self.every) if K else np.zeros((4, 0))
+        for i in range(4):
+            if rep[i]:
+                Dp[i] *= (1.0 + x[SY]) if i == 0 else (1.0 + x[SZ]) if i == 1 else (1.0 + x[SAX]) if i == 2 else \
+                    (1.0 + x[SAZ])
+            else:
+                Dp[i] = 0.0
+        dp = self._dp
+        value = tuple((syn[0][i] + float(mv(Dp[i:i + 1], dp)[0])) if rep[i] else rail[0][i] for i in range(4))
+        extra = tuple(syn[1][i] if rep[i] else 0.0 for i in range(4))
+        x1, F, Q, w1, L = self._propagate(x, (value, extra), with_L=True)
         z = np.concatenate([x, w, wp])
 
         def sample(zz):
-            return np.array(self._synthetic(zz[:N], command, (zz[N], zz[N + 1]), (zz[N + 2], zz[N + 3]))[0])
+            v = self._synthetic(zz[:N], command, (zz[N], zz[N + 1]), (zz[N + 2], zz[N + 3]))[0]
+            return np.array([v[i] if rep[i] else 0.0 for i in range(4)])
 
-        D = np.empty((4, N + 4))  # the predicted sample by (x, ω, ω₋₁), central differences
+        D = np.empty((4, na))  # the sample by (x, ω, ω₋₁, δp): central differences, the model's sensitivity
         for j in range(N + 4):
             h = 1e-6 * max(1.0, abs(z[j]))
             zp, zm = z.copy(), z.copy()
             zp[j] += h
             zm[j] -= h
             D[:, j] = (sample(zp) - sample(zm)) / (2.0 * h)
-        J = np.zeros((N + 4, N + 4))
+        D[:, N + 4:] = Dp
+        J = np.zeros((na, na))
         J[:N, :N] = F
         J[:N] += mm(L, D)
         J[N:N + 2] = D[:2]
         J[N + 2, N] = J[N + 3, N + 1] = 1.0
+        for j in range(N + 4, na):
+            J[j, j] = 1.0
         Pa = mm3(J, Pa, J.T)
         Pa[:N, :N] += Q
-        Pa[N, N] += syn[1][0]
-        Pa[N + 1, N + 1] += syn[1][1]
+        # a new ω: the model's (its torque uncertainty added) or the reading (its white noise)
+        Pa[N, N] += syn[1][0] if rep[0] else self._g_var
+        Pa[N + 1, N + 1] += syn[1][1] if rep[1] else self._g_var
         kf.x, kf.P = x1, Pa[:N, :N].copy()
         self.core.w_prev, self.core.w = self.core.w, w1
         self._aug = Pa
 
         def update(em):
             zm_, off, H, R = em
-            Ha = np.zeros((len(zm_), N + 4))
+            Ha = np.zeros((len(zm_), na))
             Ha[:, :N] = H
-            za = np.concatenate([kf.x, self.core.w, self.core.w_prev])
+            za = np.concatenate([kf.x, self.core.w, self.core.w_prev, self._dp])
             Pa = self._aug
             PHt = mm(Pa, Ha.T)
             S = mm(Ha, PHt) + R
-            K = solve(S, PHt.T).T
+            Kg = solve(S, PHt.T).T
             if self.holding:
-                K[:N][self._consider_mask] = 0.0  # Schmidt, as TwinEKF.update
-            za = za + mv(K, zm_ - (mv(H, kf.x) + off))
-            IKH = np.eye(N + 4) - mm(K, Ha)
-            Pa = mm3(IKH, Pa, IKH.T) + mm3(K, R, K.T)
+                Kg[:N][self._consider_mask] = 0.0  # Schmidt, as TwinEKF.update
+            za = za + mv(Kg, zm_ - (mv(H, kf.x) + off))
+            IKH = np.eye(na) - mm(Kg, Ha)
+            Pa = mm3(IKH, Pa, IKH.T) + mm3(Kg, R, Kg.T)
             self._aug = 0.5 * (Pa + Pa.T)
             kf.x, kf.P = za[:N], self._aug[:N, :N].copy()
             self.core.w, self.core.w_prev = (za[N], za[N + 1]), (za[N + 2], za[N + 3])
+            self._dp = za[N + 4:]
 
         self._encoder_step(enc, m, t, had_imu, update)
         self._finish(t)

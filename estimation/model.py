@@ -15,7 +15,11 @@ damping, so the model is equation (1) with d_b + c_e and input τ_0.
 
 Model uncertainty, per wheel (used for synthetic IMU samples only): the PWM step
 (uniform, LSB/√12) and a torque-constant tolerance (σ = :data:`TORQUE_TOLERANCE` of the
-torque; motor datasheets give ±10 %).
+torque; motor datasheets give ±10 %). The robot's own parameters are uncertain too
+(Table III's figures "cannot be 100 % accurate"): :data:`MODEL_UNCERTAINTY` is the box
+the estimator assumes them in, and :meth:`EstimatorModel.sensitivity` how a synthetic
+sample moves with each; the filter carries the parameters' errors as random constants
+while the model stands in for a sensor (:meth:`estimation.ekf.EKFEstimator._coast`).
 """
 from __future__ import annotations
 
@@ -29,6 +33,13 @@ from twin.plant.analytic import NO_TAU, rhs
 from twin.sensors.specs import DEFAULT_ENCODERS, DEFAULT_IMU, EncoderSpec, ImuSpec
 
 TORQUE_TOLERANCE = 0.05  # 1σ of the delivered torque relative to the command (±10 % at 2σ)
+# Relative half-ranges (1) of the box the estimator assumes the robot's parameters in, each
+# uniform inside it (σ = half-range / √3): the mass and the centre-of-mass height as the
+# default robust balance design's box (twin.controllers.lmi.DEFAULT_UNCERTAIN), the pitch
+# inertia as uncertain as the mass, and the viscous frictions known to a factor of two at
+# best (the range calibration draws them from)
+MODEL_UNCERTAINTY = {"m_b": 0.3, "l": 0.15, "n_yb": 0.3, "d_b": 1.0, "d_w": 1.0}
+_SENSITIVITY_STEP = 1e-4  # relative step of the central differences in sensitivity()
 TH, THD, PS, PSD, AL, ALD = range(6)
 
 
@@ -107,6 +118,32 @@ class EstimatorModel:
         """State after one control period with the wheel torque commands ``command`` (N·m)."""
         tl, tr = self.delivered(s, command[0], command[1])
         return self.step(s, tl, tr)
+
+    def perturbed(self, name: str, rel: float) -> "EstimatorModel":
+        """The same model with parameter ``name`` (of :data:`twin.params.PARAMETER_DOCS`) times
+        (1 + ``rel``); the motors' back-EMF damping stays added to d_b as it is."""
+        p = self.params
+        # n_xb kept as it is: a defaulted n_xb would follow n_yb (RobotParams.replace), a given
+        # one (a log's robot) would not, and the pitch inertia's uncertainty is not the roll's
+        changes = {"n_xb": p.n_xb, name: getattr(p, name) * (1.0 + rel)}
+        return EstimatorModel(p.replace(**changes), self.motor, self.imu, self.encoders, 1.0 / self.dt)
+
+    def sensitivity(self, names, s, command, periods: int = 1) -> np.ndarray:
+        """(4, len(names)): how the synthetic IMU sample (ω_y, ω_z, f_x, f_z) of
+        :meth:`synthetic_imu` moves per unit relative change of each parameter in ``names``
+        (central differences, step :data:`_SENSITIVITY_STEP`); units of the sample per 1."""
+        cache = self.__dict__.setdefault("_perturbed", {})
+        h = _SENSITIVITY_STEP
+        out = np.empty((4, len(names)))
+        for j, name in enumerate(names):
+            pair = cache.get(name)
+            if pair is None:
+                pair = cache[name] = (self.perturbed(name, h), self.perturbed(name, -h))
+            hi = pair[0].synthetic_imu(s, command, periods)[0]
+            lo = pair[1].synthetic_imu(s, command, periods)[0]
+            for i in range(4):
+                out[i, j] = (hi[i] - lo[i]) / (2.0 * h)
+        return out
 
     def torque_sigma(self, tau: float) -> float:
         """σ (N·m) of the torque a motor delivers for the model's τ_0 = ``tau``."""
