@@ -48,6 +48,8 @@ typedef struct {
     double has_motor, compensates, tau_max, i_tau, sigma_tau, c_e, tol, every;
     /* half the width (rad) of the interval an unchanged count keeps its wheel in (keep_inside) */
     double inside_half;
+    /* σ beyond that interval at which an unchanged count is implausible (EKFEstimator._keep_inside) */
+    double stuck_sigmas;
     /* 1.0 for a consider state (Schmidt): kept in P, never corrected by a measurement */
     double consider[NX];
     /* state */
@@ -58,7 +60,7 @@ typedef struct {
     int inn_dof;
 } Core;
 
-#define NCONST 52 /* doubles before x */
+#define NCONST 53 /* doubles before x */
 
 static void core_free(PyObject *cap) { PyMem_Free(PyCapsule_GetPointer(cap, "ekf_core")); }
 
@@ -273,6 +275,9 @@ static void propagate(const Core *c, const double *x, const double *smp, const d
         }
     Q[BY * NX + BY] += c->bias_q;
     Q[BZ * NX + BZ] += c->bias_q;
+    /* the trapezoid's error in psi: U(-1/2, 1/2) of dt |v1 - v| / r (EKFEstimator._propagate) */
+    double hv = dt * (v1 - v) / r;
+    Q[PS * NX + PS] += hv * hv * (1.0 / 12.0);
 }
 
 /* Pp = F P Fᵀ + Q; F is the identity outside rows TH, AL, V, PS */
@@ -454,9 +459,11 @@ static int truncated_measurement(double w, double s2, double lo, double hi, doub
 }
 
 /* the truncated updates of the wheels whose count is unchanged and whose estimate has left
-   it (EKFEstimator._keep_inside); returns how many were made, −1 if one failed */
+   it (EKFEstimator._keep_inside); returns how many were made + 16 × the mask of the wheels
+   (bit 0 left, 1 right) whose estimate lies more than stuck_sigmas σ outside (implausible: no
+   update), −1 if one failed */
 static int keep_inside(Core *c, const double *enc, const double *last) {
-    int n = 0;
+    int n = 0, implausible = 0;
     for (int i = 0; i < 2; i++) {
         if (enc[i] != last[i]) continue;
         double sgn = 2 * i - 1;
@@ -475,13 +482,17 @@ static int keep_inside(Core *c, const double *enc, const double *last) {
             for (int k = 0; k < NX; k++) t += c->P[j * NX + k] * em.H[0][k];
             s2 += em.H[0][j] * t;
         }
-        if (!truncated_measurement(w, s2, enc[i] - c->inside_half, enc[i] + c->inside_half, sqrt(c->imu_gate[1]),
-                                   &em.z[0], &em.R[0]))
+        double lo = enc[i] - c->inside_half, hi = enc[i] + c->inside_half;
+        if (s2 > 0.0 && (w < lo ? lo - w : w - hi) > c->stuck_sigmas * sqrt(s2)) {
+            implausible |= 1 << i;
+            continue;
+        }
+        if (!truncated_measurement(w, s2, lo, hi, c->stuck_sigmas, &em.z[0], &em.R[0]))
             continue;
         if (kalman_update(c->x, c->P, &em, c->consider)) return -1;
         n++;
     }
-    return n;
+    return n + 16 * implausible;
 }
 
 static int healthy(const Core *c) {

@@ -158,6 +158,7 @@ the two.
 from __future__ import annotations
 
 import math
+from statistics import NormalDist
 
 import numpy as np
 
@@ -181,6 +182,8 @@ MAX_RIM_SPEED = 20.0  # m/s: encoder counts implying a faster wheel (relative to
 # a reading this many white-noise σ from the end of its range is censored, not a measurement:
 # its noise is cut by the rail (see EKFEstimator._railed)
 RAIL_SIGMAS = 3.0
+ENCODERS_LOST_AFTER = 1.0  # s without an encoder sample after which the position is reported as degraded
+TRAPEZOID_VAR = 1.0 / 12.0  # variance of U(−½, ½): where ∫v lies in Δt [v, v⁺] about the trapezoid's midpoint
 _isfinite = math.isfinite
 _new = tuple.__new__
 _KERNEL = object()  # diagnostics(): the last update's innovation is the compiled core's to report
@@ -311,7 +314,10 @@ class EKFEstimator:
             self.H[i, H0] = sgn
         self._gate_policy = EncoderGate(gate_probability, max_rejects_in_row)
         self.gates, self.imu_gates = self._gate_policy.gates, self._gate_policy.imu_gates
-        self._inside = KeepInside(self.H, self.b_r, self.alpha0, self.delta, math.sqrt(self.imu_gates[1]))
+        # an unchanged count with the estimate this many σ outside it is implausible (the one-sided
+        # normal tail of gate_probability, 3.72 σ at 1e-4: the encoder gate's own probability)
+        self._stuck_sigmas = NormalDist().inv_cdf(1.0 - gate_probability)
+        self._inside = KeepInside(self.H, self.b_r, self.alpha0, self.delta, self._stuck_sigmas)
         self._inside_half = self._inside.half  # rad: see _keep_inside
         g, a = model.imu.gyro, model.imu.accel
         # the largest readings the ADC can give (a sample there may be clipped)
@@ -339,7 +345,7 @@ class EKFEstimator:
                 *self._limits, m.dt, m.m11, m.m12, m.m22, m.plant.n_bla, m.plant.d_b, m.plant.d_w, m.plant.g_b,
                 m.plant.yaw_damping, m.plant.m33, m.g, float(motor is not None), float(m.compensates),
                 m.tau_max, m.i_tau, m.sigma_tau, m.c_e, TORQUE_TOLERANCE, float(self.every), self._inside_half,
-                *([0.0] * N))
+                self._stuck_sigmas, *([0.0] * N))
         self._new_run()
 
     def _new_run(self) -> None:
@@ -388,6 +394,11 @@ class EKFEstimator:
         self._aug = None  # the coasting covariance of (x, ω, ω₋₁, δp), see _coast
         self._dp = None  # the model parameters' relative errors while coasting (model_uncertainty's order)
         self._implausible = 0
+        self._still = 0  # unchanged counts in a row with the estimate implausibly far outside them
+        self.stuck_since = None  # s: when the encoders were taken as stuck (None: they count)
+        self.stuck_total = 0.0  # s spent with the encoders taken as stuck
+        self._enc_seen_t = None  # s: the last encoder reading that arrived
+        self._t0 = 0.0  # s: the first measurement's time
         self.events: list[tuple[float, str]] = []
         self.resets = 0
 
@@ -478,8 +489,29 @@ class EKFEstimator:
                 d["innovation"], d["innovation_cov"] = np.array(inn[0], float), np.array(inn[1], float)
         return d
 
+    def degraded(self) -> list[str]:
+        """What the estimate has lost at the filter's present time, one line each (empty: nothing):
+        the position and speed when the encoders are taken as stuck (:meth:`_count_check`) or
+        none has arrived for :data:`ENCODERS_LOST_AFTER` s; they then come from the IMU alone
+        and drift (a dropped encoder stream leaves the robot balancing, not knowing where it is)."""
+        out = []
+        if self.k < 0:
+            return out
+        now = self._t0 + self.k * self.model.dt
+        if self.stuck_since is not None:
+            out.append(f"position: encoders stuck since t = {self.stuck_since:.3f} s (counts unchanged while the IMU "
+                       "shows the wheels turning); position and speed from the IMU alone")
+        elif self._enc_seen_t is None or now - self._enc_seen_t > ENCODERS_LOST_AFTER:
+            since = self._t0 if self._enc_seen_t is None else self._enc_seen_t
+            out.append(f"position: no encoder sample since t = {since:.3f} s; position and speed from the IMU alone")
+        return out
+
     def stats(self) -> dict:
+        stuck = self.stuck_total
+        if self.stuck_since is not None and self.k >= 0:
+            stuck += self._t0 + self.k * self.model.dt - self.stuck_since
         return {"accepted": dict(self.accepted), "rejected": dict(self.rejected),
+                "encoders_stuck_s": stuck, "degraded": self.degraded(),
                 "rejected_total": self.rejected_total, "predict_only_steps": self.predict_only,
                 "unchanged_encoder_samples": self.unchanged_encoders, "interval_updates": self.interval_updates,
                 "saturated_imu_samples": self.saturated,
@@ -524,8 +556,10 @@ class EKFEstimator:
         w = (meas.gyro[1], meas.gyro[2])
         self.core.set_state(x, P, w, w)
         self.k, self.m = 0, 0
+        self._t0 = float(meas.t)
         self._store(meas, 0)
         if finite_reading(meas.encoders):
+            self._enc_seen_t = self._t0
             self._last_enc, self._last_enc_m = tuple(meas.encoders), -self.d_enc
         self.core.keep_good()
         self._last_estimate = tuple(self.state6())
@@ -709,10 +743,19 @@ class EKFEstimator:
         reading, with the filter's uncertainty of the reading as theirs."""
         if enc is None:
             return None
+        self._enc_seen_t = t
         if self._last_enc is None:
             self._last_enc, self._last_enc_m = tuple(enc), m
             return enc
         last = self._last_enc
+        if self.stuck_since is not None:  # (see _count_check)
+            if enc[0] == last[0] or enc[1] == last[1]:
+                self.rejected["encoders"] += 1
+                return None
+            self.stuck_total += t - self.stuck_since
+            self.events.append((t, f"encoder counts change again after {t - self.stuck_since:.3g} s stuck: used again"))
+            self.stuck_since = None
+            self._still = 0
         T = (m - self._last_enc_m) * self.model.dt
         limit = self._max_wheel_rate * T + 2.0 * self.delta
         jump = max(abs(enc[0] - last[0]), abs(enc[1] - last[1]))
@@ -875,7 +918,9 @@ class EKFEstimator:
         if code_i == 2:
             return nis
         self.saturated += sat
-        self.interval_updates += inside
+        self.interval_updates += inside & 15
+        if enc is not None:
+            self._count_check(t, inside >> 4)
         if code_e <= 1:
             if code_e == 1:
                 self.unchanged_encoders += 1
@@ -1017,16 +1062,16 @@ class EKFEstimator:
             if had_imu:
                 self.predict_only += 1
             if em is None and raw is not None:  # unchanged counts: the wheels are still inside them
-                self._keep_inside(raw, update)
+                self._keep_inside(raw, update, t)
         elif self._gate(em, t, eps):
             update(em)
             self.accepted["encoders"] += 1
-            self._keep_inside(enc, update)
+            self._keep_inside(enc, update, t)
             self._last_enc, self._last_enc_m = tuple(enc), m
         elif had_imu:  # rejected: the step was a prediction only (without IMU, counted already)
             self.predict_only += 1
 
-    def _keep_inside(self, enc, update) -> None:
+    def _keep_inside(self, enc, update, t: float) -> None:
         """For each wheel whose count has not changed since the last sample used: if the
         estimate has left that count by more than :data:`INSIDE_MARGIN` counts, the
         truncated update that brings it back.
@@ -1059,6 +1104,33 @@ class EKFEstimator:
         for em in self._inside.measurements(enc, last, self.kf):  # (:class:`~estimation.ekf_policies.KeepInside`)
             update(em)
             self.interval_updates += 1
+        self._count_check(t, self._inside.implausible)
+
+    def _count_check(self, t: float, implausible: int) -> None:
+        """After an encoder sample: ``implausible`` the mask of wheels whose count did not
+        change although the estimate lies more than 3.72 σ (the encoder gate's probability,
+        one-sided) outside it.
+
+        Encoders that stop counting (a frozen reading, a broken wire) are not a latency change
+        nor a robot standing still: while the robot moves, the IMU-driven prediction leaves the
+        count, and an unchanged count then is a rejected measurement (no truncated update:
+        :meth:`_keep_inside`). After ``max_rejects_in_row`` such samples in a row the encoders
+        are taken as stuck (logged; :meth:`stats` reports the position as degraded): until both
+        counts change again, their samples are dropped, and the position and speed come from
+        the IMU alone, their covariance growing as it must. A robot that creeps at under a count
+        per period's σ cannot be told from a stuck encoder by the IMU (it measures acceleration,
+        not speed); there the truncation keeps the estimate at the count, which is as good as
+        the IMU can do."""
+        if not implausible:
+            self._still = 0
+            return
+        self.rejected["encoders"] += 1
+        self._still += 1
+        if self._still >= self.max_rejects_in_row and self.stuck_since is None:
+            self.stuck_since = t
+            which = {1: "left encoder's count", 2: "right encoder's count"}.get(implausible, "encoder counts")
+            self.events.append((t, f"{which} unchanged for {self._still} samples while the IMU shows the wheels "
+                                   "turning: encoders taken as stuck, position and speed from the IMU alone"))
 
     def _finish(self, t: float) -> None:
         kf = self.kf
@@ -1208,6 +1280,13 @@ class EKFEstimator:
         Q = mm(L * var, L.T)
         Q[BY, BY] += self._bias_q
         Q[BZ, BZ] += self._bias_q
+        # ψ integrates v by the trapezoid, exact only if the acceleration is constant over the
+        # period; the IMU gives its mean alone. With v monotonic in between, ∫v lies anywhere in
+        # Δt [v, v⁺] (taken uniform: σ = Δt |v⁺ − v| / √12). At release the motors' torque
+        # steps from nothing and falls with the back-EMF within the first period: the
+        # trapezoid was off by 0.2-0.6 mrad of ψ at σ 0.12, and the encoder zero absorbed it
+        hv = dt * (v1 - v) / r
+        Q[PS, PS] += hv * hv * TRAPEZOID_VAR
         if with_L:
             return x1, F, Q, (wy, wz), L
         return x1, F, Q, (wy, wz)

@@ -96,15 +96,18 @@ class KeepInside:
     brings it back (see :meth:`estimation.ekf.EKFEstimator._keep_inside` for why, and why the margin).
 
     ``H`` (2, 12) the wheels' rows, ``b_r`` b/r, ``alpha0`` the initial heading (rad),
-    ``delta`` the count (rad), ``gate`` the σ beyond which the count is left to the next edge's gate."""
+    ``delta`` the count (rad), ``gate`` the σ beyond which the unchanged count is implausible
+    (the wheel must have turned: no update, and the wheel's bit set in ``implausible``)."""
 
     def __init__(self, H, b_r: float, alpha0: float, delta: float, gate: float):
         self.H, self.b_r, self.alpha0, self.gate = H, b_r, alpha0, gate
         self.half = (0.5 + INSIDE_MARGIN) * delta  # rad
+        self.implausible = 0  # the last call's mask of implausible wheels (bit 0 left, 1 right)
 
     def measurements(self, enc, last, kf):
         """The truncated measurements (z, off, H, R), one per wheel that needs one, each computed
         from the state ``kf`` (x, P) as it is after the previous one's update."""
+        self.implausible = 0
         for i in (0, 1):
             if enc[i] != last[i]:
                 continue
@@ -113,8 +116,11 @@ class KeepInside:
             off = -(2 * i - 1) * self.b_r * self.alpha0
             w = float(affine([off], h[None, :], x)[0])
             s2 = dot(h, mv(P, h))
-            half = self.half
-            pm = truncated_measurement(w, s2, enc[i] - half, enc[i] + half, self.gate)
+            lo, hi = enc[i] - self.half, enc[i] + self.half
+            if s2 > 0.0 and (lo - w if w < lo else w - hi) > self.gate * math.sqrt(s2):
+                self.implausible |= 1 << i
+                continue
+            pm = truncated_measurement(w, s2, lo, hi, self.gate)
             if pm is None:
                 continue
             z, R = pm
