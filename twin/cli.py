@@ -485,7 +485,7 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample, log
         vals = [result.metrics[c][k] for c in kinds]
         click.echo(f"  {k:32}" + "".join(f"{_fmt(v):>14}" for v in vals))
     for c in kinds:
-        if result.metrics[c]["fell"]:
+        if result.metrics[c]["status"] != "ok":  # fell, diverged, or degraded (what the estimator lost)
             click.echo(f"  {label(c)}: {result.metrics[c]['status']}: {result.metrics[c]['end_reason']}")
     t = result.timings
     sim = sum(float(r.full_signal("t")[-1]) for r in result.runs)  # the last step simulated, logged or not

@@ -156,7 +156,9 @@ class Run:
     :data:`ESTIMATE_NAMES`, the state the controllers were given; ``commands`` (n, k)
     ``command_names``: ul_cmd, ur_cmd (N·m) and the controller's extra signals
     (:data:`COMMAND_NAMES` for the fuzzy cascade and LQR); ``actuation`` (n, 6) :data:`ACTUATION_NAMES`; ``push`` (n, 3)
-    N, world frame. ``status`` is "ok" (ran its duration), "fell" or "diverged".
+    N, world frame. ``status`` is "ok" (ran its duration), "degraded" (ran its duration, but the
+    estimator ended without something it needs, ``end_reason`` says what: the position with the
+    encoders stuck or gone), "fell" or "diverged".
     ``sensing`` is "ideal" or the estimator's name; ``measurements`` what reached the
     estimator at each step (a :class:`MeasurementLog`; an empty list with ideal sensing); ``estimator_stats`` its counts (rejected measurements,
     resets, events); ``gyro_bias`` (n, 3) rad/s the gyro's true bias in the sample taken
@@ -203,7 +205,7 @@ class Run:
 
     @property
     def fell(self) -> bool:
-        return self.status != "ok"
+        return self.status in ("fell", "diverged")
 
     def signal(self, name: str) -> np.ndarray:
         """One logged signal by name (truth, estimate, command, actuation or push column)."""

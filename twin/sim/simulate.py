@@ -93,6 +93,9 @@ def simulate(spec: RunSpec, progress=None, controller=None, estimator=None) -> R
         status = "ok" if loop.status == "running" else loop.status
         reason = "" if status == "ok" else loop.end_reason
         stats = {} if ideal else loop.estimator_stats()
+        lost = stats.get("degraded") if isinstance(stats, dict) else None
+        if status == "ok" and lost and isinstance(lost, (list, tuple)):  # ran its duration, the estimator lost something
+            status, reason = "degraded", "; ".join(str(x) for x in lost)
         sensor_counts = {} if ideal else loop.sensor_counts()
         sensor_truth = {} if ideal else loop.sensor_truth()
         if progress is not None:
