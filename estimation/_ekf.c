@@ -573,7 +573,9 @@ static PyObject *py_state6(PyObject *self, PyObject *arg) {
    model's prediction (syn, computed here) with its extra variance; with acc[0] > 0 the
    accelerometer half's innovation e against the model's (f_x, f_z) is computed and, with
    acc[3] != 0, the half is an outlier and replaced when e less the recent innovations' median
-   (acc[1], acc[2]) fails the gate (EKFEstimator._accel_nis); returns 1 if any axis was saturated */
+   (acc[1], acc[2]) fails the gate (EKFEstimator._accel_nis); returns 1 if any axis was saturated
+   (a guard: EKFEstimator._railed sends samples within 3 sigma of the rail to the Python coasting
+   step before they reach the kernel) */
 static int imu_sample(const Core *c, const double *cmd, const double *acc, double *smp, double *extra, double *syn,
                       double *syn_extra, int *acc_out, double *e) {
     int any = 0, sat[4], have_syn = 0;

@@ -17,6 +17,19 @@ at σ 0.7 mrad). The sample also depends on θ̇, which is no state of the strap
 but comes from the gyro's last two samples; while coasting these join the state (16 in
 all) and the encoders correct them too. See :meth:`EKFEstimator._coast`.
 
+Clipping (issue 29): a gyro or accelerometer axis at the end of its range (or within
+:data:`RAIL_SIGMAS` σ of it) is no measurement; equation (1) stands in for it on the coasting
+path, the other axes kept as readings, and the step's Jacobian through the model's value
+cancels the scale factor and the bias, so clipped samples teach the filter neither. While
+equation (1) stands in for a sensor, the model's uncertain parameters (``model_uncertainty``)
+join the state as random constants, so the errors of consecutive synthetic samples add up
+as a wrong mass or height makes them add up (:meth:`EKFEstimator._coast`).
+
+Stuck encoders (issue 29): an unchanged count with the estimate more than 3.72 σ outside
+it is a rejected measurement; ``max_rejects_in_row`` in a row and the encoders are taken
+as stuck until both counts change (:meth:`EKFEstimator._count_check`); :meth:`EKFEstimator.degraded`
+says what the estimate has lost, and a run that ends so is "degraded".
+
 Why an EKF and not a UKF: over one 5 ms period the prediction is nearly linear (the
 nonlinear terms are sines of θ, which moves by milliradians per period) and the encoder
 measurement is linear. A UKF would push 25 sigma points through the same equations for
@@ -44,6 +57,11 @@ body frame)::
     α⁺ = α + Δt α̇,   α̇ = ω̂_z / cos θ̄   (θ̄ the mid-interval pitch)
     v⁺ = v + Δt (f̂_x cos θ⁺ + f̂_z sin θ⁺ + α̇² dx(θ⁺))     (the point's forward acceleration)
     ψ⁺ = ψ + (Δt (v + v⁺)/2 − dx(θ⁺) + dx(θ)) / r
+
+The IMU gives the period's mean rates and accelerations, so θ⁺ and v⁺ are exact on noise-free
+samples; ψ⁺ takes ∫v as the trapezoid, exact only for a constant acceleration: knowing v and
+v⁺ alone, ∫v lies anywhere in Δt [v, v⁺], and Q has that uniform interval's variance on ψ,
+(Δt |v⁺ − v| / r)² / 12 (:data:`TRAPEZOID_VAR`).
 
 A tilt error δθ shows as a horizontal acceleration g δθ, which the encoders see as a
 drifting ψ: that is what makes θ and the biases observable while the robot balances.
@@ -815,7 +833,9 @@ class EKFEstimator:
         """(sample, synthetic, saturated, accel outlier): the IMU reading as ((ω_y, ω_z, f_x,
         f_z), extra) for :meth:`_propagate`; an axis at the end of its range says only "at least
         this much", so the model's prediction (``synthetic``, else None) replaces it (``extra``
-        then holds the variances it adds; None for a sample with no axis replaced). With
+        then holds the variances it adds; None for a sample with no axis replaced). (A guard:
+        :meth:`_railed` sends every sample within 3 σ of the rail to :meth:`_coast` first, so
+        ``saturated`` is False on the filter's own path; the kernel keeps the same guard.) With
         ``acc_test`` the accelerometer half is tested against the model's first
         (:meth:`_acc_test`) and, an outlier, replaced by it: the gyro half is kept."""
         sample = ((imu[0][1], imu[0][2], imu[1][0], imu[1][2]), None)
