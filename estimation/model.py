@@ -128,21 +128,24 @@ class EstimatorModel:
         changes = {"n_xb": p.n_xb, name: getattr(p, name) * (1.0 + rel)}
         return EstimatorModel(p.replace(**changes), self.motor, self.imu, self.encoders, 1.0 / self.dt)
 
-    def sensitivity(self, names, s, command, periods: int = 1) -> np.ndarray:
+    def sensitivity(self, names, s, command, periods: int = 1, base=None) -> np.ndarray:
         """(4, len(names)): how the synthetic IMU sample (ω_y, ω_z, f_x, f_z) of
         :meth:`synthetic_imu` moves per unit relative change of each parameter in ``names``
-        (central differences, step :data:`_SENSITIVITY_STEP`); units of the sample per 1."""
+        (forward differences from ``base``, this model's sample at ``s``, computed if None; step
+        :data:`_SENSITIVITY_STEP`, a relative error of the result of about that size, which a
+        variance model does not notice); units of the sample per 1."""
         cache = self.__dict__.setdefault("_perturbed", {})
         h = _SENSITIVITY_STEP
+        if base is None:
+            base = self.synthetic_imu(s, command, periods)[0]
         out = np.empty((4, len(names)))
         for j, name in enumerate(names):
-            pair = cache.get(name)
-            if pair is None:
-                pair = cache[name] = (self.perturbed(name, h), self.perturbed(name, -h))
-            hi = pair[0].synthetic_imu(s, command, periods)[0]
-            lo = pair[1].synthetic_imu(s, command, periods)[0]
+            model = cache.get(name)
+            if model is None:
+                model = cache[name] = self.perturbed(name, h)
+            hi = model.synthetic_imu(s, command, periods)[0]
             for i in range(4):
-                out[i, j] = (hi[i] - lo[i]) / (2.0 * h)
+                out[i, j] = (hi[i] - base[i]) / h
         return out
 
     def torque_sigma(self, tau: float) -> float:
