@@ -7,17 +7,34 @@ consistent; the normalised innovation squared NIS_k of the encoder update is χ�
 many degrees of freedom as wheels whose count changed. Over N independent runs the
 averages at each step, N·NEES̄_k ~ χ²_{N n} and Σ NIS_k ~ χ²_{Σ dof}, have two-sided
 bounds; a consistent filter keeps about the confidence level of the steps inside them.
+
+One run's summary (:func:`summary`, and :class:`RunningConsistency`, which computes the same
+figures while the run goes, in memory that does not grow with its length): the mean NEES over
+the rows from :data:`NEES_START` s on, against :data:`ONE_RUN_NEES_BOUNDS`, and the NIS per
+degree of freedom of the encoder updates (``twin run``'s metrics.json, "estimator").
+
+The same bits on every CPU: no BLAS or LAPACK here (:func:`estimation.detlinalg.quad_inv_rows`
+solves, sines and cosines come from the C library as the filter's own), and sums are
+exactly rounded (``math.fsum``) within fixed blocks of :data:`SUM_BLOCK` rows.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from itertools import chain
 
 import numpy as np
-from scipy.stats import chi2
-from scipy.stats import t as t_dist
 
+from estimation.detlinalg import quad_inv_rows
 from twin.errors import TwinError
+
+NEES_START = 0.5  # s: one run's summary leaves out the start-up transient of the encoder zeros
+SUM_BLOCK = 4096  # rows: the summary's sums are exact within each block of rows (by row index), then over blocks
+DIM = 12  # the EKF's states
+# the two-sided 95 % interval of χ² with 12 degrees of freedom (one row's NEES if the filter is
+# consistent): float(scipy.stats.chi2.ppf([0.025, 0.975], 12)), scipy 1.17.1, tested against scipy.
+# The reference for one run's time-averaged NEES (see summary()).
+ONE_RUN_NEES_BOUNDS = (float.fromhex("0x1.19d7abbfff2c4p+2"), float.fromhex("0x1.7562f9f4f1dfap+4"))
 
 
 @dataclass(frozen=True)
@@ -41,6 +58,26 @@ class StateTruth:
     psi_dot: np.ndarray
     alpha: np.ndarray
     gyro_bias: np.ndarray
+    gyro_scale: tuple
+    accel_scale: tuple
+    encoder_phase: tuple
+    imu_position: tuple
+    wheel_radius: float
+    b_over_r: float
+    resolution: float
+
+    @property
+    def constants(self) -> "TruthConstants":
+        return TruthConstants(tuple(self.gyro_scale), tuple(self.accel_scale), tuple(self.encoder_phase),
+                              tuple(self.imu_position), float(self.wheel_radius), float(self.b_over_r),
+                              float(self.resolution))
+
+
+@dataclass(frozen=True)
+class TruthConstants:
+    """The constants of a :class:`StateTruth` (what does not change from row to row), for
+    :class:`RunningConsistency`, which gets the rows one at a time."""
+
     gyro_scale: tuple
     accel_scale: tuple
     encoder_phase: tuple
@@ -86,10 +123,11 @@ def filter_truth(source) -> np.ndarray:
     """The true value of each EKF state (n, 12) on the rows of ``source.filter_log["x"]``;
     ``source`` a :class:`twin.sim.runs.Run` or a :class:`FilterRecord`.
 
-    Row i is the truth at t_{i − lag}, the filter's own time; the first lag + 1 rows are
-    NaN. The encoder zeros are the values that make the filter's measurement equations
-    exact: with q_j = ψ_j − θ the wheel angles relative to the body and φ_j the position
-    of each encoder's first edge (counts), c = ē − (ψ − θ) and h = ẽ − (b/r)(α − α_0),
+    Row i is the truth at the filter's own time t_{f_i} (:func:`filter_rows`, from the lag in
+    force at each row, ``filter_log["lag"]``); rows where the filter has not yet made a step
+    (f_i = 0) are NaN. The encoder zeros are the values that make the filter's measurement
+    equations exact: with q_j = ψ_j − θ the wheel angles relative to the body and φ_j the
+    position of each encoder's first edge (counts), c = ē − (ψ − θ) and h = ẽ − (b/r)(α − α_0),
     where ē, ẽ are the mean and half-difference of the unquantised readings
     q_j − q_j(0) + (φ_j − ½)Δ (b/r of the estimator's model).
     """
@@ -98,37 +136,210 @@ def filter_truth(source) -> np.ndarray:
     return state_matrix(_truth_of(source), source.filter_log["lag"])
 
 
-def state_matrix(s: StateTruth, lag: int) -> np.ndarray:
-    """:func:`filter_truth` from a :class:`StateTruth` and the filter's ``lag`` (periods)."""
+def filter_rows(lag, n: int, last: int = 0) -> np.ndarray:
+    """The filter's own time f_i (n,) (a control step) at each of ``n`` rows, from the lag in
+    force at each row ``lag`` (periods; one number, or one per row as the filter log keeps it):
+    f_i = max(f_{i−1}, i − lag_i), f_{−1} = ``last`` (0 at the start).
+
+    The EKF steps to t_{i − lag} and never back: when the lag grows (a latency change it
+    detected) it pauses until t_{i − lag} catches up with its time, so on those rows
+    f_i > i − lag_i; when the lag shrinks it makes the steps due at once. With an IMU slower
+    than the control loop the filter's time is the last IMU instant at or before t_{f_i}: a row
+    whose f_i is no IMU instant has no gyro-bias truth there (NaN), so it drops out of NEES
+    rather than being compared with the wrong instant."""
+    lag = np.asarray(lag)
+    if lag.ndim and lag.shape != (n,):
+        raise TwinError(f"the filter log's lag has {lag.shape[0]} rows, its states {n}")
+    cand = np.arange(n, dtype=np.int64) - np.broadcast_to(lag.astype(np.int64), (n,))
+    return np.maximum.accumulate(np.maximum(cand, last))
+
+
+def _truth_rows(c: TruthConstants, ref: tuple, th, thd, psl, psr, psi, psd, al, by, bz) -> np.ndarray:
+    """The 12 true states (m, 12) of rows given by their truth columns (arrays (m,));
+    ``ref`` (q_l(0), q_r(0), α(0)) of the run's first row. Elementwise: a row's values depend on
+    that row alone (the batch and the streaming figures agree to the bit)."""
+    m = len(th)
+    xi, _, zi = c.imu_position
+    tl = th.tolist()
+    dz = -xi * np.fromiter(map(math.sin, tl), float, m) + zi * np.fromiter(map(math.cos, tl), float, m)
+    delta = c.resolution
+    ql0, qr0, alpha0 = ref
+    ql, qr = psl - th, psr - th
+    el = ql - ql0 + (c.encoder_phase[0] - 0.5) * delta
+    er = qr - qr0 + (c.encoder_phase[1] - 0.5) * delta
+    gs, acs = c.gyro_scale, c.accel_scale
+    return np.column_stack([
+        th, psi, c.wheel_radius * psd + thd * dz, al, by, bz, 0.5 * (el + er) - (psi - th), np.full(m, gs[1]),
+        0.5 * (er - el) - c.b_over_r * (al - alpha0), np.full(m, gs[2]), np.full(m, acs[0]), np.full(m, acs[2])])
+
+
+def state_matrix(s: StateTruth, lag) -> np.ndarray:
+    """:func:`filter_truth` from a :class:`StateTruth` and the filter's ``lag`` (periods: one
+    number, or the lag in force at each row)."""
     n = len(s.theta)
-    xi, _, zi = s.imu_position
-    th = s.theta
-    dz = -xi * np.sin(th) + zi * np.cos(th)
-    delta = s.resolution
-    ql, qr = s.psi_l - th, s.psi_r - th
-    el = ql - ql[0] + (s.encoder_phase[0] - 0.5) * delta
-    er = qr - qr[0] + (s.encoder_phase[1] - 0.5) * delta
-    alpha0 = s.alpha[0]
-    bias = s.gyro_bias
-    gs, acs = s.gyro_scale, s.accel_scale
-    x = np.column_stack([
-        th, s.psi, s.wheel_radius * s.psi_dot + s.theta_dot * dz, s.alpha, bias[:, 1], bias[:, 2],
-        0.5 * (el + er) - (s.psi - th), np.full(n, gs[1]), 0.5 * (er - el) - s.b_over_r * (s.alpha - alpha0),
-        np.full(n, gs[2]), np.full(n, acs[0]), np.full(n, acs[2])])
-    out = np.full_like(x, np.nan)
-    out[lag + 1:] = x[1:n - lag]
+    f = filter_rows(lag, n)
+    out = np.full((n, DIM), np.nan)
+    if not n:
+        return out
+    ref = (float(s.psi_l[0] - s.theta[0]), float(s.psi_r[0] - s.theta[0]), float(s.alpha[0]))
+    x = _truth_rows(s.constants, ref, *(np.asarray(v, float) for v in (
+        s.theta, s.theta_dot, s.psi_l, s.psi_r, s.psi, s.psi_dot, s.alpha)), s.gyro_bias[:, 1], s.gyro_bias[:, 2])
+    ok = f >= 1
+    out[ok] = x[f[ok]]
     return out
 
 
 def nees(source) -> np.ndarray:
     """NEES (n,) of the EKF at each row (NaN where the truth is not defined); ``source`` a
-    :class:`twin.sim.runs.Run` or a :class:`FilterRecord`."""
+    :class:`twin.sim.runs.Run` or a :class:`FilterRecord`. Solved by
+    :func:`estimation.detlinalg.quad_inv_rows` (the same bits on every CPU)."""
     x, P = source.filter_log["x"], source.filter_log["P"]
-    e = x - filter_truth(source)
+    return _nees_rows(x, P, filter_truth(source))
+
+
+def _nees_rows(x, P, truth) -> np.ndarray:
+    e = x - truth
     ok = np.isfinite(e).all(axis=1)
     out = np.full(len(e), np.nan)
-    out[ok] = np.einsum("ti,ti->t", e[ok], np.linalg.solve(P[ok], e[ok][..., None])[..., 0])
+    if ok.any():
+        out[ok] = quad_inv_rows(P[ok], e[ok])
     return out
+
+
+def summary(source, start: float = NEES_START) -> dict:
+    """One run's consistency figures from its filter log (``source`` a :class:`twin.sim.runs.Run`
+    logged with the filter's diagnostics, or a :class:`FilterRecord` with its truth): what
+    :class:`RunningConsistency` gives while the run goes, to the bit.
+
+    Over the rows with t ≥ ``start`` s: ``nees_mean`` (the mean of :func:`nees` over the rows
+    where it is defined, ``rows`` of them; 12 for a consistent filter) with ``nees_bounds``
+    (:data:`ONE_RUN_NEES_BOUNDS`, the 95 % interval of one row's NEES: a single run's time
+    average is strongly correlated in time, see :func:`monte_carlo`, and spreads at most as
+    much as one of its rows, so this is the interval that holds whatever the correlation; the
+    χ² bounds of the mean over N independent runs, χ²_{12N}/N, are far narrower and apply to
+    N runs only); ``nis_per_dof`` (Σ NIS / Σ dof over the encoder updates there, 1 if
+    consistent), ``nis_updates`` and ``nis_dof`` (Σ dof)."""
+    t = np.asarray(source.t, float)
+    q = nees(source)
+    fl = source.filter_log
+    acc = _Sums(start)
+    for a in range(0, len(t), SUM_BLOCK):
+        b = slice(a, a + SUM_BLOCK)
+        acc.block(t[b], q[b], np.asarray(fl["nis"][b], float), np.asarray(fl["nis_dof"][b]))
+    return acc.result(fl["x"].shape[1] if len(fl["x"]) else DIM)
+
+
+class _Sums:
+    """The summary's sums, a block of rows at a time: exact (``math.fsum``) within a block,
+    then over the blocks' sums."""
+
+    def __init__(self, start: float):
+        self.start = float(start)
+        self.nees, self.nis = [], []
+        self.rows = self.updates = self.dof = 0
+
+    def block(self, t, q, nis, dof) -> None:
+        late = t >= self.start - 1e-9
+        keep = late & np.isfinite(q)
+        self.nees.append(math.fsum(q[keep].tolist()))
+        self.rows += int(keep.sum())
+        on = late & (dof > 0) & np.isfinite(nis)
+        self.nis.append(math.fsum(nis[on].tolist()))
+        self.updates += int(on.sum())
+        self.dof += int(dof[on].sum())
+
+    def result(self, dim: int = DIM) -> dict:
+        return {"start_s": self.start, "states": int(dim), "rows": self.rows,
+                "nees_mean": math.fsum(self.nees) / self.rows if self.rows else None,
+                "nees_bounds": list(ONE_RUN_NEES_BOUNDS) if dim == DIM else None,
+                "nis_per_dof": math.fsum(self.nis) / self.dof if self.dof else None,
+                "nis_updates": self.updates, "nis_dof": self.dof}
+
+
+_TRUTH_COLUMNS = [1, 2, 3, 4, 5, 6, 7]  # θ, θ̇, ψ_l, ψ_r, ψ, ψ̇, α of a GroundTruth (t first)
+_STATE = 12 + 12 * 12  # x then P (row-major) of one row
+
+
+class RunningConsistency:
+    """:func:`summary` of a run computed while it goes, in memory that does not grow with the
+    run: the rows wait in a block of :data:`SUM_BLOCK` (about 1.3 kB each), then their NEES
+    is solved at once (:func:`estimation.detlinalg.quad_inv_rows`) and summed, and only the
+    truth of the rows the filter has not yet reached is kept (its lag, a few periods).
+
+    ``constants`` the run's :class:`TruthConstants`. Feed :meth:`add` at every control instant
+    from row 0 on, in order; :meth:`result` then gives the summary (at the end: no row can be
+    added after it)."""
+
+    def __init__(self, constants: TruthConstants, start: float = NEES_START):
+        self.constants = constants
+        self._sums = _Sums(start)
+        self._pending = []
+        self.n = 0  # rows summed
+        self._f = 0  # the filter's time (control step) at the last row summed
+        self._ref = None  # (q_l(0), q_r(0), α(0))
+        self._base = 0  # the row of self._truth[0]
+        self._truth = np.empty((0, 9))  # θ, θ̇, ψ_l, ψ_r, ψ, ψ̇, α, b_y, b_z of rows _base, _base + 1, …
+        self._done = False  # result() was asked for: the last block is summed
+
+    def add(self, truth, gyro_bias, state: bytes, nis: float, dof: int, lag: int) -> None:
+        """One control instant: ``truth`` its :class:`~twin.plant.bullet.GroundTruth`, ``gyro_bias``
+        the gyro's true bias (3,) rad/s in the sample taken there (None without one), and the
+        filter's diagnostics after its step there: ``state`` its x (12,) and P (12, 12) as 156
+        float64 in native byte order (``x.tobytes() + P.tobytes()``), ``nis`` and ``dof`` of the
+        encoder update (NaN and 0 without one) and ``lag`` the lag in force (periods)."""
+        pending = self._pending
+        pending.append((truth, gyro_bias, state, nis, dof, lag))
+        if len(pending) >= SUM_BLOCK:
+            self._flush()
+
+    def _flush(self) -> None:
+        rows = self._pending
+        m = len(rows)
+        if not m:
+            return
+        if self._done:
+            rows.clear()
+            raise TwinError("RunningConsistency: no row can be added after result()")
+        i0 = self.n
+        tr = np.fromiter(chain.from_iterable(r[0] for r in rows), float).reshape(m, -1)
+        bias = np.full((m, 2), np.nan)
+        have = [j for j, r in enumerate(rows) if r[1] is not None]
+        if have:
+            bias[have] = [tuple(rows[j][1])[1:3] for j in have]
+        state = np.frombuffer(b"".join([r[2] for r in rows]), float)
+        if state.size != m * _STATE:
+            raise TwinError(f"RunningConsistency: a row's state is not 156 float64 (x (12,) and P (12, 12))")
+        state = state.reshape(m, _STATE)
+        nis = np.array([r[3] for r in rows], float)
+        dof = np.array([r[4] for r in rows], np.int64)
+        lag = np.array([r[5] for r in rows], np.int64)
+        rows.clear()
+        if self._ref is None:
+            th0 = tr[0, 1]
+            self._ref = (float(tr[0, 3] - th0), float(tr[0, 4] - th0), float(tr[0, 7]))
+        self._truth = np.concatenate([self._truth, np.column_stack([tr[:, _TRUTH_COLUMNS], bias])])
+        f = np.maximum.accumulate(np.maximum(np.arange(i0, i0 + m, dtype=np.int64) - lag, self._f))
+        ok = f >= 1
+        q = np.full(m, np.nan)
+        if ok.any():
+            T = self._truth[f[ok] - self._base]
+            X = _truth_rows(self.constants, self._ref, *T.T)
+            truth = np.full((m, DIM), np.nan)
+            truth[ok] = X
+            q = _nees_rows(state[:, :DIM], state[:, DIM:].reshape(m, DIM, DIM), truth)
+        self._sums.block(tr[:, 0], q, nis, dof)
+        self.n = i0 + m
+        self._f = int(f[-1])
+        drop = self._f - self._base  # rows the filter has passed: no later row needs their truth
+        if drop > 0:
+            self._truth = self._truth[drop:]
+            self._base = self._f
+
+    def result(self) -> dict:
+        """The :func:`summary` of the rows added (the run's end: no more rows after it)."""
+        self._flush()
+        self._done = True
+        return self._sums.result(DIM)
 
 
 def monte_carlo(runs, start: float = 0.0, confidence: float = 0.95) -> dict:
@@ -152,6 +363,9 @@ def monte_carlo(runs, start: float = 0.0, confidence: float = 0.95) -> dict:
     correlation in time. ``nees_mean`` inside ``nees_bounds`` is the χ² test of the
     average (conservative for a time average, whose spread is at most one row's).
     """
+    from scipy.stats import chi2
+    from scipy.stats import t as t_dist
+
     if len(runs) < 2:
         raise TwinError(f"a Monte Carlo consistency test needs at least 2 runs, got {len(runs)}")
     if not (0.5 < confidence < 1.0):

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 import os
+import struct
 from functools import partial
 from typing import Protocol
 
@@ -42,6 +43,7 @@ STATE_NAMES = ("theta", "psi", "imu_speed", "alpha", "gyro_bias_y", "gyro_bias_z
                "encoder_heading_zero", "gyro_scale_z", "accel_scale_x", "accel_scale_z")
 STATE_UNITS = ("rad", "rad", "m/s", "rad", "rad/s", "rad/s", "rad", "1", "rad", "1", "1", "1")
 N = len(STATE_NAMES)
+_PACK_STATE = struct.Struct(f"{N + N * N}d").pack  # x, P as packed_state() gives them
 TH, PS, V, AL, BY, BZ, C0, SY, H0, SZ, SAX, SAZ = range(N)
 
 try:  # the optional compiled path (setup.py); TWIN_PURE_PYTHON=1 turns it off
@@ -121,6 +123,9 @@ class FilterCore(Protocol):
     def push(self) -> None:
         """Write the Python-side state to the implementation."""
 
+    def packed_state(self) -> bytes:
+        """x then P (156 float64, native byte order), from the implementation's own state."""
+
     def set_state(self, x, P, w, w_prev) -> None: ...
 
     def hold(self, mask) -> None: ...
@@ -185,6 +190,15 @@ class _Core:
         self.kf.x, self.kf.P = x, P
         self.w, self.w_prev = w, w_prev
         self.push()
+
+    def packed_state(self) -> bytes:
+        """x (12,) then P (12, 12) row by row, as 156 float64 in native byte order: the state at
+        the filter's own time for a reader that wants it at every step without building numpy
+        arrays (:class:`estimation.consistency.RunningConsistency`, fed by
+        :func:`twin.sim.simulate.simulate` in every run with the EKF)."""
+        kf = self.kf
+        return np.ascontiguousarray(kf.x, dtype=np.float64).tobytes() + \
+            np.ascontiguousarray(kf.P, dtype=np.float64).tobytes()
 
     def keep_good(self) -> None:
         kf = self.kf
@@ -271,6 +285,12 @@ class CompiledCore(_Core):
 
     def push(self) -> None:
         self._kernel.set_state(self._core, self.kf.x, self.kf.P.ravel(), self.w, self.w_prev)
+
+    def packed_state(self) -> bytes:
+        """As :meth:`_Core.packed_state`, from the kernel's own state (no mirror update): about
+        2.4 µs, of which 1.7 µs the kernel's tuples of Python floats."""
+        x, P, _, _ = self._kernel.state(self._core)
+        return _PACK_STATE(*x, *P)
 
     def take_over(self) -> None:
         self.pull()  # the kernel restores a broken state itself: what it holds is good

@@ -311,7 +311,7 @@ def test_strapdown_is_exact_for_theta_and_v_but_not_for_the_twins_position(desig
     x[TH] = run.signal("theta")[0]
     err, sd = [], []
     P = np.zeros((N, N))  # the true initial state: only the step's own Q
-    for k in range(run.filter_log["lag"] + 1, len(run.t)):  # the sample taken at t_m arrives at m + lag
+    for k in range(int(run.filter_log["lag"][0]) + 1, len(run.t)):  # the sample taken at t_m arrives at m + lag
         g, a = run.measurements[k].gyro, run.measurements[k].accel
         x, F, Q, _ = est._propagate(x, ((g[1], g[2], a[0], a[2]), None))
         P = F @ P @ F.T + Q

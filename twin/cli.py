@@ -487,6 +487,12 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample, log
     for c in kinds:
         if result.metrics[c]["status"] != "ok":  # fell, diverged, or degraded (what the estimator lost)
             click.echo(f"  {label(c)}: {result.metrics[c]['status']}: {result.metrics[c]['end_reason']}")
+    from twin.outputs.report import estimator_line
+
+    for c in kinds:  # the estimator's consistency, rejections and events (metrics.json's "estimator")
+        line = estimator_line(result.metrics[c], label(c))
+        if line:
+            click.echo(f"  {line}")
     t = result.timings
     sim = sum(float(r.full_signal("t")[-1]) for r in result.runs)  # the last step simulated, logged or not
     wall = sum(v for k, v in t.items() if k.startswith("run_"))

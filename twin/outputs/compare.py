@@ -275,7 +275,9 @@ def _metric_rows(ma: dict | None, mb: dict | None) -> list:
     """(key, A's value, B's value) of every metric either side has (A's order, then B's)."""
     ma, mb = ma or {}, mb or {}
     keys = list(ma) + [k for k in mb if k not in ma]
-    return [(k, ma.get(k), mb.get(k)) for k in keys if k not in ("controller", "seed")]
+    # (a nested section, such as the estimator's, is shown through its flat metrics: estimator_*)
+    return [(k, ma.get(k), mb.get(k)) for k in keys if k not in ("controller", "seed")
+            and not isinstance(ma.get(k), dict) and not isinstance(mb.get(k), dict)]
 
 
 def _number(v) -> bool:

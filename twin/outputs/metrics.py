@@ -2,8 +2,12 @@
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
+
+EVENTS_KEPT = 100  # the estimator's events listed in metrics.json (all are counted): the first ones
+_EVENT = re.compile(r"t = ([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?) s: (.*)", re.S)
 
 
 def exact_mean(x: np.ndarray) -> float:
@@ -37,7 +41,11 @@ def run_metrics(run, settle_tol: float = 0.01, tail: float = 5.0) -> dict:
     minus target, None without that target); ``iae_theta`` (∫|θ| dt, rad·s);
     ``control_effort`` (∫(τ_l² + τ_r²) dt of the delivered torques, N²·m²·s);
     ``max_abs_torque_nm``; ``estimator_theta_rmse_rad`` (estimate against truth, whole run;
-    0 with ideal sensing); ``rejected_measurements`` (the estimator's count).
+    0 with ideal sensing); ``rejected_measurements`` (the estimator's count);
+    ``estimator_events`` (how many events the estimator logged, 0 without any),
+    ``estimator_nees_mean`` and ``estimator_nis_per_dof`` (the EKF's consistency on simulated
+    sensors, :func:`estimation.consistency.summary`; None otherwise); and ``estimator``, the
+    estimator's section (:func:`estimator_section`; absent under ideal sensing).
 
     Every figure is computed from every control step: a run that logs every N-th step only
     (``run.log_every`` > 1) keeps the signals read here at every step in ``run.full_rate``.
@@ -54,7 +62,9 @@ def run_metrics(run, settle_tol: float = 0.01, tail: float = 5.0) -> dict:
     last = t >= t[-1] - tail - 1e-12
     e = run.experiment
     effort = tl * tl + tr * tr
-    return {
+    section = estimator_section(run)
+    consistency = (section or {}).get("consistency") or {}
+    out = {
         "controller": run.controller,
         "sensing": run.sensing,
         "status": run.status,
@@ -74,5 +84,82 @@ def run_metrics(run, settle_tol: float = 0.01, tail: float = 5.0) -> dict:
         "max_abs_torque_nm": float(np.max(np.abs(np.concatenate([tl, tr])))),
         "estimator_theta_rmse_rad": run.estimation_rmse("theta") if run.estimates is not None else 0.0,
         "rejected_measurements": int(run.estimator_stats.get("rejected_total", 0)),
+        "estimator_events": (section or {}).get("events_total", 0),
+        "estimator_nees_mean": consistency.get("nees_mean"),
+        "estimator_nis_per_dof": consistency.get("nis_per_dof"),
         "seed": run.seed,
     }
+    if section is not None:
+        out["estimator"] = section
+    return out
+
+
+def estimator_section(run) -> dict | None:
+    """metrics.json's ``estimator`` object of a run: None under ideal sensing (or for an
+    estimator with neither a ``stats()`` hook nor a known truth), else
+
+    ``name`` the estimator; ``stats`` its ``stats()`` made JSON-safe (:func:`jsonable`), its
+    events moved out to ``events``: [{"t_s", "message"}] (the first :data:`EVENTS_KEPT`;
+    ``t_s`` None where an event does not start "t = … s: ") with ``events_total``; for the
+    EKF, whose ``stats()`` are its accepted and rejected samples per sensor group
+    (``accepted``/``rejected``: gyro, accel, encoders), ``rejected_total``,
+    ``saturated_imu_samples``, ``stale_imu_samples``, ``accel_outliers``, ``latency_changes``,
+    ``resets``, ``predict_only_steps``, ``unchanged_encoder_samples``, ``interval_updates``,
+    also ``encoder_resyncs`` (encoder samples accepted after a run of rejections, and encoder
+    zeros re-based: the events that say "re-synchronising" or "re-based"); and
+    ``consistency`` where the truth of its state is known (the EKF on simulated sensors,
+    ``run.estimator_consistency``, :func:`estimation.consistency.summary`): ``start_s``,
+    ``states``, ``rows``, ``nees_mean``, ``nees_bounds``, ``nis_per_dof``, ``nis_updates``,
+    ``nis_dof``."""
+    stats = getattr(run, "estimator_stats", None) or {}
+    consistency = getattr(run, "estimator_consistency", None)
+    if run.sensing == "ideal" or (not stats and consistency is None):
+        return None
+    stats = jsonable(dict(stats))
+    out = {"name": run.sensing, "stats": stats}
+    events = stats.pop("events", None)
+    if isinstance(events, list):
+        parsed = [_event(e) for e in events]
+        out["events_total"] = len(parsed)
+        out["events"] = parsed[:EVENTS_KEPT]
+        if run.sensing == "ekf" and "encoder_resyncs" not in stats:
+            out["encoder_resyncs"] = sum(1 for e in parsed if "re-synchronis" in e["message"]
+                                         or "re-based" in e["message"])
+    if consistency is not None:
+        out["consistency"] = jsonable(dict(consistency))
+    return out
+
+
+def _event(e) -> dict:
+    """One event as {"t_s", "message"}: from "t = 8.120 s: why" (the EKF's form) or a (t, why) pair."""
+    if isinstance(e, (list, tuple)) and len(e) == 2 and isinstance(e[0], (int, float)) and \
+            not isinstance(e[0], bool):
+        t = float(e[0])
+        return {"t_s": t if math.isfinite(t) else None, "message": str(e[1])}
+    text = str(e)
+    m = _EVENT.fullmatch(text)
+    return {"t_s": float(m[1]), "message": m[2]} if m else {"t_s": None, "message": text}
+
+
+def jsonable(v):
+    """``v`` with what JSON cannot hold made plain: numpy scalars and arrays as numbers and lists,
+    tuples and sets as lists (a set sorted, for the same file every time), dict keys as
+    strings, non-finite floats as None, anything else as its ``str``."""
+    if v is None or isinstance(v, (bool, str)):
+        return v
+    if isinstance(v, (np.bool_,)):
+        return bool(v)
+    if isinstance(v, (int, np.integer)):
+        return int(v)
+    if isinstance(v, (float, np.floating)):
+        f = float(v)
+        return f if math.isfinite(f) else None
+    if isinstance(v, dict):
+        return {str(k): jsonable(x) for k, x in v.items()}
+    if isinstance(v, np.ndarray):
+        return jsonable(v.tolist())
+    if isinstance(v, (set, frozenset)):
+        return [jsonable(x) for x in sorted(v, key=repr)]
+    if isinstance(v, (list, tuple)):
+        return [jsonable(x) for x in v]
+    return str(v)

@@ -244,15 +244,14 @@ def _array(rows, m: int, k: int) -> np.ndarray:
 
 def _filter_log(diag: list | None, n: int) -> dict | None:
     """The estimator's per-step diagnostics as arrays: for the EKF ``x`` (n, 12), ``P`` (n, 12, 12),
-    ``nis`` (n,), ``nis_dof`` (n,) and ``lag`` (control periods); None if not logged or no hook."""
+    ``nis`` (n,), ``nis_dof`` (n,) and ``lag`` (n,) the lag in force at each row (control
+    periods: it changes when the filter detects a latency change); None if not logged or no hook."""
     if not diag or diag[0] is None:
         return None
     diag = diag[:n]
     out = {}
     for key, first in diag[0].items():
-        if key == "lag":
-            out[key] = first
-        elif key == "nis_dof":
+        if key in ("lag", "nis_dof"):
             out[key] = np.array([d[key] for d in diag], dtype=int)
         else:
             out[key] = np.array([d[key] for d in diag], dtype=float)

@@ -14,6 +14,8 @@ The plant is closed when the run ends, fallen or not.
 """
 from __future__ import annotations
 
+import sys
+
 from twin.sim.recorder import Recorder
 from twin.sim.runs import COMMAND_UNITS, Run
 from twin.sim.spec import RunSpec
@@ -77,6 +79,7 @@ def simulate(spec: RunSpec, progress=None, controller=None, estimator=None) -> R
     diagnostics = loop.diagnostics if log_filter else None
     with loop:
         res = loop.reset(spec.seed)
+        meter, feed = consistency_meter(loop, spec, log_filter)
         command, step = loop.command, loop.step
         for i in range(n_ctrl + 1):
             if res.status == "diverged":  # the non-finite state is not logged: the log ends with the last finite one
@@ -84,6 +87,8 @@ def simulate(spec: RunSpec, progress=None, controller=None, estimator=None) -> R
             d = None if diagnostics is None else diagnostics()
             c = command()
             instant(res, c, d)
+            if feed is not None:
+                feed(res, d)
             if i == n_ctrl or res.status != "running":
                 break
             if progress is not None and i % report_every == 0 and i:
@@ -103,10 +108,45 @@ def simulate(spec: RunSpec, progress=None, controller=None, estimator=None) -> R
     units = {**COMMAND_UNITS, **getattr(controller, "signal_units", {})}
     label = spec.label or (spec.controller.kind if spec.controller is not None and spec.controller.is_kind else "")
     config = config_of(spec)
-    return rec.run(status, reason, config, command_units=tuple(units.get(k, "1") for k in rec.command_names),
-                   experiment=spec.experiment, controller=label, sensing=spec.sensing_name, estimator_stats=stats,
-                   sensor_counts=sensor_counts, seed=None if ideal else int(spec.seed), sensor_truth=sensor_truth,
-                   sensor_config=spec.sensing.true, model_params=spec.model, plant=spec.plant_name)
+    run = rec.run(status, reason, config, command_units=tuple(units.get(k, "1") for k in rec.command_names),
+                  experiment=spec.experiment, controller=label, sensing=spec.sensing_name, estimator_stats=stats,
+                  sensor_counts=sensor_counts, seed=None if ideal else int(spec.seed), sensor_truth=sensor_truth,
+                  sensor_config=spec.sensing.true, model_params=spec.model, plant=spec.plant_name,
+                  estimator_consistency=None if meter is None else meter.result())
+    return run
 
 
-__all__ = ["CHUNK", "build_loop", "config_of", "simulate"]
+def consistency_meter(loop, spec: RunSpec, diagnosed: bool = False):
+    """(meter, feed) for a run of the built-in EKF on simulated sensors, whose state truth the
+    twin knows; (None, None) for any other run. ``meter`` an
+    :class:`estimation.consistency.RunningConsistency`, ``feed(result, diagnostics)`` to call
+    after every control instant is recorded (``diagnostics`` the EKF's, when the run logs them,
+    else None: then the state is read from the filter's core, ``packed_state()``, which costs
+    a sixth of what ``diagnostics()`` does). Call after ``loop.reset()``: the sensors' drawn
+    constants are the truth of some states.
+
+    Memory: a block of :data:`estimation.consistency.SUM_BLOCK` rows (about 1.3 kB each), not
+    the run: an hour-long run costs no more than a minute's."""
+    ekf = sys.modules.get("estimation.ekf")  # not imported: the estimator is no EKF
+    est = loop.estimator
+    if ekf is None or not isinstance(est, ekf.EKFEstimator) or loop.sensors is None or spec.sensing.true is None:
+        return None, None
+    from estimation.consistency import RunningConsistency, TruthConstants
+
+    drawn, sensors = loop.sensor_truth(), spec.sensing.true
+    constants = TruthConstants(tuple(drawn["gyro_scale"]), tuple(drawn["accel_scale"]), tuple(drawn["encoder_phase"]),
+                               tuple(sensors.imu.position), float(config_of(spec).params.r),
+                               float(spec.model.b / spec.model.r), float(sensors.encoders.resolution))
+    meter = RunningConsistency(constants)
+    add = meter.add
+
+    if diagnosed:
+        def feed(res, d):
+            add(res.truth, res.gyro_bias, d["x"].tobytes() + d["P"].tobytes(), d["nis"], d["nis_dof"], d["lag"])
+    else:
+        def feed(res, d):
+            add(res.truth, res.gyro_bias, est.core.packed_state(), est.last_nis, est.last_dof, est.lag)
+    return meter, feed
+
+
+__all__ = ["CHUNK", "build_loop", "config_of", "consistency_meter", "simulate"]
