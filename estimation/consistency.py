@@ -29,7 +29,7 @@ from estimation.detlinalg import quad_inv_rows
 from twin.errors import TwinError
 
 NEES_START = 0.5  # s: one run's summary leaves out the start-up transient of the encoder zeros
-SUM_BLOCK = 4096  # rows: the summary's sums are exact within each block of rows (by row index), then over blocks
+SUM_BLOCK = 1024  # rows: the summary's sums are exact within each block of rows (by row index), then over blocks
 DIM = 12  # the EKF's states
 # the two-sided 95 % interval of χ² with 12 degrees of freedom (one row's NEES if the filter is
 # consistent): float(scipy.stats.chi2.ppf([0.025, 0.975], 12)), scipy 1.17.1, tested against scipy.
@@ -103,8 +103,9 @@ def run_truth(run) -> StateTruth:
 class FilterRecord:
     """A filter's record that is not a :class:`twin.sim.runs.Run` (for example a replay of a
     sensor log): control instants ``t`` (n,) s, ``filter_log`` as ``Run.filter_log`` (``x``
-    (n, 12), ``P`` (n, 12, 12), ``nis`` (n,), ``nis_dof`` (n,), ``lag`` periods) and the
-    :class:`StateTruth` on the same rows (None: no NEES, NIS only)."""
+    (n, 12), ``P`` (n, 12, 12), ``nis`` (n,), ``nis_dof`` (n,), ``lag`` (n,) the lag in force
+    at each row in periods, or one number for all) and the :class:`StateTruth` on the same
+    rows (None: no NEES, NIS only)."""
 
     t: np.ndarray
     filter_log: dict
@@ -200,6 +201,8 @@ def nees(source) -> np.ndarray:
 def _nees_rows(x, P, truth) -> np.ndarray:
     e = x - truth
     ok = np.isfinite(e).all(axis=1)
+    if ok.all():
+        return quad_inv_rows(P, e)
     out = np.full(len(e), np.nan)
     if ok.any():
         out[ok] = quad_inv_rows(P[ok], e[ok])
@@ -262,7 +265,7 @@ _STATE = 12 + 12 * 12  # x then P (row-major) of one row
 
 class RunningConsistency:
     """:func:`summary` of a run computed while it goes, in memory that does not grow with the
-    run: the rows wait in a block of :data:`SUM_BLOCK` (about 1.3 kB each), then their NEES
+    run: the rows wait in a block of :data:`SUM_BLOCK` (1.25 kB of x and P each), then their NEES
     is solved at once (:func:`estimation.detlinalg.quad_inv_rows`) and summed, and only the
     truth of the rows the filter has not yet reached is kept (its lag, a few periods).
 
@@ -280,16 +283,24 @@ class RunningConsistency:
         self._base = 0  # the row of self._truth[0]
         self._truth = np.empty((0, 9))  # θ, θ̇, ψ_l, ψ_r, ψ, ψ̇, α, b_y, b_z of rows _base, _base + 1, …
         self._done = False  # result() was asked for: the last block is summed
+        self._states = np.empty((SUM_BLOCK, _STATE))  # x then P of each pending row
 
-    def add(self, truth, gyro_bias, state: bytes, nis: float, dof: int, lag: int) -> None:
+    def add(self, truth, gyro_bias, state, nis: float, dof: int, lag: int) -> None:
         """One control instant: ``truth`` its :class:`~twin.plant.bullet.GroundTruth`, ``gyro_bias``
         the gyro's true bias (3,) rad/s in the sample taken there (None without one), and the
         filter's diagnostics after its step there: ``state`` its x (12,) and P (12, 12) as 156
-        float64 in native byte order (``x.tobytes() + P.tobytes()``), ``nis`` and ``dof`` of the
-        encoder update (NaN and 0 without one) and ``lag`` the lag in force (periods)."""
+        numbers (x, then P row by row), or a callable ``state(out, row)`` that writes them into
+        row ``row`` of ``out`` (as the EKF core's ``state_into`` does, with no array between);
+        ``nis`` and ``dof`` of the encoder update (NaN and 0 without one) and ``lag`` the lag in
+        force (periods)."""
         pending = self._pending
-        pending.append((truth, gyro_bias, state, nis, dof, lag))
-        if len(pending) >= SUM_BLOCK:
+        j = len(pending)
+        if callable(state):
+            state(self._states, j)
+        else:
+            self._states[j] = state
+        pending.append((truth, gyro_bias, nis, dof, lag))
+        if j + 1 >= SUM_BLOCK:
             self._flush()
 
     def _flush(self) -> None:
@@ -301,18 +312,19 @@ class RunningConsistency:
             rows.clear()
             raise TwinError("RunningConsistency: no row can be added after result()")
         i0 = self.n
-        tr = np.fromiter(chain.from_iterable(r[0] for r in rows), float).reshape(m, -1)
-        bias = np.full((m, 2), np.nan)
-        have = [j for j, r in enumerate(rows) if r[1] is not None]
-        if have:
-            bias[have] = [tuple(rows[j][1])[1:3] for j in have]
-        state = np.frombuffer(b"".join([r[2] for r in rows]), float)
-        if state.size != m * _STATE:
-            raise TwinError(f"RunningConsistency: a row's state is not 156 float64 (x (12,) and P (12, 12))")
-        state = state.reshape(m, _STATE)
-        nis = np.array([r[3] for r in rows], float)
-        dof = np.array([r[4] for r in rows], np.int64)
-        lag = np.array([r[5] for r in rows], np.int64)
+        truths, biases, nis, dof, lag = zip(*rows)
+        tr = np.fromiter(chain.from_iterable(truths), float).reshape(m, -1)
+        if biases.count(None):
+            bias = np.full((m, 2), np.nan)
+            have = [j for j, b in enumerate(biases) if b is not None]
+            if have:
+                bias[have] = [tuple(biases[j])[1:3] for j in have]
+        else:  # a gyro sample at every row
+            bias = np.fromiter(chain.from_iterable(biases), float).reshape(m, -1)[:, 1:3]
+        state = self._states[:m]
+        nis = np.array(nis, float)
+        dof = np.array(dof, np.int64)
+        lag = np.array(lag, np.int64)
         rows.clear()
         if self._ref is None:
             th0 = tr[0, 1]

@@ -112,6 +112,7 @@ for name, ctrl, compiled in (("lqr, compiled EKF", lqr, None), ("it2, pure-Pytho
     for a in (run.truth, run.estimates, run.commands, run.actuation):
         h.update(np.ascontiguousarray(a, dtype=np.float64).tobytes())
     h.update(json.dumps(run.estimator_stats, sort_keys=True, default=str).encode())
+    h.update(json.dumps(run.estimator_consistency, sort_keys=True).encode())  # NEES/NIS of metrics.json
     out[name] = {"hash": h.hexdigest(), "steps": len(run.t), "status": run.status,
                  "rejected": run.estimator_stats.get("rejected_total")}
 blas = [d.get("architecture") for d in threadpool_info() if d.get("internal_api") == "openblas"]
@@ -123,7 +124,8 @@ def test_closed_loops_are_bit_identical_under_every_blas_kernel_and_numpy_simd_t
     """LQR with the compiled EKF, and IT2 (fixed gains) and LQR with the pure-Python EKF, 1.5 s
     with gyro/encoder spikes and an IMU dropout, in child processes under each OpenBLAS
     kernel and numpy SIMD level (tests/cpu_kernels.py): the truth, the
-    estimates, the commands and the estimator's counts must have the same bytes. Before
+    estimates, the commands, the estimator's counts and its NEES/NIS summary must have the
+    same bytes. Before
     issue 25 the pure-Python EKF (filterpy's BLAS products) parted after 0.02 s under
     Prescott, and the compiled path after the first coasting step."""
     import twin

@@ -47,7 +47,9 @@ METRICS = {
     "final_theta_rad": "rad", "final_distance_m": "m", "final_heading_rad": "rad", "final_position_error_m": "m",
     "final_heading_error_rad": "rad", "iae_theta": "rad·s", "control_effort": "N²·m²·s", "max_abs_torque_nm": "N·m",
     "estimator_theta_rmse_rad": "rad", "rejected_measurements": "1", "duration_s": "s",
+    "estimator_events": "1", "estimator_nees_mean": "1", "estimator_nis_per_dof": "1",
 }
+WHOLE_NUMBERS = ("rejected_measurements", "rejected_total", "estimator_events")  # the metrics == may compare
 # the metrics of a replay on a sensor log (twin.logs.replay) that a log's [expect] may name
 REPLAY_METRICS = {
     "theta_rmse_rad": "rad", "theta_max_abs_rad": "rad", "psi_rmse_rad": "rad", "psi_max_abs_rad": "rad",
@@ -135,9 +137,9 @@ def parse_bound(key: str, value, where: str, over_seeds: bool, metrics: dict = M
     number = float(m["num"])
     if not math.isfinite(number):
         raise ExpectError(f"{where}: {value!r} is not a finite number")
-    if m["op"] == "==" and metric not in ("rejected_measurements", "rejected_total") and not (metric == "fell"):
+    if m["op"] == "==" and metric not in WHOLE_NUMBERS and not (metric == "fell"):
         raise ExpectError(f"{where}: == on a real-valued metric holds only by accident of rounding; use <= and >= "
-                          f"(== is for whole numbers: rejected_measurements)")
+                          f"(== is for whole numbers: rejected_measurements, estimator_events)")
     if metric == "pass_rate" and not 0.0 <= number <= 1.0:
         raise ExpectError(f"{where}: a pass rate is a fraction in [0, 1], got {number:g}")
     return Bound(key, metric, absolute, stat, m["op"], number)
