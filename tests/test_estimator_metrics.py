@@ -181,7 +181,8 @@ def test_the_filter_log_keeps_the_lag_in_force_at_every_row(latency_runs):
 def test_nees_after_a_latency_change_is_aligned(latency_runs):
     """Rows from 1 s after the detection on: NEES with the lag at each row about as before the
     fault (0.5–2 s) and inside one run's bounds; the starting lag for every row (what the filter
-    log kept before) compares each state with the truth 3 periods off and gives 2.5× as much."""
+    log kept before) compares each state with the truth 3 periods off and gives over twice as
+    much (measured: 14.0 and 10.9 before, 16.9 and 10.3 after, 45.5 and 29.5 misaligned)."""
     for run in latency_runs:
         lag = run.filter_log["lag"]
         t_change = run.t[np.flatnonzero(np.diff(lag))[0] + 1]
@@ -195,7 +196,7 @@ def test_nees_after_a_latency_change_is_aligned(latency_runs):
         after = run.t >= t_change + 1.0
         b, a, a_old = np.nanmean(q[before]), np.nanmean(q[after]), np.nanmean(old[after])
         assert a < 1.5 * b and a < ONE_RUN_NEES_BOUNDS[1], (b, a, a_old)
-        assert a_old > 2.5 * a, (b, a, a_old)
+        assert a_old > 2.0 * a, (b, a, a_old)
         # before the change both alignments are one and the same
         assert np.array_equal(q[before], old[before])
 
