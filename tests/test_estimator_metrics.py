@@ -75,6 +75,28 @@ def test_the_streamed_summary_equals_the_batch_on_the_filter_log_to_the_bit(pair
     assert 4.0 < got["nees_mean"] < 30.0 and 0.7 < got["nis_per_dof"] < 1.4  # a filter about consistent
 
 
+def test_the_pure_python_core_feeds_the_same_summary():
+    """The reference path (filterpy, ``compiled=False``): its core's ``state_into`` gives the
+    summary the filter log does."""
+    from twin.controllers.lqr import LQRController
+    from twin.experiments import Experiment
+    from twin.params import NOMINAL
+    from twin.plant.bullet import TwinConfig
+    from twin.registry import build_estimator_for
+    from twin.sensors import SensorConfig
+    from twin.sim.bullet_loop import simulate_twin
+
+    exp, config, sensors = Experiment("pure", "", theta0=0.2, duration=1.0), TwinConfig(), SensorConfig()
+    runs = []
+    for log_filter in (False, True):
+        est = build_estimator_for("ekf", sensors, config.control_rate, config.motor, NOMINAL, compiled=False)
+        assert not est.compiled
+        runs.append(simulate_twin(LQRController(), exp, config, sensors=sensors, estimator=est, seed=5,
+                                  log_filter=log_filter))
+    assert runs[0].estimator_consistency == runs[1].estimator_consistency == summary(runs[1])
+    assert runs[0].estimator_consistency["rows"] == 101
+
+
 def test_nees_agrees_with_linalg_solve_and_a_row_alone_with_the_stack(pair):
     _, logged = pair
     x, P = logged.filter_log["x"], logged.filter_log["P"]
