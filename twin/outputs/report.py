@@ -175,6 +175,9 @@ def estimator_line(metrics: dict, name: str = "", events_shown: int = 2, width: 
               (sec.get("encoder_resyncs"), "encoder re-synchronisation{s}"),
               (stats.get("latency_changes"), "latency change{s}"), (stats.get("resets"), "reset{s}")]
     more = [f"{n} " + what.format(s="s" * (n != 1)) for n, what in counts if isinstance(n, int) and n]
+    stuck = stats.get("encoders_stuck_s")
+    if isinstance(stuck, (int, float)) and not isinstance(stuck, bool) and stuck > 0:
+        more.append(f"encoders stuck {stuck:.2f} s")
     if more:
         parts.append(", ".join(more))
     if "events_total" in sec:

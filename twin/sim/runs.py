@@ -164,13 +164,14 @@ class Run:
     resets, events); ``gyro_bias`` (n, 3) rad/s the gyro's true bias in the sample taken
     at each step (NaN without one); ``sensor_truth`` the sensors' drawn constants (scale
     factors, turn-on biases, encoder phases); ``sensor_config`` and ``model_params`` what the
-    run was given; ``filter_log`` (EKF with ``log_filter``) the
-    filter's own state ``x`` (n, 12) and covariance ``P`` (n, 12, 12) at its own time, t_{i − lag}
-    as a rule (:func:`estimation.consistency.filter_rows`; see :mod:`estimation.ekf`), and the encoder update's ``nis`` (n,) (NaN where none was tried) with its degrees of freedom
-    ``nis_dof`` (n,) (the number of wheels whose count changed; 0 where none was tried) and
-    ``lag`` (n,) the lag in force at each row (periods). ``estimator_consistency`` the EKF's NEES and NIS summary
-    (:func:`estimation.consistency.summary`, computed while the run went, whether or not it
-    kept the filter log), for a run of the EKF on simulated sensors; else None.
+    run was given; ``filter_log`` (EKF with ``log_filter``) the filter's own state ``x``
+    (n, 12) and covariance ``P`` (n, 12, 12) at its own time, t_{i − lag} as a rule
+    (:func:`estimation.consistency.filter_rows`; see :mod:`estimation.ekf`), the encoder
+    update's ``nis`` (n,) (NaN where none was tried) with its degrees of freedom ``nis_dof``
+    (n,) (the number of wheels whose count changed; 0 where none was tried), and ``lag`` (n,)
+    the lag in force at each row (periods). ``estimator_consistency``: the EKF's NEES and NIS
+    summary (:func:`estimation.consistency.summary`, computed while the run went, whether or
+    not it kept the filter log) for a run of the EKF on simulated sensors; else None.
 
     ``log_every`` N: row i is control step i·N (1: every step is logged). With N > 1 every
     per-row attribute above holds those rows only (so replaying the estimator on
