@@ -739,10 +739,34 @@ static PyObject *forward(PyObject *self, PyObject *const *args, Py_ssize_t nargs
     return Py_BuildValue("(NN)", tuple_of(finite ? s : s0, 6), PyBool_FromLong(finite));
 }
 
+/* state_into(core, buffer, row): x (12) then P (144) as float64 into row `row` of a writable
+   C-contiguous float64 buffer of rows of 156 (for estimation.consistency.RunningConsistency) */
+static PyObject *state_into(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    if (nargs != 3) { PyErr_SetString(PyExc_TypeError, "state_into(core, buffer, row)"); return NULL; }
+    Core *c = get(args[0]);
+    if (!c) return NULL;
+    Py_ssize_t row = PyLong_AsSsize_t(args[2]);
+    if (row == -1 && PyErr_Occurred()) return NULL;
+    Py_buffer view;
+    if (PyObject_GetBuffer(args[1], &view, PyBUF_WRITABLE | PyBUF_C_CONTIGUOUS) < 0) return NULL;
+    Py_ssize_t need = (row + 1) * (Py_ssize_t)(NX + NX * NX) * (Py_ssize_t)sizeof(double);
+    if (row < 0 || view.len < need) {
+        PyBuffer_Release(&view);
+        PyErr_SetString(PyExc_IndexError, "state_into: row outside the buffer");
+        return NULL;
+    }
+    double *out = (double *)view.buf + row * (NX + NX * NX);
+    memcpy(out, c->x, NX * sizeof(double));
+    memcpy(out + NX, c->P, NX * NX * sizeof(double));
+    PyBuffer_Release(&view);
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"new", new_core, METH_O, "A filter from its constants."},
     {"set_state", (PyCFunction)(void (*)(void))set_state, METH_FASTCALL, "Set x, P and the last gyro rates."},
     {"state", get_state, METH_O, "(x, P, w, w_prev) as tuples."},
+    {"state_into", (PyCFunction)(void (*)(void))state_into, METH_FASTCALL, "x, P into a row of a buffer."},
     {"set_consider", (PyCFunction)(void (*)(void))set_consider, METH_FASTCALL, "Set the consider-state mask."},
     {"state6", py_state6, METH_O, "The filter's [θ, θ̇, ψ, ψ̇, α, α̇]."},
     {"advance", (PyCFunction)(void (*)(void))advance, METH_FASTCALL, "One filter step with an IMU sample."},

@@ -420,6 +420,7 @@ class EKFEstimator:
         self._t0 = 0.0  # s: the first measurement's time
         self.events: list[tuple[float, str]] = []
         self.resets = 0
+        self.resyncs = 0  # encoder samples forced in after rejections in a row, and re-based zeros
 
     # ---- public -----------------------------------------------------------------------
     @property
@@ -530,7 +531,7 @@ class EKFEstimator:
         if self.stuck_since is not None and self.k >= 0:
             stuck += self._t0 + self.k * self.model.dt - self.stuck_since
         return {"accepted": dict(self.accepted), "rejected": dict(self.rejected),
-                "encoders_stuck_s": stuck, "degraded": self.degraded(),
+                "encoders_stuck_s": stuck, "degraded": self.degraded(), "encoder_resyncs": self.resyncs,
                 "rejected_total": self.rejected_total, "predict_only_steps": self.predict_only,
                 "unchanged_encoder_samples": self.unchanged_encoders, "interval_updates": self.interval_updates,
                 "saturated_imu_samples": self.saturated,
@@ -810,6 +811,7 @@ class EKFEstimator:
         self.core.push()
         self._last_enc, self._last_enc_m = tuple(enc), m
         self._implausible = 0
+        self.resyncs += 1
         self.events.append((t, f"encoder counts stayed {self.max_rejects_in_row} samples away from the estimate: "
                                f"re-based their zeros by ({y[0]:.4g}, {y[1]:.4g}) rad"))
 
@@ -956,6 +958,7 @@ class EKFEstimator:
                 self.predict_only += 1
             else:
                 if code_e == 4:
+                    self.resyncs += 1
                     self.events.append((t, f"encoders accepted after {self.in_row} rejections in a row "
                                            f"(NIS {nis:.3g} > gate {self.gates[dof]:.3g}): re-synchronising"))
                 self.in_row = 0
@@ -1238,6 +1241,7 @@ class EKFEstimator:
                 self.rejected["encoders"] += 1
                 self.in_row += 1
                 return False
+            self.resyncs += 1
             self.events.append((t, f"encoders accepted after {self.in_row} rejections in a row "
                                    f"(NIS {eps:.3g} > gate {gate:.3g}): re-synchronising"))
         self.in_row = 0

@@ -105,8 +105,8 @@ def estimator_section(run) -> dict | None:
     (``accepted``/``rejected``: gyro, accel, encoders), ``rejected_total``,
     ``saturated_imu_samples``, ``stale_imu_samples``, ``accel_outliers``, ``latency_changes``,
     ``resets``, ``predict_only_steps``, ``unchanged_encoder_samples``, ``interval_updates``,
-    also ``encoder_resyncs`` (encoder samples accepted after a run of rejections, and encoder
-    zeros re-based: the events that say "re-synchronising" or "re-based"); and
+    ``encoders_stuck_s``, ``degraded``, also ``encoder_resyncs`` (encoder samples accepted after
+    a run of rejections, and encoder zeros re-based), lifted out of ``stats`` too; and
     ``consistency`` where the truth of its state is known (the EKF on simulated sensors,
     ``run.estimator_consistency``, :func:`estimation.consistency.summary`): ``start_s``,
     ``states``, ``rows``, ``nees_mean``, ``nees_bounds``, ``nis_per_dof``, ``nis_updates``,
@@ -122,9 +122,8 @@ def estimator_section(run) -> dict | None:
         parsed = [_event(e) for e in events]
         out["events_total"] = len(parsed)
         out["events"] = parsed[:EVENTS_KEPT]
-        if run.sensing == "ekf" and "encoder_resyncs" not in stats:
-            out["encoder_resyncs"] = sum(1 for e in parsed if "re-synchronis" in e["message"]
-                                         or "re-based" in e["message"])
+    if "encoder_resyncs" in stats:  # the EKF counts them (forced-in samples and re-based zeros)
+        out["encoder_resyncs"] = stats["encoder_resyncs"]
     if consistency is not None:
         out["consistency"] = jsonable(dict(consistency))
     return out
