@@ -30,6 +30,7 @@ WATCH_MAX_LAG = 20  # the largest latency looked for (100 ms at 200 Hz)
 WATCH_RHO = 0.2  # the best lag's correlation must reach this ...
 WATCH_MARGIN = 0.15  # ... and beat the assumed latency's by this much ...
 WATCH_PERSIST = 3  # ... in this many checks in a row
+WATCH_CLIP = 5.0  # robust σ of the window's Δ²ω_y beyond which a row is winsorised (LatencyWatch)
 # row j of the window at latency L reads the command kernel at r0 − 2 − L + j, where
 # r0 = n − 1 − WATCH_WINDOW = WATCH_MAX_LAG + 4 is the window's first row (see LatencyWatch.observe)
 _WATCH_INDEX = (WATCH_MAX_LAG + 2 - np.arange(WATCH_MAX_LAG + 1)[:, None] + np.arange(WATCH_WINDOW)[None, :])
@@ -195,25 +196,83 @@ class LatencyWatch:
     to ~0 one or more periods off. The commands are known exactly and undelayed: they
     are the clock. A change is declared when the best latency differs from the assumed
     one, its ρ (sign as equation (1) gives, ``torque_sign``) ≥ :data:`WATCH_RHO` and beats the
-    assumed one's by :data:`WATCH_MARGIN`, in :data:`WATCH_PERSIST` checks in a row."""
+    assumed one's by :data:`WATCH_MARGIN`, in :data:`WATCH_PERSIST` checks in a row.
+
+    Which rows count, and how much (issue 29). Every gyro sample the filter takes as a
+    measurement of the rate is correlated; a sample that is none is left out like a missing
+    one (its three rows of Δ²ω_y with it): one the filter rejected as an outlier against the
+    encoders (a spike; :meth:`filter_verdicts`), a stale (repeated) one and one at the rail
+    (clipped: it says only "at least this much"), the estimator's ``usable=False``. A row
+    is never left out for its size: a row beyond :data:`WATCH_CLIP` robust σ (median
+    absolute deviation) of the window is winsorised, i.e. counted at that bound with its
+    sign, so that no handful of rows carries the sums (bounded influence, as a Huber
+    estimator's) while a large row still votes for the latency that explains it.
+
+    Why not left out: an earlier screen dropped the rows beyond 5 robust σ, against spikes,
+    and that made false "gyro latency changed" events during pushes. Measured at the 13
+    false events of push-recovery's seeds 0–9: a shove makes Δ²ω_y 0.5–0.6 rad/s (robust σ
+    3–4 mrad/s balancing, 5–8 in such a window), so the screen dropped 13–16 rows of the
+    catch - the force's onset and release, which no command explains, but also the
+    controller's reaction to them, the rows the commands at the true latency explain best
+    (Δ²ω_y ≈ −0.77 × the command kernel there). What was left was the catch's slow part: the
+    commands ramping as the body swings (the kernel's standard deviation 0.04–0.06 N·m in
+    the rows kept, 20–40 × its 0.0014–0.0024 while balancing) while Δ²ω_y stays small,
+    because equation (1)'s state terms (gravity, the body–wheel damping and back-EMF) cancel
+    most of the ramp's torque. Those rows carried the sums, and their slow co-variation
+    peaked at whichever lag lined the ramps up: ρ 0.22–0.43 at 25–30 ms against −0.08–0.26
+    at the true 5 ms (the same windows with every row kept: 0.53–0.57 at 5 ms, 0.04–0.06 at
+    the false lag). Over seeds 0–49 (benchmarks/latency_watch_sweep.py, the code before)
+    push-recovery logged 103 such events on 83 of its 150 runs of IT2, type-1 and LQR
+    (mostly "now about 25 / 30 ms", ρ 0.20–0.44, 0.2–0.5 s after a shove, each undone
+    0.6–0.75 s later but one: type-1's seed 43 went to 100 ms at 3.2 s and fell), and
+    sensor-faults 3 after its IMU dropout. Neither the motors nor the gyro clipped in those
+    catches (no saturated period; |θ̇| ≤ 4.06 rad/s against the gyro's 4.36 rad/s). With the
+    catch's rows in, winsorised, the true latency's ρ is 0.35–0.68 (median 0.59) 0.1–0.6 s
+    after a shove (seeds 0–9) and no other lag comes within the margin of beating it (at
+    most 0.09 above it); over every built-in at seeds 0–49 with the three controllers the
+    watch logs no event. Why bounded: with every row in at its full size, spikes the filter
+    lets through (±0.1–0.2 rad/s on sensor-faults, too small for its outlier test) carried
+    the sums instead and set off false changes to 0 ms (2 of 90 runs, seeds 0–9, three
+    controllers); winsorised, none with ±0.05–0.3 rad/s spikes (120 runs)."""
 
     def __init__(self, torque_sign: float):
         self.torque_sign = torque_sign
-        self.y: list[float] = []  # the window: gyro ω_y by arrival step (NaN: none)
+        self.y: list[float] = []  # the window: gyro ω_y by arrival step (NaN: none, or no measurement)
         self.u: list[float] = []  # the sum of the wheel commands over the period ending at each step
+        self.k = -1  # the step of the window's newest entry
         self.gaps = {"gyro": [], "accel": []}  # (step, length) of recent arrival gaps, per triad
         self.last_arrival = {"gyro": 0, "accel": 0}
         self.votes = (0, 0)  # (candidate latency, consecutive checks that chose it)
         self.hold_until = 0  # no verdict before this step (after a change)
         self.last = None  # (t, best latency, its ρ, the assumed one's ρ) of the last check
+        self.verdicts = (0, 0)  # (the filter's last sample time seen, its IMU outliers by then)
 
-    def observe(self, t: float, k: int, gyro, a_ok: bool, command, assumed: int):
+    def filter_verdicts(self, m: int, outliers: int, latency: int) -> None:
+        """The filter has used its samples up to sample time ``m`` and rejected ``outliers``
+        IMU samples as outliers so far; a gyro sample with time j arrived at step j +
+        ``latency``. The samples it rejected since the last call are forgotten (their entries
+        become NaN): a spike is no measurement of the motion. The filter steps one sample
+        time per period as a rule, so that is the one rejected; when it stepped several at
+        once, all are forgotten (a few rows, never a false verdict)."""
+        m0, n0 = self.verdicts
+        if outliers != n0:
+            wy, k = self.y, self.k
+            for j in range(max(m0 + 1, m - len(wy)), m + 1):
+                i = len(wy) - 1 - (k - (j + latency))
+                if 0 <= i < len(wy):
+                    wy[i] = math.nan
+        self.verdicts = (m, outliers)
+
+    def observe(self, t: float, k: int, gyro, a_ok: bool, command, assumed: int, usable: bool = True):
         """Step ``k`` (time ``t``): the gyro reading (None: none), whether the accelerometer's
-        arrived, the command over the period that ended, the latency assumed now (periods).
+        arrived, the command over the period that ended, the latency assumed now (periods);
+        ``usable`` False: the reading arrived but is no measurement of the rate (stale or
+        clipped), so it counts as an arrival but is not correlated.
         Returns (new latency, its ρ) when a change is declared, else None."""
         wy, wu = self.y, self.u
-        wy.append(float(gyro[1]) if gyro is not None else math.nan)
+        wy.append(float(gyro[1]) if gyro is not None and usable else math.nan)
         wu.append(command[0] + command[1])
+        self.k = k
         last = self.last_arrival
         # (the common case, both halves arriving without a gap, without a loop: every period)
         if gyro is None or not a_ok or last["gyro"] != k - 1 or last["accel"] != k - 1:
@@ -238,12 +297,6 @@ class LatencyWatch:
         r0 = n - 1 - WATCH_WINDOW  # rows r0 … n − 2: the newest has no command after it yet
         y2 = y[r0:n - 1] - 2.0 * y[r0 - 1:n - 2] + y[r0 - 2:n - 3]
         ok = np.isfinite(y2)
-        if ok.sum() < WATCH_WINDOW // 2:
-            return None
-        # an outlier (a spike moves three second differences by up to twice its size) would
-        # carry the correlation: rows beyond 5 robust σ (median absolute deviation) are left out
-        dev = np.abs(y2 - _median(y2[ok]))
-        ok &= ~(dev > 5.0 * 1.4826 * _median(dev[ok]))
         used = int(ok.sum())
         if used < WATCH_WINDOW // 2:
             return None
@@ -254,6 +307,12 @@ class LatencyWatch:
             Z, yy = dk[_WATCH_INDEX], y2
         else:
             Z, yy = dk[_WATCH_INDEX[:, ok]], y2[ok]
+        # bounded influence: a row beyond WATCH_CLIP robust σ (median absolute deviation) of
+        # the window counts as if it were there, with its sign - winsorised, not left out (see
+        # the class docstring)
+        med = _median(yy)
+        lim = WATCH_CLIP * 1.4826 * _median(np.abs(yy - med))
+        yy = np.minimum(np.maximum(yy, med - lim), med + lim)
         yy = yy - yy.mean()
         Z -= Z.sum(axis=1, keepdims=True) / used  # as Z.mean(axis=1): the sum, divided
         # Σ z y, Σ z², Σ y² in one fixed-order sum each (not @: BLAS products differ in their
@@ -300,6 +359,6 @@ class ConsiderStates:
         return not holding and bool(self.names) and t >= self.learn_time - 1e-9
 
 
-__all__ = ["ACCEL_MAX_IN_ROW", "INSIDE_MARGIN", "WATCH_EVERY", "WATCH_MARGIN", "WATCH_MAX_LAG", "WATCH_PERSIST",
-           "WATCH_RHO", "WATCH_WINDOW", "AccelOutlierTest", "ConsiderStates", "EncoderGate", "KeepInside",
-           "LatencyWatch", "truncated_measurement"]
+__all__ = ["ACCEL_MAX_IN_ROW", "INSIDE_MARGIN", "WATCH_CLIP", "WATCH_EVERY", "WATCH_MARGIN", "WATCH_MAX_LAG",
+           "WATCH_PERSIST", "WATCH_RHO", "WATCH_WINDOW", "AccelOutlierTest", "ConsiderStates", "EncoderGate",
+           "KeepInside", "LatencyWatch", "truncated_measurement"]
