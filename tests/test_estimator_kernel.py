@@ -61,7 +61,7 @@ def test_kernel_follows_python_path(design, case, theta0):
     # (1.4e-10 of it) since the default design's inputs became products (issue 25); since
     # clipped samples coast too (issue 29), with the model's parameters in the coasting state,
     # single rows during a catch differ by up to 2.8e-7 relative (3e-8 rad/s in 6.6 rad/s of
-    # θ̇: the central differences' 1e-13 → 1e-7 lift, then the forward prediction through the
+    # θ̇: the finite differences' 1e-13 → 1e-7 lift, then the forward prediction through the
     # unstable pendulum); the filters' own states end 1e-15 to 1e-9 apart
     np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-9)
     np.testing.assert_allclose(fa.x, fb.x, rtol=1e-8, atol=1e-10)  # (1.4e-9 relative: the same lift)
