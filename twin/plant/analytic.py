@@ -104,3 +104,59 @@ def wheel_angles(x, params: RobotParams) -> tuple[float, float]:
     """(ψl, ψr) in rad from ψ and α, assuming rolling without slip from α = 0."""
     half = params.b / params.r * x[ALPHA]
     return x[PSI] - half, x[PSI] + half
+
+
+def rhs_batch(S, tau_l, tau_r, p: RobotParams, tau=None) -> np.ndarray:
+    """:func:`rhs` for many states at once: d/dt of [θ, θ̇, ψ, ψ̇, α, α̇] row by row.
+
+    Parameters
+    ----------
+    S : numpy.ndarray, shape (W, 6) (or (W, 8): the planar x, y columns are ignored)
+        States [θ (rad), θ̇ (rad/s), ψ (rad), ψ̇ (rad/s), α (rad), α̇ (rad/s)].
+    tau_l, tau_r : float or numpy.ndarray, shape (W,)
+        Left and right wheel torques in N·m (each between body and wheel), per row.
+    p : RobotParams
+        Physical parameters.
+    tau : array_like, shape (3,) or (W, 3), optional
+        External torques τ1..τ3 of equation (1) in N·m (one set for all rows, or per row).
+
+    Returns
+    -------
+    numpy.ndarray, shape (W, 6)
+        [θ̇, θ̈, ψ̇, ψ̈, α̇, α̈] per row (rad/s, rad/s²).
+
+    Only elementwise numpy arithmetic, in the order :func:`rhs` does it, with sin θ and cos θ
+    from :mod:`math` (libm, as :func:`rhs`; numpy's own may take SIMD paths that differ by an
+    ulp between CPUs): each row equals ``rhs`` on that row bit for bit, and no BLAS kernel is
+    involved.
+    """
+    S = np.asarray(S, dtype=float)
+    theta, theta_d, psi_d, alpha_d = S[:, 0], S[:, 1], S[:, 3], S[:, 5]
+    if tau is None:
+        t1 = t2 = t3 = 0.0
+    else:
+        tau = np.asarray(tau, dtype=float)
+        t1, t2, t3 = (tau[0], tau[1], tau[2]) if tau.ndim == 1 else (tau[:, 0], tau[:, 1], tau[:, 2])
+    rows = theta.tolist()
+    s = np.fromiter(map(math.sin, rows), float, len(rows))
+    c = np.fromiter(map(math.cos, rows), float, len(rows))
+    m11, m12, m22, n_bla = p.m11, p.m12, p.m22, p.n_bla
+    drive = 2.0 * p.d_b * (theta_d - psi_d)
+    u = tau_l + tau_r
+    rhs1 = m12 * (theta_d * theta_d + alpha_d * alpha_d) * s - 2.0 * p.d_w * psi_d + drive + u + t1
+    rhs2 = n_bla * alpha_d * alpha_d * s * c + p.g_b * s - drive - u + t2
+    det = m11 * m22 - (m12 * c) ** 2
+    psi_dd = (m22 * rhs1 - m12 * c * rhs2) / det
+    theta_dd = (m11 * rhs2 - m12 * c * rhs1) / det
+    yaw = (
+        -2.0 * n_bla * alpha_d * theta_d * s * c
+        - m12 * alpha_d * psi_d * s
+        - p.yaw_damping * alpha_d
+        + (p.b / p.r) * (tau_r - tau_l)
+        + t3
+    )
+    alpha_dd = yaw / (p.m33 + n_bla * s * s)
+    out = np.empty((S.shape[0], 6))
+    out[:, 0], out[:, 1], out[:, 2] = theta_d, theta_dd, psi_d
+    out[:, 3], out[:, 4], out[:, 5] = psi_dd, alpha_d, alpha_dd
+    return out
