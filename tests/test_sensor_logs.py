@@ -9,6 +9,7 @@ import math
 import shutil
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -117,8 +118,8 @@ def test_the_twins_log_through_the_command_line_bit_for_bit(tmp_path):
                         "--log-sensors", "--out", str(out)], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     log_dir = out / "sensor-logs" / "lqr"
-    assert sorted(p.name for p in log_dir.iterdir()) == ["commands.csv", "encoders.csv", "imu.csv", "log.toml",
-                                                         "truth.csv"]
+    assert sorted(p.name for p in log_dir.iterdir()) == ["commands.csv", "duty.csv", "encoders.csv", "imu.csv",
+                                                         "log.toml", "truth.csv"]  # duty.csv: DC motors
     rp = tmp_path / "replay"
     r = subprocess.run([*env_run, "replay", str(log_dir), "--estimator", "ekf", "--out", str(rp)],
                        capture_output=True, text=True, timeout=300)
@@ -287,7 +288,9 @@ def test_the_motors_figures_in_the_manifest(tmp_path):
     (d / "commands.csv").write_text("\n".join([lines[0]] + [ln.split(",")[0] + ",0.5,0.5" for ln in lines[1:]]) + "\n")
     log = read_log(d)
     assert log.motor.stall_torque == 0.8 and np.all(log.commands == 0.4)
-    assert log.context().motor is log.motor  # the EKF is built for these motors too
+    # the EKF is built for these motors too, told that the duty is past the driver (its compensation
+    # and current limit already acted: tests/test_log_duty.py)
+    assert log.context().motor == replace(log.motor, back_emf_compensation=False, current_limit=None)
     (d / "log.toml").write_text(MANIFEST + '[motor]\nstall_torq = 0.8\n')
     with pytest.raises(TwinError, match=r"motor.stall_torq: unknown; allowed: .*stall_torque"):
         read_log(d)

@@ -25,7 +25,7 @@ from twin.sweep.sampling import sample_scenario
 from twin.sweep.table import read_sweep_csv
 
 KINDS = ("it2", "t1")
-STREAMS = ("imu.csv", "encoders.csv", "commands.csv", "truth.csv")
+STREAMS = ("imu.csv", "encoders.csv", "commands.csv", "truth.csv", "duty.csv")  # duty: DC motors (issue 30)
 
 
 @pytest.fixture(scope="module")

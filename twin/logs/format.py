@@ -8,6 +8,7 @@ A log is a directory::
     commands.csv    t, ul, ur                                                  s, N·m (or PWM duty)
     truth.csv       t, theta, theta_dot, psi, psi_dot, alpha, alpha_dot        s, rad, rad/s (optional)
                     [, psi_l, psi_r, gyro_bias_x, gyro_bias_y, gyro_bias_z]    rad, rad/s (optional)
+    duty.csv        t, duty_l, duty_r                                          s, 1 (PWM duty in [-1, 1]; optional)
 
 Every stream's ``t`` is in seconds on one clock shared by all streams: for a reading, when it
 became available to the estimator (on a robot, when the control loop read it); for a command,
@@ -62,6 +63,25 @@ where no sample was taken), and the ``[truth]`` table of the sensors' constants.
 both (``twin run --log-sensors``); a robot's log with motion capture usually has neither, and
 then replay reports no NEES (NIS and whiteness need no truth).
 
+Applied duty (optional ``duty.csv``): the PWM duty the motor driver actually applied to each
+motor, dimensionless in [-1, 1] (forward positive; 1 is the full supply voltage), held over the
+control period starting at ``t``. It is the duty *after* everything the driver does to a
+command: the current limit, back-EMF compensation at the shaft speed it measured, the supply's
+clip to [-1, 1], the dead band (a duty inside it is written as 0: no voltage reached the motor)
+and the PWM resolution (the twin's duty is a whole number of 2^bits - 1 steps). That is the
+duty :class:`twin.actuators.dc_motor.MotorDriver` returns and the motor model turns into a
+voltage (τ_0 = duty × stall torque, less the back-EMF slope), so the motor's own figures can be
+fitted from it; a torque command (commands.csv in N·m) is what the controller asked for, before
+the driver. Each row's ``t`` must equal (within :data:`TIME_TOLERANCE`) the ``t`` of a row of
+commands.csv: one row per control period, a subset of the control instants allowed (a robot
+that recorded the duty at fewer instants, or lost some rows: the periods without a row have no
+known duty, nothing is held across them); times strictly increasing (one duty per period, no
+duplicated instant). The twin writes it for runs with DC motors (``plant.motor = "dc"``), one
+row per command, and none for ideal torque sources; logs without it read as before
+(:attr:`SensorLog.duty` None), and the format stays version 1 (a reader that does not know
+duty.csv ignores it). It is independent of ``[commands] unit``: with unit = "duty",
+commands.csv holds what the controller commanded as a duty, duty.csv what was applied.
+
 Anything wrong that can be detected is one :class:`~twin.errors.TwinError` line naming the
 file (and the row or key) and what is allowed: a missing manifest or stream, an unknown format
 or version, an unknown key, non-numeric or non-finite values, counts that are not integers, time
@@ -87,6 +107,7 @@ STREAMS = {
     "encoders": ("t", "left", "right"),
     "commands": ("t", "ul", "ur"),
     "truth": ("t", "theta", "theta_dot", "psi", "psi_dot", "alpha", "alpha_dot"),
+    "duty": ("t", "duty_l", "duty_r"),
 }
 TRUTH_STATE = ("psi_l", "psi_r", "gyro_bias_x", "gyro_bias_y", "gyro_bias_z")  # optional truth.csv columns
 # the optional [truth] table: key -> (length, what; None: a scalar number)
@@ -111,7 +132,9 @@ class SensorLog:
     converted); ``truth_t`` and ``truth`` (j, 6) [θ, θ̇, ψ, ψ̇, α, α̇] or None;
     ``truth_state`` (j, 5) [ψ_l, ψ_r rad, gyro bias x, y, z rad/s] where truth.csv has those
     columns, else None, and ``truth_constants`` the manifest's ``[truth]`` table (a dict of
-    floats and tuples), else None."""
+    floats and tuples), else None; ``duty_t`` (d,) s and ``duty`` (d, 2) [left, right] the
+    PWM duty the drivers applied (dimensionless, [-1, 1], after the dead band; see the module
+    docstring) where the log has duty.csv, else None."""
 
     path: Path
     manifest: dict
@@ -133,6 +156,8 @@ class SensorLog:
     scenario: object = field(default=None, repr=False)  # the Scenario the manifest names, if any
     truth_state: np.ndarray | None = None
     truth_constants: dict | None = None
+    duty_t: np.ndarray | None = None
+    duty: np.ndarray | None = None
 
     @property
     def counts_per_rev(self) -> int:
@@ -148,7 +173,30 @@ class SensorLog:
         from twin.protocols import Targets
         from twin.registry import BuildContext
 
-        return BuildContext(self.control_rate, self.model, self.motor, self.sensors, Targets(), self.initial_heading)
+        return BuildContext(self.control_rate, self.model, self.estimator_motor(), self.sensors, Targets(),
+                            self.initial_heading)
+
+    def estimator_motor(self):
+        """The motors as an estimator is told them, for the commands it is handed (:attr:`commands`).
+
+        N·m commands are the controller's: the estimator's model (:class:`estimation.model.
+        EstimatorModel`) turns them into the held torque τ_0 as the driver does (current limit,
+        back-EMF compensation at the shaft speed, the stall torque), so it gets :attr:`motor` as it
+        is. Commands logged as a PWM duty are already past the driver: duty × stall torque *is*
+        τ_0, the compensation included; with the driver's compensation on and its current limit
+        left in, the model would add c_e ω a second time (and clip τ_0 with a limit that acted on
+        the command). So for them the estimator gets the same motor without back-EMF compensation
+        and with the current limit at the stall current: the model then hands τ_0 through
+        unchanged (clipped to the stall torque, which |duty| ≤ 1 never reaches), and keeps the
+        back-EMF slope c_e on the body-wheel damping, where it physically acts."""
+        from dataclasses import replace
+
+        unit = (self.manifest.get("commands") or {}).get("unit", "N·m")
+        if unit != "duty" or self.motor is None:
+            return self.motor
+        if not self.motor.back_emf_compensation and self.motor.current_limit is None:
+            return self.motor
+        return replace(self.motor, back_emf_compensation=False, current_limit=None)
 
 
 # ---- reading ---------------------------------------------------------------------------------------
@@ -252,6 +300,7 @@ def read_log(path) -> SensorLog:
     enc = _stream(root, "encoders", required=True, integers=True)
     cmd = _stream(root, "commands", required=True, need_all=True)
     tru = _stream(root, "truth", required=False)
+    duty = _stream(root, "duty", required=False, need_all=True)
     constants = _truth_table(m.get("truth"), where) if "truth" in m else None
     t_imu, gyro, accel = imu[:, 0], imu[:, 1:4], imu[:, 4:7]
     _check_gravity(root / "imu.csv", accel, t_imu)
@@ -267,9 +316,39 @@ def read_log(path) -> SensorLog:
         commands = commands * motor.stall_torque
     if len(cmd) < 2:
         raise TwinError(f"{root / 'commands.csv'}: {len(cmd)} row(s); a log needs at least 2 control instants")
+    if duty is not None:
+        _check_duty(root / "duty.csv", duty, cmd[:, 0])
     return SensorLog(root, m, rate, model, sensors, motor, heading, t_imu, gyro, accel, enc[:, 0], counts_i, has,
                      cmd[:, 0], commands, None if tru is None else tru[:, 0], None if tru is None else tru[:, 1:7],
-                     scenario, None if tru is None or tru.shape[1] == 7 else tru[:, 7:], constants)
+                     scenario, None if tru is None or tru.shape[1] == 7 else tru[:, 7:], constants,
+                     None if duty is None else duty[:, 0], None if duty is None else duty[:, 1:3])
+
+
+def _check_duty(path: Path, duty: np.ndarray, commands_t: np.ndarray) -> None:
+    """duty.csv's rows (see the module docstring): each duty in [-1, 1], each time that of a
+    command row (within :data:`TIME_TOLERANCE`), strictly increasing."""
+    bad = np.abs(duty[:, 1:3]) > 1.0
+    if bad.any():
+        row = int(np.argmax(bad.any(axis=1)))
+        col = STREAMS["duty"][1 + int(np.argmax(bad[row]))]
+        raise TwinError(f"{path}: row {row + 2}: {col} = {float(duty[row, 1 + int(np.argmax(bad[row]))])!r} is outside "
+                        f"[-1, 1]; allowed: the PWM duty as a fraction of the supply voltage")
+    t = duty[:, 0]
+    if len(t) > 1:
+        dup = np.flatnonzero(np.diff(t) <= TIME_TOLERANCE)
+        if dup.size:
+            row = int(dup[0]) + 1
+            raise TwinError(f"{path}: row {row + 2}: t = {float(t[row])!r} s repeats the row before's instant; "
+                            f"allowed: one duty per control period (times strictly increasing)")
+    # the command row nearest each duty row's time (commands.csv is in time order, up to its tolerance)
+    k = np.clip(np.searchsorted(commands_t, t), 1, len(commands_t) - 1)
+    near = np.minimum(np.abs(commands_t[k - 1] - t), np.abs(commands_t[k] - t))
+    off = np.flatnonzero(near > TIME_TOLERANCE)
+    if off.size:
+        row = int(off[0])
+        raise TwinError(f"{path}: row {row + 2}: t = {float(t[row])!r} s is no control instant of commands.csv; "
+                        f"allowed: the t of a commands.csv row (within {TIME_TOLERANCE:g} s), one duty row per "
+                        f"control period (a subset of them may be given)")
 
 
 def _truth_table(t, where: str) -> dict:
@@ -332,14 +411,15 @@ def _stream(root: Path, name: str, required: bool, integers: bool = False, need_
     if not path.is_file():
         if required:
             raise TwinError(f"{path}: missing; a sensor log needs {', '.join(s + '.csv' for s in REQUIRED)} "
-                            f"(truth.csv is optional)")
+                            f"(truth.csv and duty.csv are optional)")
         return None
     try:
         with open(path, newline="", encoding="utf-8") as fh:
             rows = list(csv.reader(fh))
     except (OSError, UnicodeDecodeError) as exc:
         raise TwinError(f"{path}: cannot be read ({exc})") from None
-    groups = {"imu": ((1, 4), (4, 7)), "encoders": ((1, 3),), "commands": ((1, 3),), "truth": ((1, 7),)}[name]
+    groups = {"imu": ((1, 4), (4, 7)), "encoders": ((1, 3),), "commands": ((1, 3),), "truth": ((1, 7),),
+              "duty": ((1, 3),)}[name]
     header = tuple(h.strip() for h in rows[0]) if rows else ()
     if name == "truth" and header == cols + TRUTH_STATE:  # the optional state truth (see the docstring)
         cols, groups = header, ((1, 7), (7, 9), (9, 12))
@@ -372,7 +452,8 @@ def _stream(root: Path, name: str, required: bool, integers: bool = False, need_
                 missing = cols[a + empty.index(True)]
                 raise TwinError(f"{path}: row {line}: {missing} is empty while {', '.join(cols[a:b])} are not; "
                                 f"allowed: all of them, or none (nothing arrived)" if not need_all else
-                                f"{path}: row {line}: {missing} is empty; every command row needs ul and ur")
+                                f"{path}: row {line}: {missing} is empty; every row needs "
+                                f"{' and '.join(cols[a:b])}")
             else:
                 out[i, a:b] = vals
     return out
@@ -428,7 +509,8 @@ def write_log(run, out, scenario=None, initial_heading: float | None = None, sou
     items, go into log.toml, so the estimators are built for the same sensors and motors);
     ``initial_heading`` (rad): α at t = 0 as the run's estimator was told it (default: the
     scenario's ``initial.alpha``, else the truth's first α); ``source``: what wrote it (log.toml's
-    free-text ``source``; a sweep's sample adds which sample it is)."""
+    free-text ``source``; a sweep's sample adds which sample it is). A run with DC motors also
+    gets duty.csv, the duty its drivers applied (``run.signal("duty_l")``, ``"duty_r"``)."""
     if run.measurements is None or run.sensor_config is None:
         raise TwinError("a sensor log needs a run with simulated sensors (sensing is ideal here)")
     if getattr(run, "log_every", 1) != 1:
@@ -460,6 +542,16 @@ def write_log(run, out, scenario=None, initial_heading: float | None = None, sou
         fh.write(",".join(STREAMS["commands"]) + "\n")
         for i in range(len(t)):
             fh.write(f"{float(t[i])!r},{float(ul[i])!r},{float(ur[i])!r}\n")
+    # the PWM duty the drivers applied over each period (after the dead band, as the motor model
+    # got it): DC motors only; an ideal torque source has no duty
+    if getattr(cfg, "motor", None) is None:
+        (out / "duty.csv").unlink(missing_ok=True)  # none from an earlier log in this directory
+    else:
+        dl, dr = run.signal("duty_l"), run.signal("duty_r")
+        with open(out / "duty.csv", "w", newline="", encoding="utf-8") as fh:
+            fh.write(",".join(STREAMS["duty"]) + "\n")
+            for i in range(len(t)):
+                fh.write(f"{float(t[i])!r},{float(dl[i])!r},{float(dr[i])!r}\n")
     # the truth, with the state truth the EKF's NEES needs (wheel angles, the gyro's bias in each
     # sample: empty where none was taken) when the run recorded it
     st = run.sensor_truth or {}
