@@ -54,16 +54,15 @@ def dynamics(t: float, x, u, params: RobotParams, tau=None) -> np.ndarray:
     return np.array(rhs(x, u[0], u[1], params, NO_TAU if tau is None else tau))
 
 
-def rhs(x, ul: float, ur: float, p: RobotParams, tau) -> tuple:
-    """dx/dt of the first six states [θ, θ̇, ψ, ψ̇, α, α̇] (and the planar x, y rates) as a tuple:
-    equation (1) with wheel torques ``ul``, ``ur`` (N·m) and external torques ``tau`` (τ1..τ3)."""
-    theta, theta_d, _psi, psi_d, alpha, alpha_d = x[0], x[1], x[2], x[3], x[4], x[5]
-    s, c = math.sin(theta), math.cos(theta)
+def _accelerations(theta_d, psi_d, alpha_d, s, c, ul, ur, t1, t2, t3, p: RobotParams):
+    """(θ̈, ψ̈, α̈) of equation (1), from the rates, s = sin θ, c = cos θ, the wheel torques and the
+    external torques τ1..τ3: floats (:func:`rhs`) or arrays of rows (:func:`rhs_batch`), the same
+    operations in the same order either way."""
     m11, m12, m22, n_bla = p.m11, p.m12, p.m22, p.n_bla
     drive = 2.0 * p.d_b * (theta_d - psi_d)
     u = ul + ur
-    rhs1 = m12 * (theta_d * theta_d + alpha_d * alpha_d) * s - 2.0 * p.d_w * psi_d + drive + u + tau[0]
-    rhs2 = n_bla * alpha_d * alpha_d * s * c + p.g_b * s - drive - u + tau[1]
+    rhs1 = m12 * (theta_d * theta_d + alpha_d * alpha_d) * s - 2.0 * p.d_w * psi_d + drive + u + t1
+    rhs2 = n_bla * alpha_d * alpha_d * s * c + p.g_b * s - drive - u + t2
     det = m11 * m22 - (m12 * c) ** 2
     psi_dd = (m22 * rhs1 - m12 * c * rhs2) / det
     theta_dd = (m11 * rhs2 - m12 * c * rhs1) / det
@@ -72,9 +71,17 @@ def rhs(x, ul: float, ur: float, p: RobotParams, tau) -> tuple:
         - m12 * alpha_d * psi_d * s
         - p.yaw_damping * alpha_d
         + (p.b / p.r) * (ur - ul)
-        + tau[2]
+        + t3
     )
-    alpha_dd = yaw / (p.m33 + n_bla * s * s)
+    return theta_dd, psi_dd, yaw / (p.m33 + n_bla * s * s)
+
+
+def rhs(x, ul: float, ur: float, p: RobotParams, tau) -> tuple:
+    """dx/dt of the first six states [θ, θ̇, ψ, ψ̇, α, α̇] (and the planar x, y rates) as a tuple:
+    equation (1) with wheel torques ``ul``, ``ur`` (N·m) and external torques ``tau`` (τ1..τ3)."""
+    theta, theta_d, _psi, psi_d, alpha, alpha_d = x[0], x[1], x[2], x[3], x[4], x[5]
+    theta_dd, psi_dd, alpha_dd = _accelerations(theta_d, psi_d, alpha_d, math.sin(theta), math.cos(theta), ul, ur,
+                                                tau[0], tau[1], tau[2], p)
     v = p.r * psi_d
     return (theta_d, theta_dd, psi_d, psi_dd, alpha_d, alpha_dd, v * math.cos(alpha), v * math.sin(alpha))
 
@@ -140,22 +147,7 @@ def rhs_batch(S, tau_l, tau_r, p: RobotParams, tau=None) -> np.ndarray:
     rows = theta.tolist()
     s = np.fromiter(map(math.sin, rows), float, len(rows))
     c = np.fromiter(map(math.cos, rows), float, len(rows))
-    m11, m12, m22, n_bla = p.m11, p.m12, p.m22, p.n_bla
-    drive = 2.0 * p.d_b * (theta_d - psi_d)
-    u = tau_l + tau_r
-    rhs1 = m12 * (theta_d * theta_d + alpha_d * alpha_d) * s - 2.0 * p.d_w * psi_d + drive + u + t1
-    rhs2 = n_bla * alpha_d * alpha_d * s * c + p.g_b * s - drive - u + t2
-    det = m11 * m22 - (m12 * c) ** 2
-    psi_dd = (m22 * rhs1 - m12 * c * rhs2) / det
-    theta_dd = (m11 * rhs2 - m12 * c * rhs1) / det
-    yaw = (
-        -2.0 * n_bla * alpha_d * theta_d * s * c
-        - m12 * alpha_d * psi_d * s
-        - p.yaw_damping * alpha_d
-        + (p.b / p.r) * (tau_r - tau_l)
-        + t3
-    )
-    alpha_dd = yaw / (p.m33 + n_bla * s * s)
+    theta_dd, psi_dd, alpha_dd = _accelerations(theta_d, psi_d, alpha_d, s, c, tau_l, tau_r, t1, t2, t3, p)
     out = np.empty((S.shape[0], 6))
     out[:, 0], out[:, 1], out[:, 2] = theta_d, theta_dd, psi_d
     out[:, 3], out[:, 4], out[:, 5] = psi_dd, alpha_d, alpha_dd
