@@ -38,42 +38,6 @@ ONE_RUN_NEES_BOUNDS = (float.fromhex("0x1.19d7abbfff2c4p+2"), float.fromhex("0x1
 
 
 @dataclass(frozen=True)
-class StateTruth:
-    """What the EKF's 12-state truth is computed from, on the rows of a run or a log (n rows,
-    one per control instant, row 0 the filter's start).
-
-    ``theta``, ``theta_dot``, ``psi_l``, ``psi_r``, ``psi``, ``psi_dot``, ``alpha`` (n,) rad and
-    rad/s (wheel angles ψ_l, ψ_r absolute, as the plant's); ``gyro_bias`` (n, 3) rad/s the gyro's
-    true bias in the sample taken at each row (NaN without one); the sensors' drawn constants
-    ``gyro_scale`` (3,) and ``accel_scale`` (3,) (dimensionless scale-factor errors) and
-    ``encoder_phase`` (2,) (where each encoder's first edge lies, in counts); ``imu_position``
-    (3,) m; ``wheel_radius`` m the plant's (true) radius; ``b_over_r`` the estimator model's
-    half track over wheel radius; ``resolution`` rad per encoder count."""
-
-    theta: np.ndarray
-    theta_dot: np.ndarray
-    psi_l: np.ndarray
-    psi_r: np.ndarray
-    psi: np.ndarray
-    psi_dot: np.ndarray
-    alpha: np.ndarray
-    gyro_bias: np.ndarray
-    gyro_scale: tuple
-    accel_scale: tuple
-    encoder_phase: tuple
-    imu_position: tuple
-    wheel_radius: float
-    b_over_r: float
-    resolution: float
-
-    @property
-    def constants(self) -> "TruthConstants":
-        return TruthConstants(tuple(self.gyro_scale), tuple(self.accel_scale), tuple(self.encoder_phase),
-                              tuple(self.imu_position), float(self.wheel_radius), float(self.b_over_r),
-                              float(self.resolution))
-
-
-@dataclass(frozen=True)
 class TruthConstants:
     """The constants of a :class:`StateTruth` (what does not change from row to row), for
     :class:`RunningConsistency`, which gets the rows one at a time."""
@@ -85,6 +49,35 @@ class TruthConstants:
     wheel_radius: float
     b_over_r: float
     resolution: float
+
+
+@dataclass(frozen=True)
+class StateTruth(TruthConstants):
+    """What the EKF's 12-state truth is computed from, on the rows of a run or a log (n rows,
+    one per control instant, row 0 the filter's start).
+
+    ``theta``, ``theta_dot``, ``psi_l``, ``psi_r``, ``psi``, ``psi_dot``, ``alpha`` (n,) rad and
+    rad/s (wheel angles ψ_l, ψ_r absolute, as the plant's); ``gyro_bias`` (n, 3) rad/s the gyro's
+    true bias in the sample taken at each row (NaN without one); the sensors' drawn constants
+    ``gyro_scale`` (3,) and ``accel_scale`` (3,) (dimensionless scale-factor errors) and
+    ``encoder_phase`` (2,) (where each encoder's first edge lies, in counts); ``imu_position``
+    (3,) m; ``wheel_radius`` m the plant's (true) radius; ``b_over_r`` the estimator model's
+    half track over wheel radius; ``resolution`` rad per encoder count (those seven, the
+    constants, are :class:`TruthConstants`' fields)."""
+
+    theta: np.ndarray
+    theta_dot: np.ndarray
+    psi_l: np.ndarray
+    psi_r: np.ndarray
+    psi: np.ndarray
+    psi_dot: np.ndarray
+    alpha: np.ndarray
+    gyro_bias: np.ndarray
+    @property
+    def constants(self) -> "TruthConstants":
+        return TruthConstants(tuple(self.gyro_scale), tuple(self.accel_scale), tuple(self.encoder_phase),
+                              tuple(self.imu_position), float(self.wheel_radius), float(self.b_over_r),
+                              float(self.resolution))
 
 
 def run_truth(run) -> StateTruth:

@@ -964,7 +964,7 @@ class EKFEstimator:
             return nis
         self.saturated += sat
         self.interval_updates += inside & 15
-        if enc is not None:
+        if enc is not None and (inside > 15 or self._still):  # (a count is implausible, or a run of them ends)
             self._count_check(t, inside >> 4)
         if code_e <= 1:
             if code_e == 1:

@@ -62,3 +62,20 @@ def test_mean_nees_from_large_tilts_at_most_one_and_a_half_upper_bounds(theta0):
     assert sum(r.estimator_stats["saturated_imu_samples"] for r in runs) > 0  # the case it is about
     m = monte_carlo(runs, start=START)
     assert m["nees_mean"] <= 1.5 * m["nees_bounds"][1], (theta0, m["nees_mean"], m["nees_bounds"])
+
+
+def test_a_scenario_sets_the_model_uncertainty_and_a_bad_one_is_one_line():
+    """``sensors.estimator_params.model_uncertainty`` reaches the EKF (a user's robot has its own
+    box); a name that is no parameter or a half-range outside [0, 1] is one line."""
+    from twin.errors import TwinError
+
+    sc = load_scenario("paper-exp1", ["duration=0.2", "sensors.estimator_params={model_uncertainty={m_b=0.1}}"])
+    from twin.sim.simulate import build_loop
+
+    assert build_loop(sc.run_spec("it2")).estimator.model_uncertainty == {"m_b": 0.1}
+    assert simulate(sc.run_spec("it2")).status == "ok"
+    for bad in ("{mass=0.2}", "{m_b=2}", "0.3"):
+        with pytest.raises(TwinError) as err:
+            simulate(load_scenario("paper-exp1", ["duration=0.2",
+                                                  f"sensors.estimator_params={{model_uncertainty={bad}}}"]).run_spec("it2"))
+        assert "model_uncertainty must map parameter names" in str(err.value) and "\n" not in str(err.value)

@@ -171,7 +171,8 @@ def _ideal(ctx: BuildContext):
 
 ESTIMATORS: dict[str, Kind] = {
     "ekf": Kind("ekf", "EKF", "the strapdown extended Kalman filter (IMU-driven, encoder-corrected, gated)", _ekf,
-                parameters=("compiled", "consider", "gate_probability", "learn_time", "max_rejects_in_row")),
+                parameters=("compiled", "consider", "gate_probability", "learn_time", "max_rejects_in_row",
+                            "model_uncertainty")),
     "complementary": Kind("complementary", "complementary", "complementary filter (a = 0.98) with odometry",
                           _baseline("complementary"), parameters=("a",)),
     "kalman2": Kind("kalman2", "kalman2", "two-state angle-and-bias Kalman filter (TKJ Electronics) with odometry",
