@@ -1,0 +1,112 @@
+"""Which fitted parameters the log determines: the intervals, and the warnings when it does not.
+
+Each parameter's standard error is the largest of three (:mod:`twin.calibrate.fit`): the
+Jacobian's s² H⁻¹, the window-clustered sandwich, and the spread of the bootstrap over windows.
+The three agree when the information is spread over many windows; the bootstrap is the largest
+when a few windows (a catch from a large tilt) carry most of it. The 95 % interval is
+value ± t₀.₉₇₅(dof) × that error.
+
+A parameter is called identifiable when
+
+* its interval's half-width is at most :data:`RELATIVE_HALF_WIDTH` of its value (a physical
+  parameter) or at most its entry in :data:`SENSOR_HALF_WIDTH` (a sensor constant, in its unit:
+  about half of a typical MEMS part's value, so that an interval wider than that says nothing);
+* a physical parameter's value is positive;
+* the yaw inertia comes from a log that turns (|α̇| reaching
+  :data:`twin.calibrate.run.TURN_RATE`).
+
+Pairs whose correlation reaches :data:`CONFOUNDED` get a warning naming both: the log moves them
+together (l and n_yb in a short log; the stall torque and the mass always).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from twin.calibrate.fit import correlation, t_quantile
+from twin.calibrate.parameters import PARAMETERS
+
+RELATIVE_HALF_WIDTH = 0.5
+SENSOR_HALF_WIDTH = {"gyro_bias_x": 0.005, "gyro_bias_y": 0.005, "gyro_bias_z": 0.005,  # rad/s
+                     "accel_bias_x": 0.05,  # m/s²
+                     "gyro_scale_y": 0.01, "gyro_scale_z": 0.01, "accel_scale_x": 0.01, "accel_scale_z": 0.01}
+CONFOUNDED = 0.95  # |correlation| from which two parameters are reported as confounded
+BOOTSTRAP_RATIO = 2.0  # bootstrap spread over the Jacobian's error from which a warning says so
+
+
+def assess(cal, turn_rate: float) -> tuple[dict, list, dict]:
+    """(parameters, warnings, correlation) for :class:`twin.calibrate.run.Calibration` ``cal``:
+    ``parameters`` maps each fitted name to ``value``, ``ci95``, ``unit``, ``identifiable``,
+    ``standard_error`` and its three sources, ``nominal`` (the log's model) and, when not
+    identifiable, ``why``; all in absolute SI values."""
+    f = cal.fit
+    plant = f.plant
+    k = len(plant.names)
+    tq = t_quantile(cal.info.dof)
+    boot_sd = cal.boot.std(axis=0, ddof=1) if len(cal.boot) > 1 else np.zeros(k)
+    params, warnings = {}, []
+    for j, n in enumerate(plant.names):
+        unit_scale = plant.base(n) if plant.scaled(n) else 1.0
+        sources = {"jacobian": math.sqrt(max(cal.C_jacobian[j, j], 0.0)) * unit_scale,
+                   "sandwich": math.sqrt(max(cal.C_sandwich[j, j], 0.0)) * unit_scale,
+                   "bootstrap": float(boot_sd[j]) * unit_scale}
+        se = max(sources.values())
+        v = f.values[n]
+        hw = tq * se
+        why = None
+        if PARAMETERS[n].group in ("plant", "motor"):
+            if v <= 0.0:
+                why = f"the fit went to {v:.4g} {PARAMETERS[n].unit}, not a physical value"
+            elif hw > RELATIVE_HALF_WIDTH * v:
+                why = f"its 95 % interval is ±{hw / v:.0%} of the value (allowed: ±{RELATIVE_HALF_WIDTH:.0%})"
+            if n == "n_zb" and cal.max_turn_rate < turn_rate:
+                why = (f"the log never turns (|α̇| at most {cal.max_turn_rate:.3g} rad/s, below {turn_rate:g}): "
+                       f"nothing excites the yaw inertia")
+        elif hw > SENSOR_HALF_WIDTH[n]:
+            why = f"its 95 % interval is ±{hw:.3g} {PARAMETERS[n].unit} (allowed: ±{SENSOR_HALF_WIDTH[n]:g})"
+        if sources["jacobian"] > 0 and sources["bootstrap"] > BOOTSTRAP_RATIO * sources["jacobian"]:
+            warnings.append(f"{n}: the bootstrap over windows spreads {sources['bootstrap'] / sources['jacobian']:.1f}× "
+                            f"the Jacobian's error; a few windows carry most of the information, and the interval is "
+                            f"the bootstrap's")
+        params[n] = {"value": v, "ci95": [v - hw, v + hw], "unit": PARAMETERS[n].unit, "identifiable": why is None,
+                     "standard_error": se, "standard_error_sources": sources, "nominal": plant.base(n),
+                     "doc": PARAMETERS[n].doc}
+        if why:
+            params[n]["why"] = why
+            warnings.append(f"{n} is not identified by this log: {why}")
+    if "imu_latency" in cal.names:
+        params["imu_latency"] = latency_entry(cal)
+        if not params["imu_latency"]["identifiable"]:
+            warnings.append(f"imu_latency is not identified by this log: {params['imu_latency']['why']}")
+    C = correlation(cal.C_jacobian)
+    names = list(plant.names)
+    for a in range(k):
+        for b in range(a + 1, k):
+            if abs(C[a, b]) >= CONFOUNDED:
+                warnings.append(f"{names[a]} and {names[b]} are confounded in this log (correlation {C[a, b]:+.3f}): "
+                                f"it moves them together; fix one (measure it) or record manoeuvres that tell them "
+                                f"apart")
+    return params, warnings, {"names": names, "matrix": [[float(x) for x in row] for row in C]}
+
+
+def latency_entry(cal) -> dict:
+    """The IMU latency: the whole number of periods with the lowest cost, and as its interval the
+    latencies whose cost is within the χ²(1) 95 % point (3.84 × s², in Σ r²) of it."""
+    T = 1.0 / cal.fit.plant.control_rate
+    costs = cal.latency_costs
+    best = cal.imu_latency
+    if not costs:
+        return {"value": best * T, "ci95": [best * T, best * T], "unit": "s", "identifiable": False,
+                "why": "not profiled", "standard_error": None}
+    s2 = max(cal.info.s2, 1e-12)
+    near = [d for d, c in costs.items() if 2.0 * (c - costs[best]) <= 3.841458820694124 * s2]
+    entry = {"value": best * T, "ci95": [min(near) * T, max(near) * T], "unit": "s", "identifiable": len(near) == 1,
+             "profile": {f"{d * T:g}": c for d, c in sorted(costs.items())}, "nominal": None,
+             "doc": PARAMETERS["imu_latency"].doc, "standard_error": None}
+    if len(near) > 1:
+        entry["why"] = f"latencies {', '.join(f'{d * T:g} s' for d in sorted(near))} fit equally well"
+    return entry
+
+
+__all__ = ["BOOTSTRAP_RATIO", "CONFOUNDED", "RELATIVE_HALF_WIDTH", "SENSOR_HALF_WIDTH", "assess", "latency_entry"]

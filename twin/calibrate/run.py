@@ -1,0 +1,167 @@
+"""``twin calibrate``'s procedure: logs in, fitted parameters with their intervals out.
+
+1. Each log on its control instants, the EKF replayed on it for the windows' first start states
+   (:mod:`twin.calibrate.windows`).
+2. Stage 0: the IMU's biases with the plant at the log's model. Stage 1, robust (soft-L1 loss, so that a push or a bump cannot drag the fit): the plant's
+   parameters and the IMU's biases, from the log's model. The scale factors and the other
+   parameters are held until the plant is near (from the nominal model at once, the fit can
+   wander into a plant that trades mass against sensitivity).
+3. The IMU latency, if fitted: stage 1 again for each whole number of periods in
+   :data:`LATENCIES`, the lowest cost wins (a latency is a shift of the samples, not a smooth
+   parameter).
+4. Stage 2, robust: every chosen parameter.
+5. Windows whose cost exceeds :data:`~twin.calibrate.fit.OUTLIER_ALPHA` × the median are left
+   out (pushes, slips), and the final fit (plain least squares) gives the estimate.
+6. Intervals: :func:`twin.calibrate.fit.covariance` and the cluster bootstrap; identifiability
+   (:mod:`twin.calibrate.identify`).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from twin.calibrate import fit as F
+from twin.calibrate.parameters import PARAMETERS
+from twin.calibrate.windows import WINDOW_PERIODS, cut, streams
+from twin.errors import TwinError
+
+LATENCIES = (0, 1, 2, 3)  # control periods tried for the IMU latency
+MIN_WINDOWS = 50  # windows (5 s of usable log at 200 Hz) below which a log excites nothing reliably
+TURN_RATE = 0.2  # rad/s: a log whose |α̇| never reaches this does not excite the yaw inertia
+STAGE1 = ("m_b", "l", "n_yb", "d_b", "d_w", "gyro_bias_x", "gyro_bias_y", "gyro_bias_z", "accel_bias_x")
+BOOTSTRAP = 200  # cluster-bootstrap replicates
+PROFILE_WINDOWS = 60  # windows the IMU latency's profile is computed on
+
+
+def default_names(logs) -> tuple[str, ...]:
+    """What is fitted without ``--parameters``: the body (m_b, l, n_yb), the friction (d_b, d_w), the
+    yaw inertia where a log turns, and the IMU's biases, scale factors and latency. The motors'
+    figures are not: the stall torque trades against the body's mass and inertias (only the wheels'
+    fixed mass tells them apart; correlation 0.99 and more) and the no-load speed against d_b (both
+    are damping of the joint). Fit them with ``--parameters`` once the body's mass is known (weighed
+    and entered in the log's [robot] table)."""
+    turns = any(float(np.nanmax(np.abs(s.estimates[:, 5]))) >= TURN_RATE for s in logs)
+    plant = ("m_b", "l", "n_yb") + (("n_zb",) if turns else ()) + ("d_b", "d_w")
+    return plant + F.SENSOR_NAMES + ("imu_latency",)
+
+
+@dataclass
+class Calibration:
+    """The outcome: ``fit`` (the final :class:`~twin.calibrate.fit.Fit`), ``info``, covariances
+    ``C_jacobian`` and ``C_sandwich`` of the fitted vector, ``boot`` (B, k) the bootstrap's
+    vectors, ``clusters``, ``imu_latency`` (periods) and its ``latency_costs``, ``dropped`` the
+    start times (s) of the windows left out as outliers, ``wall_s``, ``logs`` the paths."""
+
+    names: tuple
+    fit: F.Fit
+    info: F.Information
+    C_jacobian: np.ndarray
+    C_sandwich: np.ndarray
+    boot: np.ndarray
+    clusters: int
+    imu_latency: int
+    latency_costs: dict
+    dropped: list
+    windows_total: int
+    wall_s: float
+    logs: list
+    streams: list = field(repr=False, default_factory=list)
+    max_turn_rate: float = 0.0
+
+
+def check_names(names, logs, log_objs):
+    turns = max(float(np.nanmax(np.abs(s.estimates[:, 5]))) for s in logs)
+    for n in names:
+        p = PARAMETERS[n]
+        if p.group == "motor":
+            if any(lg.motor is None for lg in log_objs):
+                raise TwinError(f"--parameters {n}: the log's robot has ideal torque sources (no motor figures); "
+                                f"allowed without motors: " + ", ".join(k for k, v in PARAMETERS.items()
+                                                                         if v.group != "motor"))
+            if n == "dead_band":
+                raise TwinError("--parameters dead_band: a log's duty.csv holds the duty after the dead band, so "
+                                "the log cannot show it; measure it on the bench (the smallest duty that turns "
+                                "the wheel)")
+    return turns
+
+
+def calibrate(log_objs, names=None, physics_rate: float | None = None, seed: int = 0,
+              periods: int = WINDOW_PERIODS, bootstrap: int = BOOTSTRAP, progress=None) -> Calibration:
+    """Fit ``names`` (default :func:`default_names`) to the logs (:class:`~twin.logs.format.SensorLog`)."""
+    say = progress or (lambda msg: None)
+    t_start = time.perf_counter()
+    if len(log_objs) != 1:
+        raise TwinError("calibrate one log at a time for now (the IMU's biases differ per power-up)")
+    log = log_objs[0]
+    if physics_rate is None:
+        physics_rate = float(log.scenario.data["rates"]["physics"]) if log.scenario is not None else 1000.0
+    st = streams(log)
+    all_names = tuple(names) if names is not None else default_names([st])
+    max_turn = check_names(all_names, [st], log_objs)
+    d0 = int(round(log.sensors.imu.latency * log.control_rate))
+    w = cut(st, max(LATENCIES) if "imu_latency" in all_names else d0, periods)
+    if w.count < MIN_WINDOWS:
+        raise TwinError(f"{log.path}: {w.count} windows of {periods / log.control_rate:g} s with every reading; "
+                        f"a calibration needs at least {MIN_WINDOWS} ({MIN_WINDOWS * periods / log.control_rate:g} s "
+                        f"of log while the robot moves)")
+    cont = tuple(n for n in all_names if n != "imu_latency")
+    stage1 = tuple(n for n in cont if n in STAGE1)
+    say(f"{w.count} windows of {periods} periods; stage 1: {', '.join(stage1)}")
+
+    def windows_for(d):
+        if d == w.imu_latency:
+            return w
+        # the same start instants for every latency, so that the costs compare
+        wd = cut(st, d, periods)
+        keep = np.isin(wd.starts, w.starts)
+        return wd.subset(keep)
+
+    def carry(prev: F.Fit, plant: F.Plant) -> np.ndarray:
+        return np.array([prev.plant.values(prev.p)[n] / plant.base(n) if plant.scaled(n) else
+                         prev.plant.values(prev.p)[n] for n in plant.names])
+
+    p1 = F.Plant(log, stage1, physics_rate)
+    d_first = d0 if ("imu_latency" not in all_names or d0 in LATENCIES) else 1
+    # stage 0: the IMU's biases alone, the plant at the log's model; from the biases at zero the
+    # first plant fit can fall into a far minimum (a body 80 % lighter, research for issue 30)
+    biases = tuple(n for n in stage1 if PARAMETERS[n].group == "imu")
+    start1 = None
+    if biases:
+        f0 = F.fit(F.Plant(log, biases, physics_rate), windows_for(d_first))
+        start1 = np.array([f0.values[n] if n in biases else 1.0 for n in stage1])
+    f1, keep1 = F.trimmed(p1, windows_for(d_first), p0=start1)
+    latency, costs = d_first, {}
+    if "imu_latency" in all_names:
+        # the profile on at most PROFILE_WINDOWS of the kept windows, spread over the log: a
+        # period's shift changes the cost by thousands where the noise moves it by tens
+        kept = np.flatnonzero(keep1)
+        pick = kept[np.linspace(0, len(kept) - 1, min(PROFILE_WINDOWS, len(kept))).round().astype(int)]
+        for d in LATENCIES:
+            wd = windows_for(d).subset(pick)
+            fd = F.fit(p1, wd, p0=f1.p)
+            costs[d] = fd.cost
+            say(f"IMU latency {d} periods: cost {costs[d]:.1f} on {wd.count} windows")
+        latency = min(costs, key=costs.get)
+        if latency != d_first:
+            f1, keep1 = F.trimmed(p1, windows_for(latency), p0=f1.p)
+    w_l = windows_for(latency)
+    p2 = F.Plant(log, cont, physics_rate)
+    say(f"stage 2: {', '.join(cont)}")
+    S1 = w_l.S0.copy()
+    if f1.windows.imu_latency == latency:
+        S1[keep1] = f1.S
+    f3, keep = F.trimmed(p2, w_l, p0=carry(f1, p2), S0=S1, keep=keep1)
+    dropped = [float(t) for t in w_l.t0[~keep]]
+    w_f = w_l.subset(keep)
+    say(f"final fit on {w_f.count} windows ({len(dropped)} left out)")
+    info = F.information(f3)
+    CJ, CS, G = F.covariance(info, w_f)
+    rng = np.random.default_rng(np.random.SeedSequence(seed))
+    boot = F.bootstrap(info, w_f, rng, bootstrap) if bootstrap else np.empty((0, len(cont)))
+    return Calibration(all_names, f3, info, CJ, CS, boot, G, latency, costs, dropped, w.count,
+                       time.perf_counter() - t_start, [str(log.path)], [st], max_turn)
+
+
+__all__ = ["BOOTSTRAP", "Calibration", "LATENCIES", "MIN_WINDOWS", "calibrate", "default_names"]

@@ -1,0 +1,175 @@
+"""A log cut into short windows for the fit: what was applied, what was read, where each starts.
+
+The robot balances only in closed loop, so a long open-loop simulation of it diverges within
+a fraction of a second whatever its parameters. The fit therefore compares the model with the
+log over short windows (:data:`WINDOW_PERIODS` control periods, 0.1 s at 200 Hz), each from its
+own start state, which the fit estimates with the parameters (prediction-error / multiple-
+shooting identification, Ljung 1999 §7.3; Bock & Plitt 1984): over 0.1 s the open-loop error
+growth (the unstable pole at about 7/s) stays below the noise, and the controller's feedback,
+which correlates the commands with the noise, acts only through the recorded commands.
+
+:func:`streams` puts a log's readings on its control instants (the slotting of
+:func:`twin.logs.replay.instants`), with the drive of each period and the EKF's replayed
+estimate of the state at each instant (the windows' first guess); :func:`cut` makes the
+windows for an IMU latency of whole periods. SI units: s, rad, rad/s, m/s².
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from twin.errors import TwinError
+
+WINDOW_PERIODS = 20  # control periods per window: 0.1 s at 200 Hz
+FIRST_INSTANT = 1  # the windows start from the log's second control instant (see cut)
+CLIP_SIGMAS = 3.0  # a reading within this many white-noise σ of its full scale counts as clipped
+# IMU channels the fit compares: body-frame gyro x, y, z (rad/s) and accelerometer x, z (m/s²);
+# the lateral accelerometer is left out (the model has no lateral dynamics to check it against)
+IMU_CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_z")
+
+
+@dataclass
+class Streams:
+    """A log on its control instants t_k (s), k = 0 … n−1.
+
+    ``gyro`` (n, 3) rad/s and ``accel`` (n, 3) m/s²: the reading arriving at t_k (NaN: none or
+    clipped); ``angles`` (n, 2) rad: the encoder counts × rad per count (NaN: none);
+    ``drive`` (n, 2): the duty (``drive_is_duty``) or torque command (N·m) applied over
+    [t_k, t_k+1); ``estimates`` (n, 6): the EKF's [θ, θ̇, ψ, ψ̇, α, α̇] at t_k; ``imu_sigma``
+    (5,) the white-noise σ of :data:`IMU_CHANNELS` per sample; ``encoder_sigma`` rad, the
+    quantisation's σ (one count / √12)."""
+
+    t: np.ndarray
+    gyro: np.ndarray
+    accel: np.ndarray
+    angles: np.ndarray
+    drive: np.ndarray
+    drive_is_duty: bool
+    estimates: np.ndarray
+    imu_sigma: np.ndarray
+    encoder_sigma: float
+    encoder_latency: int  # control periods
+    control_rate: float
+
+
+@dataclass
+class Windows:
+    """W windows of N periods (:func:`cut`).
+
+    ``starts`` (W,) the instants they start at; ``S0`` (W, 6) their first-guess start states;
+    ``drive`` (W, N, 2); ``imu`` (W, N, 5): the reading of period j (the mean over
+    [t_s+j, t_s+j+1]) in :data:`IMU_CHANNELS`; ``angles`` (W, N + 1, 2) the encoder angles at
+    t_s … t_s+N; ``imu_latency`` whole periods."""
+
+    starts: np.ndarray
+    S0: np.ndarray
+    drive: np.ndarray
+    imu: np.ndarray
+    angles: np.ndarray
+    imu_latency: int
+    streams: Streams
+
+    @property
+    def count(self) -> int:
+        return len(self.starts)
+
+    @property
+    def periods(self) -> int:
+        return self.drive.shape[1]
+
+    @property
+    def t0(self) -> np.ndarray:
+        """s: each window's start."""
+        return self.streams.t[self.starts]
+
+    def subset(self, keep) -> "Windows":
+        keep = np.asarray(keep)
+        return Windows(self.starts[keep], self.S0[keep], self.drive[keep], self.imu[keep], self.angles[keep],
+                       self.imu_latency, self.streams)
+
+
+def streams(log, estimates=None) -> Streams:
+    """The log's readings, drive and EKF estimates on its control instants.
+
+    ``estimates`` (n, 6): the state at each instant if already known (else the EKF is replayed
+    on the log, :func:`twin.logs.replay.replay`)."""
+    from twin.logs.replay import build_for, instants, replay
+
+    t, ms, commands = instants(log)
+    n = len(t)
+    sens = log.sensors
+    gyro = np.full((n, 3), np.nan)
+    accel = np.full((n, 3), np.nan)
+    angles = np.full((n, 2), np.nan)
+    for k, m in enumerate(ms):
+        if m.gyro is not None:
+            gyro[k] = m.gyro
+        if m.accel is not None:
+            accel[k] = m.accel
+        if m.encoders is not None:
+            angles[k] = m.encoders
+    dt = 1.0 / sens.imu.rate
+    for arr, spec in ((gyro, sens.imu.gyro), (accel, sens.imu.accel)):
+        # a clipped reading is not a measurement of the motion (the EKF's rule, estimation/ekf.py)
+        rail = spec.full_scale - CLIP_SIGMAS * spec.white_sigma(dt)
+        arr[np.abs(arr) >= rail] = np.nan
+    if log.duty is not None:
+        ci = np.searchsorted(log.duty_t, t + 1e-6 / log.control_rate, side="right") - 1
+        drive, is_duty = log.duty[np.clip(ci, 0, None)], True
+    else:
+        drive, is_duty = commands, False
+    if estimates is None:
+        estimates = replay(log, build_for(log, "ekf")).estimates
+    estimates = np.asarray(estimates, dtype=float)
+    if estimates.shape != (n, 6):
+        raise TwinError(f"estimates must have shape ({n}, 6), one state per control instant, got {estimates.shape}")
+    if log.motor is not None and not is_duty:
+        # N·m commands through a driver: the duty it set, from the estimated shaft speeds at each
+        # update (the driver's own measurement is not in the log); the fit is then smooth in the
+        # parameters (the driver's PWM rounding frozen), research for issue 30
+        from twin.calibrate.model import driver_duty
+
+        b_r = log.model.b / log.model.r
+        th_d, ps_d, al_d = estimates[:, 1], estimates[:, 3], estimates[:, 5]
+        drive = np.column_stack([driver_duty(drive[:, 0], ps_d - b_r * al_d - th_d, log.motor),
+                                 driver_duty(drive[:, 1], ps_d + b_r * al_d - th_d, log.motor)])
+        is_duty = True
+    g_sig = sens.imu.gyro.white_sigma(dt)
+    a_sig = sens.imu.accel.white_sigma(dt)
+    res = 2.0 * math.pi / log.counts_per_rev
+    rate = log.control_rate
+    return Streams(t, gyro, accel, angles, np.asarray(drive, dtype=float), is_duty, estimates,
+                   np.array([g_sig, g_sig, g_sig, a_sig, a_sig]), res / math.sqrt(12.0),
+                   int(round(sens.encoders.latency * rate)), rate)
+
+
+def cut(s: Streams, imu_latency: int, periods: int = WINDOW_PERIODS) -> Windows:
+    """Non-overlapping windows of ``periods`` control periods with every reading present.
+
+    The IMU sample of period [t_j, t_j+1] is the one arriving at t_{j+1+imu_latency} (the
+    twin's IMU reports the mean over the period that ends at its sample instant,
+    :mod:`twin.sensors.imu`); the encoders' angle at t_j arrives at t_{j+encoder_latency}.
+    A window with a reading missing or clipped is left out. The log's first period is not used:
+    its reading is the mean over an interval that began before the log's first instant (for the
+    twin, the release: the first period's gyro reading misfits by 10 σ whatever the plant)."""
+    n = len(s.t)
+    d, de = int(imu_latency), s.encoder_latency
+    last = n - 1 - max(periods + d, periods + de)
+    starts = np.arange(FIRST_INSTANT, last + 1, periods)
+    if len(starts) == 0:
+        return Windows(starts, np.empty((0, 6)), np.empty((0, periods, 2)), np.empty((0, periods, 5)),
+                       np.empty((0, periods + 1, 2)), d, s)
+    j = starts[:, None] + np.arange(periods)[None, :]
+    imu = np.concatenate([s.gyro[j + 1 + d], s.accel[j + 1 + d][..., [0, 2]]], axis=-1)
+    je = starts[:, None] + np.arange(periods + 1)[None, :] + de
+    angles = s.angles[je]
+    drive = s.drive[j]
+    ok = np.isfinite(imu).all(axis=(1, 2)) & np.isfinite(angles).all(axis=(1, 2)) & np.isfinite(drive).all(axis=(1, 2))
+    ok &= np.isfinite(s.estimates[starts]).all(axis=1)
+    keep = np.flatnonzero(ok)
+    return Windows(starts[keep], s.estimates[starts[keep]].copy(), drive[keep], imu[keep], angles[keep], d, s)
+
+
+__all__ = ["CLIP_SIGMAS", "IMU_CHANNELS", "WINDOW_PERIODS", "Streams", "Windows", "cut", "streams"]
