@@ -35,11 +35,13 @@ def draw(count: int = 20, seed: int = ROOT_SEED) -> list[dict]:
     return out
 
 
-def command(plant: dict, out: Path) -> list[str]:
-    sets = [PUSH, f"sensors.gyro.turn_on_bias={plant['gyro_turn_on_bias']!r}"]
+def command(plant: dict, out: Path, held_out: bool = False) -> list[str]:
+    """``twin run`` logging ``plant``; ``held_out``: another run of the same robot for validation
+    (another seed, so other noise and another gyro bias, and no push)."""
+    sets = ([] if held_out else [PUSH]) + [f"sensors.gyro.turn_on_bias={plant['gyro_turn_on_bias']!r}"]
     sets += [f"plant.scale.{n}={v!r}" for n, v in plant["scale"].items()]
     cmd = [sys.executable, "-m", "twin.cli", "run", "paper-exp3", "--controller", "it2", "--no-video", "--log-sensors",
-           "--seed", str(plant["seed"]), "--out", str(out)]
+           "--seed", str(plant["seed"] + (1 if held_out else 0)), "--out", str(out)]
     for s in sets:
         cmd += ["--set", s]
     return cmd

@@ -98,6 +98,7 @@ def main():
       twin sweep paper-exp3 --samples 50 --workers 2
       twin run paper-exp3 --log-sensors --no-video --out runs/exp3
       twin replay runs/exp3/sensor-logs/it2 --estimator ekf,complementary
+      twin calibrate runs/exp3/sensor-logs/it2 --out runs/calibration
       twin scenarios
       twin kinds
       twin surface position --out runs/surfaces
@@ -418,10 +419,14 @@ _gave_way("physics", lambda n: (
 @click.option("--log-sensors", "log_sensors", is_flag=True,
               help="Also write each controller's run as a sensor log (sensor-logs/KIND/: log.toml, imu.csv, "
                    "encoders.csv, commands.csv, truth.csv), the format a robot's logs take for 'twin replay'.")
+@click.option("--plant", "plant_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              metavar="CALIBRATION.toml",
+              help="Run the robot 'twin calibrate' fitted: the file's [plant] and [sensors] replace the scenario's "
+                   "true plant scale and IMU latency (before any --set).")
 @_limit_options("")
 @_no_cache_option
 def run(scenario, controller, seed, duration, overrides, out, video, sample, log_every, log_format, log_sensors,
-        step_limit, run_limit, memory_limit, no_cache):
+        plant_file, step_limit, run_limit, memory_limit, no_cache):
     """Run a scenario on the PyBullet twin: trajectory, metrics, figure and video.
 
     SCENARIO is a built-in name (see 'twin scenarios') or a scenario .toml file. Writes
@@ -444,6 +449,7 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample, log
       twin run my-robot.toml --set plant.scale.m_b=1.2 --set sensors.sensing=ideal --out runs/heavy
       twin run paper-exp3 --sample 17 --seed 0 --no-video   # replay a sweep's sample 17
       twin run paper-exp2 --duration 3600 --log-every 20 --log-format csv.gz --no-video   # an hour at 10 Hz
+      twin run paper-exp3 --plant runs/calibration/calibration.toml   # the robot 'twin calibrate' fitted
     """
     from twin.registry import label
     from twin.scenarios.runner import controllers_of, plan, plugins_of, run_scenario
@@ -451,6 +457,10 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample, log
     from twin.outputs import rundir
 
     every = _log_every(log_every)
+    if plant_file is not None:
+        from twin.calibrate.output import plant_overrides
+
+        overrides = tuple(plant_overrides(plant_file)) + tuple(overrides)
     sc = _load(scenario, _limit_overrides(overrides, step_limit, run_limit, memory_limit), seed, duration)
     if out is None:  # the scenario's name must not lead the outputs out of runs/ (a shared file may say "../..")
         out = rundir.child_of(Path("runs"), sc.name if sample is None else f"{sc.name}-sample{sample}",
@@ -841,6 +851,93 @@ def check(targets, controller, seeds, workers, overrides, junit, record, golden,
     for line in failure_lines(result):
         click.echo(line, err=True)
     return 0 if result.passed else 1
+
+
+@main.command()
+@click.argument("logs", nargs=-1, required=True, type=click.Path(path_type=Path), metavar="LOG")
+@click.option("--parameters", default=None, metavar="NAMES",
+              help="Parameters to fit, comma-separated (default: m_b, l, n_yb, d_b, d_w, n_zb if the log turns, "
+                   "the IMU's biases, scale factors and latency). 'twin calibrate --list' names them all.")
+@click.option("--validate", "held_out", multiple=True, type=click.Path(path_type=Path), metavar="LOG",
+              help="A held-out log of the same robot on which the nominal and the calibrated twin predict the "
+                   "readings (repeatable).")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Seed of the bootstrap over windows.")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=Path("runs/calibration"),
+              show_default=True, help="Output directory: report.json, calibration.toml, figure.png, manifest.json.")
+@click.option("--list", "list_", is_flag=True, help="List the parameters that can be fitted, with their units.")
+def calibrate(logs, parameters, held_out, seed, out, list_):
+    """Calibrate the twin from a robot's sensor log: fit the plant's and the IMU's parameters.
+
+    LOG is a sensor log (a robot's, or the twin's from 'twin run --log-sensors'). Each 0.1 s
+    window of it is simulated from its own fitted start state with the log's drive, and the
+    parameters that make the simulated IMU and encoder readings match the log's are found by
+    least squares (scipy), with 95 % intervals, correlations and a warning for each parameter the
+    log does not excite. --validate compares the nominal and the calibrated twin on held-out
+    logs. Writes report.json, calibration.toml (for 'twin run SCENARIO --plant
+    calibration.toml') and figure.png into --out.
+
+    \b
+    Examples:
+      twin run paper-exp3 --log-sensors --no-video --out runs/exp3
+      twin calibrate runs/exp3/sensor-logs/it2 --out runs/calibration
+      twin calibrate runs/exp3/sensor-logs/it2 --parameters m_b,l,n_yb,d_b,d_w --validate runs/exp3b/sensor-logs/it2
+      twin run paper-exp3 --plant runs/calibration/calibration.toml
+    """
+    from twin.calibrate.parameters import PARAMETERS, parse_names
+
+    if list_:
+        for name, p in PARAMETERS.items():
+            click.echo(f"  {name:15} {p.unit:10} {p.group:6} {p.doc}")
+        return
+    from twin.calibrate import identify, output
+    from twin.calibrate.run import TURN_RATE, calibrate as fit_logs
+    from twin.calibrate.validate import same_robot, validate
+    from twin.logs.format import read_log
+    from twin.outputs import report, rundir
+
+    names = parse_names(parameters) if parameters is not None else None
+    if len(logs) > 1:
+        raise TwinError(f"twin calibrate takes one log ({len(logs)} given): the IMU's biases change at every "
+                        f"power-up, and one fit per log keeps them apart; give the others to --validate")
+    log = read_log(logs[0])
+    held = [read_log(p) for p in held_out]
+    for h in held:
+        same_robot(log, h)
+    staged = rundir.StagedDirectory(out, "twin calibrate")
+    try:
+        click.echo(f"{log.path}: {log.duration:g} s at {log.control_rate:g} Hz")
+        cal = fit_logs([log], names, seed=seed, progress=lambda m: click.echo(f"  {m}"))
+        params, warnings, corr = identify.assess(cal, TURN_RATE)
+        val = validate(cal, held) if held else None
+        doc = output.report_doc(cal, params, warnings, corr, output.strip_private(val), seed)
+        report.write_json(doc, staged.path / "report.json")
+        (staged.path / "calibration.toml").write_text(output.calibration_toml(cal, params), encoding="utf-8")
+        output.write_figure(cal, params, val, staged.path / "figure.png")
+        staged.commit(0)
+    except BaseException as exc:
+        staged.discard()
+        raise rundir.kept(exc, staged.unchanged())
+    finally:
+        staged.discard()
+    click.echo(f"  {'parameter':15}{'value':>13}{'95 % interval':>28}  unit")
+    for n, e in params.items():
+        lo, hi = e["ci95"]
+        mark = "" if e["identifiable"] else "   not identified"
+        click.echo(f"  {n:15}{_sig(e['value']):>13}   [{_sig(lo):>11}, {_sig(hi):>11}]  {e['unit']}{mark}")
+    for v in val or ():
+        click.echo(f"  validation on {v['log']}: prediction error over {v['horizon_s']:g} s, nominal "
+                   f"{v['nominal']['rms_sigma']:.3g} σ, calibrated {v['calibrated']['rms_sigma']:.3g} σ "
+                   f"({v['ratio']:.2f}× better; {v['windows']} windows)")
+    for line in warnings:
+        click.echo(f"  warning: {line}")
+    click.echo(f"  {doc['method']['windows']} windows fitted ({len(cal.dropped)} left out), residual σ "
+               f"{doc['method']['residual_sigma']:.3g}, {cal.wall_s:.1f} s")
+    click.echo(f"wrote {out}/: report.json, calibration.toml, figure.png, {rundir.MANIFEST}")
+
+
+def _sig(v) -> str:
+    return f"{float(v):.5g}"
 
 
 @main.command("compare")

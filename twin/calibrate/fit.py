@@ -10,7 +10,8 @@ Solver: :func:`scipy.optimize.least_squares` (trust-region reflective, ``x_scale
 the Jacobian's sparsity given (a window's residuals depend on the parameters and its own six
 states only): finite differences then cost one model run per parameter plus six, whatever the
 number of windows, and the trust-region steps are solved by LSMR. Physical parameters are fitted
-as factors of the log's model (bounded below), sensor constants as themselves.
+as the logarithms of their factors of the log's model (positive by construction), sensor
+constants as themselves.
 
 Uncertainty (:func:`covariance`): the window states are eliminated per window (the Schur
 complement through a QR of each window's state Jacobian), leaving the parameters' Gauss–Newton
@@ -21,6 +22,7 @@ cluster (a drifting bias, model error) rather than white.
 """
 from __future__ import annotations
 
+import math
 import warnings
 from dataclasses import dataclass, field
 
@@ -49,8 +51,9 @@ class Plant:
     """The model of one log: its robot (:attr:`SensorLog.model`), motors, IMU position and
     rates, and which parameters are fitted (``names``, continuous ones; order of the registry)."""
 
-    def __init__(self, log, names, physics_rate: float):
+    def __init__(self, log, names, physics_rate: float, fixed: dict | None = None):
         self.names = tuple(names)
+        self.fixed = dict(fixed or {})  # values (absolute SI) of parameters held other than at the log's model
         self.model = log.model
         self.motor = log.motor
         self.physics_rate = float(physics_rate)
@@ -71,7 +74,9 @@ class Plant:
         return 0.0
 
     def scaled(self, name: str) -> bool:
-        """Fitted as a factor of the log's model (positive physical parameters)."""
+        """Fitted as the logarithm of its factor of the log's model, ln(value / model's): the
+        positive physical parameters (so that no trial step makes a mass or a damping negative; a
+        zero-bound parameter such as d_b otherwise stalls the trust region at the bound)."""
         return name in PLANT_NAMES or name in MOTOR_NAMES
 
     def values(self, p) -> dict:
@@ -80,15 +85,20 @@ class Plant:
         v = {n: self.base(n) for n in PLANT_NAMES + SENSOR_NAMES}
         if self.motor is not None:
             v.update({n: self.base(n) for n in MOTOR_NAMES})
+        v.update({n: x for n, x in self.fixed.items() if n in v})
         for n, x in zip(self.names, p):
-            v[n] = float(x) * self.base(n) if self.scaled(n) else float(x)
+            v[n] = self.to_value(n, x)
         return v
 
     def p0(self) -> np.ndarray:
-        return np.array([1.0 if self.scaled(n) else 0.0 for n in self.names])
+        return np.zeros(len(self.names))
 
     def to_value(self, name: str, x: float) -> float:
-        return x * self.base(name) if self.scaled(name) else x
+        return self.base(name) * math.exp(float(x)) if self.scaled(name) else float(x)
+
+    def from_value(self, name: str, value: float) -> float:
+        """The fitted coordinate of a value (:meth:`to_value`'s inverse)."""
+        return math.log(value / self.base(name)) if self.scaled(name) else float(value)
 
     def robot(self, v: dict):
         m = self.model
@@ -191,8 +201,8 @@ def fit(plant: Plant, w: Windows, p0=None, S0=None, offsets0=None, loss: str = "
         p, S, off = _unpack(plant, w, z)
         try:
             r = residuals(plant, w, p, S, off).ravel()
-        except TwinError:  # a trial step to a physically invalid plant (a mass ≤ 0): reject it
-            return np.full(w.count * R, 1e6)
+        except (TwinError, ValueError, OverflowError):  # a trial step to an invalid plant, or one whose
+            return np.full(w.count * R, 1e6)  # windows blow up (sin of an infinite angle): reject it
         if not np.all(np.isfinite(r)):
             r = np.where(np.isfinite(r), r, 1e6)
         return r
@@ -255,13 +265,21 @@ def trimmed(plant: Plant, w: Windows, p0=None, S0=None, offsets0=None, keep=None
     if offsets0 is None:
         offsets0 = w.angles[:, 0, :] - encoder_angles(S[:, None, :], plant.b_r, np.zeros((w.count, 2)))[:, 0, :]
     off = np.asarray(offsets0, dtype=float).copy()
-    keep = np.ones(w.count, dtype=bool) if keep is None else np.asarray(keep, dtype=bool).copy()
+    # the start states first settled for p0 alone: a joint step from states that do not fit p0
+    # is dominated by the states' corrections and can throw the parameters far off (a wheel
+    # damping of zero from a plant already within 2 %, research for issue 30)
+    p0 = plant.p0() if p0 is None else np.asarray(p0, dtype=float)
+    settled = states_only(plant, w, p0, S, off)
+    S, off = settled.S.copy(), settled.offsets.copy()
+    if keep is None:  # a push's windows misfit any plant by far: out before the first fit
+        keep = settled.window_costs <= outlier_limit(settled.window_costs, residual_count(w))
+    keep = np.asarray(keep, dtype=bool).copy()
     f = fit(plant, w.subset(keep), p0=p0, S0=S[keep], offsets0=off[keep])
     S[keep], off[keep] = f.S, f.offsets
     for _ in range(rounds):
         if keep.all():
             wc = f.window_costs
-            S, off = f.S, f.offsets
+            S, off = f.S.copy(), f.offsets.copy()
         else:
             every = states_only(plant, w, f.p, S, off)
             S, off, wc = every.S, every.offsets, every.window_costs

@@ -4,14 +4,15 @@ Each parameter's standard error is the largest of three (:mod:`twin.calibrate.fi
 Jacobian's s² H⁻¹, the window-clustered sandwich, and the spread of the bootstrap over windows.
 The three agree when the information is spread over many windows; the bootstrap is the largest
 when a few windows (a catch from a large tilt) carry most of it. The 95 % interval is
-value ± t₀.₉₇₅(dof) × that error.
+t₀.₉₇₅(dof) of that error either side: of the value for a sensor constant, of ln(value) for a
+physical parameter (fitted as the logarithm of its factor), so [v e^(−t s), v e^(t s)] with s the
+relative error.
 
 A parameter is called identifiable when
 
 * its interval's half-width is at most :data:`RELATIVE_HALF_WIDTH` of its value (a physical
-  parameter) or at most its entry in :data:`SENSOR_HALF_WIDTH` (a sensor constant, in its unit:
+  parameter, positive by construction) or at most its entry in :data:`SENSOR_HALF_WIDTH` (a sensor constant, in its unit:
   about half of a typical MEMS part's value, so that an interval wider than that says nothing);
-* a physical parameter's value is positive;
 * the yaw inertia comes from a log that turns (|α̇| reaching
   :data:`twin.calibrate.run.TURN_RATE`).
 
@@ -47,29 +48,34 @@ def assess(cal, turn_rate: float) -> tuple[dict, list, dict]:
     boot_sd = cal.boot.std(axis=0, ddof=1) if len(cal.boot) > 1 else np.zeros(k)
     params, warnings = {}, []
     for j, n in enumerate(plant.names):
-        unit_scale = plant.base(n) if plant.scaled(n) else 1.0
+        v = f.values[n]
+        # a physical parameter is fitted as ln(factor): its errors are relative, sd(value) = value × sd(ln)
+        unit_scale = v if plant.scaled(n) else 1.0
         sources = {"jacobian": math.sqrt(max(cal.C_jacobian[j, j], 0.0)) * unit_scale,
                    "sandwich": math.sqrt(max(cal.C_sandwich[j, j], 0.0)) * unit_scale,
                    "bootstrap": float(boot_sd[j]) * unit_scale}
         se = max(sources.values())
-        v = f.values[n]
-        hw = tq * se
         why = None
-        if PARAMETERS[n].group in ("plant", "motor"):
-            if v <= 0.0:
-                why = f"the fit went to {v:.4g} {PARAMETERS[n].unit}, not a physical value"
-            elif hw > RELATIVE_HALF_WIDTH * v:
-                why = f"its 95 % interval is ±{hw / v:.0%} of the value (allowed: ±{RELATIVE_HALF_WIDTH:.0%})"
+        if plant.scaled(n):
+            # the interval of ln(value), mapped back: [v e^(−t·s), v e^(t·s)], s the relative error
+            rel = min(tq * se / v, 700.0)  # beyond e^700 a float overflows; the parameter is then nowhere
+            ci = [v * math.exp(-rel), v * math.exp(rel)]
+            if (ci[1] - ci[0]) / 2.0 > RELATIVE_HALF_WIDTH * v:
+                why = (f"its 95 % interval is {ci[0] / v:.2g}× to {ci[1] / v:.2g}× the value (allowed: a half-width "
+                       f"of {RELATIVE_HALF_WIDTH:.0%})")
             if n == "n_zb" and cal.max_turn_rate < turn_rate:
                 why = (f"the log never turns (|α̇| at most {cal.max_turn_rate:.3g} rad/s, below {turn_rate:g}): "
                        f"nothing excites the yaw inertia")
-        elif hw > SENSOR_HALF_WIDTH[n]:
-            why = f"its 95 % interval is ±{hw:.3g} {PARAMETERS[n].unit} (allowed: ±{SENSOR_HALF_WIDTH[n]:g})"
+        else:
+            hw = tq * se
+            ci = [v - hw, v + hw]
+            if hw > SENSOR_HALF_WIDTH[n]:
+                why = f"its 95 % interval is ±{hw:.3g} {PARAMETERS[n].unit} (allowed: ±{SENSOR_HALF_WIDTH[n]:g})"
         if sources["jacobian"] > 0 and sources["bootstrap"] > BOOTSTRAP_RATIO * sources["jacobian"]:
             warnings.append(f"{n}: the bootstrap over windows spreads {sources['bootstrap'] / sources['jacobian']:.1f}× "
                             f"the Jacobian's error; a few windows carry most of the information, and the interval is "
                             f"the bootstrap's")
-        params[n] = {"value": v, "ci95": [v - hw, v + hw], "unit": PARAMETERS[n].unit, "identifiable": why is None,
+        params[n] = {"value": v, "ci95": ci, "unit": PARAMETERS[n].unit, "identifiable": why is None,
                      "standard_error": se, "standard_error_sources": sources, "nominal": plant.base(n),
                      "doc": PARAMETERS[n].doc}
         if why:

@@ -1,0 +1,156 @@
+"""``twin calibrate`` from the command line: its outputs, ``twin run --plant``, and bad input
+(one line, exit status 2). The accuracy over twenty robots is tests/test_calibrate_acceptance.py."""
+from __future__ import annotations
+
+import json
+import shutil
+import tomllib
+
+import numpy as np
+import pytest
+
+from types import SimpleNamespace
+
+from test_sensor_logs import _twin as _twin_call
+
+
+def _twin(*args):
+    code, out, err = _twin_call(*args)
+    return SimpleNamespace(returncode=code, stdout=out, stderr=err)
+from twin.calibrate.identify import assess
+from twin.calibrate.run import TURN_RATE, calibrate
+from twin.errors import TwinError
+from twin.logs.format import read_log
+
+QUICK = "m_b,l,n_yb,n_zb,d_b,d_w,gyro_bias_x,gyro_bias_y,gyro_bias_z"
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory):
+    """An 8 s paper-exp1 log (balance only: it never turns) with the plant 10 % heavier, and a
+    3 s one (too short to calibrate from)."""
+    d = tmp_path_factory.mktemp("calibrate")
+    r = _twin("run", "paper-exp1", "--controller", "it2", "--duration", "8", "--no-video", "--log-sensors",
+              "--set", "plant.scale={m_b = 1.1, l = 1.05}", "--out", str(d / "exp1"))
+    assert r.returncode == 0, r.stderr
+    r = _twin("run", "paper-exp1", "--controller", "it2", "--duration", "3", "--no-video", "--log-sensors",
+              "--out", str(d / "short"))
+    assert r.returncode == 0, r.stderr
+    return d / "exp1" / "sensor-logs" / "it2", d / "short" / "sensor-logs" / "it2"
+
+
+@pytest.fixture(scope="module")
+def calibrated(logs, tmp_path_factory):
+    out = tmp_path_factory.mktemp("calibration") / "cal"
+    r = _twin("calibrate", str(logs[0]), "--parameters", QUICK, "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    return out, r.stdout
+
+
+def test_report_has_every_parameter_with_value_interval_unit_and_identifiability(calibrated):
+    out, stdout = calibrated
+    doc = json.loads((out / "report.json").read_text())
+    assert list(doc["parameters"]) == QUICK.split(",")
+    for name, e in doc["parameters"].items():
+        assert {"value", "ci95", "unit", "identifiable"} <= set(e), name
+        lo, hi = e["ci95"]
+        assert lo <= e["value"] <= hi and np.isfinite([lo, hi]).all(), name
+    # absolute SI values: the body mass in kg (Table III's 2.58 kg × 1.1), within its interval's reach
+    assert abs(doc["parameters"]["m_b"]["value"] / (2.58 * 1.1) - 1.0) < 0.05
+    assert doc["parameters"]["m_b"]["unit"] == "kg" and doc["parameters"]["d_w"]["unit"] == "N·m·s/rad"
+    k = len(doc["correlation"]["names"])
+    C = np.array(doc["correlation"]["matrix"])
+    assert C.shape == (k, k) and np.allclose(np.diag(C), 1.0) and np.allclose(C, C.T)
+    assert (out / "figure.png").stat().st_size > 10_000 and (out / "manifest.json").exists()
+    assert "m_b" in stdout and "kg" in stdout
+
+
+def test_a_log_that_never_turns_does_not_identify_the_yaw_inertia(calibrated, logs):
+    out, stdout = calibrated
+    doc = json.loads((out / "report.json").read_text())
+    e = doc["parameters"]["n_zb"]
+    assert e["identifiable"] is False and "never turns" in e["why"]
+    assert any(w.startswith("n_zb is not identified") for w in doc["warnings"])
+    assert "warning: n_zb is not identified by this log: the log never turns" in stdout
+    # and without --parameters it is not fitted at all
+    from twin.calibrate.run import default_names
+    from twin.calibrate.windows import streams
+
+    assert "n_zb" not in default_names([streams(read_log(logs[0]))])
+
+
+def test_the_calibration_runs_as_the_twins_plant(calibrated, tmp_path):
+    out, _ = calibrated
+    cal = tomllib.loads((out / "calibration.toml").read_text())
+    scale = cal["plant"]["scale"]
+    assert "n_zb" not in scale  # not identified: the nominal stays
+    assert abs(scale["m_b"] - 1.1) < 0.05 and abs(scale["l"] - 1.05) < 0.05
+    r = _twin("run", "paper-exp1", "--controller", "lqr", "--duration", "0.5", "--no-video", "--plant",
+              str(out / "calibration.toml"), "--out", str(tmp_path / "run"))
+    assert r.returncode == 0, r.stderr
+    ran = json.loads((tmp_path / "run" / "metrics.json").read_text())["scenario"]["plant"]["scale"]
+    assert ran == pytest.approx(scale, rel=1e-12)
+    # --set after --plant wins
+    r = _twin("run", "paper-exp1", "--controller", "lqr", "--duration", "0.5", "--no-video", "--plant",
+              str(out / "calibration.toml"), "--set", "plant.scale.m_b=1.3", "--out", str(tmp_path / "run2"))
+    assert r.returncode == 0, r.stderr
+    assert json.loads((tmp_path / "run2" / "metrics.json").read_text())["scenario"]["plant"]["scale"]["m_b"] == 1.3
+
+
+@pytest.mark.parametrize("text, says", [
+    (None, "no such file"),
+    ("[plant]\nscale = {m_b = 1.1}\n", "not a calibration.toml"),
+    ("[calibration]\n[plant]\nmass = 3\n", "[plant] mass is not taken from a calibration"),
+    ("[calibration\n", "not a calibration.toml"),
+])
+def test_a_bad_plant_file_is_one_line(tmp_path, text, says):
+    f = tmp_path / "calibration.toml"
+    if text is not None:
+        f.write_text(text)
+    r = _twin("run", "paper-exp1", "--duration", "0.1", "--no-video", "--plant", str(f), "--out", str(tmp_path / "o"))
+    assert r.returncode == 2 and says in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+def test_an_unknown_parameter_is_one_line(logs, tmp_path):
+    r = _twin("calibrate", str(logs[0]), "--parameters", "m_b,mass", "--out", str(tmp_path / "c"))
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "no parameter 'mass'" in r.stderr and "allowed: m_b, l, n_yb" in r.stderr
+    assert not (tmp_path / "c").exists()
+
+
+def test_a_log_too_short_to_excite_anything_is_one_line(logs, tmp_path):
+    r = _twin("calibrate", str(logs[1]), "--out", str(tmp_path / "c"))
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "a calibration needs at least 50" in r.stderr
+    assert not (tmp_path / "c").exists()
+
+
+def test_a_validation_log_of_another_robot_is_one_line(logs, tmp_path):
+    other = tmp_path / "other"
+    shutil.copytree(logs[1], other)
+    text = (other / "log.toml").read_text()
+    (other / "log.toml").write_text(text.replace("wheel_radius = 0.04", "wheel_radius = 0.05", 1))
+    r = _twin("calibrate", str(logs[0]), "--validate", str(other), "--out", str(tmp_path / "c"))
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "another robot" in r.stderr and "wheel_radius" in r.stderr
+
+
+def test_two_logs_are_one_line(logs, tmp_path):
+    r = _twin("calibrate", str(logs[0]), str(logs[0]), "--out", str(tmp_path / "c"))
+    assert r.returncode == 2 and "one log" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_motor_figures_need_motors_and_the_dead_band_is_refused(logs):
+    log = read_log(logs[0])
+    with pytest.raises(TwinError, match="dead_band: a log's duty.csv holds the duty after the dead band"):
+        calibrate([log], ("m_b", "dead_band"))
+
+
+def test_confounded_parameters_are_named(logs):
+    # the motors' no-load speed enters only through c_e = stall torque / no-load speed, which adds to
+    # d_b on the joint: the log cannot tell them apart
+    cal = calibrate([read_log(logs[0])], ("m_b", "d_b", "no_load_speed", "gyro_bias_y"), bootstrap=20)
+    _, warnings, corr = assess(cal, TURN_RATE)
+    assert any(w.startswith("d_b and no_load_speed are confounded in this log (correlation ") for w in warnings), warnings
+    names = corr["names"]
+    assert abs(corr["matrix"][names.index("d_b")][names.index("no_load_speed")]) >= 0.95

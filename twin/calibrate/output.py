@@ -1,0 +1,208 @@
+"""What ``twin calibrate`` writes: report.json, calibration.toml and figure.png.
+
+``report.json``: ``parameters`` (each fitted one as ``{"value", "ci95": [low, high], "unit",
+"identifiable", ...}`` in absolute SI values), ``correlation`` (names and matrix),
+``warnings`` (one line each), ``method`` (windows, residual σ, solver, wall time) and
+``validation`` (per held-out log, the nominal and the calibrated twin's prediction errors).
+
+``calibration.toml``: the twin's true plant and sensors as a scenario takes them —
+``[plant] scale`` (factors of Table III, :data:`twin.params.NOMINAL`, for the identified
+physical parameters) and ``[sensors] imu_latency`` — for ``twin run SCENARIO --plant
+calibration.toml`` or ``--set``; the fitted sensor constants, the motor figures and the
+provenance are in ``[calibration]`` (read by nothing but people).
+"""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+
+from twin.calibrate.parameters import PARAMETERS
+from twin.errors import TwinError
+
+SCALE_RANGE = (0.2, 5.0)  # plant.scale's allowed factors (twin/scenarios/schema.py)
+
+
+def report_doc(cal, params: dict, warnings: list, corr: dict, validation, seed: int) -> dict:
+    f = cal.fit
+    st = f.windows.streams
+    return {
+        "format": 1,
+        "command": "twin calibrate",
+        "logs": cal.logs,
+        "parameters": params,
+        "correlation": corr,
+        "warnings": warnings,
+        "method": {
+            "model": "the PyBullet twin's stepping of equation (1) (twin.calibrate.model.step_windows)",
+            "physics_rate_hz": f.plant.physics_rate, "control_rate_hz": f.plant.control_rate,
+            "window_s": f.windows.periods / f.plant.control_rate, "windows": f.windows.count,
+            "windows_in_log": cal.windows_total, "windows_left_out_at_s": cal.dropped,
+            "drive": "duty" if st.drive_is_duty else "torque",
+            "residual_sigma": math.sqrt(cal.info.s2), "degrees_of_freedom": cal.info.dof,
+            "solver": "scipy.optimize.least_squares (trf, lsmr, sparse Jacobian)",
+            "bootstrap_replicates": int(len(cal.boot)), "seed": seed, "wall_s": cal.wall_s,
+        },
+        "validation": validation,
+    }
+
+
+def calibration_toml(cal, params: dict) -> str:
+    """The text of calibration.toml (see the module docstring)."""
+    from twin.params import NOMINAL
+
+    lines = ["# Written by 'twin calibrate'. 'twin run SCENARIO --plant calibration.toml' runs this robot:",
+             "# [plant] and [sensors] replace the scenario's true plant and IMU latency; [calibration] is a record.", ""]
+    lines += ["[calibration]", f"logs = {json.dumps(cal.logs)}",
+              f"fitted = {json.dumps(list(params))}"]
+    not_id = [n for n, e in params.items() if not e["identifiable"]]
+    lines.append(f"not_identified = {json.dumps(not_id)}  # left at the nominal value in [plant]")
+    sensor = {n: e["value"] for n, e in params.items() if PARAMETERS[n].group == "imu" and n != "imu_latency"}
+    if sensor:
+        lines.append("# the IMU's constants of the calibration log (the twin draws its own per run)")
+        lines.append("imu = { " + ", ".join(f"{n} = {_num(v)}" for n, v in sensor.items()) + " }")
+    motor = {n: e["value"] for n, e in params.items() if PARAMETERS[n].group == "motor" and e["identifiable"]}
+    if motor:
+        lines.append("motor = { " + ", ".join(f"{n} = {_num(v)}" for n, v in motor.items()) + " }")
+    lines.append("")
+    scale = {}
+    for n, e in params.items():
+        if PARAMETERS[n].group == "plant" and e["identifiable"]:
+            factor = e["value"] / getattr(NOMINAL, n)
+            if not SCALE_RANGE[0] <= factor <= SCALE_RANGE[1]:
+                raise TwinError(f"the fitted {n} = {e['value']:.4g} {e['unit']} is {factor:.3g} × Table III's, outside "
+                                f"the twin's plant.scale range [{SCALE_RANGE[0]:g}, {SCALE_RANGE[1]:g}]")
+            scale[n] = factor
+    lines += ["[plant]", "# factors of Table III (twin.params.NOMINAL)",
+              "scale = { " + ", ".join(f"{n} = {_num(v)}" for n, v in scale.items()) + " }", ""]
+    if "imu_latency" in params and params["imu_latency"]["identifiable"]:
+        lines += ["[sensors]", f"imu_latency = {_num(params['imu_latency']['value'])}  # s", ""]
+    return "\n".join(lines)
+
+
+def _num(v: float) -> str:
+    return repr(float(f"{float(v):.6g}"))
+
+
+def plant_overrides(path) -> list[str]:
+    """``--set`` items of a calibration.toml's [plant] and [sensors] (``twin run --plant``), or a
+    one-line :class:`TwinError`."""
+    import tomllib
+    from pathlib import Path
+
+    p = Path(path)
+    try:
+        doc = tomllib.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise TwinError(f"--plant {p}: no such file") from None
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise TwinError(f"--plant {p}: not a calibration.toml ({' '.join(str(exc).split())})") from None
+    if "plant" not in doc or "calibration" not in doc:
+        raise TwinError(f"--plant {p}: not a calibration.toml (it needs the [calibration] and [plant] tables "
+                        f"'twin calibrate' writes)")
+    allowed = {"plant": {"scale"}, "sensors": {"imu_latency"}}
+    items = []
+    for table, keys in allowed.items():
+        for key, value in (doc.get(table) or {}).items():
+            if key not in keys:
+                raise TwinError(f"--plant {p}: [{table}] {key} is not taken from a calibration; allowed: "
+                                f"{', '.join(sorted(keys))}")
+            if isinstance(value, dict):
+                text = "{" + ", ".join(f"{k} = {float(v)!r}" for k, v in value.items()) + "}"
+            else:
+                text = repr(value)
+            items.append(f"{table}.{key}={text}")
+    return items
+
+
+def write_figure(cal, params: dict, validation, path) -> None:
+    """figure.png: the fit over the log's first seconds, the residuals, the intervals and the
+    validation's prediction error over the horizon."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    f = cal.fit
+    w = f.windows
+    T = 1.0 / f.plant.control_rate
+    imu, _ = f.plant.predict(w, f.values, f.S, f.offsets)
+    fig, ax = plt.subplots(2, 2, figsize=(12, 8), constrained_layout=True)
+    # (a) gyro pitch rate: readings and the fitted windows, over the first 3 s of fitted windows
+    a = ax[0, 0]
+    show = w.t0 <= w.t0[0] + 1.5
+    for i in np.flatnonzero(show):
+        t = w.t0[i] + T * (np.arange(w.periods) + 1)
+        a.plot(t, w.imu[i, :, 1], ".", color="0.55", ms=3, label="gyro y reading" if i == 0 else None)
+        a.plot(t, imu[i, :, 1], "-", color="C0", lw=1.2, label="fitted twin (each window)" if i == 0 else None)
+    a.set_title("Fit: pitch rate, first 1.5 s of fitted windows", fontsize=10)
+    a.set_xlabel("t [s]")
+    a.set_ylabel("gyro y [rad/s]")
+    a.legend(loc="upper right", fontsize=8)
+    # (b) normalised residuals per channel
+    b = ax[0, 1]
+    r = f.residuals
+    N = w.periods
+    chans = ["gyro x", "gyro y", "gyro z", "accel x", "accel z"]
+    parts = [r[:, :N * 5].reshape(len(r), N, 5)[..., c].ravel() for c in range(5)] + [r[:, N * 5:].ravel()]
+    b.boxplot(parts, tick_labels=chans + ["encoders"], showfliers=False, whis=(2.5, 97.5))
+    b.axhline(0.0, color="0.3", lw=0.8)
+    for y in (-1.96, 1.96):
+        b.axhline(y, color="C3", lw=0.8, ls="--")
+    b.set_title(f"Residuals / σ (whiskers 2.5–97.5 %), s = {math.sqrt(cal.info.s2):.2f}", fontsize=10)
+    b.set_ylabel("residual / σ")
+    # (c) intervals of the physical parameters as factors of the log's model
+    c = ax[1, 0]
+    phys = [n for n in f.plant.names if PARAMETERS[n].group in ("plant", "motor")]
+    for k, n in enumerate(phys):
+        e = params[n]
+        base = e["nominal"]
+        lo, hi = e["ci95"][0] / base, e["ci95"][1] / base
+        col = "C0" if e["identifiable"] else "C3"
+        c.plot([lo, hi], [k, k], "-", color=col, lw=3)
+        c.plot([e["value"] / base], [k], "o", color=col)
+    c.axvline(1.0, color="0.4", lw=0.8, ls=":")
+    c.set_yticks(range(len(phys)), [n + ("" if params[n]["identifiable"] else " (not identified)") for n in phys])
+    c.set_xlabel("fitted value / the log's model (95 % interval)")
+    c.set_title("Physical parameters (red: not identified)", fontsize=10)
+    # (d) validation or the latency profile
+    d = ax[1, 1]
+    if validation:
+        v = validation[0]
+        h = np.arange(1, len(v["nominal"]["_horizon"]) + 1) * T
+        d.plot(h, v["nominal"]["_horizon"], "-o", ms=3, color="C3", label=f"nominal ({v['nominal']['rms_sigma']:.2f} σ)")
+        d.plot(h, v["calibrated"]["_horizon"], "-o", ms=3, color="C0",
+               label=f"calibrated ({v['calibrated']['rms_sigma']:.2f} σ)")
+        d.axhline(1.0, color="0.4", lw=0.8, ls=":")
+        d.set_xlabel("prediction horizon [s]")
+        d.set_ylabel("RMS prediction error / σ")
+        d.set_title(f"Held-out log: {v['windows']} windows, nominal / calibrated = {v['ratio']:.2f}", fontsize=10)
+        d.legend(fontsize=8)
+    else:
+        prof = params.get("imu_latency", {}).get("profile") or {}
+        if prof:
+            d.bar([float(k) * 1e3 for k in prof], list(prof.values()), width=3.0, color="C0")
+            d.set_xlabel("IMU latency [ms]")
+            d.set_ylabel("cost ½Σr²")
+            d.set_title("IMU latency profile (no --validate log)", fontsize=10)
+        else:
+            d.axis("off")
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def strip_private(validation):
+    """The validation entries without the figure's per-step series."""
+    if not validation:
+        return validation
+    out = []
+    for e in validation:
+        e = dict(e)
+        for k in ("nominal", "calibrated"):
+            e[k] = {kk: vv for kk, vv in e[k].items() if not kk.startswith("_")}
+        out.append(e)
+    return out
+
+
+__all__ = ["calibration_toml", "plant_overrides", "report_doc", "strip_private", "write_figure"]
