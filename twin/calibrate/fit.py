@@ -41,7 +41,7 @@ MOTOR_NAMES = ("stall_torque", "no_load_speed")
 SENSOR_NAMES = ("gyro_bias_x", "gyro_bias_y", "gyro_bias_z", "accel_bias_x", "gyro_scale_y", "gyro_scale_z",
                 "accel_scale_x", "accel_scale_z")
 STATE_COLUMNS = (0, 1, 3, 5)  # θ, θ̇, ψ̇, α̇ of a window's start state are fitted; ψ, α stay the EKF's
-CLUSTER_S = 0.0  # s of log per cluster of the sandwich covariance (0: each window its own)
+CLUSTER_S = 1.0  # s of log per cluster of the sandwich covariance and the bootstrap (0: each window its own)
 TOLERANCE = 1e-8  # scipy's xtol, ftol, gtol: relative changes well below the intervals (about 1e-3)
 ROBUST_SCALE = 3.0  # σ: the soft-L1 loss's scale in the robust pass
 OUTLIER_ALPHA = 0.01  # family-wise level of the windows' χ² test (a push, a bump, a start transient)
