@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import multiprocessing
+import os
 import subprocess
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -23,6 +25,7 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 COUNT = 20
 NEED = 18  # of 20
+_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 def _plants_module():
@@ -85,9 +88,20 @@ def study(tmp_path_factory):
             cmds.append(cp.command(p, held_run, held_out=True))
             held = str(held_run / "sensor-logs" / "it2")
         jobs.append((p, held))
-    with ProcessPoolExecutor(max_workers=2) as pool:
-        list(pool.map(_run, cmds))
-        results = list(pool.map(_calibrate, jobs))
+    # two worker processes on the two cores, each with one BLAS thread (two each oversubscribe the
+    # cores and slow the fits twofold); spawned, so that the setting reaches their numpy
+    saved = {k: os.environ.get(k) for k in _THREADS}
+    os.environ.update({k: "1" for k in _THREADS})
+    try:
+        with ProcessPoolExecutor(max_workers=2, mp_context=multiprocessing.get_context("spawn")) as pool:
+            list(pool.map(_run, cmds))
+            results = list(pool.map(_calibrate, jobs))
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
     (out / "results.json").write_text(json.dumps(results, indent=1, default=float))
     return results
 

@@ -588,20 +588,13 @@ def replay(logs, estimators, out):
     if "ideal" in kinds:
         raise TwinError("--estimator: 'ideal' reads the truth, which a log's readings are not; allowed: ekf, "
                         "complementary, kalman2 or package.module:attribute")
-    staged = rundir.StagedDirectory(out, "twin replay")
-    try:
+    with rundir.written_whole(out, "twin replay") as path:
         doc, replays = replay_logs(logs, kinds)
-        report.write_json(doc, staged.path / "replay.json")
-        write_estimates_csv(replays, staged.path / "estimates.csv")
+        report.write_json(doc, path / "replay.json")
+        write_estimates_csv(replays, path / "estimates.csv")
         figures = [figure_name(k) for k in range(len(doc["logs"]))]
         for k, name in enumerate(figures):  # one per log: figure.png, figure-2.png, ...
-            write_figure(doc, replays, staged.path / name, which=k)
-        staged.commit(0)
-    except BaseException as exc:
-        staged.discard()
-        raise rundir.kept(exc, staged.unchanged())
-    finally:
-        staged.discard()
+            write_figure(doc, replays, path / name, which=k)
     for path, entry in doc["logs"].items():
         click.echo(f"{path}: {entry['instants']} instants, {entry['duration_s']:g} s at {entry['control_rate_hz']:g} Hz"
                    + ("" if entry["has_truth"] else " (no truth: errors not computed)"))
@@ -904,31 +897,25 @@ def calibrate(logs, parameters, held_out, seed, out, list_):
     held = [read_log(p) for p in held_out]
     for h in held:
         same_robot(log, h)
-    staged = rundir.StagedDirectory(out, "twin calibrate")
-    try:
+    with rundir.written_whole(out, "twin calibrate") as path:
         click.echo(f"{log.path}: {log.duration:g} s at {log.control_rate:g} Hz")
         cal = fit_logs([log], names, seed=seed, progress=lambda m: click.echo(f"  {m}"))
         params, warnings, corr = identify.assess(cal, TURN_RATE)
         val = validate(cal, held) if held else None
         doc = output.report_doc(cal, params, warnings, corr, output.strip_private(val), seed)
-        report.write_json(doc, staged.path / "report.json")
-        (staged.path / "calibration.toml").write_text(output.calibration_toml(cal, params), encoding="utf-8")
-        output.write_figure(cal, params, val, staged.path / "figure.png")
-        staged.commit(0)
-    except BaseException as exc:
-        staged.discard()
-        raise rundir.kept(exc, staged.unchanged())
-    finally:
-        staged.discard()
+        report.write_json(doc, path / "report.json")
+        (path / "calibration.toml").write_text(output.calibration_toml(cal, params), encoding="utf-8")
+        output.write_figure(cal, params, val, path / "figure.png")
     click.echo(f"  {'parameter':15}{'value':>13}{'95 % interval':>28}  unit")
     for n, e in params.items():
         lo, hi = e["ci95"]
         mark = "" if e["identifiable"] else "   not identified"
         click.echo(f"  {n:15}{_sig(e['value']):>13}   [{_sig(lo):>11}, {_sig(hi):>11}]  {e['unit']}{mark}")
     for v in val or ():
-        click.echo(f"  validation on {v['log']}: prediction error over {v['horizon_s']:g} s, nominal "
-                   f"{v['nominal']['rms_sigma']:.3g} σ, calibrated {v['calibrated']['rms_sigma']:.3g} σ "
-                   f"({v['ratio']:.2f}× better; {v['windows']} windows)")
+        click.echo(f"  validation on {v['log']}: RMS prediction error over {v['horizon_s']:g} s, nominal "
+                   f"{v['nominal']['rms_sigma']:.3g} σ, calibrated {v['calibrated']['rms_sigma']:.3g} σ (1 σ: the "
+                   f"readings' noise); the model's own error {v['ratio']:.2f}× smaller calibrated ({v['windows']} "
+                   f"windows)")
     for line in warnings:
         click.echo(f"  warning: {line}")
     click.echo(f"  {doc['method']['windows']} windows fitted ({len(cal.dropped)} left out), residual σ "

@@ -177,7 +177,8 @@ def write_figure(cal, params: dict, validation, path) -> None:
         d.axhline(1.0, color="0.4", lw=0.8, ls=":")
         d.set_xlabel("prediction horizon [s]")
         d.set_ylabel("RMS prediction error / σ")
-        d.set_title(f"Held-out log: {v['windows']} windows, nominal / calibrated = {v['ratio']:.2f}", fontsize=10)
+        d.set_title(f"Held-out log, {v['windows']} windows: model error nominal / calibrated = {v['ratio']:.2f}",
+                    fontsize=10)
         d.legend(fontsize=8)
     else:
         prof = params.get("imu_latency", {}).get("profile") or {}

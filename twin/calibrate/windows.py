@@ -145,8 +145,9 @@ def streams(log, estimates=None) -> Streams:
                    int(round(sens.encoders.latency * rate)), rate)
 
 
-def cut(s: Streams, imu_latency: int, periods: int = WINDOW_PERIODS) -> Windows:
-    """Non-overlapping windows of ``periods`` control periods with every reading present.
+def cut(s: Streams, imu_latency: int, periods: int = WINDOW_PERIODS, stride: int | None = None) -> Windows:
+    """Windows of ``periods`` control periods with every reading present, one starting every
+    ``stride`` periods (default ``periods``: side by side, not overlapping).
 
     The IMU sample of period [t_j, t_j+1] is the one arriving at t_{j+1+imu_latency} (the
     twin's IMU reports the mean over the period that ends at its sample instant,
@@ -157,7 +158,7 @@ def cut(s: Streams, imu_latency: int, periods: int = WINDOW_PERIODS) -> Windows:
     n = len(s.t)
     d, de = int(imu_latency), s.encoder_latency
     last = n - 1 - max(periods + d, periods + de)
-    starts = np.arange(FIRST_INSTANT, last + 1, periods)
+    starts = np.arange(FIRST_INSTANT, last + 1, periods if stride is None else int(stride))
     if len(starts) == 0:
         return Windows(starts, np.empty((0, 6)), np.empty((0, periods, 2)), np.empty((0, periods, 5)),
                        np.empty((0, periods + 1, 2)), d, s)

@@ -459,6 +459,22 @@ def _exchange(a: Path, b: Path) -> bool:
     raise OSError(err, os.strerror(err), str(b))
 
 
+@contextlib.contextmanager
+def written_whole(out, command: str):
+    """``with written_whole(out, "twin replay") as path:`` write the files into ``path``; they
+    replace ``out`` as a whole when the block ends, and nothing of them when it raises (the error
+    then says what ``out`` still holds, :func:`kept`)."""
+    staged = StagedDirectory(out, command)
+    try:
+        yield staged.path
+        staged.commit(0)
+    except BaseException as exc:
+        staged.discard()
+        raise kept(exc, staged.unchanged())
+    finally:
+        staged.discard()
+
+
 class StagedDirectory:
     """A run directory written as a unit (``twin run``).
 
