@@ -181,3 +181,22 @@ def test_bad_inputs_are_one_line_errors():
 def test_at_rest_upright_stays_at_rest():
     out = step_windows(np.zeros((3, 6)), np.zeros((3, 4, 2)), NOMINAL, DCMotorParams())
     assert out.shape == (3, 5, 6) and not out.any()
+
+
+@pytest.mark.parametrize("with_motor", [True, False])
+def test_the_compiled_stepping_is_bit_identical_to_the_python_loop(monkeypatch, with_motor):
+    import twin.calibrate.model as M
+    from twin.actuators.dc_motor import DCMotorParams
+    from twin.params import NOMINAL
+
+    if M._kernel is None:
+        pytest.skip("the compiled kernel did not build")
+    rng = np.random.default_rng(30)
+    S0 = rng.normal(0.0, 0.3, (40, 6))
+    drive = rng.uniform(-0.6, 0.6, (40, 15, 2))
+    p = NOMINAL.perturbed(scale={"m_b": 1.2, "l": 0.9, "d_b": 1.7, "d_w": 0.6})
+    motor = DCMotorParams() if with_motor else None
+    fast = M.step_windows(S0, drive, p, motor, drive_is_duty=with_motor)
+    monkeypatch.setattr(M, "_FORCE_PYTHON", True)
+    slow = M.step_windows(S0, drive, p, motor, drive_is_duty=with_motor)
+    assert fast.tobytes() == slow.tobytes()

@@ -8,6 +8,11 @@
      motors(ul, ur, wl, wr, kt, R, vs, imax, steps, comp, dead)
          -> (duty_l, duty_r, torque_l, torque_r, sat_l, sat_r, tau0_l, tau0_r)
          = MotorDriver.update for both wheels
+     windows(S0, tau0, out, consts, k) -> None
+         = twin.calibrate.model.step_windows's PyBullet stepping with the held torques tau0
+         given (W windows of N periods; float64 C-contiguous buffers S0 (W, 6), tau0 (W, N, 2),
+         out (W, N + 1, 6) written; consts = (m11, m12, m22, n_bla, g_b, d_b + c_e, d_w,
+         yaw damping of the joint, b / r, m33, h))
 
    Built by setup.py with -ffp-contract=off (no fused multiply-adds, which would round
    differently). Python's round() rounds half to even like nearbyint() in the default
@@ -144,9 +149,81 @@ static PyObject *motors(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
     return Py_BuildValue("(ddddNNdd)", dl, dr, ql, qr, PyBool_FromLong(sl), PyBool_FromLong(sr), t0l, t0r);
 }
 
+/* equation (1)'s accelerations as twin/plant/analytic.py's _accelerations with t1 = t3 = 0 and the
+   joint's d_w = 0, operation for operation */
+static void accelerations(const double *x, double ul, double ur, double t2, const double *c, double *a) {
+    const double m11 = c[0], m12 = c[1], m22 = c[2], n_bla = c[3], g_b = c[4], d_b = c[5], yd = c[7], b_r = c[8],
+                 m33 = c[9];
+    double th_d = x[1], ps_d = x[3], al_d = x[5];
+    double s = sin(x[0]), co = cos(x[0]);
+    double drive = 2.0 * d_b * (th_d - ps_d);
+    double u = ul + ur;
+    double rhs1 = m12 * (th_d * th_d + al_d * al_d) * s - 2.0 * 0.0 * ps_d + drive + u + 0.0;
+    double rhs2 = n_bla * al_d * al_d * s * co + g_b * s - drive - u + t2;
+    double mc = m12 * co;
+    double det = m11 * m22 - mc * mc;
+    a[1] = (m11 * rhs2 - m12 * co * rhs1) / det;
+    a[3] = (m22 * rhs1 - m12 * co * rhs2) / det;
+    double yaw = -2.0 * n_bla * al_d * th_d * s * co - m12 * al_d * ps_d * s - yd * al_d + b_r * (ur - ul) + 0.0;
+    a[5] = yaw / (m33 + n_bla * s * s);
+}
+
+static PyObject *windows(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    if (nargs != 5) {
+        PyErr_SetString(PyExc_TypeError, "windows takes 5 arguments");
+        return NULL;
+    }
+    double c[11];
+    if (floats(args[3], c, 11, "consts") < 0) return NULL;
+    long k = PyLong_AsLong(args[4]);
+    if (k == -1 && PyErr_Occurred()) return NULL;
+    Py_buffer b0, bt, bo;
+    if (PyObject_GetBuffer(args[0], &b0, PyBUF_C_CONTIGUOUS) < 0) return NULL;
+    if (PyObject_GetBuffer(args[1], &bt, PyBUF_C_CONTIGUOUS) < 0) { PyBuffer_Release(&b0); return NULL; }
+    if (PyObject_GetBuffer(args[2], &bo, PyBUF_C_CONTIGUOUS | PyBUF_WRITABLE) < 0) {
+        PyBuffer_Release(&b0); PyBuffer_Release(&bt); return NULL;
+    }
+    Py_ssize_t W = b0.len / (Py_ssize_t)(6 * sizeof(double));
+    Py_ssize_t N = W ? bt.len / (Py_ssize_t)(2 * sizeof(double)) / W : 0;
+    if (b0.len != W * 6 * (Py_ssize_t)sizeof(double) || bt.len != W * N * 2 * (Py_ssize_t)sizeof(double) ||
+        bo.len != W * (N + 1) * 6 * (Py_ssize_t)sizeof(double)) {
+        PyBuffer_Release(&b0); PyBuffer_Release(&bt); PyBuffer_Release(&bo);
+        PyErr_SetString(PyExc_ValueError, "windows: buffers of shapes (W, 6), (W, N, 2), (W, N + 1, 6) needed");
+        return NULL;
+    }
+    const double *S0 = (const double *)b0.buf, *tau0 = (const double *)bt.buf;
+    double *out = (double *)bo.buf;
+    const double d_w = c[6], b_r = c[8], h = c[10];
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t w = 0; w < W; w++) {
+        double x[6], a[6];
+        for (int i = 0; i < 6; i++) x[i] = out[w * (N + 1) * 6 + i] = S0[w * 6 + i];
+        for (Py_ssize_t n = 0; n < N; n++) {
+            double rate_l = x[3] - b_r * x[5], rate_r = x[3] + b_r * x[5];
+            double hold_l = -d_w * rate_l, hold_r = -d_w * rate_r;
+            double t2 = hold_l + hold_r;
+            double ul = tau0[(w * N + n) * 2] + hold_l, ur = tau0[(w * N + n) * 2 + 1] + hold_r;
+            for (long j = 0; j < k; j++) {
+                accelerations(x, ul, ur, t2, c, a);
+                x[1] += h * a[1];
+                x[3] += h * a[3];
+                x[5] += h * a[5];
+                x[0] += h * x[1];
+                x[2] += h * x[3];
+                x[4] += h * x[5];
+            }
+            for (int i = 0; i < 6; i++) out[(w * (N + 1) + n + 1) * 6 + i] = x[i];
+        }
+    }
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&b0); PyBuffer_Release(&bt); PyBuffer_Release(&bo);
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"truth", (PyCFunction)(void (*)(void))truth, METH_FASTCALL, "Ground truth from PyBullet's state tuples."},
     {"motors", (PyCFunction)(void (*)(void))motors, METH_FASTCALL, "PWM update of both motors."},
+    {"windows", (PyCFunction)(void (*)(void))windows, METH_FASTCALL, "The twin's stepping of many windows."},
     {NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_fastpath", "Compiled hot path of the twin.", -1,
