@@ -154,3 +154,15 @@ def test_confounded_parameters_are_named(logs):
     assert any(w.startswith("d_b and no_load_speed are confounded in this log (correlation ") for w in warnings), warnings
     names = corr["names"]
     assert abs(corr["matrix"][names.index("d_b")][names.index("no_load_speed")]) >= 0.95
+
+
+def test_the_same_log_and_seed_give_the_same_report(calibrated, tmp_path, logs):
+    out, _ = calibrated
+    r = _twin("calibrate", str(logs[0]), "--parameters", QUICK, "--out", str(tmp_path / "again"))
+    assert r.returncode == 0, r.stderr
+    a = json.loads((out / "report.json").read_text())
+    b = json.loads((tmp_path / "again" / "report.json").read_text())
+    for doc in (a, b):
+        doc["method"].pop("wall_s")
+    assert a == b
+    assert (out / "calibration.toml").read_text() == (tmp_path / "again" / "calibration.toml").read_text()
