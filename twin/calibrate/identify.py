@@ -55,7 +55,7 @@ def assess(cal, turn_rate: float) -> tuple[dict, list, dict]:
     # clusters, not residuals, are the independent units of the sandwich and the bootstrap
     tq = t_quantile(min(cal.info.dof, cal.clusters - 1))
     boot_sd = cal.boot.std(axis=0, ddof=1) if len(cal.boot) > 1 else np.zeros(k)
-    params, warnings = {}, []
+    params, warnings, spread = {}, [], {}
     for j, n in enumerate(plant.names):
         v = f.values[n]
         # a physical parameter is fitted as ln(factor): its errors are relative, sd(value) = value × sd(ln)
@@ -79,19 +79,22 @@ def assess(cal, turn_rate: float) -> tuple[dict, list, dict]:
             hw = tq * se
             ci = [v - hw, v + hw]
             if hw > SENSOR_HALF_WIDTH[n]:
-                why = f"its 95 % interval is ±{hw:.3g} {PARAMETERS[n].unit} (allowed: ±{SENSOR_HALF_WIDTH[n]:g})"
+                unit = "" if PARAMETERS[n].unit == "1" else f" {PARAMETERS[n].unit}"
+                why = f"its 95 % interval is ±{hw:.3g}{unit} (allowed: ±{SENSOR_HALF_WIDTH[n]:g}{unit})"
             elif n in ABSORBS_MODEL_ERROR:
                 why = ABSORBS_MODEL_ERROR[n]
         if sources["jacobian"] > 0 and sources["bootstrap"] > BOOTSTRAP_RATIO * sources["jacobian"]:
-            warnings.append(f"{n}: the bootstrap over windows spreads {sources['bootstrap'] / sources['jacobian']:.1f}× "
-                            f"the Jacobian's error; a few windows carry most of the information, and the interval is "
-                            f"the bootstrap's")
+            spread[n] = sources["bootstrap"] / sources["jacobian"]
         params[n] = {"value": v, "ci95": ci, "unit": PARAMETERS[n].unit, "identifiable": why is None,
                      "standard_error": se, "standard_error_sources": sources, "nominal": plant.base(n),
                      "doc": PARAMETERS[n].doc}
         if why:
             params[n]["why"] = why
             warnings.append(f"{n} is not identified by this log: {why}")
+    if spread:
+        warnings.insert(0, f"the bootstrap over the log's stretches spreads {min(spread.values()):.1f}× to "
+                           f"{max(spread.values()):.1f}× the Jacobian's error for {', '.join(spread)}: a few stretches "
+                           f"(a catch, a push) carry most of the information; those intervals are the bootstrap's")
     if "imu_latency" in cal.names:
         params["imu_latency"] = latency_entry(cal)
         if not params["imu_latency"]["identifiable"]:
