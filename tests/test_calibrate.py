@@ -166,3 +166,10 @@ def test_the_same_log_and_seed_give_the_same_report(calibrated, tmp_path, logs):
         doc["method"].pop("wall_s")
     assert a == b
     assert (out / "calibration.toml").read_text() == (tmp_path / "again" / "calibration.toml").read_text()
+
+
+def test_list_names_every_parameter_with_its_unit_and_no_log_is_one_line():
+    r = _twin("calibrate", "--list")
+    assert r.returncode == 0 and "m_b" in r.stdout and "kg" in r.stdout and "imu_latency" in r.stdout
+    r = _twin("calibrate")
+    assert r.returncode == 2 and "needs a LOG" in r.stderr and len(r.stderr.strip().splitlines()) == 1

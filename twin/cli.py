@@ -847,7 +847,7 @@ def check(targets, controller, seeds, workers, overrides, junit, record, golden,
 
 
 @main.command()
-@click.argument("logs", nargs=-1, required=True, type=click.Path(path_type=Path), metavar="LOG")
+@click.argument("logs", nargs=-1, type=click.Path(path_type=Path), metavar="LOG")
 @click.option("--parameters", default=None, metavar="NAMES",
               help="Parameters to fit, comma-separated (default: m_b, l, n_yb, d_b, d_w, n_zb if the log turns, "
                    "the IMU's biases, scale factors and latency). 'twin calibrate --list' names them all.")
@@ -890,6 +890,9 @@ def calibrate(logs, parameters, held_out, seed, out, list_):
     from twin.outputs import report, rundir
 
     names = parse_names(parameters) if parameters is not None else None
+    if not logs:
+        raise TwinError("twin calibrate needs a LOG (a sensor log's directory); 'twin calibrate --list' names the "
+                        "parameters")
     if len(logs) > 1:
         raise TwinError(f"twin calibrate takes one log ({len(logs)} given): the IMU's biases change at every "
                         f"power-up, and one fit per log keeps them apart; give the others to --validate")
