@@ -18,6 +18,8 @@ what is left is the contact solver's per-step jitter, which does not accumulate.
 """
 from __future__ import annotations
 
+import os
+
 import math
 
 import numpy as np
@@ -190,7 +192,9 @@ def test_the_compiled_stepping_is_bit_identical_to_the_python_loop(monkeypatch, 
     from twin.params import NOMINAL
 
     if M._kernel is None:
-        pytest.skip("the compiled kernel did not build")
+        if os.environ.get("TWIN_REQUIRE_KERNEL"):
+            pytest.fail("twin.plant._fastpath.windows did not build; CI requires the compiled kernels")
+        pytest.skip("the compiled kernel did not build here (no C compiler?); CI sets TWIN_REQUIRE_KERNEL=1")
     rng = np.random.default_rng(30)
     S0 = rng.normal(0.0, 0.3, (40, 6))
     drive = rng.uniform(-0.6, 0.6, (40, 15, 2))
