@@ -43,7 +43,6 @@ SENSOR_NAMES = ("gyro_bias_x", "gyro_bias_y", "gyro_bias_z", "accel_bias_x", "gy
 STATE_COLUMNS = (0, 1, 3, 5)  # θ, θ̇, ψ̇, α̇ of a window's start state are fitted; ψ, α stay the EKF's
 CLUSTER_S = 1.0  # s of log per cluster of the sandwich covariance and the bootstrap (0: each window its own)
 TOLERANCE = 1e-8  # scipy's xtol, ftol, gtol: relative changes well below the intervals (about 1e-3)
-ROBUST_SCALE = 3.0  # σ: the soft-L1 loss's scale in the robust pass
 OUTLIER_ALPHA = 0.01  # family-wise level of the windows' χ² test (a push, a bump, a start transient)
 
 
@@ -183,8 +182,7 @@ def sparsity(k: int, W: int, R: int):
     return J.tocsr()
 
 
-def fit(plant: Plant, w: Windows, p0=None, S0=None, offsets0=None, loss: str = "linear",
-        max_nfev: int | None = None) -> Fit:
+def fit(plant: Plant, w: Windows, p0=None, S0=None, offsets0=None, max_nfev: int | None = None) -> Fit:
     """Least squares over the parameters and the windows' start states (see the module docstring)."""
     if w.count == 0:
         raise TwinError("no window to fit")
@@ -209,10 +207,10 @@ def fit(plant: Plant, w: Windows, p0=None, S0=None, offsets0=None, loss: str = "
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        # unbounded: the reflective steps at a bound cost tens of iterations more (a factor
-        # going non-positive is reported as not identified instead, twin.calibrate.identify)
+        # unbounded (the physical parameters are positive through their logarithms): reflective
+        # steps at a bound cost hundreds of iterations more
         res = least_squares(fun, z0, jac_sparsity=sparsity(k, w.count, R), method="trf", x_scale="jac",
-                            tr_solver="lsmr", tr_options={"regularize": False}, loss=loss, f_scale=ROBUST_SCALE,
+                            tr_solver="lsmr", tr_options={"regularize": False},
                             max_nfev=max_nfev, xtol=TOLERANCE, ftol=TOLERANCE, gtol=TOLERANCE)
     p, S, off = _unpack(plant, w, res.x)
     r = residuals(plant, w, p, S, off)
@@ -310,7 +308,7 @@ class Information:
 
 
 def information(f: Fit) -> Information:
-    """From the fit's Jacobian at the optimum (linear loss): see the module docstring."""
+    """From the fit's Jacobian at the optimum: see the module docstring."""
     k = len(f.plant.names)
     W, R = f.residuals.shape
     J = f.jac.tocsr() if hasattr(f.jac, "tocsr") else np.asarray(f.jac)
