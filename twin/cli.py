@@ -23,9 +23,39 @@ import click  # noqa: E402
 from twin.errors import TwinError  # noqa: E402
 
 
+class _Once(click.Command):
+    """Refuses an option given twice that takes one value: click keeps the last one silently, so
+    ``--controller it2 --controller lqr`` ran LQR alone (issue 31)."""
+
+    def parse_args(self, ctx, args):
+        single = {}
+        for p in self.params:
+            if isinstance(p, click.Option) and not p.multiple and not p.count:
+                for name in p.opts + p.secondary_opts:
+                    if name.startswith("--"):
+                        single[name] = p
+        seen = {}
+        for a in args:
+            if a == "--":
+                break
+            name = a.split("=", 1)[0]
+            p = single.get(name)
+            if p is not None:
+                if p.name in seen:
+                    said = (f"{name} is given more than once; allowed: once" if seen[p.name] == name else
+                            f"{seen[p.name]} and {name} are both given; allowed: one of them")
+                    if p.name == "controller":
+                        said += " (several kinds go comma-separated, e.g. --controller it2,lqr)"
+                    raise click.UsageError(said, ctx=ctx)
+                seen[p.name] = name
+        return super().parse_args(ctx, args)
+
+
 class _Group(click.Group):
     """Turns usage errors, TwinError and file errors into one line and exit status 2, and
     SIGINT and SIGTERM into one line saying what was kept and exit status 130 or 143."""
+
+    command_class = _Once
 
     def main(self, args=None, prog_name=None, **extra):
         from twin.outputs import rundir

@@ -55,7 +55,7 @@ class Key:
     recorded_at_default: bool = True
     recorded: bool = True  # False: never part of a run's record (what checks the run, not what it ran)
     hi_open: bool = False
-    check: Any = field(default=None, compare=False)  # str: check(value, path) raises on what the kind allows but the key does not
+    check: Any = field(default=None, compare=False)  # str, int: check(value, path) raises on what the kind allows but the key does not
 
 
 NAME_MAX = 64  # characters of a scenario name
@@ -90,6 +90,13 @@ def _check_name(v: str, path: str) -> None:
         if problem:
             raise ScenarioError(f"{path}: {shown(v)} {problem}; allowed: {NAME_RULE} (the name is the output "
                                 f"folder's: runs/NAME)")
+
+
+def _check_even(v: int, path: str) -> None:
+    # H.264 in the yuv420p every browser plays halves the colour planes: the frame's sides must be even
+    if v % 2:
+        raise ScenarioError(f"{path}: {v} is odd; allowed: an even number of pixels (H.264's yuv420p halves the "
+                            f"colour planes), e.g. {v - 1} or {v + 1}")
 
 
 def _check_description(v: str, path: str) -> None:
@@ -325,8 +332,8 @@ SCHEMA: dict[str, Key] = {
     "video": Key("table", keys={
         "enabled": Key("bool", True),
         "fps": Key("int", 30, 1, 120),
-        "width": Key("int", 640, 64, 3840),
-        "height": Key("int", 480, 48, 2160),
+        "width": Key("int", 640, 64, 3840, unit="px", check=_check_even, doc="even"),
+        "height": Key("int", 480, 48, 2160, unit="px", check=_check_even, doc="even"),
         "camera": Key("str", "follow", choices=("follow", "turning", "fixed", "top"), recorded_at_default=False,
                       doc="follow: at a bearing fixed in the world; turning: turns with the heading; fixed: "
                           "still, sees the whole run; top: from above (twin.render.scene.camera_mode)"),
@@ -369,7 +376,10 @@ def _value(v, key: Key, path: str):
     if k == "float":
         return _number(v, key, path)
     if k == "int":
-        return _number(v, key, path, integer=True)
+        n = _number(v, key, path, integer=True)
+        if key.check is not None:
+            key.check(n, path)
+        return n
     if k == "bool":
         if not isinstance(v, bool):
             raise ScenarioError(f"{path}: must be true or false, got {shown(v)}")

@@ -1,0 +1,45 @@
+"""Issue 31's rough edges a new user hit, each refused or fixed before any work is done."""
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import pytest
+
+from test_sensor_logs import _twin as _twin_call
+
+
+def _twin(*args):
+    code, out, err = _twin_call(*args)
+    return SimpleNamespace(returncode=code, stdout=out, stderr=err)
+
+
+@pytest.mark.parametrize("key, value, says", [
+    ("video.width", "641", "video.width: 641 is odd; allowed: an even number of pixels"),
+    ("video.height", "481", "video.height: 481 is odd; allowed: an even number of pixels"),
+])
+def test_an_odd_video_size_is_refused_before_the_run_naming_the_key(tmp_path, key, value, says):
+    # before issue 31 the run simulated, wrote its data, then failed at the video naming no key
+    r = _twin("run", "paper-exp1", "--controller", "lqr", "--duration", "0.2", "--set", f"{key}={value}",
+              "--out", str(tmp_path / "run"))
+    assert r.returncode == 2 and says in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("args, says", [
+    (("run", "paper-exp1", "--controller", "it2", "--controller", "lqr"),
+     "--controller is given more than once; allowed: once (several kinds go comma-separated"),
+    (("run", "paper-exp1", "--video", "--no-video"), "--video and --no-video are both given; allowed: one of them"),
+    (("run", "paper-exp1", "--seed=1", "--seed", "2"), "--seed is given more than once; allowed: once"),
+    (("calibrate", "x", "--seed", "1", "--seed", "2"), "--seed is given more than once"),
+])
+def test_an_option_given_twice_is_refused(tmp_path, args, says):
+    # click keeps the last silently: --controller it2 --controller lqr ran LQR alone before issue 31
+    r = _twin(*args, "--out", str(tmp_path / "o"))
+    assert r.returncode == 2 and says in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert not (tmp_path / "o").exists()
+
+
+def test_repeatable_options_stay_repeatable(tmp_path):
+    r = _twin("run", "paper-exp1", "--controller", "lqr", "--duration", "0.1", "--no-video",
+              "--set", "plant.scale.m_b=1.1", "--set", "plant.scale.l=1.05", "--out", str(tmp_path / "o"))
+    assert r.returncode == 0, r.stderr
