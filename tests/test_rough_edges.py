@@ -43,3 +43,17 @@ def test_repeatable_options_stay_repeatable(tmp_path):
     r = _twin("run", "paper-exp1", "--controller", "lqr", "--duration", "0.1", "--no-video",
               "--set", "plant.scale.m_b=1.1", "--set", "plant.scale.l=1.05", "--out", str(tmp_path / "o"))
     assert r.returncode == 0, r.stderr
+
+
+def test_a_failed_bound_prints_six_digits_and_a_real_unit():
+    from twin.verify.expectations import Bound, Verdict
+
+    def line(metric, measured, value, unit_op="<="):
+        b = Bound(metric, metric, False, None, unit_op, value)
+        return Verdict("it2", 0, b, measured, False).measured_with_unit()
+
+    assert line("final_position_error_m", 0.012345678901234, 0.01) == "0.0123457 m"
+    assert line("settling_time_s", None, 5.0) == "undefined"  # not "undefined s"
+    assert line("nis_per_dof", 5.1312345, 2.0) == "5.13123"  # dimensionless: no "1"
+    # six digits that would print the bound itself: every digit, so the failure is visible
+    assert line("final_position_error_m", 0.0100000004, 0.01) == repr(0.0100000004) + " m"

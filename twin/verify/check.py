@@ -340,14 +340,14 @@ def failure_lines(result: CheckResult) -> list[str]:
         if case.kind_of == "log":  # a replay: the log, the estimator and the metric
             for v in case.failures:
                 out.append(f"FAIL {case.scenario} estimator {case.controller}: {v.bound.key} = "
-                           f"{v.measured_text(full=True)} {v.bound.unit}, bound {v.bound} ({case.source})")
+                           f"{v.measured_with_unit()}, bound {v.bound} ({case.source})")
             for error in case.errors.values():
                 out.append(f"FAIL {case.scenario} estimator {case.controller}: {error}")
             continue
         for v in case.failures:
             seed = f" seed {v.seed}" if v.seed is not None else f" over {len(case.seeds)} seeds"
-            out.append(f"FAIL {case.scenario} {case.controller}{seed}: {v.bound.key} = {v.measured_text(full=True)} "
-                       f"{v.bound.unit}, bound {v.bound}")
+            out.append(f"FAIL {case.scenario} {case.controller}{seed}: {v.bound.key} = {v.measured_with_unit()}, "
+                       f"bound {v.bound}")
         for seed, error in case.errors.items():
             out.append(f"FAIL {case.scenario} {case.controller} seed {seed}: {error}")
         for seed, dep in case.departures.items():

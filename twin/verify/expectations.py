@@ -191,13 +191,29 @@ class Verdict:
     holds: bool
 
     def measured_text(self, full: bool = False) -> str:
-        """The measured value for a report: 4 significant digits, or every digit (``full``)."""
+        """The measured value for a report: 4 significant digits, or (``full``) 6, and every digit
+        only where 6 would print the bound's own value."""
         v = self.measured
         if v is None:
             return "undefined"
         if isinstance(v, bool):
             return str(v).lower()
-        return repr(float(v)) if full else f"{v:.4g}"
+        if not full:
+            return f"{v:.4g}"
+        text = f"{float(v):.6g}"
+        bound = self.bound.value
+        if not isinstance(bound, bool) and float(text) == float(bound) and float(v) != float(bound):
+            return repr(float(v))
+        return text
+
+    def measured_with_unit(self) -> str:
+        """:meth:`measured_text` (``full``) with the metric's unit; none where it is "1", nor after
+        "undefined" or a truth value."""
+        text = self.measured_text(full=True)
+        unit = self.bound.unit
+        if self.measured is None or isinstance(self.measured, bool) or unit in ("", "1"):
+            return text
+        return f"{text} {unit}"
 
 
 def _stat(name: str, values: list[float], undefined: float = math.inf) -> float:
