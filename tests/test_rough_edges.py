@@ -57,3 +57,13 @@ def test_a_failed_bound_prints_six_digits_and_a_real_unit():
     assert line("nis_per_dof", 5.1312345, 2.0) == "5.13123"  # dimensionless: no "1"
     # six digits that would print the bound itself: every digit, so the failure is visible
     assert line("final_position_error_m", 0.0100000004, 0.01) == repr(0.0100000004) + " m"
+
+
+def test_a_failed_pass_rate_names_the_seeds_and_the_bounds_they_broke():
+    from twin.verify.expectations import evaluate, parse_expect
+
+    bounds = parse_expect({"iae_theta": "<= 0.5", "seeds": {"pass_rate": ">= 0.9"}}, "expect")
+    runs = {0: {"iae_theta": 0.2}, 1: {"iae_theta": 0.7}, 2: {"iae_theta": 0.3}}
+    (rate,) = [v for v in evaluate(bounds, "it2", runs) if v.bound.metric == "pass_rate"]
+    assert not rate.holds and rate.measured == pytest.approx(2 / 3)
+    assert rate.detail == "2 of 3 seeds held every bound; seed 1 broke iae_theta <= 0.5 (0.7 rad·s)"

@@ -347,7 +347,7 @@ def failure_lines(result: CheckResult) -> list[str]:
         for v in case.failures:
             seed = f" seed {v.seed}" if v.seed is not None else f" over {len(case.seeds)} seeds"
             out.append(f"FAIL {case.scenario} {case.controller}{seed}: {v.bound.key} = {v.measured_with_unit()}, "
-                       f"bound {v.bound}")
+                       f"bound {v.bound}" + (f": {v.detail}" if v.detail else ""))
         for seed, error in case.errors.items():
             out.append(f"FAIL {case.scenario} {case.controller} seed {seed}: {error}")
         for seed, dep in case.departures.items():

@@ -189,6 +189,7 @@ class Verdict:
     bound: Bound
     measured: object
     holds: bool
+    detail: str = ""  # a pass_rate's: the seeds that broke a bound, and which
 
     def measured_text(self, full: bool = False) -> str:
         """The measured value for a report: 4 significant digits, or (``full``) 6, and every digit
@@ -243,14 +244,22 @@ def evaluate(bounds: dict[str, tuple[Bound, ...]], controller: str, runs: dict[i
     over = bounds.get(SEEDS, ())
     out = []
     passed = 0
+    broke = []  # (seed, the bounds it broke)
     for seed, metrics in sorted(runs.items()):
         measured = [(b, b.measure(metrics)) for b in per_run]
         verdicts = [Verdict(controller, seed, b, m, b.holds(m)) for b, m in measured]
         passed += all(v.holds for v in verdicts)
+        if not all(v.holds for v in verdicts):
+            broke.append(f"seed {seed} broke " + ", ".join(f"{v.bound} ({v.measured_with_unit()})"
+                                                           for v in verdicts if not v.holds))
         out += verdicts
     for b in over:
         if b.metric == "pass_rate":
             value = passed / len(runs)
+            out.append(Verdict(controller, None, b, value, b.holds(value),
+                               f"{passed} of {len(runs)} seeds held every bound" + ("; " if broke else "")
+                               + "; ".join(broke)))
+            continue
         else:
             values = [b.measure(m) for m in runs.values()]
             # an undefined value is on the failing side of the bound: +∞ under a cap, −∞ over a floor
