@@ -67,3 +67,23 @@ def test_a_failed_pass_rate_names_the_seeds_and_the_bounds_they_broke():
     (rate,) = [v for v in evaluate(bounds, "it2", runs) if v.bound.metric == "pass_rate"]
     assert not rate.holds and rate.measured == pytest.approx(2 / 3)
     assert rate.detail == "2 of 3 seeds held every bound; seed 1 broke iae_theta <= 0.5 (0.7 rad·s)"
+
+
+def test_set_reaches_a_quoted_key_of_a_plugins_parameters(tmp_path):
+    from pathlib import Path
+
+    examples = Path(__file__).resolve().parent.parent / "examples"
+    code, out, err = _twin_call("run", "paper-exp1", "--controller", "my_plugins:StateFeedback", "--duration", "0.1",
+                                "--no-video", "--set",
+                                'controller.params."my_plugins:StateFeedback".k=[-1.3, -0.085, -0.06, -0.032]',
+                                "--out", str(tmp_path / "o"), cwd=examples)
+    assert code == 0, err
+    import json
+
+    params = json.loads((tmp_path / "o" / "metrics.json").read_text())["scenario"]["controller"]["params"]
+    assert params == {"my_plugins:StateFeedback": {"k": [-1.3, -0.085, -0.06, -0.032]}}
+
+
+def test_a_key_that_is_not_a_dotted_key_is_one_line(tmp_path):
+    r = _twin("run", "paper-exp1", "--set", "a..b=1", "--out", str(tmp_path / "o"))
+    assert r.returncode == 2 and "--set a..b: not a dotted key" in r.stderr and len(r.stderr.strip().splitlines()) == 1

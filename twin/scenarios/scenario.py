@@ -16,7 +16,7 @@ from pathlib import Path
 
 from twin.errors import TwinError, shown
 from twin.scenarios.schema import (MAX_DEPTH, NAME_RULE, ScenarioError, check_depth, key_text, lookup, name_problem,
-                                   record, validate)
+                                   record, split_key, validate)
 from twin.timing import steps_per_control
 
 BUILTIN_PACKAGE = "twin.scenarios.builtin"
@@ -76,7 +76,7 @@ class Scenario:
     def changed_keys(self) -> tuple[str, ...]:
         """The top-level tables and keys that ``--set`` items changed (besides the seed and
         duration), so that a description written for the file can be read with care."""
-        keys = [o.partition("=")[0].strip().split(".")[0] for o in self.overrides]
+        keys = [split_key(o.partition("=")[0].strip())[0] for o in self.overrides]
         return tuple(dict.fromkeys(k for k in keys if k not in ("seed", "duration", "video", "sweep", "expect",
                                                               "name", "description", "limits")))
 
@@ -394,7 +394,7 @@ def apply_overrides(raw: dict, overrides) -> dict:
     for item in overrides:
         key, value = parse_override(item)
         node = raw
-        parts = key.split(".")
+        parts = split_key(key)
         for part in parts[:-1]:
             child = node.setdefault(part, {})
             if not isinstance(child, dict):

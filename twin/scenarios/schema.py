@@ -530,10 +530,28 @@ def _same(value, default) -> bool:
     return value == default
 
 
+def split_key(path: str) -> list[str]:
+    """The parts of a dotted key as TOML reads it: bare parts, or quoted ones that may hold dots
+    and colons (``controller.params."mylab.ctrl:PID".sign``); a one-line error if it is not one."""
+    import tomllib
+
+    try:
+        node = tomllib.loads(f"{path} = 0")
+    except (tomllib.TOMLDecodeError, RecursionError, ValueError):
+        raise ScenarioError(f"--set {key_text(path)}: not a dotted key; allowed: names joined by dots, a part "
+                            f"with dots or colons in double quotes, e.g. controller.params.\"mylab.ctrl:PID\".sign=-1"
+                            ) from None
+    parts = []
+    while isinstance(node, dict) and len(node) == 1:
+        (part, node), = node.items()
+        parts.append(part)
+    return parts
+
+
 def lookup(path: str) -> Key:
     """The :class:`Key` at dotted ``path`` (for ``--set``); a one-line error if there is none."""
     keys, key = SCHEMA, None
-    parts = path.split(".")
+    parts = split_key(path)
     for i, part in enumerate(parts):
         if keys is None or part not in keys:
             where = ".".join(parts[:i]) or "the top level"
