@@ -87,3 +87,11 @@ def test_set_reaches_a_quoted_key_of_a_plugins_parameters(tmp_path):
 def test_a_key_that_is_not_a_dotted_key_is_one_line(tmp_path):
     r = _twin("run", "paper-exp1", "--set", "a..b=1", "--out", str(tmp_path / "o"))
     assert r.returncode == 2 and "--set a..b: not a dotted key" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("scale", ["0.3", "3"])
+def test_a_body_that_reaches_the_floor_is_blamed_on_its_size_not_the_tilt(tmp_path, scale):
+    r = _twin("run", "paper-exp1", "--set", f"plant.scale.l={scale}", "--out", str(tmp_path / "o"))
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "plant.scale.l: the body's centre of mass" in r.stderr and "plant.scale.l from 0.49 to 2.39" in r.stderr
+    assert "initial.theta" not in r.stderr

@@ -19,6 +19,8 @@ from twin.scenarios.schema import (MAX_DEPTH, NAME_RULE, ScenarioError, check_de
                                    record, split_key, validate)
 from twin.timing import steps_per_control
 
+MIN_CLEARANCE_RAD = 0.3  # rad: the body box must clear the floor at least this far from upright
+
 BUILTIN_PACKAGE = "twin.scenarios.builtin"
 
 
@@ -301,12 +303,31 @@ class Scenario:
         limit = min(touch_angle(config.params), config.fall_angle) - 0.01
         theta0 = d["initial"]["theta"]
         if abs(theta0) >= limit:
+            self._check_body_clears_floor(config.params)  # the body's size is to blame, not the tilt
             raise self._error(f"initial.theta: {theta0:g} rad does not start on the wheels: this robot's body touches "
                               f"the floor (or passes the fall limit) at {limit + 0.01:.2f} rad; allowed: |θ0| < "
                               f"{limit:.2f} rad")
         self._check_start(config)
         self.design()
         return self
+
+    def _check_body_clears_floor(self, params) -> None:
+        """Where the initial tilt does not start on the wheels and the body box (its height follows
+        l, twin.plant.urdf.body_height) clears the floor by less than MIN_CLEARANCE_RAD of tilt, the
+        body's size is to blame: the error names plant.scale.l with the range that clears it (it
+        blamed initial.theta, issue 31)."""
+        from twin.params import NOMINAL
+        from twin.plant.bullet import touch_angle
+
+        touch = touch_angle(params)
+        if touch >= MIN_CLEARANCE_RAD:
+            return
+        ok = [f / 100.0 for f in range(20, 501)
+              if touch_angle(params.replace(l=NOMINAL.l * f / 100.0)) >= MIN_CLEARANCE_RAD]
+        allowed = f"from {ok[0]:g} to {ok[-1]:g}" if ok else "none with this robot's other parameters"
+        raise self._error(f"plant.scale.l: the body's centre of mass at l = {params.l:.4g} m makes a body box "
+                          f"(twin/plant/urdf.py) that reaches the floor at {touch:.2f} rad of tilt; allowed: a body "
+                          f"that clears the floor to {MIN_CLEARANCE_RAD:g} rad, plant.scale.l {allowed}")
 
     def _check_analytic(self) -> None:
         """With ``plant.model = "analytic"``, what only the PyBullet twin models is refused, naming the key."""
