@@ -89,6 +89,14 @@ class Plant:
             v[n] = self.to_value(n, x)
         return v
 
+    def held(self, p) -> "Plant":
+        """This plant with every parameter held at the values of ``p`` (none fitted)."""
+        import copy
+
+        out = copy.copy(self)
+        out.names, out.fixed = (), self.values(p)
+        return out
+
     def p0(self) -> np.ndarray:
         return np.zeros(len(self.names))
 
@@ -220,22 +228,10 @@ def fit(plant: Plant, w: Windows, p0=None, S0=None, offsets0=None, max_nfev: int
 
 def states_only(plant: Plant, w: Windows, p, S0=None, offsets0=None) -> Fit:
     """The windows' start states and offsets for fixed parameters ``p`` (each window on its own)."""
-    fixed = _Fixed(plant, p)
+    fixed = plant.held(p)
     f = fit(fixed, w, p0=np.empty(0), S0=S0, offsets0=offsets0)
     return Fit(plant, w, np.asarray(p, dtype=float), plant.values(p), f.S, f.offsets, f.residuals, f.cost, f.nfev,
                f.status)
-
-
-class _Fixed(Plant):
-    """A :class:`Plant` whose parameters are all held at ``p`` (none fitted)."""
-
-    def __init__(self, plant: Plant, p):
-        self.__dict__.update(plant.__dict__)
-        self._inner, self._p = plant, np.asarray(p, dtype=float)
-        self.names = ()
-
-    def values(self, p) -> dict:
-        return self._inner.values(self._p)
 
 
 def outlier_limit(costs: np.ndarray, residuals_per_window: int) -> float:
