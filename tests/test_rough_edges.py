@@ -95,3 +95,46 @@ def test_a_body_that_reaches_the_floor_is_blamed_on_its_size_not_the_tilt(tmp_pa
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert "plant.scale.l: the body's centre of mass" in r.stderr and "plant.scale.l from 0.49 to 2.39" in r.stderr
     assert "initial.theta" not in r.stderr
+
+
+def _junit_cases(iae_by_seed: dict, rate: str):
+    """The JUnit test cases (name → (failure text or None, system-out or None)) of one scenario
+    whose runs measured ``iae_by_seed`` under ``iae_theta <= 0.5`` and ``pass_rate rate``."""
+    import xml.etree.ElementTree as ET
+
+    from twin.verify.check import CaseResult, CheckResult, write_junit
+    from twin.verify.expectations import evaluate, failed, parse_expect
+
+    bounds = parse_expect({"iae_theta": "<= 0.5", "seeds": {"pass_rate": rate}}, "expect")
+    runs = {seed: {"iae_theta": v} for seed, v in iae_by_seed.items()}
+    verdicts = evaluate(bounds, "it2", runs)
+    case = CaseResult("s", "s.toml", "it2", tuple(runs), runs, {}, verdicts, failed(verdicts, bounds),
+                      has_seed_bounds=True)
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as d:
+        root = ET.parse(write_junit(CheckResult([case]), Path(d) / "j.xml")).getroot()
+    out = {}
+    for tc in root.iter("testcase"):
+        f, so = tc.find("failure"), tc.find("system-out")
+        out[tc.get("name")] = (None if f is None else f.text, None if so is None else so.text)
+    return root, out
+
+
+def test_junit_fails_the_seed_that_broke_a_bound_when_the_pass_rate_fails():
+    # before: every per-seed case passed, the seed that broke iae_theta included
+    root, cases = _junit_cases({0: 0.2, 1: 0.7, 2: 0.3}, ">= 0.9")
+    assert cases["it2 seed 1"][0] == "iae_theta <= 0.5: measured 0.7 rad·s"
+    assert cases["it2 seed 0"] == (None, None) and cases["it2 seed 2"] == (None, None)
+    over = cases["it2 over 3 seeds"][0]
+    assert "pass_rate >= 0.9" in over and "seed 1 broke iae_theta <= 0.5 (0.7 rad·s)" in over
+    assert root.get("failures") == "2" and root.get("tests") == "4"
+
+
+def test_junit_says_a_broken_bound_the_pass_rate_allowed_without_failing_the_seed():
+    # the check passes (2 of 3 held, pass_rate >= 0.6): its failure count must stay 0, as its exit status
+    root, cases = _junit_cases({0: 0.2, 1: 0.7, 2: 0.3}, ">= 0.6")
+    fail, said = cases["it2 seed 1"]
+    assert fail is None and said.startswith("iae_theta <= 0.5: measured 0.7 rad·s (allowed by pass_rate >= 0.6")
+    assert root.get("failures") == "0"
