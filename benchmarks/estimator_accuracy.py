@@ -7,6 +7,11 @@ Run from the repository root::
     python benchmarks/estimator_accuracy.py             # 10 seeds, about 1 min
     python benchmarks/estimator_accuracy.py --quick     # 3 seeds, about 15 s
     python benchmarks/estimator_accuracy.py --seeds 20  # more seeds
+    python benchmarks/estimator_accuracy.py --markdown docs/_generated/estimator-accuracy.md
+
+``--markdown PATH`` also writes the whole report, as printed, to PATH for the documentation
+(a fenced text block under a line naming the command, machine, date and commit; see
+``benchmarks/published.py``).
 
 The set-up of every run
 -----------------------
@@ -534,7 +539,20 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="3 seeds, 8 consistency runs (about 15 s)")
     ap.add_argument("--seeds", type=int, help="seeds per configuration in A-C (default 10; quick 3)")
+    ap.add_argument("--markdown", metavar="PATH", help="also write the report to PATH (docs/_generated/...)")
     args = ap.parse_args(argv)
+    if args.markdown:
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        from published import Tee, as_text_block, write_markdown
+
+        with Tee() as tee:
+            status = report(args, ap)
+        write_markdown(args.markdown, as_text_block(tee.text), argv=None if argv is None else [sys.argv[0], *argv])
+        return status
+    return report(args, ap)
+
+
+def report(args, ap) -> int:
     n_seeds = args.seeds or (3 if args.quick else 10)
     if n_seeds < 1:
         ap.error("--seeds must be at least 1")

@@ -16,7 +16,14 @@ Prints three markdown tables, each from the command the README names:
 * "IT2, type-1 and LQR on this twin": ``twin run NAME --controller it2,t1,lqr`` for every
   built-in scenario (seed 0, the EKF in the loop).
 
-``--only`` prints the tables named (repeatable; default: all three). ``--set`` options are
+``--only`` prints the tables named (repeatable; default: all three). ``--markdown PATH``
+also writes them for the documentation (see ``benchmarks/published.py``): with one table, to
+the file PATH (``docs/_generated/results-analytic.md``, ``results-twin.md``,
+``results-builtins.md``); with several, to PATH/results-NAME.md each::
+
+    python benchmarks/readme_tables.py --markdown docs/_generated
+
+``--set`` options are
 passed to every ``twin run``, the analytic model's included (for example the nominal
 design of before issue 18: ``--set design.decay_rate=3 --set design.damping=0 --set
 'design.uncertain={}' --set design.all_vertices=false``).
@@ -144,6 +151,13 @@ def builtins(tmp: Path, extra: list[str]) -> str:
                   "IAE θ [rad·s]", "effort [N²m²s]", "peak torque [N·m]", "estimator θ RMSE [mrad]"], groups(), cells)
 
 
+COMMANDS = {
+    "analytic": "twin run paper-expN --controller it2,t1 --no-video --set plant.model=analytic "
+                "--set plant.scale={} --set sensors.sensing=ideal",
+    "twin": "twin run paper-expN --no-video --set plant.scale={} --set sensors.sensing=ideal",
+    "builtins": "twin run NAME --controller it2,t1,lqr --no-video",
+}
+
 TABLES = {"analytic": ("Results on the analytic model", analytic),
           "twin": ("Measured on the twin (nominal plant, ground truth)", nominal_twin),
           "builtins": ("IT2, type-1 and LQR on this twin", builtins)}
@@ -154,9 +168,21 @@ if __name__ == "__main__":
     ap.add_argument("--only", action="append", choices=TABLES, default=[],
                     help="print this table only (repeatable; default: all three)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="passed to every 'twin run'")
+    ap.add_argument("--markdown", metavar="PATH", type=Path,
+                    help="also write the table to PATH (several tables: PATH/results-NAME.md) with a provenance line")
     a = ap.parse_args()
     extra = [x for s in a.set for x in ("--set", s)]
     chosen = [t for t in TABLES if t in a.only] if a.only else list(TABLES)
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from published import write_markdown
+    texts = {}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        print("\n\n".join(f"{TABLES[t][0]}\n\n{TABLES[t][1](tmp, extra)}" for t in chosen))
+        for t in chosen:
+            texts[t] = TABLES[t][1](tmp, extra)
+            print(f"{TABLES[t][0]}\n\n{texts[t]}\n", flush=True)
+    if a.markdown is not None:
+        for t, text in texts.items():
+            path = a.markdown if len(chosen) == 1 else a.markdown / f"results-{t}.md"
+            sets = "".join(f" --set {s}" for s in a.set)
+            write_markdown(path, f"Each row from `{COMMANDS[t]}{sets}`.\n\n{text}")

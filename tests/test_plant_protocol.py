@@ -1,7 +1,8 @@
 """The plant contract (issue 27): twin.protocols.Plant, met by the PyBullet twin, by the analytic
 plant (equation (1)) and by a plant written here, outside the package; ClosedLoop runs any of
 them with the EKF and a built-in controller; ``twin run --set plant.model=analytic`` reproduces
-the README's "Results on the analytic model"; a broken plant is one line naming the contract."""
+the documentation's "Results on the analytic model" (docs/_generated/results-analytic.md, written
+by ``benchmarks/readme_tables.py --only analytic --markdown ...``); a broken plant is one line naming the contract."""
 from __future__ import annotations
 
 import csv
@@ -26,7 +27,8 @@ from twin.protocols import Plant, Targets
 from twin.registry import BuildContext, build_controller, build_estimator
 from twin.sensors import SensorConfig
 
-README = Path(__file__).resolve().parent.parent / "README.md"
+# the analytic table the documentation publishes, as benchmarks/readme_tables.py wrote it
+ANALYTIC_TABLE = Path(__file__).resolve().parent.parent / "docs" / "_generated" / "results-analytic.md"
 
 
 class LinearisedPlant:
@@ -152,14 +154,13 @@ def test_the_analytic_plant_refuses_what_only_the_twin_models():
         load_scenario("paper-exp1", ["plant.model=mujoco"])
 
 
-# ---- the README's analytic numbers through twin run -------------------------------------------
+# ---- the published analytic numbers through twin run ------------------------------------------
 
 def _readme_analytic_table() -> dict:
     """{(experiment, "IT2"/"T1"): (settling s, max |ul + ur| N·m, position text, heading text)}."""
-    text = README.read_text(encoding="utf-8")
-    section = text.split("## Results on the analytic model", 1)[1].split("\n## ", 1)[0]
+    text = ANALYTIC_TABLE.read_text(encoding="utf-8")
     rows, number = {}, None
-    for line in section.splitlines():
+    for line in text.splitlines():
         m = re.match(r"\| (\d?)[^|]*\| (IT2|T1) \| ([\d.]+) s \| ([\d.]+) N·m \| ([^|]+) \| ([^|]+) \|", line)
         if m:
             number = int(m.group(1)) if m.group(1) else number
@@ -176,7 +177,7 @@ def _within(text: str, value: float | None) -> bool:
 
 
 @pytest.mark.parametrize("number", [1, 2, 3])
-def test_twin_run_with_the_analytic_plant_reproduces_the_readme_table(number, tmp_path):
+def test_twin_run_with_the_analytic_plant_reproduces_the_published_table(number, tmp_path):
     table = _readme_analytic_table()
     out = tmp_path / "out"
     r = subprocess.run([sys.executable, "-m", "twin.cli", "run", f"paper-exp{number}", "--controller", "it2,t1",
@@ -193,7 +194,8 @@ def test_twin_run_with_the_analytic_plant_reproduces_the_readme_table(number, tm
     for kind, label in (("it2", "IT2"), ("t1", "T1")):
         settling, torque, position, heading = table[(number, label)]
         m = runs[kind]
-        # the README rounds to its last digit: the value must round to it
+        # the table rounds to its last digit: the value must round to it (else regenerate it:
+        # python benchmarks/readme_tables.py --only analytic --markdown docs/_generated/results-analytic.md)
         assert f"{m['settling_time_s']:.2f}" == settling, (kind, m["settling_time_s"])
         assert f"{totals[kind]:.3f}" == torque, (kind, totals[kind])
         assert _within(position, m["final_position_error_m"]), (kind, m["final_position_error_m"])
