@@ -138,3 +138,64 @@ def test_junit_says_a_broken_bound_the_pass_rate_allowed_without_failing_the_see
     fail, said = cases["it2 seed 1"]
     assert fail is None and said.startswith("iae_theta <= 0.5: measured 0.7 rad·s (allowed by pass_rate >= 0.6")
     assert root.get("failures") == "0"
+
+
+# ---- scenario inheritance: base = "NAME" or "FILE.toml" ---------------------------------------------------
+
+def _write(path, text):
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def test_a_scenario_file_starts_from_a_built_in_and_changes_two_keys(tmp_path):
+    from twin.scenarios.scenario import load_scenario
+
+    f = _write(tmp_path / "heavier.toml", 'base = "paper-exp3"\nduration = 4.0\n[plant.scale]\nm_b = 1.2\n')
+    mine, builtin = load_scenario(str(f)), load_scenario("paper-exp3")
+    assert mine.name == "heavier" and mine.duration == 4.0
+    assert mine.data["plant"]["scale"] == {**builtin.data["plant"]["scale"], "m_b": 1.2}
+    # everything else is the built-in's, key for key
+    rest = lambda d: {k: v for k, v in d.items() if k not in ("name", "duration", "plant")}  # noqa: E731
+    assert rest(mine.data) == rest(builtin.data)
+    assert {k: v for k, v in mine.data["plant"].items() if k != "scale"} == \
+        {k: v for k, v in builtin.data["plant"].items() if k != "scale"}
+
+
+def test_a_base_file_is_found_beside_the_file_and_chains(tmp_path):
+    from twin.scenarios.scenario import load_scenario
+
+    (tmp_path / "lab").mkdir()
+    _write(tmp_path / "lab" / "common.toml", 'base = "push-recovery"\nname = "common"\nseed = 7\n'
+                                            '[expect]\nfell = false\n')
+    f = _write(tmp_path / "lab" / "mine.toml", 'base = "common.toml"\nduration = 9.0\n')
+    s = load_scenario(str(f))  # from another working directory: the base is relative to the file
+    assert s.name == "mine" and s.seed == 7 and s.duration == 9.0
+    assert s.data["pushes"] == load_scenario("push-recovery").data["pushes"]
+    assert s.data["expect"] == {"fell": False}
+    # [expect] is replaced whole, not merged: the bounds are judged as a set
+    g = _write(tmp_path / "lab" / "loose.toml", 'base = "common.toml"\n[expect]\nsettling_time_s = "<= 9"\n')
+    assert load_scenario(str(g)).data["expect"] == {"settling_time_s": "<= 9"}
+
+
+@pytest.mark.parametrize("text, says", [
+    ('base = "paper-exp9"\n', "base: 'paper-exp9' is neither a built-in scenario nor a .toml file; allowed: paper-exp1"),
+    ('base = "nowhere.toml"\n', "base: "),
+    ('base = 3\n', "base: 3 is not a name; allowed: a built-in scenario's name"),
+    ('base = "me.toml"\n', "the scenarios name each other in a cycle"),
+])
+def test_a_bad_base_is_one_line_naming_it(tmp_path, text, says):
+    f = _write(tmp_path / "me.toml", text)
+    r = _twin("run", str(f), "--out", str(tmp_path / "o"))
+    assert r.returncode == 2 and says in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "no such scenario file" in r.stderr or "nowhere" not in text
+
+
+def test_a_derived_scenario_runs_and_records_the_whole_tree(tmp_path):
+    import json
+
+    f = _write(tmp_path / "short.toml", 'base = "paper-exp1"\nduration = 0.2\n')
+    r = _twin("run", str(f), "--controller", "lqr", "--no-video", "--out", str(tmp_path / "o"))
+    assert r.returncode == 0, r.stderr
+    recorded = json.loads((tmp_path / "o" / "metrics.json").read_text())["scenario"]
+    assert recorded["name"] == "short" and recorded["duration"] == 0.2 and "base" not in recorded
+    assert recorded["initial"]["theta"] == 0.48  # the built-in's tilt

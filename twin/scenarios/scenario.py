@@ -452,10 +452,69 @@ def _read(name_or_path: str) -> tuple[dict, str, str]:
     return raw, source, stem
 
 
+BASE_KEY = "base"   # a scenario file's first key: the built-in or file it starts from
+MAX_BASES = 8       # a chain of bases longer than this is refused (it is a mistake, or a cycle)
+REPLACED = ("expect",)  # tables a derived file replaces whole: bounds are judged as a set
+
+
+def merged(base: dict, child: dict) -> dict:
+    """``child`` over ``base``: tables merge key by key, at every depth; every other value
+    (numbers, strings, arrays such as ``pushes`` and ``faults``) and the tables of
+    :data:`REPLACED` are taken from ``child`` whole where it gives them."""
+    out = copy.deepcopy(base)
+    for key, value in child.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict) and key not in REPLACED:
+            out[key] = merged(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+def _with_bases(raw: dict, source: str, path: Path | None) -> dict:
+    """``raw`` over the scenario its ``base`` names (a built-in's name, or a .toml file
+    relative to ``path``'s directory), recursively; ``name`` is never inherited (a derived
+    scenario is named by its own file or its own ``name``)."""
+    chain = [source]
+    while BASE_KEY in raw:
+        base = raw[BASE_KEY]
+        if not isinstance(base, str) or not base:
+            raise ScenarioError(f"{source}: base: {shown(base)} is not a name; allowed: a built-in scenario's name "
+                                f"({', '.join(builtin_names())}) or a .toml file, relative to this file")
+        if len(chain) > MAX_BASES:
+            raise ScenarioError(f"{chain[0]}: base: more than {MAX_BASES} scenarios deep ({' -> '.join(chain)}); "
+                                f"allowed: a chain of at most {MAX_BASES}")
+        target = base if base in builtin_names() or path is None else str(path.parent / base)
+        if base not in builtin_names() and path is None:
+            raise ScenarioError(f"{source}: base: {shown(base)} is not a built-in scenario; allowed: "
+                                f"{', '.join(builtin_names())}")
+        if base not in builtin_names() and Path(target).suffix != ".toml":
+            raise ScenarioError(f"{source}: base: {shown(base)} is neither a built-in scenario nor a .toml file; "
+                                f"allowed: {', '.join(builtin_names())}, or a .toml file relative to this file")
+        try:
+            parent, parent_source, _ = _read(target)
+        except ScenarioError as exc:
+            raise ScenarioError(f"{source}: base: {exc}") from None
+        if parent_source in chain:
+            raise ScenarioError(f"{chain[0]}: base: the scenarios name each other in a cycle "
+                                f"({' -> '.join(chain + [parent_source])})")
+        chain.append(parent_source)
+        own = {k: v for k, v in raw.items() if k != BASE_KEY}
+        parent = {k: v for k, v in parent.items() if k != "name"}
+        raw = merged({k: v for k, v in parent.items() if k != BASE_KEY}, own) | (
+            {BASE_KEY: parent[BASE_KEY]} if BASE_KEY in parent else {})
+        path = None if parent_source.startswith("built-in") else Path(target)
+        source = parent_source
+    return raw
+
+
 def load_scenario(name_or_path: str, overrides=()) -> Scenario:
     """A built-in scenario by name, or a scenario file, with ``--set`` ``overrides`` applied;
-    validated and checked (:meth:`Scenario.check`)."""
+    validated and checked (:meth:`Scenario.check`). A file may start from another scenario
+    with ``base = "NAME"`` (a built-in) or ``base = "FILE.toml"`` (relative to the file): its
+    keys are laid over that scenario's (see :func:`merged`)."""
     raw, source, stem = _read(str(name_or_path))
+    if BASE_KEY in raw:
+        raw = _with_bases(raw, source, None if source.startswith("built-in") else Path(str(name_or_path)))
     overrides = tuple(overrides)
     # each item as the user gave it, on one line and shortened: the message must stay one line
     where = source + (f" with --set {' '.join(_item(o) for o in overrides)}" if overrides else "")
