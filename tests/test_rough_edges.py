@@ -199,3 +199,42 @@ def test_a_derived_scenario_runs_and_records_the_whole_tree(tmp_path):
     recorded = json.loads((tmp_path / "o" / "metrics.json").read_text())["scenario"]
     assert recorded["name"] == "short" and recorded["duration"] == 0.2 and "base" not in recorded
     assert recorded["initial"]["theta"] == 0.48  # the built-in's tilt
+
+
+# ---- plugins beside the scenario file -------------------------------------------------------------------
+
+_BESIDE_TOML = ('base = "paper-exp1"\nduration = 0.3\n[controller]\nkinds = ["lab_ctrl_beside:StateFeedback"]\n'
+                '[expect]\nfell = false\n')
+
+
+@pytest.fixture
+def lab(tmp_path):
+    """A scenario file with its plugin module beside it, in tmp_path/lab (a module name no
+    other test imports: the import is cached per process)."""
+    import shutil
+    from pathlib import Path
+
+    d = tmp_path / "lab"
+    d.mkdir()
+    shutil.copy(Path(__file__).resolve().parent.parent / "examples" / "my_plugins.py", d / "lab_ctrl_beside.py")
+    _write(d / "twin_beside.toml", _BESIDE_TOML)
+    return d
+
+
+def test_a_plugin_beside_the_scenario_file_is_found_from_another_directory(lab, tmp_path):
+    # before: found only when it was also in the current directory
+    code, out, err = _twin_call("check", str(lab / "twin_beside.toml"), cwd=tmp_path)
+    assert code == 0 and "all bounds hold" in out, err
+
+
+def test_under_pytest_a_missing_plugin_is_one_line_not_a_traceback(lab, tmp_path):
+    import subprocess
+    import sys
+
+    (lab / "lab_ctrl_beside.py").rename(lab / "elsewhere.py")
+    r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(lab)], cwd=tmp_path,
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 1, r.stdout
+    assert "Traceback" not in r.stdout and "raise PluginError" not in r.stdout, r.stdout
+    assert ("error: controller 'lab_ctrl_beside:StateFeedback': no module named 'lab_ctrl_beside'; the module must "
+            "be importable (on sys.path, installed, in the current directory or beside the scenario file)") in r.stdout

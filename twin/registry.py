@@ -249,7 +249,7 @@ def resolve(role: str, kind: str) -> tuple[Callable, bool]:
     except ModuleNotFoundError as exc:
         where = "" if exc.name == module_name else f" (it imports {shown(exc.name)}, which is missing)"
         raise PluginError(f"{role} {shown(kind)}: no module named {shown(module_name)}{where}; the module must be importable "
-                          f"(on sys.path or installed)") from None
+                          f"(on sys.path, installed, in the current directory or beside the scenario file)") from None
     except Exception as exc:  # noqa: BLE001 -- a plugin's import error is the user's, reported in one line
         raise PluginError(f"{role} {shown(kind)}: importing {shown(module_name)} failed: {type(exc).__name__}: "
                           f"{one_line(exc)}") from None
@@ -264,23 +264,39 @@ def resolve(role: str, kind: str) -> tuple[Callable, bool]:
     return obj, True
 
 
+_BESIDE: list[str] = []  # the directories of the scenario files loaded in this process, in order
+
+
+def look_beside(directory) -> None:
+    """Let plugin modules be found in ``directory`` (a scenario file's), after sys.path and
+    the current directory: a scenario's plugins may lie beside it, wherever it is run from."""
+    d = str(Path(directory).resolve())
+    if d not in _BESIDE:
+        _BESIDE.append(d)
+
+
 def _import(module_name: str):
-    """Import ``module_name``; if it is not found, look in the current directory too (after
-    everything on sys.path, so it shadows nothing), as ``python -m`` would."""
+    """Import ``module_name``; if it is not found, look in the current directory too, then
+    beside the scenario files loaded (:func:`look_beside`), each after everything on
+    sys.path, so it shadows nothing, as ``python -m`` would with the current directory."""
     import os
 
     try:
         return importlib.import_module(module_name)
     except ModuleNotFoundError as exc:
-        cwd = os.getcwd()
-        if exc.name != module_name.split(".")[0] or cwd in sys.path:
+        if exc.name != module_name.split(".")[0]:
             raise
-        sys.path.append(cwd)
-        try:
-            return importlib.import_module(module_name)
-        except ModuleNotFoundError:
-            sys.path.remove(cwd)
-            raise
+        for d in [os.getcwd(), *_BESIDE]:
+            if d in sys.path:
+                continue
+            sys.path.append(d)
+            try:
+                return importlib.import_module(module_name)
+            except ModuleNotFoundError as again:
+                sys.path.remove(d)
+                if again.name != exc.name:
+                    raise
+        raise
 
 
 def _accepts_context(factory) -> bool:
@@ -427,4 +443,5 @@ def parse_controllers(choice: str) -> tuple[str, ...]:
 
 
 __all__ = ["BuildContext", "CONTROLLERS", "ESTIMATORS", "Kind", "build_controller", "build_estimator", "build_estimator_for",
+           "look_beside",
            "check_kind", "check_kinds", "check_protocol", "is_import_path", "label", "parse_controllers", "provenance", "resolve"]

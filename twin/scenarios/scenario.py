@@ -503,6 +503,10 @@ def _with_bases(raw: dict, source: str, path: Path | None) -> dict:
         raw = merged({k: v for k, v in parent.items() if k != BASE_KEY}, own) | (
             {BASE_KEY: parent[BASE_KEY]} if BASE_KEY in parent else {})
         path = None if parent_source.startswith("built-in") else Path(target)
+        if path is not None:
+            from twin.registry import look_beside
+
+            look_beside(path.parent)
         source = parent_source
     return raw
 
@@ -513,6 +517,10 @@ def load_scenario(name_or_path: str, overrides=()) -> Scenario:
     with ``base = "NAME"`` (a built-in) or ``base = "FILE.toml"`` (relative to the file): its
     keys are laid over that scenario's (see :func:`merged`)."""
     raw, source, stem = _read(str(name_or_path))
+    if not source.startswith("built-in"):
+        from twin.registry import look_beside
+
+        look_beside(Path(str(name_or_path)).parent)  # its plugins may lie beside it
     if BASE_KEY in raw:
         raw = _with_bases(raw, source, None if source.startswith("built-in") else Path(str(name_or_path)))
     overrides = tuple(overrides)

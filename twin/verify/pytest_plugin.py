@@ -122,9 +122,13 @@ class _CheckItem(pytest.Item):
     """A check whose failure report is the table of bounds and the failed ones (``_result()``)."""
 
     def runtest(self):
+        from twin.errors import TwinError
         from twin.verify.testing import report
 
-        result = self._result()
+        try:
+            result = self._result()
+        except TwinError as exc:  # a plugin not found, a bad key: one line, as twin check says it
+            raise TwinCheckFailure(f"error: {exc}") from None
         if not result.passed:
             raise TwinCheckFailure(report(result))
 
