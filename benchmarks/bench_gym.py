@@ -6,6 +6,8 @@ Run from the repository root::
     python benchmarks/bench_gym.py                 # mtwip/Track-v0 on paper-exp3, about 30 s
     python benchmarks/bench_gym.py --env balance   # mtwip/Balance-v0 on paper-exp1
     python benchmarks/bench_gym.py --quick         # a few seconds
+    python benchmarks/bench_gym.py --video         # time to record a 15 s episode (below)
+    python benchmarks/bench_gym.py --video --gymnasium-video   # and with Gymnasium's RecordVideo
 
 What is measured, in one process, rounds interleaved (round 0 warms up and is dropped):
 
@@ -30,11 +32,21 @@ What is measured, in one process, rounds interleaved (round 0 warms up and is dr
 
 **Overhead** = (time per environment step) / (``simulate_twin``'s time per control
 period) − 1, from the medians over the rounds.
+
+``--video``: the wall time to record one whole episode (``mtwip/Balance-v0`` on
+paper-exp1, 15 s, the IT2 cascade on the estimate, 640x480 pictures with the overlay)
+with :class:`twin.envs.RecordVideo` at the scenario's 30 frames/s, from ``reset`` to the
+finished MP4, and the video's frames, frame rate and length (read back with
+imageio-ffmpeg). ``--gymnasium-video`` also records it with
+``gymnasium.wrappers.RecordVideo`` (needs moviepy: one picture per step, 3001 of them,
+kept in memory and encoded at ``render_fps`` = 200 when the episode ends) and reports
+the peak resident memory of the process after each.
 """
 from __future__ import annotations
 
 import argparse
 import gc
+import os
 import statistics
 import sys
 from pathlib import Path
@@ -95,12 +107,88 @@ def sim_run(scenario, seed: int):
     return wall / n, n, run
 
 
+def record_episode(wrapper: str, folder: str, size=(640, 480)) -> dict:
+    """Record one paper-exp1 episode with ``wrapper`` ("twin" or "gymnasium"); timings and the file read back."""
+    import resource
+    import shutil
+
+    import gymnasium
+    import imageio_ffmpeg
+
+    import twin.envs  # noqa: F401
+
+    shutil.rmtree(folder, ignore_errors=True)
+    env = gymnasium.make("mtwip/Balance-v0", render_mode="rgb_array", render_size=size)
+    raw = env.unwrapped
+    if wrapper == "twin":
+        env = twin.envs.RecordVideo(env, folder, episode_trigger=lambda k: True)
+    else:
+        env = gymnasium.wrappers.RecordVideo(env, folder, episode_trigger=lambda k: True)
+    renders = []
+    render = raw.render
+    raw.render = lambda: renders.append(1) or render()
+    sc, targets = raw.scenario, raw.experiment.targets
+    ctrl = sc.build_controller("it2", sc.build_context())
+    gc.collect()
+    t0 = pc()
+    env.reset(seed=0)
+    ctrl.reset(targets)
+    steps = 0
+    while True:
+        _, _, terminated, truncated, info = env.step(ctrl(raw.loop.estimate, targets)[:2])
+        steps += 1
+        if terminated or truncated:
+            break
+    t1 = pc()
+    renderer = raw._scene.renderer if raw._scene is not None else "?"
+    env.close()  # Gymnasium's wrapper encodes here; the twin's has already finished at the episode's end
+    t2 = pc()
+    (path,) = Path(folder).glob("*.mp4")
+    reader = imageio_ffmpeg.read_frames(str(path))
+    meta = next(reader)
+    frames = sum(1 for _ in reader)
+    return {"wrapper": wrapper, "steps": steps, "status": info["status"], "renders": len(renders),
+            "episode_s": t1 - t0, "close_s": t2 - t1, "total_s": t2 - t0, "frames": frames, "fps": meta["fps"],
+            "video_s": frames / meta["fps"], "renderer": renderer, "size": size,
+            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
+
+
+def video_main(args) -> int:
+    import gymnasium
+
+    print("Recording one 15 s episode of mtwip/Balance-v0 (paper-exp1, IT2 cascade on the estimate, 640x480)")
+    print(f"machine: {cpu_model()}; Python {sys.version.split()[0]}; PyBullet {pybullet_version()}; "
+          f"Gymnasium {gymnasium.__version__}; os.getloadavg() at start {os.getloadavg()[0]:.1f}\n")
+    rows = [record_episode("twin", "/tmp/bench-gym-video-twin")]
+    if args.gymnasium_video:
+        try:
+            import moviepy  # noqa: F401
+        except ImportError:
+            print("gymnasium.wrappers.RecordVideo skipped: moviepy is not installed (pip install moviepy)\n")
+        else:
+            rows.append(record_episode("gymnasium", "/tmp/bench-gym-video-gymnasium"))
+    print(f"{'wrapper':12}{'steps':>7}{'pictures':>10}{'episode s':>11}{'close s':>9}{'total s':>9}"
+          f"{'frames':>8}{'fps':>6}{'video s':>9}{'peak RSS MB':>13}  renderer")
+    for r in rows:
+        print(f"{r['wrapper']:12}{r['steps']:7d}{r['renders']:10d}{r['episode_s']:11.1f}{r['close_s']:9.1f}"
+              f"{r['total_s']:9.1f}{r['frames']:8d}{r['fps']:6g}{r['video_s']:9.2f}{r['peak_rss_mb']:13.0f}  "
+              f"{r['renderer']}")
+    print("\n(episode s: reset to the episode's end, pictures and, for the twin's wrapper, encoding included; "
+          "close s: Gymnasium's wrapper encodes with moviepy there; peak RSS is the process's, cumulative)")
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="short smoke run (5 s episodes, 2 rounds)")
     ap.add_argument("--env", choices=sorted(ENVS), default="track", help="which environment (default: track)")
     ap.add_argument("--rounds", type=int, default=None, help="timed rounds (default 7; 2 with --quick)")
+    ap.add_argument("--video", action="store_true", help="time recording a 15 s episode with twin.envs.RecordVideo")
+    ap.add_argument("--gymnasium-video", action="store_true",
+                    help="with --video: also with gymnasium.wrappers.RecordVideo (needs moviepy; minutes)")
     args = ap.parse_args(argv)
+    if args.video:
+        return video_main(args)
 
     import gymnasium
     import numpy as np

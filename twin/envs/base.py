@@ -33,7 +33,7 @@ or eleven entries below) and their reward. Everything else is here, once:
       (not ``sensors.sensing = "ideal"``).
 
 * **Action**: (ul, ur), the left and right wheel torque commands in N·m, positive
-  driving the robot forward, Box [−τ_max, τ_max]². τ_max is what the scenario's motor
+  driving the robot forward, Box [−τ_max, τ_max]² (float32). τ_max is what the scenario's motor
   driver passes at standstill, min(stall torque, k_t · current limit) of
   ``TwinConfig.motor`` (1.2 N·m for the default DC motor). The scenario's
   ``plant.motor = "ideal"`` has no limit of its own; the bound is then that of the DC
@@ -42,11 +42,24 @@ or eleven entries below) and their reward. Everything else is here, once:
   are clipped to it (the reward's torque cost sees the clipped command); a non-finite
   action is a one-line :class:`~twin.errors.PluginError`. The motors may deliver less
   than commanded (back-EMF, PWM quantisation; see :mod:`twin.actuators`).
+
+  ``normalize_actions=True`` makes the action space Box [−1, 1]² (float32, what
+  Gymnasium's checker and stable-baselines3 recommend): the action is (ul, ur) / τ_max,
+  each entry clipped to [−1, 1] and then multiplied by τ_max (so a = 0.5 commands
+  0.6 N·m with the default motor); ``info["command"]`` and the reward's torque cost
+  stay in N·m, so the same torques give the same episode and reward either way. The
+  default (False) keeps the box in N·m. Gymnasium's ``RescaleAction(env, -1, 1)``
+  wrapper does the same from outside.
 * **Episode end**: ``terminated`` when the loop's status becomes ``"fell"`` (tilt past
   ``fall_angle``, or the body touched the floor) or ``"diverged"`` (non-finite physics);
   ``truncated`` after the scenario's ``duration`` (round(duration · control rate)
-  control periods). A diverged step returns the previous observation (the state is not
-  finite).
+  control periods, :attr:`TwinEnv.n_steps`). A diverged step returns the previous
+  observation (the state is not finite). The registered ids also carry
+  ``max_episode_steps``, the default scenario's step count (3000: 15 s at 200 Hz), so
+  ``gymnasium.make`` adds a ``TimeLimit`` that truncates on the same step; a scenario or
+  ``duration`` override lasting longer needs ``gymnasium.make(..., max_episode_steps=N)``
+  (or ``-1``, no TimeLimit), else the TimeLimit ends its episodes at 3000 steps (the
+  first :meth:`reset` of such an environment warns).
 * **Seeding and randomisation**: every draw comes from ``self.np_random``, seeded by
   ``reset(seed=...)``; the same seed gives the same episode. Without ``randomize`` only
   the sensors' seed (noise, faults) is drawn per episode. With ``randomize=True`` or a
@@ -66,7 +79,15 @@ or eleven entries below) and their reward. Everything else is here, once:
   of the true state from :class:`twin.render.scene.Scene` (a camera that follows the
   robot; ``render_size=(W, H)``, ``renderer`` "auto"/"egl"/"tiny") with the heads-up
   overlay of :mod:`twin.render.hud` (``hud=False`` leaves it out). The scene, a PyBullet
-  client of its own, is built on the first :meth:`render` and never without a render mode.
+  client of its own, is built on the first :meth:`render` and never without a render mode;
+  a picture is taken only when :meth:`render` is called (about 20 ms each at 640x480 with
+  TinyRenderer). ``metadata["render_fps"]`` is the control rate (200), Gymnasium's
+  convention (one picture per step, as MuJoCo's environments): Gymnasium's own
+  ``RecordVideo`` wrapper (which needs ``pip install moviepy``) then writes a real-time
+  video but renders every step and plays at 200 frames/s. :class:`twin.envs.RecordVideo`
+  records at :attr:`TwinEnv.video_fps` (the scenario's ``video.fps``, 30) in real time,
+  rendering only the steps that fall on a frame time, as H.264 through the project's
+  ffmpeg writer (no moviepy).
 
 Reward. ``reward = alive − Σ_k w_k c_k``: ``alive`` is 1 while the robot is up and 0 on
 the step it falls; each cost ``c_k`` is a squared, normalised quantity capped at 1
@@ -131,9 +152,24 @@ class TwinEnv(gymnasium.Env):
     hud : bool
         Draw the heads-up overlay on rendered pictures.
     max_torque : float or None
-        Action bound in N·m (default: from the scenario's motor).
+        Action bound τ_max in N·m (default: from the scenario's motor).
     reward_weights : dict or None
         Weights replacing some of :attr:`reward_weights`.
+    normalize_actions : bool
+        False (default): the action is (ul, ur) in N·m, Box [−τ_max, τ_max]². True:
+        Box [−1, 1]², the torques as fractions of τ_max (module docstring).
+
+    Attributes
+    ----------
+    n_steps : int
+        Steps of an episode that is not cut short: round(duration · control rate).
+    control_rate : float
+        Steps per simulated second, Hz (200 by default).
+    max_torque : float
+        τ_max, N·m.
+    video_fps : int
+        The scenario's ``video.fps``, frames per simulated second of
+        :class:`twin.envs.RecordVideo` (30 by default).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 200}
@@ -145,7 +181,7 @@ class TwinEnv(gymnasium.Env):
     def __init__(self, scenario=None, overrides=(), obs: str = "estimate", estimator: str | None = None,
                  randomize=False, render_mode: str | None = None, render_size=(640, 480),
                  renderer: str | None = None, hud: bool = True, max_torque: float | None = None,
-                 reward_weights: dict | None = None):
+                 reward_weights: dict | None = None, normalize_actions: bool = False):
         from twin.registry import check_kind
         from twin.render.scene import check_size, resolve_renderer
         from twin.scenarios import load_scenario
@@ -157,6 +193,9 @@ class TwinEnv(gymnasium.Env):
                             f"got {render_mode!r}")
         if isinstance(overrides, str) or not all(isinstance(o, str) for o in overrides):
             raise TwinError(f"overrides must be a sequence of 'KEY=VALUE' strings, got {overrides!r}")
+        if not isinstance(normalize_actions, bool):
+            raise TwinError(f"normalize_actions must be True (action Box [-1, 1], fractions of max_torque) or "
+                            f"False (action in N·m), got {normalize_actions!r}")
         scenario = self.default_scenario if scenario is None else scenario
         if not isinstance(scenario, (str, PathLike)):
             raise TwinError(f"scenario must be a built-in scenario name or a .toml file, got {scenario!r}")
@@ -179,6 +218,7 @@ class TwinEnv(gymnasium.Env):
         self.experiment = sc.experiment()
         self.control_rate = self.config.control_rate
         self.n_steps = int(round(sc.duration * self.control_rate))
+        self.video_fps = int(sc.data["video"]["fps"])
         if obs == "readings" and self.sensors is None:
             raise TwinError(f"{sc.source}: obs='readings' needs simulated sensors, but sensors.sensing is 'ideal'; "
                             "use obs='estimate' or 'truth', or --set sensors.sensing=estimated")
@@ -188,8 +228,10 @@ class TwinEnv(gymnasium.Env):
         self.max_torque = self._torque_bound(max_torque)
         self.metadata = {**type(self).metadata, "render_fps": _fps(self.control_rate)}
 
-        t = self.max_torque
+        self.normalize_actions = normalize_actions
+        t = 1.0 if normalize_actions else self.max_torque
         self.action_space = spaces.Box(-t, t, shape=(2,), dtype=np.float32)
+        self._limit_checked = False
         low, high = self._base_bounds()
         xlow, xhigh = self._extras_bounds()
         self._low = np.array(low + xlow, dtype=np.float32)
@@ -356,6 +398,9 @@ class TwinEnv(gymnasium.Env):
         super().reset(seed=seed)
         if options:
             raise TwinError(f"reset options are not supported, got {options!r}")
+        if not self._limit_checked:
+            self._limit_checked = True
+            self._warn_if_time_limit_is_shorter()
         rng = self.np_random
         info = {}
         if self.randomize:
@@ -402,9 +447,15 @@ class TwinEnv(gymnasium.Env):
             ul, ur = action  # an array of shape (2,), a list or a tuple
             ul, ur = float(ul), float(ur)
         except (TypeError, ValueError):
-            raise TwinError(f"action must be the two wheel torques (ul, ur) in N·m, got {action!r}") from None
-        ul = t if ul > t else (-t if ul < -t else ul)  # NaN passes through: the loop rejects it in one line
-        ur = t if ur > t else (-t if ur < -t else ur)
+            what = ("the two wheel torques as fractions of max_torque, (ul, ur) / τ_max in [-1, 1]"
+                    if self.normalize_actions else "the two wheel torques (ul, ur) in N·m")
+            raise TwinError(f"action must be {what}, got {action!r}") from None
+        if self.normalize_actions:  # clip to [-1, 1], then to N·m (NaN passes through, as below)
+            ul = t if ul > 1.0 else (-t if ul < -1.0 else ul * t)
+            ur = t if ur > 1.0 else (-t if ur < -1.0 else ur * t)
+        else:
+            ul = t if ul > t else (-t if ul < -t else ul)  # NaN passes through: the loop rejects it in one line
+            ur = t if ur > t else (-t if ur < -t else ur)
         loop.step((ul, ur))
         status = loop.status
         terminated = status != "running"
@@ -420,6 +471,21 @@ class TwinEnv(gymnasium.Env):
         if terminated:
             info["reason"] = loop.end_reason
         return obs, reward, terminated, truncated, info
+
+    def _warn_if_time_limit_is_shorter(self) -> None:
+        """Made by ``gymnasium.make`` from an id whose registered ``max_episode_steps`` is less
+        than this scenario's :attr:`n_steps`: its TimeLimit would end episodes early (a
+        ``max_episode_steps=`` given to ``make`` is not visible here, hence a warning)."""
+        spec = self.spec
+        if spec is None or spec.id not in gymnasium.registry:
+            return
+        limit = gymnasium.registry[spec.id].max_episode_steps
+        if limit is not None and limit < self.n_steps:
+            gymnasium.logger.warn(
+                f"{spec.id}: the scenario lasts {self.n_steps} steps ({self.scenario.duration:g} s at "
+                f"{self.control_rate:g} Hz), more than the registered max_episode_steps={limit}: gymnasium.make's "
+                f"TimeLimit truncates episodes at step {limit} unless it was given max_episode_steps={self.n_steps} "
+                f"(or -1, no TimeLimit)")
 
     def _diverged_reward(self, info: dict) -> float:
         """alive 0 and every cost at its cap of 1."""
