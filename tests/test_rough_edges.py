@@ -238,3 +238,53 @@ def test_under_pytest_a_missing_plugin_is_one_line_not_a_traceback(lab, tmp_path
     assert "Traceback" not in r.stdout and "raise PluginError" not in r.stdout, r.stdout
     assert ("error: controller 'lab_ctrl_beside:StateFeedback': no module named 'lab_ctrl_beside'; the module must "
             "be importable (on sys.path, installed, in the current directory or beside the scenario file)") in r.stdout
+
+
+# ---- an estimator that reads the ground truth -----------------------------------------------------------
+
+_CHEAT = '''
+from estimation.ideal import IdealEstimator
+
+
+class Peek(IdealEstimator):
+    """A plugin that quietly reads the ground truth."""
+    name = "peek"
+'''
+
+
+@pytest.fixture
+def peek(tmp_path):
+    d = tmp_path / "lab"
+    d.mkdir()
+    _write(d / "lab_peek_truth.py", _CHEAT)
+    _write(d / "peek.toml", 'base = "paper-exp1"\nduration = 0.3\n[controller]\nkinds = ["lqr"]\n'
+                            '[sensors]\nestimator = "lab_peek_truth:Peek"\n[expect]\nfell = false\n')
+    return d
+
+
+def test_a_run_whose_estimator_reads_the_truth_says_so_in_its_output_and_metrics(peek, tmp_path):
+    import json
+
+    code, out, err = _twin_call("run", str(peek / "peek.toml"), "--no-video", "--out", str(tmp_path / "o"))
+    assert code == 0, err
+    assert "LQR: estimator lab_peek_truth:Peek reads the ground truth (reads_truth = True)" in out
+    assert json.loads((tmp_path / "o" / "metrics.json").read_text())["runs"]["lqr"]["estimator_reads_truth"] is True
+
+
+def test_twin_check_refuses_an_estimator_that_reads_the_truth_unless_the_scenario_is_a_reference(peek, tmp_path):
+    code, out, err = _twin_call("check", str(peek / "peek.toml"))
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert "estimator 'lab_peek_truth:Peek' reads the ground truth (reads_truth = True)" in err
+    assert "reference = true" in err
+    ref = _write(peek / "ref.toml", 'base = "peek.toml"\nreference = true\n')
+    code, out, err = _twin_call("check", str(ref))
+    assert code == 0 and "all bounds hold" in out, err
+
+
+def test_a_real_estimators_metrics_carry_no_truth_flag(tmp_path):
+    import json
+
+    code, out, err = _twin_call("run", "paper-exp1", "--controller", "lqr", "--duration", "0.2", "--no-video",
+                                "--out", str(tmp_path / "o"))
+    assert code == 0 and "reads the ground truth" not in out, err
+    assert "estimator_reads_truth" not in json.loads((tmp_path / "o" / "metrics.json").read_text())["runs"]["lqr"]

@@ -530,6 +530,9 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample, log
     from twin.outputs.report import estimator_line
 
     for c in kinds:  # the estimator's consistency, rejections and events (metrics.json's "estimator")
+        if result.metrics[c].get("estimator_reads_truth"):
+            click.echo(f"  {label(c)}: estimator {result.scenario.estimator} reads the ground truth "
+                       f"(reads_truth = True): a reference, not an estimator under test")
         line = estimator_line(result.metrics[c], label(c))
         if line:
             click.echo(f"  {line}")

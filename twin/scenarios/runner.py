@@ -190,6 +190,12 @@ def plan(scenario: Scenario, kinds) -> list:
     return [scenario.run_spec(kind, context) for kind in kinds]
 
 
+def reads_truth(run) -> bool:
+    """True if the run's estimator read the ground truth (it declares ``reads_truth = True``,
+    so each measurement carried the truth): its estimate is a reference, not an estimate."""
+    return getattr(getattr(run, "measurements", None), "truth", None) is not None
+
+
 def _run_and_write(scenario, kinds, staged, video, progress, every, log_format, worker,
                    keep_limited: bool = False, specs=None, log_sensors: bool = False) -> ScenarioResult:
     """:func:`run_scenario` after its checks; ``staged`` a :class:`twin.outputs.rundir.StagedDirectory`
@@ -221,6 +227,8 @@ def _run_and_write(scenario, kinds, staged, video, progress, every, log_format, 
         timings[f"run_{kind}_s"] = time.perf_counter() - t0
         runs.append(run)
         metrics[kind] = run_metrics(run)
+        if reads_truth(run):  # said wherever the run's figures go: they are not an estimator's
+            metrics[kind]["estimator_reads_truth"] = True
     solved = [] if lazy is None or lazy.solved is None else [lazy.solved]
     if solved:
         timings = {"design_s": lazy.seconds, **timings}

@@ -190,6 +190,10 @@ SCHEMA: dict[str, Key] = {
                        doc=f"one line of at most {DESCRIPTION_MAX} printable characters: what the scenario shows"),
     "duration": _f(15.0, 0.0, 3600.0, "s", lo_open=True, doc="simulated time"),
     "seed": Key("int", 0, 0, 2 ** 63 - 1, doc="seed of the sensor noise, faults and sampled disturbances"),
+    "reference": Key("bool", False, recorded_at_default=False,
+                     doc="true: a reference run, not a test of an estimator: an estimator plugin that reads the "
+                         "ground truth (reads_truth = True) is then allowed under twin check, which refuses it "
+                         "otherwise"),
     "initial": Key("table", keys={
         "theta": _f(0.48, -0.99, 0.99, "rad", doc="body pitch (inside the fall limit of 1 rad)"),
         "alpha": _f(0.0, -math.pi, math.pi, "rad", doc="heading"),

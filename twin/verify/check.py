@@ -158,6 +158,7 @@ def run_checks(scenarios, controllers=None, seeds: int = 1, workers: int = 1, pr
         extra = []
         # every plugin built once here: one that cannot be built is a user error, said before anything runs
         for kind, spec in zip(kinds, runs_of(sc, kinds)):
+            _refuse_truth_reader(sc, spec)
             extra += getattr(spec.controller.kind, "signals", ())
             plan.append((sc, kind, tuple(CheckTask(sc.data, sc.source, sc.overrides, design, kind, sc.seed + i,
                                                    paths, record is not None or golden is not None)
@@ -192,6 +193,23 @@ def run_checks(scenarios, controllers=None, seeds: int = 1, workers: int = 1, pr
     if batch is not None:
         result.recorded = _record(batch, to_record, 0 if result.passed else 1)
     return result
+
+
+def _refuse_truth_reader(sc, spec) -> None:
+    """A check of an estimator plugin that reads the ground truth passes on information no
+    robot has: refused unless the scenario says it is a reference (``reference = true``).
+    The built-in ``ideal`` estimator and ``sensing = "ideal"`` say so by their names."""
+    from twin.registry import is_import_path
+
+    kind = spec.estimator.kind
+    if sc.data.get("reference") or spec.sensing.ideal or isinstance(kind, str) and not is_import_path(kind):
+        return
+    estimator = spec.build_estimator() if isinstance(kind, str) else kind  # the attribute may be set per object
+    if not getattr(estimator, "reads_truth", False):
+        return
+    raise TwinError(f"{sc.source}: estimator {sc.estimator!r} reads the ground truth (reads_truth = True), so its "
+                    f"checks would pass on information no robot has; allowed: an estimator that does not, or "
+                    f"reference = true in the scenario to check it as a reference")
 
 
 def _with_test_point(progress, total: int):
