@@ -275,3 +275,10 @@ def test_record_video_refuses_other_environments(tmp_path):
     with pytest.raises(TwinError, match="RecordVideo records the mtwip environments .*got CartPoleEnv"):
         RecordVideo(env, tmp_path)
     env.close()
+
+
+def test_default_trigger_is_gymnasiums_schedule():
+    from twin.envs.video import capped_cubic_video_schedule
+
+    assert [k for k in range(1001) if capped_cubic_video_schedule(k)] == [k ** 3 for k in range(10)] + [1000]
+    assert capped_cubic_video_schedule(3000) and not capped_cubic_video_schedule(3001)

@@ -11,6 +11,7 @@ model, 15 s). Any built-in or scenario file runs: its targets, if any, are ignor
     env = gymnasium.make("mtwip/Balance-v0")                       # paper-exp1, EKF estimate
     env = gymnasium.make("mtwip/Balance-v0", scenario="push-recovery", obs="readings",
                          overrides=("duration=5",), randomize={"level": 0.3})
+    env = gymnasium.make("mtwip/Balance-v0", normalize_actions=True)  # action Box [-1, 1]
 
 Observation (Box, float32; ``obs=``)
     ==========  =====  ===========================================  =================
@@ -39,6 +40,10 @@ Action (Box, float32)
     each in [−τ_max, τ_max]: τ_max = 1.2 N·m, the default DC motor's stall torque (read
     from the scenario's motor; ``max_torque=`` overrides). Clipped to the box.
 
+    With ``normalize_actions=True``: Box [−1, 1]², the torques as fractions of τ_max
+    (1 dimensionless): (a_l, a_r) commands (a_l τ_max, a_r τ_max) N·m, each a clipped to
+    [−1, 1] first. ``info["command"]`` and the reward are in N·m either way.
+
 Reward (per step, from the ground truth at the end of the period)
     ``alive − 0.5 c_theta − 0.1 c_theta_dot − 0.1 c_torque``, with
 
@@ -60,9 +65,20 @@ Reward (per step, from the ground truth at the end of the period)
 Episode end
     ``terminated``: the robot fell (tilt past 1 rad, or the body touched the floor) or
     the physics diverged; ``truncated``: the scenario's duration elapsed (3000 steps
-    for paper-exp1's 15 s at 200 Hz).
+    for paper-exp1's 15 s at 200 Hz). The id is registered with
+    ``max_episode_steps=3000`` (paper-exp1's duration over its 5 ms control period), so
+    ``gymnasium.make``'s TimeLimit truncates on the same step; give
+    ``max_episode_steps=`` to ``gymnasium.make`` for a scenario that lasts longer.
 
-Shared behaviour (seeding, ``randomize``, ``estimator=``, rendering): :mod:`twin.envs.base`.
+Rendering and video
+    ``render_mode="rgb_array"``: (H, W, 3) uint8 pictures, taken only when ``render()``
+    is called; ``metadata["render_fps"]`` = 200, one picture per step (Gymnasium's
+    convention). :class:`twin.envs.RecordVideo` records real-time H.264 video at the
+    scenario's ``video.fps`` (30 frames per simulated second), rendering 451 pictures
+    for a 15 s episode instead of 3001.
+
+Shared behaviour (seeding, ``randomize``, ``estimator=``, rendering, ``normalize_actions``):
+:mod:`twin.envs.base`.
 """
 from __future__ import annotations
 

@@ -36,7 +36,8 @@ Observation (Box, float32)
     the robot started, heading from the world x axis).
 
 Action
-    (ul, ur) in N·m, Box [−τ_max, τ_max]², clipped: as ``mtwip/Balance-v0``.
+    (ul, ur) in N·m, Box [−τ_max, τ_max]², clipped: as ``mtwip/Balance-v0``; with
+    ``normalize_actions=True`` Box [−1, 1]², fractions of τ_max.
 
 Reward (per step, from the ground truth at the end of the period)
     ``alive − 0.3 c_theta − 0.05 c_theta_dot − 0.05 c_torque − 0.3 c_position − 0.2 c_heading``
@@ -58,7 +59,8 @@ Reward (per step, from the ground truth at the end of the period)
 
 Episode end
     As ``mtwip/Balance-v0``: ``terminated`` on a fall or divergence, ``truncated`` at
-    the scenario's duration.
+    the scenario's duration; registered with ``max_episode_steps=3000`` (paper-exp3's
+    15 s at 200 Hz).
 """
 from __future__ import annotations
 
