@@ -121,6 +121,18 @@ def test_normalized_actions_are_fractions_of_max_torque():
         newton.close()
 
 
+def test_a_malformed_normalized_action_is_one_line():
+    env = gymnasium.make("mtwip/Balance-v0", overrides=SHORT, normalize_actions=True)
+    try:
+        env.reset(seed=0)
+        with pytest.raises(TwinError, match=r"action must be the two wheel torques as fractions of max_torque, "
+                                            r"\(ul, ur\) / τ_max in \[-1, 1\], got 'x'") as exc:
+            env.unwrapped.step("x")
+        assert "\n" not in str(exc.value)
+    finally:
+        env.close()
+
+
 @pytest.mark.parametrize("value", ["yes", 1, None])
 def test_normalize_actions_must_be_a_bool(value):
     with pytest.raises(TwinError, match="normalize_actions must be True .* or False") as exc:

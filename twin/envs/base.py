@@ -80,8 +80,8 @@ or eleven entries below) and their reward. Everything else is here, once:
   robot; ``render_size=(W, H)``, ``renderer`` "auto"/"egl"/"tiny") with the heads-up
   overlay of :mod:`twin.render.hud` (``hud=False`` leaves it out). The scene, a PyBullet
   client of its own, is built on the first :meth:`render` and never without a render mode;
-  a picture is taken only when :meth:`render` is called (about 20 ms each at 640x480 with
-  TinyRenderer). ``metadata["render_fps"]`` is the control rate (200), Gymnasium's
+  a picture is taken only when :meth:`render` is called (at 640x480 one costs some
+  tens of milliseconds, many control steps' worth). ``metadata["render_fps"]`` is the control rate (200), Gymnasium's
   convention (one picture per step, as MuJoCo's environments): Gymnasium's own
   ``RecordVideo`` wrapper (which needs ``pip install moviepy``) then writes a real-time
   video but renders every step and plays at 200 frames/s. :class:`twin.envs.RecordVideo`

@@ -3,9 +3,9 @@
 
 Why not Gymnasium's wrapper: it takes one picture per step and writes the video at
 ``metadata["render_fps"]``. The environments step at the control rate (200 Hz), so
-Gymnasium's recorder renders all 3000 steps of a 15 s episode (about 20 ms each with
-TinyRenderer at 640x480), keeps them in memory, needs moviepy to encode them, and
-writes a 200 frames/s file. This wrapper renders only the steps that fall on the
+Gymnasium's recorder renders all 3001 states of a 15 s episode (some tens of
+milliseconds each at 640x480), keeps the pictures in memory (about 3 GB), needs moviepy
+to encode them, and writes a 200 frames/s file. This wrapper renders only the steps that fall on the
 video's frame times (30 per simulated second by default) and streams them to the
 project's H.264 writer (:mod:`twin.render.video`: the ffmpeg of ``imageio-ffmpeg``, a
 dependency of the twin) while the episode runs, so a 15 s episode is 451 pictures
