@@ -10,6 +10,65 @@ EVENTS_KEPT = 100  # the estimator's events listed in metrics.json (all are coun
 _EVENT = re.compile(r"t = ([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?) s: (.*)", re.S)
 
 
+# What each metric a run's metrics.json holds (and an [expect] bound may name) measures: the single
+# place of these definitions; the documentation's metrics reference is generated from it, with the
+# units of twin.verify.expectations.METRICS (a test keeps the two key sets equal). "θ" is the body's
+# pitch from upright, "ψ" the wheels' mean rotation, "α" the heading; every figure from every
+# control step (see run_metrics).
+METRIC_DEFINITIONS = {
+    "fell": "Whether the run ended early because the robot fell: the tilt passed 1 rad or the body touched "
+            "the floor.",
+    "duration_s": "Simulated time the run lasted: the last control instant (shorter than the scenario's "
+                  "duration if the robot fell or a run limit stopped it).",
+    "settling_time_s": "First time after which |θ| stays below 0.01 rad to the end of the run; absent (null) if "
+                       "it never does or the robot fell.",
+    "theta_rms_rad": "Root mean square of θ after the settling time; over the last 5 s if θ never settles.",
+    "oscillation_peak_to_peak_rad": "Largest minus smallest θ over the last 5 s of the run: the residual "
+                                    "oscillation (a limit cycle shows here).",
+    "final_theta_rad": "θ at the last control instant.",
+    "final_distance_m": "Distance travelled along the heading, r·ψ, at the last control instant.",
+    "final_heading_rad": "Heading α at the last control instant.",
+    "final_position_error_m": "Final distance minus the position target p_d; absent (null) in a scenario "
+                              "without a position target.",
+    "final_heading_error_rad": "Final heading minus the heading target α_d; absent (null) in a scenario "
+                               "without a heading target.",
+    "iae_theta": "Integral of the absolute tilt, ∫|θ| dt over the run (trapezoid rule).",
+    "control_effort": "∫(τ_l² + τ_r²) dt of the torques delivered at the wheels over the run (trapezoid rule).",
+    "max_abs_torque_nm": "Largest |torque| delivered at either wheel (the 5 ms control-period mean) in the run.",
+    "estimator_theta_rmse_rad": "Root mean square of the estimated minus the true θ over the whole run, as "
+                                "handed to the controllers; 0 with ideal sensing.",
+    "rejected_measurements": "Sensor samples the estimator rejected in the run (outliers, gated encoder "
+                             "samples); 0 for an estimator that does not count them.",
+    "estimator_events": "Events the estimator logged in the run (faults detected, re-synchronisations, "
+                        "resets); 0 without any.",
+    "estimator_nees_mean": "The EKF's mean normalised estimation error squared over the run (from 0.5 s on), "
+                           "e·P⁻¹·e with e the estimate's error against the simulated truth: 12, the state's "
+                           "dimension, for a consistent filter; absent (null) for other estimators and under "
+                           "ideal sensing.",
+    "estimator_nis_per_dof": "The EKF's normalised innovation squared per degree of freedom of its encoder "
+                             "updates: 1 for a consistent filter; absent (null) where not computed.",
+}
+# The metrics of a replay of a sensor log (twin.logs.replay; a log's [expect] may name them), with
+# the units of twin.verify.expectations.REPLAY_METRICS.
+REPLAY_METRIC_DEFINITIONS = {
+    "theta_rmse_rad": "Root mean square of the replayed estimator's θ minus the log's truth (logs with a "
+                      "[truth], such as the twin's).",
+    "theta_max_abs_rad": "Largest |θ error| of the replayed estimator against the log's truth.",
+    "psi_rmse_rad": "Root mean square of the ψ (mean wheel angle) error against the log's truth.",
+    "psi_max_abs_rad": "Largest |ψ error| against the log's truth.",
+    "alpha_rmse_rad": "Root mean square of the heading (α) error against the log's truth.",
+    "alpha_max_abs_rad": "Largest |α error| against the log's truth.",
+    "nis_per_dof": "Normalised innovation squared per degree of freedom over the instants with an update: 1 "
+                   "for a consistent filter.",
+    "rejected_total": "Sensor samples the replayed estimator rejected.",
+    "nees_mean": "Mean normalised estimation error squared against the log's state truth: the state's "
+                 "dimension (12 for the EKF) for a consistent filter.",
+    "whiteness_outside_fraction": "Fraction of the lags 1 … L of the normalised innovations' autocorrelation "
+                                  "outside the 95 % band ±1.96/√N of a white sequence: about 0.05 for a "
+                                  "consistent filter.",
+}
+
+
 def exact_mean(x: np.ndarray) -> float:
     """The mean of ``x`` with an exactly rounded sum (``math.fsum``). numpy's SIMD sums can depend
     on where the array sits in memory, which breaks bit-identical replays across processes."""

@@ -1,0 +1,162 @@
+"""Sphinx extension: the reference pages' tables, generated from the code at build time.
+
+On ``builder-inited`` it writes Markdown into ``docs/reference/_auto/`` (ignored by git, excluded
+from the sources: the reference pages include it):
+
+``cli.md``
+    every ``twin`` command, from the click commands of :mod:`twin.cli` (their ``--help``);
+``scenario-keys.md``
+    every scenario key, from :func:`twin.scenarios.schema.describe`;
+``metrics.md`` and ``replay-metrics.md``
+    every metric with its unit (:data:`twin.verify.expectations.METRICS`,
+    :data:`~twin.verify.expectations.REPLAY_METRICS`) and definition
+    (:data:`twin.outputs.metrics.METRIC_DEFINITIONS`, ``REPLAY_METRIC_DEFINITIONS``).
+
+It also escapes, in the docstrings autodoc reads, the ``|x|`` of absolute values (reST would take
+them for substitutions), so that the code's docstrings need no reST-only spelling.
+"""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+AUTO = Path(__file__).resolve().parents[1] / "reference" / "_auto"
+
+
+def cell(text) -> str:
+    """Text for one Markdown table cell: pipes escaped, newlines folded."""
+    return " ".join(str(text).split()).replace("|", "\\|")
+
+
+def code(text) -> str:
+    """Inline code for a table cell (backticks inside widened by spaces, pipes escaped)."""
+    text = " ".join(str(text).split())
+    fence = "``" if "`" in text else "`"
+    pad = " " if "`" in text else ""
+    return f"{fence}{pad}{text}{pad}{fence}".replace("|", "\\|")
+
+
+def unit_text(unit: str) -> str:
+    return {"1": "– (a count or ratio)", "true/false": "true/false"}.get(unit, unit)
+
+
+# ---- the command line -------------------------------------------------------------------------
+
+def cli_markdown() -> str:
+    import click
+
+    from twin.cli import main
+
+    out: list[str] = []
+    rows: list[tuple[str, str]] = []
+
+    def walk(cmd: click.Command, path: list[str], parent: click.Context | None, depth: int) -> None:
+        ctx = click.Context(cmd, info_name=path[-1], parent=parent, terminal_width=100, max_content_width=100)
+        name = " ".join(path)
+        if depth > 0:
+            rows.append((name, cmd.get_short_help_str(limit=120)))
+            out.append(f"{'#' * min(depth + 1, 4)} `{name}`\n")
+            out.append("```text\n" + cmd.get_help(ctx).rstrip() + "\n```\n")
+        if isinstance(cmd, click.Group):
+            for sub in cmd.list_commands(ctx):
+                child = cmd.get_command(ctx, sub)
+                if child is not None and not getattr(child, "hidden", False):
+                    walk(child, [*path, sub], ctx, depth + 1)
+
+    ctx0 = click.Context(main, info_name="twin", terminal_width=100, max_content_width=100)
+    head = ["## `twin`\n", "```text\n" + main.get_help(ctx0).rstrip() + "\n```\n"]
+    walk(main, ["twin"], None, 0)
+    table = ["| command | what it does |", "|---|---|"] + [f"| [{code(n)}](#{anchor(n)}) | {cell(h)} |"
+                                                            for n, h in rows]
+    return "\n".join(table) + "\n\n" + "\n".join(head + out)
+
+
+def anchor(name: str) -> str:
+    """MyST's heading anchor (``myst_heading_anchors``) of the heading `` `name` ``."""
+    return re.sub(r"[^\w\- ]", "", name.lower()).strip().replace(" ", "-")
+
+
+# ---- the scenario schema ------------------------------------------------------------------------
+
+def scenario_markdown() -> str:
+    from twin.scenarios.schema import describe
+
+    groups: dict[str, list] = {}
+    for key, kind, default, doc in describe():
+        top = key.strip("[]").split(".")[0].split("[")[0]
+        table = key.startswith("[[") or "." in key or kind.startswith("table")
+        title = f"`[[{top}]]`" if key.startswith("[[") or "[]." in key else f"`[{top}]`" if table else "Top-level keys"
+        groups.setdefault(title, []).append((key, kind, default, doc))
+    out = []
+    for title, rows in sorted(groups.items(), key=lambda g: g[0] != "Top-level keys"):
+        out.append(f"## {title}\n")
+        out.append("| key | type and range | default | meaning |")
+        out.append("|---|---|---|---|")
+        out += [f"| {code(k)} | {cell(t)} | {code(d)} | {cell(doc)} |" for k, t, d, doc in rows]
+        out.append("")
+    return "\n".join(out)
+
+
+# ---- the metrics --------------------------------------------------------------------------------
+
+def metrics_markdown(replay: bool = False) -> str:
+    from twin.outputs.metrics import METRIC_DEFINITIONS, REPLAY_METRIC_DEFINITIONS
+    from twin.verify.expectations import METRICS, REPLAY_METRICS
+
+    units, defs = (REPLAY_METRICS, REPLAY_METRIC_DEFINITIONS) if replay else (METRICS, METRIC_DEFINITIONS)
+    missing = set(units) ^ set(defs)
+    if missing:
+        raise RuntimeError(f"metrics without a unit or a definition: {sorted(missing)}")
+    rows = ["| metric | unit | definition |", "|---|---|---|"]
+    rows += [f"| {code(k)} | {cell(unit_text(units[k]))} | {cell(defs[k])} |" for k in units]
+    return "\n".join(rows) + "\n"
+
+
+PAGES = {"cli.md": cli_markdown, "scenario-keys.md": scenario_markdown, "metrics.md": metrics_markdown,
+         "replay-metrics.md": lambda: metrics_markdown(replay=True)}
+
+
+def generate(directory: Path = AUTO) -> list[Path]:
+    """Write every generated page into ``directory`` (only files whose text changed)."""
+    directory.mkdir(parents=True, exist_ok=True)
+    ignore = directory / ".gitignore"
+    if not ignore.exists():
+        ignore.write_text("# written by docs/_ext/twin_reference.py at every build\n*\n", encoding="utf-8")
+    written = []
+    for name, make in PAGES.items():
+        text = "<!-- generated by docs/_ext/twin_reference.py: do not edit -->\n\n" + make()
+        path = directory / name
+        if not path.exists() or path.read_text(encoding="utf-8") != text:
+            tmp = path.with_suffix(f".tmp{id(text)}")
+            tmp.write_text(text, encoding="utf-8")
+            tmp.replace(path)
+        written.append(path)
+    return written
+
+
+# ---- docstrings: |x| is an absolute value, not a reST substitution --------------------------------
+
+_LITERAL = re.compile(r"(``.+?``|`[^`]+`_?|:\w+:`[^`]+`)")
+
+
+def escape_bars(line: str) -> str:
+    """``line`` with each ``|`` outside inline literals and roles escaped; a line that is a reST
+    table row or line block (starting with ``|`` or ``+-``) is left alone."""
+    if line.lstrip().startswith(("| ", "+-", "+=")) and line.rstrip().endswith(("|", "+")):
+        return line
+    parts = _LITERAL.split(line)
+    return "".join(p if i % 2 else re.sub(r"(?<!\\)\|", r"\\|", p) for i, p in enumerate(parts))
+
+
+def _process_docstring(app, what, name, obj, options, lines):
+    lines[:] = [escape_bars(ln) for ln in lines]
+
+
+def _builder_inited(app):
+    generate()
+
+
+def setup(app):
+    app.connect("builder-inited", _builder_inited)
+    app.connect("autodoc-process-docstring", _process_docstring, priority=400)
+    return {"version": "1", "parallel_read_safe": True, "parallel_write_safe": True}
