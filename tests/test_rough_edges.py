@@ -288,3 +288,44 @@ def test_a_real_estimators_metrics_carry_no_truth_flag(tmp_path):
                                 "--out", str(tmp_path / "o"))
     assert code == 0 and "reads the ground truth" not in out, err
     assert "estimator_reads_truth" not in json.loads((tmp_path / "o" / "metrics.json").read_text())["runs"]["lqr"]
+
+
+# ---- parameters no controller uses; a payload on nothing --------------------------------------------------
+
+def test_parameters_for_a_controller_never_run_are_refused(tmp_path):
+    # before: silently ignored (a typo in the kind, or a controller taken out of the list)
+    r = _twin("run", "paper-exp1", "--controller", "it2", "--duration", "0.1", "--no-video",
+              "--set", "controller.params.lqr={}", "--out", str(tmp_path / "o"))
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert ("controller.params.lqr: controller 'lqr' is never run (this run's: it2; controller.kinds: it2, t1), so "
+            "its parameters would be ignored") in r.stderr
+    assert not (tmp_path / "o").exists()
+
+
+def test_parameters_for_a_listed_controller_left_out_by_controller_are_kept(tmp_path):
+    f = _write(tmp_path / "s.toml", 'base = "paper-exp1"\nduration = 0.1\n[controller]\nkinds = ["it2", "lqr"]\n'
+                                    '[controller.params.lqr]\n')
+    r = _twin("run", str(f), "--controller", "it2", "--no-video", "--out", str(tmp_path / "o"))
+    assert r.returncode == 0, r.stderr
+
+
+def test_a_sweep_refuses_parameters_for_a_controller_it_never_runs(tmp_path):
+    r = _twin("sweep", "paper-exp1", "--controller", "it2", "--samples", "1", "--set", "controller.params.lqr={}",
+              "--out", str(tmp_path / "o"))
+    assert r.returncode == 2 and "controller.params.lqr: controller 'lqr' is never run" in r.stderr, r.stderr
+
+
+@pytest.mark.parametrize("position, gap", [("[0.5, 0, 0.1]", "0.46 m"), ("[0, 0.4, 0.1]", "0.268 m"),
+                                           ("[0, 0, 0.45]", "0.302 m")])
+def test_a_payload_far_outside_the_body_is_refused(tmp_path, position, gap):
+    r = _twin("run", "paper-exp1", "--duration", "0.1", "--no-video", "--set", "plant.payload_mass=20",
+              "--set", f"plant.payload_position={position}", "--out", str(tmp_path / "o"))
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert f"plant.payload_position: {position} m is {gap} outside the body box; allowed: within 0.1 m of it" in r.stderr
+
+
+def test_a_payload_on_the_body_or_beside_it_runs(tmp_path):
+    r = _twin("run", "paper-exp1", "--controller", "lqr", "--duration", "0.1", "--no-video",
+              "--set", "plant.payload_mass=0.3", "--set", "plant.payload_position=[0.12, 0, 0.1]",
+              "--out", str(tmp_path / "o"))
+    assert r.returncode == 0, r.stderr

@@ -186,8 +186,25 @@ def plan(scenario: Scenario, kinds) -> list:
     controller and estimator built once (:meth:`Scenario.run_spec`), so that a plugin that
     cannot be built is one line before anything runs; the LMI design is solved only if a
     controller asks for it (:class:`LazyDesign`)."""
+    refuse_unused_params(scenario, kinds)
     context = scenario.build_context(LazyDesign(scenario))
     return [scenario.run_spec(kind, context) for kind in kinds]
+
+
+def refuse_unused_params(scenario: Scenario, kinds) -> None:
+    """``[controller.params.KIND]`` for a controller that neither this run nor the scenario's
+    ``controller.kinds`` runs would be ignored without a word (a typo in KIND, or parameters
+    for a controller that was taken out of the list): one line instead. Parameters for a
+    listed controller that ``--controller`` leaves out this time are kept for when it runs."""
+    from twin.scenarios.schema import ScenarioError, key_text
+
+    runs = list(dict.fromkeys([*kinds, *scenario.controllers]))
+    unused = [k for k in scenario.data["controller"]["params"] if k not in runs]
+    if unused:
+        raise ScenarioError(f"{scenario.source}: controller.params.{key_text(unused[0])}: controller "
+                            f"{unused[0]!r} is never run (this run's: {', '.join(kinds)}; controller.kinds: "
+                            f"{', '.join(scenario.controllers)}), so its parameters would be ignored; allowed: "
+                            f"parameters for a controller run or listed in controller.kinds")
 
 
 def reads_truth(run) -> bool:

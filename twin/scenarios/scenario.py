@@ -20,6 +20,7 @@ from twin.scenarios.schema import (MAX_DEPTH, NAME_RULE, ScenarioError, check_de
 from twin.timing import steps_per_control
 
 MIN_CLEARANCE_RAD = 0.3  # rad: the body box must clear the floor at least this far from upright
+PAYLOAD_REACH = 0.1  # m: how far outside the body box a payload may sit (a bracket, a mast's foot)
 
 BUILTIN_PACKAGE = "twin.scenarios.builtin"
 
@@ -307,9 +308,29 @@ class Scenario:
             raise self._error(f"initial.theta: {theta0:g} rad does not start on the wheels: this robot's body touches "
                               f"the floor (or passes the fall limit) at {limit + 0.01:.2f} rad; allowed: |θ0| < "
                               f"{limit:.2f} rad")
+        self._check_payload_on_body(config)
         self._check_start(config)
         self.design()
         return self
+
+    def _check_payload_on_body(self, config) -> None:
+        """A payload is a mass fixed to the body: one far outside the body box (a 20 kg mass
+        half a metre away, on nothing) is a typo or a unit slip, refused naming the key."""
+        from twin.plant.urdf import body_box
+
+        payload = config.disturbances.payload
+        if payload is None:
+            return
+        lo, hi = body_box(config.params)
+        pos = payload.position
+        gap = max(max(lo[i] - pos[i], pos[i] - hi[i], 0.0) for i in range(3))
+        if gap <= PAYLOAD_REACH:
+            return
+        allowed = ", ".join(f"{axis} {lo[i] - PAYLOAD_REACH:.3g} to {hi[i] + PAYLOAD_REACH:.3g}"
+                            for i, axis in enumerate("xyz"))
+        raise self._error(f"plant.payload_position: [{', '.join(f'{c:g}' for c in pos)}] m is {gap:.3g} m outside "
+                          f"the body box; allowed: within {PAYLOAD_REACH:g} m of it ({allowed} m, body frame from "
+                          f"the axle, for this plant)")
 
     def _check_body_clears_floor(self, params) -> None:
         """Where the initial tilt does not start on the wheels and the body box (its height follows

@@ -250,7 +250,7 @@ SCHEMA: dict[str, Key] = {
                      doc="Table III parameter → factor of its nominal value"),
         "motor": Key("str", "dc", choices=("dc", "ideal"), doc="DC motors with PWM drivers, or ideal torque sources"),
         "payload_mass": _f(0.0, 0.0, 20.0, "kg"),
-        "payload_position": Key("vec3", (0.0, 0.0, 0.1), -0.5, 0.5, unit="m", doc="body frame, from the axle"),
+        "payload_position": Key("vec3", (0.0, 0.0, 0.1), -0.5, 0.5, unit="m", doc="body frame, from the axle; within 0.1 m of the body box"),
         "com_offset": Key("vec3", (0.0, 0.0, 0.0), -0.1, 0.1, unit="m"),
     }),
     "ground": Key("table", keys={

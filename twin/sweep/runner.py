@@ -90,7 +90,10 @@ def sweep_controllers(scenario: Scenario, controllers=None, reference: str | Non
     the last one listed)."""
     from twin.registry import check_kinds
 
+    from twin.scenarios.runner import refuse_unused_params
+
     kinds = check_kinds("controller", controllers if controllers is not None else scenario.controllers, "controllers")
+    refuse_unused_params(scenario, kinds)
     reference = kinds[-1] if reference is None else reference
     if reference not in kinds:
         raise TwinError(f"--reference {reference!r} is not one of the sweep's controllers ({', '.join(kinds)})")
