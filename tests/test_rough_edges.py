@@ -329,3 +329,19 @@ def test_a_payload_on_the_body_or_beside_it_runs(tmp_path):
               "--set", "plant.payload_mass=0.3", "--set", "plant.payload_position=[0.12, 0, 0.1]",
               "--out", str(tmp_path / "o"))
     assert r.returncode == 0, r.stderr
+
+
+# ---- Ctrl-C: 130 from every command (twin run's directory: tests/test_rundir.py) ---------------------------
+
+def test_ctrl_c_during_twin_check_is_130_with_one_line_not_1(tmp_path):
+    import signal
+
+    from test_golden import write_short
+    from test_rundir import _no_process_left, _stop
+
+    f = write_short(tmp_path)
+    code, out, err, sid = _stop(["check", f, "--seeds", "2", "--workers", "1"], tmp_path, "check-run", signal.SIGINT)
+    # 1 is a failed bound's status: an interrupted check must not read as one
+    said = [ln for ln in err.splitlines() if ln.strip() and not ln.startswith("  ")]  # progress bars: indented
+    assert code == 130 and said == ["interrupted: SIGINT"], err
+    _no_process_left(sid)
