@@ -21,8 +21,9 @@ files an earlier one wrote), with ``examples/`` on PYTHONPATH, MPLBACKEND=Agg, t
 design cache (TWIN_CACHE_DIR) and this interpreter's ``twin`` first on PATH. A failure names the
 page, the block's line and the tail of its stderr.
 
-The build and the examples need the ``docs`` extra (Sphinx, MyST, numpydoc, furo); without it
-they skip, unless TWIN_REQUIRE_DOCS=1 (CI), where a missing extra fails.
+The build needs the ``docs`` extra (Sphinx, MyST, numpydoc, furo); without it it skips, unless
+TWIN_REQUIRE_DOCS=1 (CI), where a missing extra fails. The examples need no extra and always run.
+The build and the pages run side by side (:data:`WORKERS` at a time).
 """
 from __future__ import annotations
 
@@ -32,6 +33,7 @@ import re
 import subprocess
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -280,12 +282,39 @@ def run_page(page: str, blocks: list[Block], cwd: Path) -> list[str]:
 
 
 RUNNABLE = [p for p, bs in BLOCKS.items() if any(b.action in ("python", "shell") for b in bs)]
+WORKERS = max(2, min(4, os.cpu_count() or 2))  # the pages (and the build) run side by side
+
+
+def _build(out: Path) -> tuple[int, str, float]:
+    """Build the site into ``out`` with warnings as errors: (status, stderr, seconds)."""
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-m", "sphinx", "-W", "--keep-going", "-q", "-b", "html",
+                           "-d", str(out / "doctrees"), str(DOCS), str(out / "html")],
+                          cwd=ROOT, env=_env(), capture_output=True, text=True, timeout=BUILD_TIMEOUT_S)
+    return proc.returncode, proc.stderr, time.perf_counter() - t0
+
+
+@pytest.fixture(scope="module")
+def jobs(tmp_path_factory):
+    """The build (where the docs extra is installed) and every page's examples, started together
+    on :data:`WORKERS` threads (each runs subprocesses); a test waits for its own."""
+    base = tmp_path_factory.mktemp("docs")
+    with ThreadPoolExecutor(max_workers=WORKERS) as pool:
+        futures = {}
+        if not _missing_packages():
+            futures["build"] = pool.submit(_build, base / "site")
+        for i, page in enumerate(RUNNABLE):
+            cwd = base / f"page{i}"
+            cwd.mkdir()
+            futures[page] = pool.submit(run_page, page, BLOCKS[page], cwd)
+        yield futures, base
+        for f in futures.values():
+            f.cancel()
 
 
 @pytest.mark.parametrize("page", RUNNABLE)
-def test_the_examples_of_a_page_run_as_written(page, tmp_path):
-    needs_docs()
-    failures = run_page(page, BLOCKS[page], tmp_path)
+def test_the_examples_of_a_page_run_as_written(page, jobs):
+    failures = jobs[0][page].result()
     if failures:
         pytest.fail("\n\n".join(failures), pytrace=False)
 
@@ -301,15 +330,12 @@ def test_a_failing_example_names_its_page_and_line(tmp_path):
 
 # ---- the site ---------------------------------------------------------------------------------
 
-def test_the_site_builds_with_warnings_as_errors(tmp_path):
+def test_the_site_builds_with_warnings_as_errors(jobs):
     needs_docs()
-    t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-m", "sphinx", "-W", "--keep-going", "-q", "-b", "html",
-                           "-d", str(tmp_path / "doctrees"), str(DOCS), str(tmp_path / "html")],
-                          cwd=ROOT, env=_env(), capture_output=True, text=True, timeout=BUILD_TIMEOUT_S)
-    assert proc.returncode == 0, (f"sphinx -W failed (status {proc.returncode}) after {time.perf_counter() - t0:.0f} s:"
-                                  f"\n{_tail(proc.stderr)}")
-    html = tmp_path / "html"
+    futures, base = jobs
+    status, stderr, seconds = futures["build"].result()
+    assert status == 0, f"sphinx -W failed (status {status}) after {seconds:.0f} s:\n{_tail(stderr)}"
+    html = base / "site" / "html"
     for page in ("index", "reference/cli", "reference/scenario-schema", "reference/metrics", "reference/api"):
         assert (html / f"{page}.html").is_file(), page
     cli = (html / "reference" / "cli.html").read_text(encoding="utf-8")
