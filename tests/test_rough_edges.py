@@ -345,3 +345,17 @@ def test_ctrl_c_during_twin_check_is_130_with_one_line_not_1(tmp_path):
     said = [ln for ln in err.splitlines() if ln.strip() and not ln.startswith("  ")]  # progress bars: indented
     assert code == 130 and said == ["interrupted: SIGINT"], err
     _no_process_left(sid)
+
+
+def test_twin_checks_table_shows_each_measured_value_with_its_unit():
+    from twin.verify.check import CaseResult, CheckResult, format_table
+    from twin.verify.expectations import evaluate, failed, parse_expect
+
+    bounds = parse_expect({"iae_theta": "<= 0.5", "settling_time_s": "<= 2", "rejected_measurements": "== 0"},
+                          "expect")
+    runs = {0: {"iae_theta": 0.123456789, "settling_time_s": 0.7, "rejected_measurements": 0}}
+    verdicts = evaluate(bounds, "it2", runs)
+    table = format_table(CheckResult([CaseResult("s", "s.toml", "it2", (0,), runs, {}, verdicts,
+                                                 failed(verdicts, bounds))]))
+    assert "0.1235 rad·s" in table and "0.7 s " in table
+    assert " 0 1" not in table  # dimensionless: no unit "1"

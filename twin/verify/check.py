@@ -337,7 +337,7 @@ def format_table(result: CheckResult) -> str:
             shown = bad[0] if bad else vs[-1] if over_seeds else _worst(vs)
             n_bad = len([v for v in vs if not v.holds])
             where = "" if n == 1 or over_seeds else (f" ({n_bad}/{n} seeds fail)" if n_bad else f" (worst of {n} seeds)")
-            rows.append((case.scenario, label(case.controller), str(bound), shown.measured_text() + where,
+            rows.append((case.scenario, label(case.controller), str(bound), shown.measured_with_unit(False) + where,
                          "FAIL" if bad else "ok"))
         for seed, error in case.errors.items():
             rows.append((case.scenario, label(case.controller), f"run with seed {seed}", error[:60], "ERROR"))

@@ -207,10 +207,10 @@ class Verdict:
             return repr(float(v))
         return text
 
-    def measured_with_unit(self) -> str:
-        """:meth:`measured_text` (``full``) with the metric's unit; none where it is "1", nor after
+    def measured_with_unit(self, full: bool = True) -> str:
+        """:meth:`measured_text` with the metric's unit; none where it is "1", nor after
         "undefined" or a truth value."""
-        text = self.measured_text(full=True)
+        text = self.measured_text(full=full)
         unit = self.bound.unit
         if self.measured is None or isinstance(self.measured, bool) or unit in ("", "1"):
             return text
