@@ -102,6 +102,7 @@ class Recorder:
         self.full = {name: np.empty(self.steps) for name in FULL_RATE_NAMES} if every > 1 else None
         self._diag = [] if diagnostics else None
         self._instants, self._commands, self._periods = [], [], []
+        self._held = (_NO_ACTUATION, _NO_PUSH)  # the last period's actuation and push, for a last row without one
         self._start = 0  # the control step of the gathered lists' first row
         self.n = 0  # control instants recorded
         self._due = min(self.steps, self.chunk)  # instant() looks further at n = this: a chunk or the log full
@@ -135,8 +136,11 @@ class Recorder:
 
     def period(self, result) -> None:
         """The control period after the last instant: ``result`` the StepResult the loop's step
-        returned, whose ``actuation`` and ``push_force`` the last row gets (a row without a
-        period, the run's last, gets zeros)."""
+        returned, whose ``actuation`` and ``push_force`` the last row gets. A row that no
+        period follows (the run's last: it ends before that row's command is applied) repeats
+        the period before it, what the motors were delivering when the run ended, rather
+        than zeros that would read as the torque dropping to nothing at the end (zeros
+        only for a run of a single instant)."""
         if len(self._periods) >= len(self._instants):
             raise TwinError("Recorder.period() follows an instant(): one period per step after a logged instant")
         self._periods.append(result)
@@ -160,9 +164,11 @@ class Recorder:
         pick = slice(first, m, every)
         act_rows = list(map(_ACTUATION, periods))
         push_rows = list(map(_PUSH, periods))
-        if len(periods) < m:  # the run's last row: nothing was applied after it
-            act_rows += [_NO_ACTUATION] * (m - len(periods))
-            push_rows += [_NO_PUSH] * (m - len(periods))
+        if periods:
+            self._held = (act_rows[-1], push_rows[-1])
+        if len(periods) < m:  # the run's last row: it ends before that row's command is applied
+            act_rows += [self._held[0]] * (m - len(periods))  # what the motors were delivering then
+            push_rows += [self._held[1]] * (m - len(periods))
         truth = _array(list(map(_TRUTH, instants)), m, len(TRUTH_NAMES))
         est = _array(list(map(_ESTIMATE, instants)), m, len(ESTIMATE_NAMES))
         act = _array(act_rows, m, len(ACTUATION_NAMES))
