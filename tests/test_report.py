@@ -5,12 +5,15 @@ import dataclasses
 import numpy as np
 import pytest
 
+from twin.outputs.figure import TIME_KEYS, panels
 from twin.outputs.report import FAULT_COLOUR, PUSH_COLOUR, figure_runs
 from twin.scenarios import load_scenario
 from twin.scenarios.runner import run_scenario
 
-PANELS = ["θ [rad]", "estimator error θ̂ − θ [rad]", "delivered torque per wheel [N·m]", "dψ/dt [rad/s]",
-          "distance p = rψ [m]", "heading α [rad]"]
+TITLES = {"theta": "θ [rad]", "error": "estimator error θ̂ − θ [rad]",
+          "torque": "torque per wheel: delivered (lines), commanded (dots) [N·m]", "psi_dot": "dψ/dt [rad/s]",
+          "distance": "distance p = rψ [m]", "alpha": "heading α [rad]", "path": "path seen from above (x, y) [m]"}
+ZOOMED = {"zoom_theta": "theta", "zoom_torque": "torque"}  # a zoom panel's lines are in its original's legend
 
 
 @pytest.fixture(scope="module")
@@ -33,28 +36,31 @@ def _legend(ax):
 
 def test_figure_has_its_panels_with_every_line_in_a_legend(push_runs):
     fig = figure_runs(push_runs, "push-recovery")
-    axes = fig.get_axes()
-    assert [ax.get_title() for ax in axes] == PANELS
-    for ax in axes:
-        labels = _legend(ax)
+    p = panels(fig)
+    assert {k: p[k].get_title() for k in TITLES} == TITLES
+    for key, ax in p.items():
+        labels = _legend(p[ZOOMED.get(key, key)])
         for line in ax.get_lines():
             if line.get_label().startswith("_"):
                 continue
             assert line.get_label() in labels, (ax.get_title(), line.get_label())
-    err = axes[1]
+    err = p["error"]
     assert {"IT2 (ekf)", "type-1 (ekf)"} <= set(_legend(err))  # the estimator's error of each run
     x, y = err.get_lines()[0].get_data()
     run = push_runs[0]
     np.testing.assert_allclose(y, run.signal("theta_est") - run.signal("theta"))
-    torque = set(_legend(axes[2]))
+    torque = set(_legend(p["torque"]))
     assert {"IT2 left", "IT2 right", "type-1 left", "type-1 right"} <= torque
 
 
 def test_pushes_are_shaded_on_every_panel_where_they_act(push_runs):
     fig = figure_runs(push_runs)
-    for ax in fig.get_axes():
+    p = panels(fig)
+    for key, ax in p.items():
         spans = _spans(ax, PUSH_COLOUR)
-        assert len(spans) == 2, ax.get_title()
+        # the time panels show both shoves, the zoom (on the first shove) that one, the path none
+        want = {"zoom_theta": 1, "zoom_torque": 1}.get(key, 2 if key in TIME_KEYS else 0)
+        assert len(spans) == want, ax.get_title()
         for span, start in zip(spans, (3.0, 8.0)):
             x0, x1 = span.get_x(), span.get_x() + span.get_width()
             assert x0 == pytest.approx(start, abs=0.006) and x1 == pytest.approx(start + 0.1, abs=0.011)
@@ -70,14 +76,16 @@ def test_fault_windows_shaded_settling_marked_and_saturation_marked():
     act[100:110, names.index("saturated_l")] = 1.0
     sat_run = dataclasses.replace(run, actuation=act)
     fig = figure_runs([sat_run])
-    axes = fig.get_axes()
+    p = panels(fig)
     faults = run.sensor_config.faults
-    for ax in axes:
-        assert len(_spans(ax, FAULT_COLOUR)) == len(faults), ax.get_title()
+    for key in TIME_KEYS:
+        if p[key].get_visible():  # (the difference panel is hidden: a single run)
+            assert len(_spans(p[key], FAULT_COLOUR)) == len(faults), key
+    assert not _spans(p["zoom_theta"], FAULT_COLOUR)  # the catch, in the first 1.5 s: before the first fault
     ts = run.settling_time()
     assert np.isfinite(ts)
-    marks = [ln for ln in axes[0].get_lines() if ln.get_label().startswith("IT2 settled")]
+    marks = [ln for ln in p["theta"].get_lines() if ln.get_label().startswith("IT2 settled")]
     assert len(marks) == 1 and marks[0].get_xdata()[0] == pytest.approx(ts)
-    sat = [ln for ln in axes[2].get_lines() if ln.get_label() == "IT2 left saturated"]
+    sat = [ln for ln in p["torque"].get_lines() if ln.get_label() == "IT2 left saturated"]
     assert len(sat) == 1 and len(sat[0].get_xdata()) == 10
-    assert not [ln for ln in axes[2].get_lines() if ln.get_label() == "IT2 right saturated"]
+    assert not [ln for ln in p["torque"].get_lines() if ln.get_label() == "IT2 right saturated"]

@@ -99,7 +99,9 @@ def test_the_workers_figure_is_the_one_drawn_here(ran):
         "metrics.json", "trajectory.csv", "design.json", "figure.png", "manifest.json"]
     a = np.asarray(Image.open(dir_w / "figure.png").convert("RGBA"))
     b = np.asarray(Image.open(dir_h / "figure.png").convert("RGBA"))
-    assert a.shape == b.shape == (math.ceil(10.5 * 110), 12 * 110, 4)
+    from twin.outputs.figure import DPI, SIZE
+
+    assert a.shape == b.shape == (math.ceil(SIZE[1] * DPI), math.ceil(SIZE[0] * DPI), 4)
     assert np.array_equal(a, b)  # warmed up on the empty figure, drawn the same
 
 

@@ -37,12 +37,16 @@ def plot_runs(runs: list, path: Path, title: str = "") -> Path:
 
 def figure_runs(runs: list, title: str = ""):
     """The paper's Figs. 6–8 quantities with runs overlaid, and what explains them: θ with
-    each run's settling time marked; the estimator's error θ̂ − θ (what the controllers were
-    given minus the truth) beside it; each wheel's delivered torque with the samples where
-    the motor driver saturated marked; dψ/dt; the distance p = rψ and the heading α with
-    their targets. Pushes and sensor-fault windows are shaded on every panel, and every
-    line is in a legend. A matplotlib Figure (axes titled by their quantity and unit),
-    drawn by :mod:`twin.outputs.figure` from :func:`figure_data`.
+    each run's settling time marked, and a zoom on the catch from a tilted start (or on the
+    first push); the estimator's error θ̂ − θ (what the controllers were given minus the
+    truth); each wheel's delivered torque against its commanded torque, with the samples
+    where the motor driver saturated marked; dψ/dt; the distance p = rψ and the heading α
+    with their targets; the path seen from above; each run's difference to the first; the
+    controller's own signals (the cascade's u, θ_off, u_α; a plugin's). Pushes (their force
+    and direction) and sensor-fault windows (their kind) are shaded and named, an axis whose
+    data spans less than its floor is drawn on the floor's scale, and every line is in a
+    legend. A matplotlib Figure, drawn by :mod:`twin.outputs.figure` from :func:`figure_data`
+    (:func:`twin.outputs.figure.panels` gives its panels by key).
 
     ``runs``: :class:`~twin.sim.runs.Run` (from the twin or the analytic model)."""
     from twin.outputs.figure import fill_figure, new_figure
@@ -51,48 +55,175 @@ def figure_runs(runs: list, title: str = ""):
     return fill_figure(fig, axes, figure_data(runs), title)
 
 
+ZOOM_THETA0 = 0.1  # rad: a start tilted this far or more is a catch worth a zoom
+ZOOM_MIN_S = 1.5  # s: the shortest zoom window
+
+
 def figure_data(runs: list) -> dict:
     """What :func:`figure_runs` draws, as plain data (floats, strings, NumPy arrays; picklable
     without the twin's classes, for :mod:`twin.outputs.figure_worker`): per run its name, colour,
-    settling time (s, NaN if never settled), sensing, and (t, y) pairs thinned by
-    :func:`_envelope` for θ, θ̂ − θ (None under ideal sensing), each wheel's torque and its
-    saturated samples (None if none), dψ/dt, p and α; the experiment's targets p_d, α_d
-    (None if it has none) and the shaded spans (:func:`_shaded_spans`)."""
+    settling time (s, NaN if never settled), sensing, whether it fell, and (t, y) pairs
+    thinned by :func:`_envelope` for θ, θ̂ − θ (None under ideal sensing), each wheel's
+    delivered torque and its saturated samples (None if none), each wheel's commanded torque
+    (``cmd_l``, ``cmd_r``), dψ/dt, p and α; its path (x, y) in m; its ``signals``, the
+    controller's logged signals as (name, unit, (t, y)); for every run after the first its
+    ``difference`` to the first (:func:`_difference`); and, with a zoom window, the same
+    signals over the window at full rate (``zoom``). Then the experiment's targets p_d, α_d
+    (None if it has none), the shaded spans (:func:`_shaded_spans`), the zoom window
+    (:func:`_zoom_window`: (start s, end s, why) or None), the first run's ``pushes`` (their
+    time, force, where they hit and a label) and its ``start`` (x m, y m, α rad)."""
     out = []
+    first = runs[0]
+    pushes = _pushes(first)
+    zoom = _zoom_window(runs, pushes)
     for i, r in enumerate(runs):
         name = kind_label(r.controller) or r.controller or f"run {i + 1}"
         d = {"name": name, "colour": _COLOURS[i % len(_COLOURS)], "settling_time": float(r.settling_time()),
-             "sensing": r.sensing, "theta": _envelope(r.t, r.signal("theta")), "error": None,
+             "sensing": r.sensing, "fell": bool(r.fell), "theta": _envelope(r.t, r.signal("theta")), "error": None,
              "psi_dot": _envelope(r.t, r.signal("psi_dot")), "distance": _envelope(r.t, r.distance),
-             "alpha": _envelope(r.t, r.signal("alpha"))}
+             "alpha": _envelope(r.t, r.signal("alpha")), "path": _thinned(r.signal("x"), r.signal("y"))}
         if r.estimates is not None and r.sensing != "ideal":
             d["error"] = _envelope(r.t, r.signal("theta_est") - r.signal("theta"))
         for side in ("l", "r"):
             tq = r.signal(f"torque_{side}")
             d[f"torque_{side}"] = _envelope(r.t, tq)
+            d[f"cmd_{side}"] = _envelope(r.t, r.signal(f"u{side}_cmd")) if f"u{side}_cmd" in r.command_names else None
             sat = r.signal(f"saturated_{side}") > 0.5
             d[f"saturated_{side}"] = (r.t[sat], tq[sat]) if sat.any() else None
+        units = dict(zip(r.command_names, r.command_units))
+        d["signals"] = [(n, units.get(n, "1"), _envelope(r.t, r.signal(n))) for n in r.command_names
+                        if n not in ("ul_cmd", "ur_cmd")]
+        if i > 0:
+            d["difference"] = _difference(first, r)
+        if zoom is not None:
+            d["zoom"] = _zoomed(r, zoom)
         out.append(d)
-    exp = runs[0].experiment
+    exp = first.experiment
+    start = tuple(float(first.signal(k)[0]) for k in ("x", "y", "alpha"))
     return {"runs": out, "p_d": None if exp is None else exp.p_d, "alpha_d": None if exp is None else exp.alpha_d,
-            "spans": _shaded_spans(runs)}
+            "spans": _shaded_spans(runs, pushes), "zoom": zoom, "pushes": pushes, "start": start}
 
 
-def _shaded_spans(runs: list) -> list:
-    """[(kind, start, end)]: the pushes of any run ("push", where a push force acted) and the
-    sensor-fault windows of the first run's sensors ("sensor fault"; a latency change from
-    its time to the end), in s."""
+def _thinned(x, y, points: int = 4000):
+    """A path (x, y) with at most about ``points`` points, evenly picked (the last kept)."""
+    x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+    if len(x) <= 2 * points:
+        return x, y
+    keep = np.unique(np.linspace(0, len(x) - 1, points).round().astype(int))
+    return x[keep], y[keep]
+
+
+def _difference(ref: Run, run: Run) -> dict:
+    """``run`` against ``ref`` over the time both ran: θ − θ_ref (t, Δθ) thinned, the span of
+    θ_ref (rad, the scale the difference is judged on) and ``largest``, the largest |Δ| of θ
+    (rad), p (m), α (rad) and the total torque (N·m) as (value, unit). Logs on the same time
+    grid are subtracted row by row; others are interpolated onto ``ref``'s."""
+    n = min(len(ref.t), len(run.t))
+    same = np.array_equal(ref.t[:n], run.t[:n])
+    t = ref.t[:n] if same else ref.t[ref.t <= run.t[-1]]
+
+    def delta(a, b):
+        return b[:n] - a[:n] if same else np.interp(t, run.t, b) - a[:len(t)]
+
+    dth = delta(ref.signal("theta"), run.signal("theta"))
+    largest = {}
+    for key, sig, unit in (("θ", ref.signal("theta"), "rad"), ("p", ref.distance, "m"),
+                           ("α", ref.signal("alpha"), "rad"), ("τ_l + τ_r", ref.total_torque, "N·m")):
+        other = {"θ": run.signal("theta"), "p": run.distance, "α": run.signal("alpha"),
+                 "τ_l + τ_r": run.total_torque}[key]
+        dd = delta(sig, other)
+        largest[key] = (float(np.max(np.abs(dd))) if dd.size else 0.0, unit)
+    theta = ref.signal("theta")
+    return {"theta": _envelope(t, dth), "largest": largest, "span": float(np.ptp(theta)) if theta.size else 0.0}
+
+
+def _zoom_window(runs: list, pushes: list):
+    """(start s, end s, why) the zoom panels show, or None: the catch from a start tilted by
+    :data:`ZOOM_THETA0` or more (until 3 times the last moment, in the first half of the
+    run, that any run's |θ| exceeded a fifth of its start; at least :data:`ZOOM_MIN_S`),
+    else the first push (from 0.25 s before it); None if the window would cover more than a
+    third of the run (the whole run is then as readable)."""
+    r = runs[0]
+    t0, t_end = float(r.t[0]), max(float(x.t[-1]) for x in runs)
+    theta0 = float(r.signal("theta")[0])
+    if abs(theta0) >= ZOOM_THETA0:
+        last = 0.0
+        for x in runs:
+            th = np.abs(x.signal("theta"))
+            early = x.t <= t0 + 0.5 * (t_end - t0)
+            over = np.flatnonzero(early & (th > 0.2 * abs(theta0)))
+            if over.size:
+                last = max(last, float(x.t[over[-1]]) - t0)
+        width = math.ceil(max(ZOOM_MIN_S, 3.0 * last) * 2.0) / 2.0  # s, to half a second
+        window = (t0, t0 + width, f"the catch from θ0 = {theta0:.2f} rad")
+    elif pushes:
+        p = pushes[0]
+        window = (max(t0, p["t"] - 0.25), p["t"] - 0.25 + max(ZOOM_MIN_S, 2.0),
+                  f"push of {p['label']} at {p['t']:.2f} s")
+    else:
+        return None
+    if window[1] - window[0] > (t_end - t0) / 3.0:
+        return None
+    return window
+
+
+def _zoomed(r: Run, zoom) -> dict:
+    """θ and the torques (delivered and commanded) of ``r`` inside the zoom window, at full rate."""
+    a, b, _ = zoom
+    i0, i1 = np.searchsorted(r.t, a, side="left"), np.searchsorted(r.t, b, side="right")
+    i0, i1 = max(0, i0 - 1), min(len(r.t), i1 + 1)  # a sample beyond each edge: the lines reach the frame
+    t = r.t[i0:i1]
+    out = {"theta": (t, r.signal("theta")[i0:i1])}
+    for side in ("l", "r"):
+        out[f"torque_{side}"] = (t, r.signal(f"torque_{side}")[i0:i1])
+        name = f"u{side}_cmd"
+        out[f"cmd_{side}"] = (t, r.signal(name)[i0:i1]) if name in r.command_names else None
+    return out
+
+
+_DIRECTIONS = (("forward", "backward"), ("to the left", "to the right"), ("up", "down"))
+
+
+def _pushes(run: Run) -> list:
+    """The pushes on ``run``: per stretch of rows with a push force, its start ``t`` (s), its
+    end ``end`` (s), the largest ``force`` (fx, fy, fz) N in the world frame, where it hit
+    (``at``: the robot's (x, y) m then) and a ``label``: its size and direction in the robot's
+    frame at the time, e.g. "12 N forward"."""
+    if not len(run.t):
+        return []
+    force = np.abs(run.push).sum(axis=1) > 0.0
+    if not force.any():
+        return []
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], force.astype(np.int8), [0]))))
+    dt = float(run.t[1] - run.t[0]) if len(run.t) > 1 else 0.0
+    out = []
+    for a, b in zip(edges[::2], edges[1::2]):
+        rows = run.push[a:b]
+        k = a + int(np.argmax(np.linalg.norm(rows, axis=1)))
+        f = run.push[k]
+        alpha = float(run.signal("alpha")[k])
+        # the force in the robot's frame: along the heading, to its left, up
+        parts = (f[0] * math.cos(alpha) + f[1] * math.sin(alpha), -f[0] * math.sin(alpha) + f[1] * math.cos(alpha),
+                 f[2])
+        j = int(np.argmax(np.abs(parts)))
+        label = f"{float(np.linalg.norm(f)):.3g} N {_DIRECTIONS[j][0 if parts[j] >= 0 else 1]}"
+        out.append({"t": float(run.t[a]), "end": float(run.t[b - 1]) + dt, "force": tuple(float(v) for v in f),
+                    "at": (float(run.signal("x")[a]), float(run.signal("y")[a])), "label": label})
+    return out
+
+
+def _shaded_spans(runs: list, pushes: list | None = None) -> list:
+    """[(kind, start, end, label)]: the pushes of the first run ("push", where a push force
+    acted, labelled with its size and direction: :func:`_pushes`) and the sensor-fault windows
+    of its sensors ("sensor fault", labelled with the fault's kind, e.g. "IMU dropout"; a
+    latency change from its time to the end), in s."""
     spans = []
     end = max(float(r.t[-1]) for r in runs) if runs else 0.0
     for r in runs[:1]:
-        force = np.abs(r.push).sum(axis=1) > 0.0
-        if force.any():
-            edges = np.flatnonzero(np.diff(np.concatenate(([0], force.astype(np.int8), [0]))))
-            dt = float(r.t[1] - r.t[0]) if len(r.t) > 1 else 0.0
-            for a, b in zip(edges[::2], edges[1::2]):
-                spans.append(("push", float(r.t[a]), float(r.t[b - 1]) + dt))
-        for _, a, b in fault_windows(getattr(r.sensor_config, "faults", ())):
-            spans.append(("sensor fault", a, min(b, end)))  # a latency change lasts to the end
+        for p in _pushes(r) if pushes is None else pushes:
+            spans.append(("push", p["t"], p["end"], f"push {p['label']}"))
+        for name, a, b in fault_windows(getattr(r.sensor_config, "faults", ())):
+            spans.append(("sensor fault", a, min(b, end), name))  # a latency change lasts to the end
     return spans
 
 

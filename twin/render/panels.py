@@ -20,7 +20,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from twin.errors import TwinError
-from twin.render.hud import CYAN, HudState, draw_hud
+from twin.render.hud import CYAN, GREEN, MAGENTA, HudState, draw_hud, push_caption
 from twin.render.scene import Scene
 
 _ERROR = b"ERROR: "
@@ -45,14 +45,15 @@ def panel_frames(scene: Scene, track, samples: dict, times: np.ndarray, hud: boo
             draw_hud(panel, HudState(track.label, min(tk, track.duration), s["theta"][k], s["distance"][k],
                                      s["alpha"][k], track.p_d, track.alpha_d, track.ended(tk),
                                      track.status != "ok", track.fault_at(min(tk, track.duration)),
-                                     s["theta_est"][k] if "theta_est" in s else None, track.plant))
+                                     s["theta_est"][k] if "theta_est" in s else None, track.plant,
+                                     push_caption(s["push_fx"][k], s["push_fy"][k], s["push_fz"][k], s["alpha"][k])))
         if tk > track.duration + 1e-9:
             held = panel  # the run has ended: this panel stays as it is
         yield panel
 
 
-TARGET_BGR = (40, 200, 40)  # green: the position target on the floor, the heading target's arrow
-PUSH_BGR = (255, 0, 255)  # magenta: a push acting now (no other magenta in the scene)
+TARGET_BGR = GREEN  # the position target on the floor, the heading target's arrow (the key: hud.legend_lines)
+PUSH_BGR = MAGENTA  # a push acting now (no other magenta in the scene)
 GHOST_BGR = CYAN  # the body where the estimator puts it (the HUD's estimate line has its colour)
 GHOST_FILL = 0.15  # opacity of the ghost's faces: the body shows through in its own colour
 PUSH_M_PER_N = 0.02  # m of arrow per N of push (12 N: 24 cm)
