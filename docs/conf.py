@@ -56,3 +56,9 @@ suppress_warnings: list[str] = []
 html_theme = "furo"
 html_title = "mtwip-twin"
 html_static_path: list[str] = []
+
+# numpydoc also parses the raw docstrings for signatures and warns (Python warnings, not Sphinx's)
+# about the sections it does not know; twin_reference turns those into rubrics for the page
+import warnings  # noqa: E402
+
+warnings.filterwarnings("ignore", category=UserWarning, module="numpydoc.docscrape")

@@ -148,8 +148,36 @@ def escape_bars(line: str) -> str:
     return "".join(p if i % 2 else re.sub(r"(?<!\\)\|", r"\\|", p) for i, p in enumerate(parts))
 
 
+NUMPYDOC_SECTIONS = {"Parameters", "Returns", "Yields", "Receives", "Raises", "Warns", "Other Parameters",
+                     "Attributes", "Methods", "See Also", "Notes", "Warnings", "References", "Examples",
+                     "Summary", "Extended Summary"}
+
+
+def headings_to_rubrics(lines: list[str]) -> list[str]:
+    """If a docstring has a section numpydoc does not know (it would drop it, e.g. "Optional
+    hooks (the loop calls them only if they exist)"), every section heading becomes a rubric
+    over its content (a definition list), so that nothing is lost; else ``lines`` unchanged."""
+    def is_rule(i):
+        return i < len(lines) and len(lines[i].strip()) >= 3 and set(lines[i].strip()) == {"-"}
+
+    heads = [i for i in range(len(lines) - 1) if lines[i].strip() and is_rule(i + 1)]
+    if all(lines[i].strip() in NUMPYDOC_SECTIONS for i in heads):
+        return lines
+    out, skip = [], set()
+    for i, ln in enumerate(lines):
+        if i in skip:
+            continue
+        if i in heads:
+            indent = ln[:len(ln) - len(ln.lstrip())]
+            out += [f"{indent}.. rubric:: {ln.strip()}", ""]
+            skip.add(i + 1)
+        else:
+            out.append(ln)
+    return out
+
+
 def _process_docstring(app, what, name, obj, options, lines):
-    lines[:] = [escape_bars(ln) for ln in lines]
+    lines[:] = headings_to_rubrics([escape_bars(ln) for ln in lines])
 
 
 def _builder_inited(app):
