@@ -394,6 +394,18 @@ def test_absolute_value_bars_in_docstrings_are_escaped_outside_literals():
     ref = _reference()
     assert ref.escape_bars("max |θ| over ``a|b`` and :func:`x|y`") == "max \\|θ\\| over ``a|b`` and :func:`x|y`"
     assert ref.escape_bars("| a | b |") == "| a | b |"
+    doc = ["the |x| here::", "", "    a = '|x|'", "", "and |y|", ">>> abs(-1) | 0"]
+    assert ref.escape_docstring(doc) == ["the \\|x\\| here::", "", "    a = '|x|'", "", "and \\|y\\|",
+                                         ">>> abs(-1) | 0"]
+
+
+def test_a_section_numpydoc_does_not_know_is_kept_as_a_rubric():
+    ref = _reference()
+    known = ["Summary.", "", "Parameters", "----------", "x : float", "    metres"]
+    assert ref.headings_to_rubrics(known) == known
+    doc = known + ["", "Optional hooks", "--------------", "f() -> None", "    called last"]
+    assert ref.headings_to_rubrics(doc) == ["Summary.", "", ".. rubric:: Parameters", "", "x : float", "    metres",
+                                            "", ".. rubric:: Optional hooks", "", "f() -> None", "    called last"]
 
 
 # ---- the README as a landing page ---------------------------------------------------------------

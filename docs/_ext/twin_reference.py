@@ -176,8 +176,31 @@ def headings_to_rubrics(lines: list[str]) -> list[str]:
     return out
 
 
+def escape_docstring(lines: list[str]) -> list[str]:
+    """:func:`escape_bars` on every line but those of literal blocks (after a ``::``, indented
+    deeper) and doctests (``>>>``)."""
+    out, literal_indent = [], None
+
+    def indent(ln):
+        return len(ln) - len(ln.lstrip())
+
+    for i, ln in enumerate(lines):
+        if literal_indent is not None:
+            if not ln.strip() or indent(ln) > literal_indent:
+                out.append(ln)
+                continue
+            literal_indent = None
+        if ln.lstrip().startswith((">>>", "...")):
+            out.append(ln)
+            continue
+        out.append(escape_bars(ln))
+        if ln.rstrip().endswith("::"):
+            literal_indent = indent(ln)
+    return out
+
+
 def _process_docstring(app, what, name, obj, options, lines):
-    lines[:] = headings_to_rubrics([escape_bars(ln) for ln in lines])
+    lines[:] = headings_to_rubrics(escape_docstring(lines))
 
 
 def _builder_inited(app):
