@@ -428,6 +428,7 @@ def test_the_readme_headline_table_is_the_generated_one():
     """A table copied from docs/_generated into the README must equal the generated file's table."""
     text = README.read_text(encoding="utf-8")
     copied = re.findall(r"<!-- generated: (\S+) -->\n(.*?)\n<!-- end generated -->", text, re.S)
+    assert copied, "the README's headline results are no copy of a docs/_generated table"
     for name, body in copied:
         source = (ROOT / name).read_text(encoding="utf-8")
         assert body.strip() in source, f"README's copy of {name} differs from it: copy it again"
