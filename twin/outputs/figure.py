@@ -174,15 +174,15 @@ def fill_figure(fig, axes, data: dict, title: str = ""):
     _draw_path_marks(p["path"], data, ranges)
     if not p["error"].lines:
         _note(p["error"], "ideal sensing: the controllers read the truth")
-    _draw_zoom_frame(p, zoom)
+    _draw_zoom_frame(p, zoom, data.get("zoom_why_not", ""))
     _draw_difference(p["difference"], runs, ranges)
     _draw_signals(p, runs, ranges)
     spans = data["spans"]
     for key in TIME_KEYS + ZOOM_KEYS:
         ax = p[key]
-        if not ax.get_visible():
+        if not ax.get_visible() or (key in ZOOM_KEYS and zoom is None):
             continue
-        lo, hi = (zoom[0], zoom[1]) if key in ZOOM_KEYS and zoom is not None else (-math.inf, math.inf)
+        lo, hi = (zoom[0], zoom[1]) if key in ZOOM_KEYS else (-math.inf, math.inf)
         for kind, a, b, label in spans:
             if b < lo or a > hi:
                 continue
@@ -298,15 +298,16 @@ def _draw_path_marks(ax, data: dict, ranges: dict) -> None:
         ax.plot([], [], color=PUSH_COLOUR, lw=1.2, label="push (horizontal part)")  # the arrows' legend entry
 
 
-def _draw_zoom_frame(p: dict, zoom) -> None:
-    """The zoom panels' window and titles; with nothing to zoom on, a note instead."""
+def _draw_zoom_frame(p: dict, zoom, why_not: str = "") -> None:
+    """The zoom panels' window and titles; without a window, a note saying why (``why_not``)."""
     if zoom is None:
         for key in ZOOM_KEYS:
             ax = p[key]
-            ax.set_title("zoom: nothing to zoom on", fontsize=9, y=1.0)
-            _note(ax, "no catch from a tilted start and no push:\nthe panels on the left show the whole run")
+            ax.set_title("zoom: none", fontsize=9, y=1.0)
+            _note(ax, (why_not or "nothing to zoom on") + ":\nthe panels on the left show the whole run")
             ax.set_xticks([])
             ax.set_yticks([])
+            ax.set_xlabel("")
         return
     a, b, why = zoom
     p["zoom_theta"].set_title(f"zoom: θ [rad], {why}", fontsize=9, y=1.0)

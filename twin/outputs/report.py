@@ -70,8 +70,9 @@ def figure_data(runs: list) -> dict:
     ``difference`` to the first (:func:`_difference`); and, with a zoom window, the same
     signals over the window at full rate (``zoom``). Then the experiment's targets p_d, α_d
     (None if it has none), the shaded spans (:func:`_shaded_spans`), the zoom window
-    (:func:`_zoom_window`: (start s, end s, why) or None), the first run's ``pushes`` (their
-    time, force, where they hit and a label) and its ``start`` (x m, y m, α rad)."""
+    (:func:`_zoom_window`: (start s, end s, why) or None, and ``zoom_why_not`` the reason
+    for None), the first run's ``pushes`` (their time, force, where they hit and a label)
+    and its ``start`` (x m, y m, α rad)."""
     out = []
     first = runs[0]
     pushes = _pushes(first)
@@ -100,8 +101,13 @@ def figure_data(runs: list) -> dict:
         out.append(d)
     exp = first.experiment
     start = tuple(float(first.signal(k)[0]) for k in ("x", "y", "alpha"))
+    why_not = ""
+    if zoom is None:
+        why_not = ("the run is short enough to read whole" if pushes or abs(float(first.signal("theta")[0])) >= ZOOM_THETA0
+                   else "no catch from a tilted start and no push")
     return {"runs": out, "p_d": None if exp is None else exp.p_d, "alpha_d": None if exp is None else exp.alpha_d,
-            "spans": _shaded_spans(runs, pushes), "zoom": zoom, "pushes": pushes, "start": start}
+            "spans": _shaded_spans(runs, pushes), "zoom": zoom, "zoom_why_not": why_not, "pushes": pushes,
+            "start": start}
 
 
 def _thinned(x, y, points: int = 4000):
