@@ -3,7 +3,8 @@
 Row i holds the ground truth at t_i, what the controllers were given at t_i
 (``estimates``), the command computed from it, and what the motors delivered and the
 pushes did over [t_i, t_i+1) (period means). A run that falls stops at the row where that
-was detected; its last row's actuation is zero, because nothing was applied after it. A
+was detected. Nothing is applied after a run's last row, so that row repeats the actuation
+of the period before it (what the motors were delivering when the run ended). A
 run that diverges (a non-finite state from the physics) stops at the last finite row: no
 NaN is logged. :func:`twin.outputs.metrics.run_metrics` gives every run's figures of merit.
 

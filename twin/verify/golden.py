@@ -232,8 +232,8 @@ def environment_text(differences) -> str:
 
 def common_rows(a: Trajectory, b: Trajectory) -> int:
     """The rows two trajectories' values can be compared on: those both have, less the shorter
-    one's last row when their lengths differ (a run's last row logs no actuation: nothing was
-    applied after it, so there it differs from a longer run's by construction)."""
+    one's last row when their lengths differ (nothing is applied after a run's last row: it
+    repeats the period before it, so there it differs from a longer run's by construction)."""
     n = min(len(a.data), len(b.data))
     return n - 1 if len(a.data) != len(b.data) and n else n
 
