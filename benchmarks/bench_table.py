@@ -8,7 +8,7 @@ Run from the repository root (the default set takes a few minutes on 2 cores)::
 
 Every script of :data:`SCRIPTS` is listed with what it measures (its docstring's first
 sentence); those in the chosen set (``--run``, repeatable; default :data:`DEFAULT`, the ones
-that take well under a minute) are run, one after the other, each in a process of its own, and
+that take about a minute or less) are run, one after the other, each in a process of its own, and
 their output is written under the page's header line (command, machine, date, commit; see
 ``benchmarks/published.py``). The others are named by the command that measures them, with how
 long it takes: no figure on the page is typed by hand.
@@ -50,7 +50,8 @@ SCRIPTS = [
     ("bench_rundir", [], "about 6 min"),
     ("bench_memory", [], "about 20 min"),
 ]
-DEFAULT = ("bench_fuzzy", "bench_twin", "bench_estimator", "bench_run", "bench_replay", "bench_startup", "bench_gym")
+DEFAULT = ("bench_fuzzy", "bench_lmi", "bench_design_cost", "bench_twin", "bench_estimator", "bench_run", "bench_consistency",
+           "bench_startup", "bench_replay", "bench_gym", "bench_fastpath", "bench_check")
 TIMEOUT_S = 900
 
 
