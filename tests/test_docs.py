@@ -340,6 +340,15 @@ def test_the_site_builds_with_warnings_as_errors(jobs):
         assert (html / f"{page}.html").is_file(), page
     cli = (html / "reference" / "cli.html").read_text(encoding="utf-8")
     assert "twin run" in cli and "--set" in cli
+    # no development history in the user's documentation (the changelog page excepted)
+    history = {}
+    for f in html.rglob("*.html"):
+        if f.name in ("changelog.html", "genindex.html", "search.html"):
+            continue
+        hit = re.search(r"\bissues? \d+", re.sub(r"<[^>]+>", "", f.read_text(encoding="utf-8")), re.I)
+        if hit:
+            history[str(f.relative_to(html))] = hit.group(0)
+    assert not history, f"issue numbers on pages of the site: {history}"
 
 
 # ---- the reference's single sources -------------------------------------------------------------
