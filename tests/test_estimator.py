@@ -234,7 +234,7 @@ def test_monte_carlo_nees_and_nis_are_consistent(mc_runs):
     of seeds 0–299 the NEES test passes 14 times (seeds 40–59 fail: mean 15.07, interval
     12.46–17.68), as a 95 % test should; over all 300 runs the mean NEES is 12.62 ± 0.25 (s.e.),
     about 5 % overconfident, inside what 20 runs can resolve (the cause, the scale factors
-    drifting from noise while learned, is in the README, "Consistency"). The NIS tests pass on
+    drifting from noise while learned, is in docs/explanation/sensors-ekf.md, "Consistency"). The NIS tests pass on
     all 15. Not asserted, because it swings from batch to batch (the rows of a run are strongly
     correlated): the fraction of rows whose 20-run average NEES is inside the bounds, 100 %
     here, 8–100 % over the 15 batches (≥ 90 % on 13).
@@ -284,7 +284,7 @@ def test_monte_carlo_test_fails_for_a_mistuned_filter(design):
 
 
 def test_strapdown_is_exact_for_theta_and_v_but_not_for_the_twins_position(design):
-    """What the consistency figures from θ0 = 0.2 rad rest on (README, "Consistency"): on noise-free,
+    """What the consistency figures from θ0 = 0.2 rad rest on (docs/explanation/sensors-ekf.md, "Consistency"): on noise-free,
     finely quantised IMU samples, the EKF's strapdown step (``_propagate``) from the true initial
     state reproduces the twin's θ and v over 1 s (the gyro is a delta-angle, the accelerometer a
     delta-velocity sample), but not its ψ: the simulator's positions are not the trapezoid of its
@@ -297,7 +297,7 @@ def test_strapdown_is_exact_for_theta_and_v_but_not_for_the_twins_position(desig
 
     Measured: max |θ error| 1.4e-10 rad, max |v error| 0.023 mm/s, max |ψ error| 0.70 mrad (first
     0.1 s). Fails when the twin's positions become the trapezoid of its velocities: then the
-    README's cause no longer holds.
+    documented cause no longer holds.
     """
     quiet = dict(noise_density=1e-12, bias_random_walk=0.0, turn_on_bias=0.0, scale_factor_error=0.0, bits=30)
     sensors = SensorConfig(imu=ImuSpec(gyro=dataclasses.replace(MPU6050_GYRO, **quiet),

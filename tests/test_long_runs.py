@@ -1,7 +1,7 @@
 """Long runs: no yaw or position creep from the contact solver, and (the short soak) the
 EKF in the loop holding balance and its estimates over simulated minutes.
 
-See README, "Long runs", and docs/investigations/yaw-creep.md.
+See docs/explanation/sensors-ekf.md, "Long runs", and docs/investigations/yaw-creep.md.
 """
 import math
 
