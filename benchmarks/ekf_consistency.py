@@ -4,7 +4,7 @@ each state's share (mean of e_i² / P_ii: 1 for an honest filter).
 
 Run from the repository root::
 
-    python benchmarks/ekf_consistency.py                       # 20 seeds, the README's table (~40 s)
+    python benchmarks/ekf_consistency.py                       # 20 seeds, the documentation's table (~40 s)
     python benchmarks/ekf_consistency.py --seeds 300           # 300 seeds (~8 min)
     python benchmarks/ekf_consistency.py --theta 0.2 --design nominal
     python benchmarks/ekf_consistency.py --markdown docs/_generated/ekf-consistency.md

@@ -16,7 +16,7 @@ A. False events. Every built-in scenario (``twin scenarios``: paper-exp1, paper-
    the runs with an event and the events' count per scenario × controller, each event with
    its time and text, and the estimator's θ RMSE (``estimator_theta_rmse_rad``: max and
    median per scenario × controller), which the scenarios' [expect] bounds hold.
-B. Injected changes, the README's fault table set-up (``benchmarks/estimator_accuracy.py``,
+B. Injected changes, the fault table's set-up (docs/explanation/sensors-ekf.md) (``benchmarks/estimator_accuracy.py``,
    section B): θ0 = 0.2 rad, 5 s, the IT2 balance loop of the default design, the change at
    t = 2 s, seeds 0 … min(S, 10) − 1: gyro 5 → 10, 15 and 20 ms and IMU (gyro and
    accelerometer) 5 → 20 ms. Printed per case: detected (the first event names the new
@@ -204,7 +204,7 @@ def main(argv=None) -> int:
 
     odd_lines = []
     if jobs_b:
-        print(f"B. Injected latency changes, the README fault table's set-up (θ0 = 0.2 rad, 5 s, IT2, change at "
+        print(f"B. Injected latency changes, the fault table's set-up (θ0 = 0.2 rad, 5 s, IT2, change at "
               f"{FAULT_T:g} s, seeds 0-{len(inj_seeds) - 1}; stated: within {STATED:g} s)\n")
         print("| change | detected within the stated time | delay min / median / max | events before the change | "
               "balanced | θ RMSE median (mrad) |")

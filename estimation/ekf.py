@@ -115,7 +115,7 @@ scale factor's Jacobian is the measured rate, whose noise is also in the error i
 regressed on, and the zeros sit in a direction (ψ + c, α + h r/b) no sensor sees, where
 the strapdown's unmodelled errors accumulate. In paper-exp2 the gyro and accelerometer
 scale states reached +0.17 to +0.25 in 900 s (true 0.2–0.9 %) at σ 0.004–0.009, θ̇ was read
-17 % low, and the robot rocked into a 0.35 rad limit cycle (README, "Long runs").
+17 % low, and the robot rocked into a 0.35 rad limit cycle (docs/explanation/sensors-ekf.md, "Long runs").
 
 Latency: the filter runs L = max(gyro, accelerometer, encoder latency) periods behind,
 where every sample it uses has arrived; the estimate handed to the controllers is its state

@@ -316,7 +316,7 @@ def design(epsilon, rho, decay_rate, max_gain, damping, uncertain, all_vertices,
     closed-loop poles also keep a minimum damping ratio; with --uncertain, one pair of
     gains is certified for every corner of the parameter box (and checked, not
     certified, at plants sampled inside it). The defaults are the twin's default design,
-    robust to m_b ±30 % and l ±15 % (chosen by the paper-exp3 sweep; see the README).
+    robust to m_b ±30 % and l ±15 % (chosen by the paper-exp3 sweep; see docs/explanation/paper-method.md).
 
     \b
     Examples:
@@ -684,7 +684,7 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
           log_sensors, step_limit, run_limit, memory_limit):
     """Monte Carlo sweep: controllers compared on sampled plants, noise, tilts and pushes.
 
-    The scenario's [sweep] table says what is sampled (see the README). Each sample's
+    The scenario's [sweep] table says what is sampled (see docs/howto/sweeps.md). Each sample's
     seed and sampled values are in sweep.csv, and 'twin run SCENARIO --sample K'
     replays sample K exactly. Finished samples are kept as they finish: rerun the
     same command after an interruption and only the rest runs. Writes sweep.csv,
@@ -1123,8 +1123,7 @@ def kinds():
         width = max(map(len, table))
         for name, kind in table.items():
             click.echo(f"  {name:{width}}  {kind.description}")
-    click.echo("your own: package.module:attribute, a class or factory (see the README, 'Use your own controller "
-               "and estimator')")
+    click.echo("your own: package.module:attribute, a class or factory (see docs/howto/plugins.md)")
 
 
 @main.command()

@@ -76,7 +76,7 @@ from twin.plant.ts_model import rule1_weight, ts_matrices
 DEFAULT_EPSILON = 0.5  # ‖x0‖ bound of the certified region (mixed units of x); covers θ0 = 0.48 rad
 DEFAULT_RHO = 2.0  # N·m: bound on |u| = |ul + ur| (1 N·m per wheel)
 # The twin's default balance design (issue 18), chosen by the paper-exp3 Monte Carlo sweep
-# (README, "A robust balance design"): one pair of PDC gains certified for the nominal model
+# (docs/explanation/paper-method.md, "The default design"): one pair of PDC gains certified for the nominal model
 # and the corners of m_b ±30 %, l ±15 % (the heavier, taller bodies that made the nominal
 # design's limit cycles), a decay rate of 2 1/s and a damping ratio of at least 0.5 for
 # every vertex closed loop A_i + B_i G_j. Success at λ = 0.3 rose from 73 % to 95 % (IT2)

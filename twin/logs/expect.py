@@ -79,7 +79,7 @@ def load_log_check(target) -> LogCheck:
     table = doc.get("expect")
     if not table:
         raise TwinError(f"{file}: no [expect] table, so nothing to check; add bounds such as [expect.ekf] "
-                        f"nis_per_dof = \"<= 2\" (see the README, 'A robot's logs')")
+                        f"nis_per_dof = \"<= 2\" (see docs/howto/robot-logs.md)")
     bounds = parse_expect(table, f"{file}: expect", REPLAY_METRICS, "estimator")
     kinds = tuple(k for k in bounds if k != ALL)
     if not kinds:

@@ -1,7 +1,6 @@
 """The scenario file's schema: every key, its type, unit, default and allowed range.
 
-A scenario is a TOML file (see ``twin/scenarios/builtin/`` and the README's "Writing a
-scenario"). :func:`validate` checks a parsed file against :data:`SCHEMA` and returns it
+A scenario is a TOML file (see ``twin/scenarios/builtin/`` and docs/howto/scenarios.md). :func:`validate` checks a parsed file against :data:`SCHEMA` and returns it
 complete, with every default filled in; the first problem found is raised as a
 :class:`ScenarioError` naming the file, the dotted key and what is allowed. Checks that
 involve several keys (a control rate that does not divide the physics rate, ...) are in
@@ -319,7 +318,7 @@ SCHEMA: dict[str, Key] = {
     "expect": Key("expect", {}, recorded_at_default=False, recorded=False,
                   doc="bounds on the run's metrics that 'twin check' verifies, e.g. fell = false, "
                       "settling_time_s = \"<= 9\"; [expect.KIND] for one controller, [expect.seeds] over seeds, "
-                      "[expect.golden] the tolerances of golden trajectories (see the README, 'twin check')"),
+                      "[expect.golden] the tolerances of golden trajectories (see docs/howto/regression.md)"),
     "limits": Key("table", recorded_at_default=False, recorded=False,
                   doc="what a controller or an estimator may cost (each controller's run separately); over a "
                       "limit the run stops with one line naming the plugin and the limit", keys={
@@ -570,7 +569,7 @@ def lookup(path: str) -> Key:
 
 
 def describe() -> list[tuple[str, str, str, str]]:
-    """(dotted key, type and range, default, doc) for every key, for the README and --help."""
+    """(dotted key, type and range, default, doc) for every key, for the documentation's key reference and --help."""
     rows = []
 
     def walk(keys, prefix):

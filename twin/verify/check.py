@@ -122,7 +122,7 @@ def collect(targets, overrides=()) -> tuple[list, list[str]]:
         sc = load_scenario(str(target), overrides)
         if not sc.expect:
             raise TwinError(f"{sc.source}: no [expect] table, so nothing to check; add bounds such as "
-                            "fell = false (see the README, 'twin check')")
+                            "fell = false (see docs/howto/regression.md)")
         scenarios.append(sc)
     seen: dict[str, str] = {}
     for sc in scenarios:  # reports, JUnit suites and golden files are keyed by the name
