@@ -353,13 +353,7 @@ def test_the_site_builds_with_warnings_as_errors(jobs):
 
 # ---- the reference's single sources -------------------------------------------------------------
 
-def _reference():
-    sys.path.insert(0, str(DOCS / "_ext"))
-    try:
-        import twin_reference
-    finally:
-        sys.path.remove(str(DOCS / "_ext"))
-    return twin_reference
+from test_scenario_docs import _reference  # noqa: E402  (the reference extension, imported from docs/_ext)
 
 
 def test_every_metric_has_a_unit_and_a_definition():

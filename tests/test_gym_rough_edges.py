@@ -35,6 +35,18 @@ def it2_policy(env):
 
 # ---- max_episode_steps ------------------------------------------------------------------------
 @pytest.mark.parametrize("env_id,scenario", [("mtwip/Balance-v0", "paper-exp1"), ("mtwip/Track-v0", "paper-exp3")])
+
+def _episode(env):
+    """Step ``env`` (reset already) with the IT2 cascade to the episode's end:
+    (steps, terminated, truncated, the last info)."""
+    policy = it2_policy(env)
+    n = 0
+    while True:
+        _, _, terminated, truncated, info = env.step(policy())
+        n += 1
+        if terminated or truncated:
+            return n, terminated, truncated, info
+
 def test_max_episode_steps_is_registered_from_the_default_scenario(env_id, scenario):
     spec = gymnasium.spec(env_id)
     assert type(spec.max_episode_steps) is int and spec.max_episode_steps == 3000  # 15 s / 5 ms
@@ -65,13 +77,7 @@ def test_time_limit_truncates_at_max_episode_steps():
         assert env.unwrapped.n_steps == 4000 and env.spec.max_episode_steps == 3000
         with pytest.warns(UserWarning, match=r"lasts 4000 steps .*max_episode_steps=3000.*max_episode_steps=4000"):
             env.reset(seed=0)
-        policy = it2_policy(env)
-        n = 0
-        while True:
-            _, _, terminated, truncated, info = env.step(policy())
-            n += 1
-            if terminated or truncated:
-                break
+        n, terminated, truncated, info = _episode(env)
         assert (n, terminated, truncated) == (3000, False, True)
         assert info["status"] == "running" and math.isclose(info["t"], 15.0)
         assert env.unwrapped.loop.k == 3000 < env.unwrapped.n_steps  # the TimeLimit, not the environment
@@ -173,13 +179,7 @@ def test_record_video_is_real_time_at_the_scenario_rate(tmp_path):
     try:
         calls = _count_renders(env)
         env.reset(seed=0)
-        policy = it2_policy(env)
-        steps = 0
-        while True:
-            _, _, terminated, truncated, _ = env.step(policy())
-            steps += 1
-            if terminated or truncated:
-                break
+        steps, _, truncated, _ = _episode(env)
         assert (steps, truncated) == (200, True)
         # 1 s at 30 frames/s: frames at 0, 1/30, ... 1 s, each at the first step at or after its time
         assert len(calls) == 31 and calls[:4] == [0, 7, 14, 20] and calls[-1] == 200
