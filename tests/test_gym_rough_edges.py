@@ -33,9 +33,6 @@ def it2_policy(env):
     return lambda: np.array(ctrl(u.loop.estimate, targets)[:2])
 
 
-# ---- max_episode_steps ------------------------------------------------------------------------
-@pytest.mark.parametrize("env_id,scenario", [("mtwip/Balance-v0", "paper-exp1"), ("mtwip/Track-v0", "paper-exp3")])
-
 def _episode(env):
     """Step ``env`` (reset already) with the IT2 cascade to the episode's end:
     (steps, terminated, truncated, the last info)."""
@@ -47,6 +44,9 @@ def _episode(env):
         if terminated or truncated:
             return n, terminated, truncated, info
 
+
+# ---- max_episode_steps ------------------------------------------------------------------------
+@pytest.mark.parametrize("env_id,scenario", [("mtwip/Balance-v0", "paper-exp1"), ("mtwip/Track-v0", "paper-exp3")])
 def test_max_episode_steps_is_registered_from_the_default_scenario(env_id, scenario):
     spec = gymnasium.spec(env_id)
     assert type(spec.max_episode_steps) is int and spec.max_episode_steps == 3000  # 15 s / 5 ms
@@ -190,7 +190,7 @@ def test_record_video_is_real_time_at_the_scenario_rate(tmp_path):
         assert (frames, fps, tuple(size)) == (31, 30.0, (160, 120))  # plays 1.03 s: real time
         # the next episode is not recorded (trigger), and nothing else is left in the folder
         env.reset(seed=1)
-        env.step(policy())
+        env.step(it2_policy(env)())
         assert len(calls) == 31 and not env.recording
     finally:
         env.close()
