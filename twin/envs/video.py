@@ -42,8 +42,9 @@ class _Recording:
     """One episode's video being written (temporary file, encoder thread, frame clock)."""
 
     def __init__(self, path: Path, fps: float, rate: float):
-        from twin.render.video import _temp_file
+        from twin.render.video import _temp_file, frame_count
 
+        self._frame_count = frame_count  # due() runs every control step: looked up once
         self.path = path
         self.fps = fps
         self.rate = rate  # control steps per simulated second
@@ -72,23 +73,17 @@ class _Recording:
 
     def due(self, k: int) -> int:
         """Frames due once control step ``k`` (at k / rate s) has been simulated."""
-        n = int(np.floor(k * self.fps / self.rate + 1e-9)) + 1  # frames at 0, 1/fps, … ≤ k / rate
-        return max(0, n - self.frames)
+        return max(0, self._frame_count(k / self.rate, self.fps) - self.frames)  # frames at 0, 1/fps, … ≤ k / rate
 
     def finish(self, renderer: str):
-        from twin.render.video import VideoInfo
+        from twin.render.video import VideoInfo, _publish
 
         if self.encoder is None:  # nothing was rendered: no video
             self.tmp.unlink(missing_ok=True)
             return None
         enc, self.encoder = self.encoder, None
         enc.close()
-        if self.tmp.stat().st_size == 0:
-            raise TwinError(f"{self.encoder_name} wrote nothing to {str(self.path)!r}; the video is missing")
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(self.tmp, 0o666 & ~umask)  # mkstemp made it private; the video is an ordinary output file
-        os.replace(self.tmp, self.path)
+        _publish(self.tmp, self.path, self.encoder_name)
         return VideoInfo(path=self.path, frames=self.frames, size=self.size, fps=self.fps, codec=self.codec,
                          renderer=renderer, panels=1, seconds=time.perf_counter() - self.started,
                          render_seconds=self.render_seconds, encode_seconds=enc.busy, encoder=self.encoder_name,

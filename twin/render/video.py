@@ -241,6 +241,17 @@ def _temp_file(p: Path) -> Path:
     return Path(tmp)
 
 
+def _publish(tmp: Path, path: Path, encoder_name: str) -> None:
+    """Rename the finished ``tmp`` (from :func:`_temp_file`) to ``path``, with an ordinary
+    file's permissions; an empty one is an error (the encoder wrote nothing)."""
+    if tmp.stat().st_size == 0:
+        raise TwinError(f"{encoder_name} wrote nothing to {str(path)!r}; the video is missing")
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)  # mkstemp made it private; the video is an ordinary output file
+    os.replace(tmp, path)
+
+
 def _last_line(text: str) -> str:
     lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
     return lines[-1] if lines else "no message"
@@ -547,12 +558,7 @@ def render_video(runs, path, fps: float = 30, size=(640, 480),
                 progress(k + 1, n)
         enc, encoder = encoder, None
         enc.close()
-        if tmp.stat().st_size == 0:
-            raise TwinError(f"{encoder_name} wrote nothing to {str(path)!r}; the video is missing")
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp made it private; the video is an ordinary output file
-        os.replace(tmp, path)
+        _publish(tmp, path, encoder_name)
     except BaseException:
         if encoder is not None:
             encoder.abort()

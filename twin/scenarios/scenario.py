@@ -460,6 +460,9 @@ def _read(name_or_path: str) -> tuple[dict, str, str]:
         except (OSError, UnicodeDecodeError) as exc:
             raise ScenarioError(f"{path}: cannot be read ({exc})") from None
         source, stem = str(path), path.stem
+        from twin.registry import look_beside
+
+        look_beside(path.parent)  # the plugins a scenario file names may lie beside it
     else:
         raise ScenarioError(f"{name_or_path!r} is neither a built-in scenario nor a .toml file; built-ins: "
                             f"{', '.join(builtin_names())} (see 'twin scenarios')")
@@ -491,45 +494,38 @@ def merged(base: dict, child: dict) -> dict:
     return out
 
 
-def _with_bases(raw: dict, source: str, path: Path | None) -> dict:
+def _with_bases(raw: dict, source: str, path: Path | None, chain: tuple = ()) -> dict:
     """``raw`` over the scenario its ``base`` names (a built-in's name, or a .toml file
-    relative to ``path``'s directory), recursively; ``name`` is never inherited (a derived
-    scenario is named by its own file or its own ``name``)."""
-    chain = [source]
-    while BASE_KEY in raw:
-        base = raw[BASE_KEY]
-        if not isinstance(base, str) or not base:
-            raise ScenarioError(f"{source}: base: {shown(base)} is not a name; allowed: a built-in scenario's name "
-                                f"({', '.join(builtin_names())}) or a .toml file, relative to this file")
-        if len(chain) > MAX_BASES:
-            raise ScenarioError(f"{chain[0]}: base: more than {MAX_BASES} scenarios deep ({' -> '.join(chain)}); "
-                                f"allowed: a chain of at most {MAX_BASES}")
-        target = base if base in builtin_names() or path is None else str(path.parent / base)
-        if base not in builtin_names() and path is None:
-            raise ScenarioError(f"{source}: base: {shown(base)} is not a built-in scenario; allowed: "
-                                f"{', '.join(builtin_names())}")
-        if base not in builtin_names() and Path(target).suffix != ".toml":
-            raise ScenarioError(f"{source}: base: {shown(base)} is neither a built-in scenario nor a .toml file; "
-                                f"allowed: {', '.join(builtin_names())}, or a .toml file relative to this file")
-        try:
-            parent, parent_source, _ = _read(target)
-        except ScenarioError as exc:
-            raise ScenarioError(f"{source}: base: {exc}") from None
-        if parent_source in chain:
-            raise ScenarioError(f"{chain[0]}: base: the scenarios name each other in a cycle "
-                                f"({' -> '.join(chain + [parent_source])})")
-        chain.append(parent_source)
-        own = {k: v for k, v in raw.items() if k != BASE_KEY}
-        parent = {k: v for k, v in parent.items() if k != "name"}
-        raw = merged({k: v for k, v in parent.items() if k != BASE_KEY}, own) | (
-            {BASE_KEY: parent[BASE_KEY]} if BASE_KEY in parent else {})
-        path = None if parent_source.startswith("built-in") else Path(target)
-        if path is not None:
-            from twin.registry import look_beside
-
-            look_beside(path.parent)
-        source = parent_source
-    return raw
+    relative to ``path``'s directory), itself resolved first; ``name`` is never inherited (a
+    derived scenario is named by its own file or its own ``name``). ``chain``: the sources
+    that lead here (for the depth limit and the cycle)."""
+    if BASE_KEY not in raw:
+        return raw
+    chain = (*chain, source)
+    base = raw[BASE_KEY]
+    if not isinstance(base, str) or not base:
+        raise ScenarioError(f"{source}: base: {shown(base)} is not a name; allowed: a built-in scenario's name "
+                            f"({', '.join(builtin_names())}) or a .toml file, relative to this file")
+    if len(chain) > MAX_BASES:
+        raise ScenarioError(f"{chain[0]}: base: more than {MAX_BASES} scenarios deep ({' -> '.join(chain)}); "
+                            f"allowed: a chain of at most {MAX_BASES}")
+    builtin = base in builtin_names()
+    if not builtin and path is None:
+        raise ScenarioError(f"{source}: base: {shown(base)} is not a built-in scenario; allowed: "
+                            f"{', '.join(builtin_names())}")
+    target = base if builtin else str(path.parent / base)
+    if not builtin and Path(target).suffix != ".toml":
+        raise ScenarioError(f"{source}: base: {shown(base)} is neither a built-in scenario nor a .toml file; "
+                            f"allowed: {', '.join(builtin_names())}, or a .toml file relative to this file")
+    try:
+        parent, parent_source, _ = _read(target)
+    except ScenarioError as exc:
+        raise ScenarioError(f"{source}: base: {exc}") from None
+    if parent_source in chain:
+        raise ScenarioError(f"{chain[0]}: base: the scenarios name each other in a cycle "
+                            f"({' -> '.join(chain + (parent_source,))})")
+    parent = _with_bases(parent, parent_source, None if builtin else Path(target), chain)
+    return merged({k: v for k, v in parent.items() if k != "name"}, {k: v for k, v in raw.items() if k != BASE_KEY})
 
 
 def load_scenario(name_or_path: str, overrides=()) -> Scenario:
@@ -538,12 +534,7 @@ def load_scenario(name_or_path: str, overrides=()) -> Scenario:
     with ``base = "NAME"`` (a built-in) or ``base = "FILE.toml"`` (relative to the file): its
     keys are laid over that scenario's (see :func:`merged`)."""
     raw, source, stem = _read(str(name_or_path))
-    if not source.startswith("built-in"):
-        from twin.registry import look_beside
-
-        look_beside(Path(str(name_or_path)).parent)  # its plugins may lie beside it
-    if BASE_KEY in raw:
-        raw = _with_bases(raw, source, None if source.startswith("built-in") else Path(str(name_or_path)))
+    raw = _with_bases(raw, source, None if source.startswith("built-in") else Path(str(name_or_path)))
     overrides = tuple(overrides)
     # each item as the user gave it, on one line and shortened: the message must stay one line
     where = source + (f" with --set {' '.join(_item(o) for o in overrides)}" if overrides else "")
