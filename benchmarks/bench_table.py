@@ -40,6 +40,8 @@ SCRIPTS = [
     ("bench_consistency", [], "about 30 s"),
     ("bench_startup", [], "about 30 s"),
     ("bench_replay", [], "about 20 s"),
+    ("bench_replay_memory", [], "about 5 min"),
+    ("bench_containment", [], "about 1 min"),
     ("bench_gym", [], "about 30 s; needs the gym extra"),
     ("bench_fastpath", [], "about 1 min"),
     ("bench_check", [], "about 1 min"),

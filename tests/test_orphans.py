@@ -8,7 +8,9 @@ command is dead they are reparented), sends the signal to the command alone (not
 process group: a terminal's Ctrl-C would reach the workers too and hide a leak), and then
 requires every one of them gone within a few seconds (a zombie left to PID 1 counts as gone:
 it runs nothing and holds nothing). Workers are kept busy by a slow plugin controller that
-leaves a mark file per process on its first call, so the signal lands while they compute.
+leaves a mark file per process on its first call, so the signal lands while they compute; the
+plugin runs in the commands' contained worker processes (twin.containment), never in the
+command's own.
 
 The sweeps killed at the test points ``sweep-sample`` and ``sweep-report``
 (:func:`twin.outputs.rundir.test_point`) must leave a folder that is never mixed (no manifest.json,
@@ -146,6 +148,11 @@ def plugin_dir(tmp_path) -> Path:
     return tmp_path
 
 
+def _busy(c: Command) -> set:
+    """The command's processes now inside the slow plugin (marked it, and still running)."""
+    return {pid for pid in c.marked() - {c.proc.pid} if (process_stat(pid) or ("Z",))[0] != "Z"}
+
+
 def _named(noted: dict, fragment: str) -> list:
     return [pid for pid, (_, cmd) in noted.items() if fragment in cmd]
 
@@ -164,10 +171,10 @@ def test_a_killed_sweep_takes_its_busy_workers_and_the_resource_tracker_along(co
     out = plugin_dir / "sweep"
     c = command(["sweep", "paper-exp2", "--samples", DRAWS, *SETS, "--controller", SLOW, "--workers", 2,
                  "--out", out], plugin_dir)
-    noted = c.watch(lambda c: len(c.marked() - {c.proc.pid}) >= 2)  # both workers inside the plugin
+    noted = c.watch(lambda c: len(_busy(c)) >= 2)  # both workers inside the plugin
     workers = _named(noted, "multiprocessing.spawn")
-    assert len(workers) == 2 and set(workers) >= c.marked() - {c.proc.pid}, noted
-    assert len(_named(noted, "resource_tracker")) == 1, noted
+    # the plugin's workers (twin.containment), and the one that planned and preflew it
+    assert len(workers) >= 2 and set(workers) >= c.marked() - {c.proc.pid}, noted
     code, _, err = c.kill(sig)
     if sig == signal.SIGKILL:
         assert code == -signal.SIGKILL, err
@@ -185,8 +192,8 @@ def test_a_killed_check_takes_its_busy_workers_along(command, plugin_dir):
 
     f = write_short(plugin_dir)
     c = command(["check", f, "--controller", SLOW, "--seeds", 4, "--workers", 3], plugin_dir)
-    noted = c.watch(lambda c: len(c.marked() - {c.proc.pid}) >= 2)  # two workers inside the plugin
-    assert len(_named(noted, "multiprocessing.spawn")) == 2 and len(_named(noted, "resource_tracker")) == 1, noted
+    noted = c.watch(lambda c: len(_busy(c)) >= 2)  # two workers inside the plugin
+    assert len(_named(noted, "multiprocessing.spawn")) >= 2, noted
     code, _, err = c.kill(signal.SIGKILL)
     assert code == -signal.SIGKILL, err
     c.assert_nothing_left()
@@ -197,7 +204,8 @@ def test_a_killed_check_takes_its_busy_workers_along(command, plugin_dir):
 def test_a_run_killed_while_it_simulates_takes_the_figure_worker_along(command, plugin_dir):
     c = command(["run", "paper-exp1", "--duration", 1, "--controller", SLOW, "--video", "--out", "R"], plugin_dir,
                 env={"TWIN_FIGURE_WORKER": "1"})
-    noted = c.watch(lambda c: c.proc.pid in c.marked() and _named(c.noted, "figure_worker"))
+    # the plugin runs in a worker process of the command's (twin.containment)
+    noted = c.watch(lambda c: _busy(c) and _named(c.noted, "figure_worker"))
     assert len(_named(noted, "figure_worker")) == 1, noted
     code, _, err = c.kill(signal.SIGKILL)
     assert code == -signal.SIGKILL, err

@@ -236,8 +236,9 @@ def test_under_pytest_a_missing_plugin_is_one_line_not_a_traceback(lab, tmp_path
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 1, r.stdout
     assert "Traceback" not in r.stdout and "raise PluginError" not in r.stdout, r.stdout
-    assert ("error: controller 'lab_ctrl_beside:StateFeedback': no module named 'lab_ctrl_beside'; the module must "
-            "be importable (on sys.path, installed, in the current directory or beside the scenario file)") in r.stdout
+    assert ("twin_beside.toml: controller: controller 'lab_ctrl_beside:StateFeedback': no module named "
+            "'lab_ctrl_beside'; the module must be importable (on sys.path, installed, in the current directory or "
+            "beside the scenario file)") in r.stdout.replace("\n", "")
 
 
 # ---- an estimator that reads the ground truth -----------------------------------------------------------

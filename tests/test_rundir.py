@@ -154,21 +154,34 @@ def test_interrupted_while_writing_the_trajectory_leaves_the_earlier_run(earlier
 
 
 @pytest.mark.parametrize("sig, status", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
-def test_interrupted_during_the_video_keeps_the_new_data_and_never_the_old_video(earlier, tmp_path, sig, status):
+def test_interrupted_during_the_video_keeps_the_new_data_and_the_old_complete_run(earlier, tmp_path, sig, status):
+    """The new run's data are kept, never beside the old video; the earlier complete run stays whole
+    in R until a new one is complete (issue 39: it was replaced by the data alone), and the new data go
+    to R-incomplete, which the line names with how to keep them instead."""
     target = _copy(earlier, tmp_path)
     code, _, err, sid = _stop([*RUN, "--seed", "1", "--video", "--out", "R"], tmp_path, "video", sig)
     assert code == status, err
-    _one_line(err, f"interrupted: {signal.Signals(sig).name}; kept figure.png, metrics.json and trajectory.csv in R, "
-                   f"without video.mp4; its manifest.json says so, with exit status {status}")
-    doc = _complete(target)
-    assert not (target / "video.mp4").exists() and _seed(target) == 1  # the new run's, without the old video
+    _one_line(err, f"interrupted: {signal.Signals(sig).name}; kept figure.png, metrics.json and trajectory.csv in "
+                   f"R-incomplete, without video.mp4; its manifest.json says so, with exit status {status}; R still "
+                   f"holds the earlier complete run (move R-incomplete to R to keep this one instead)")
+    _unchanged(target, earlier)
+    aside = tmp_path / "R-incomplete"
+    doc = _complete(aside)
+    assert not (aside / "video.mp4").exists() and _seed(aside) == 1  # the new run's, without the old video
     assert (doc["complete"], doc["missing"], doc["exit_status"]) == (False, ["video.mp4"], status)
     assert doc["stopped"] == f"{signal.Signals(sig).name} during the video"
     assert _hidden(tmp_path) == []  # the video writer's .video.*.partial.mp4 included
     _no_process_left(sid)
     # what was kept reads as a run, said to be one an interrupted command kept
-    status, out, _ = twin("compare", earlier, target)
-    assert status == 1 and "note: R holds what an unfinished 'twin run' kept" in out.replace(str(target), "R")
+    status, out, _ = twin("compare", earlier, aside)
+    assert status == 1 and "note: R-incomplete holds what an unfinished 'twin run' kept" in out.replace(
+        str(aside), "R-incomplete")
+    # without an earlier complete run, the data go to R itself, as before
+    fresh = tmp_path / "fresh"
+    code, _, err, _ = _stop([*RUN, "--seed", "1", "--video", "--out", "fresh"], tmp_path, "video", sig)
+    assert code == 128 + sig, err
+    _one_line(err, "in fresh, without video.mp4")
+    assert _complete(fresh)["missing"] == ["video.mp4"] and not (tmp_path / "fresh-incomplete").exists()
 
 
 @pytest.mark.parametrize("point", ["trajectory", "video", "commit"])
@@ -271,7 +284,7 @@ def test_a_record_interrupted_during_its_commit_finishes_it_first(gold, tmp_path
     assert twin("check", f, *RECORD_MORE, "--golden", copy)[0] == 0
 
 
-def test_a_killed_record_is_as_it_was_or_refused_as_incomplete(gold, tmp_path):
+def test_a_killed_record_is_as_it_was_or_finished_by_the_next_command(gold, tmp_path):
     f, original = gold
     # killed while writing its files: the directory as it was, the unfinished file hidden, cleared next time
     copy = shutil.copytree(original, tmp_path / "a")
@@ -281,15 +294,23 @@ def test_a_killed_record_is_as_it_was_or_refused_as_incomplete(gold, tmp_path):
     assert len(_hidden(copy)) == 1 and twin("check", f, "--workers", "1", "--golden", copy)[0] == 0
     assert twin("check", f, "--controller", "lqr", "--workers", "1", "--record", copy)[0] == 0
     assert _hidden(copy) == [] and sorted(_complete(copy)["files"]) == ["short/it2/seed-0.npz", "short/lqr/seed-0.npz"]
-    # killed in its commit, some files renamed: no manifest, so every reader says incomplete
-    copy = shutil.copytree(original, tmp_path / "b")
-    code, *_ = _stop(["check", f, *RECORD_MORE, "--record", copy], tmp_path, "record-commit", signal.SIGKILL)
-    assert code == -signal.SIGKILL and not (copy / rundir.MANIFEST).exists()
-    status, out, err = twin("check", f, "--workers", "1", "--golden", copy)
-    assert_one_line_error(status, out, err, f"{copy}: an incomplete golden directory: no manifest.json")
-    ref = copy / "short" / "it2" / "seed-0.npz"
-    status, out, err = twin("compare", ref, ref)
-    assert_one_line_error(status, out, err, "an incomplete golden directory: no manifest.json")
+    # killed in its commit, some files renamed (issue 39: the references were then refused until recorded
+    # again): its journal says what goes where, and the next reader carries the commit through
+    for name, reader in (("b", lambda copy: twin("check", f, *RECORD_MORE, "--golden", copy)),
+                         ("c", lambda copy: twin("compare", copy / "short" / "it2" / "seed-0.npz",
+                                                 copy / "short" / "it2" / "seed-0.npz")),
+                         ("d", lambda copy: twin("check", f, "--controller", "lqr", "--workers", "1", "--record",
+                                                 copy))):
+        copy = shutil.copytree(original, tmp_path / name)
+        code, *_ = _stop(["check", f, *RECORD_MORE, "--record", copy], tmp_path, "record-commit", signal.SIGKILL)
+        assert code == -signal.SIGKILL and (copy / rundir.JOURNAL).exists()
+        assert (copy / rundir.MANIFEST).read_bytes() == (original / rundir.MANIFEST).read_bytes()  # not yet new
+        status, out, err = reader(copy)
+        assert status == 0, out + err
+        assert not (copy / rundir.JOURNAL).exists() and _hidden(copy) == []
+        assert sorted(_complete(copy)["files"]) == ["short/it2/seed-0.npz", "short/it2/seed-1.npz",
+                                                    "short/lqr/seed-0.npz", "short/lqr/seed-1.npz"]
+        assert twin("check", f, *RECORD_MORE, "--golden", copy)[0] == 0  # every reference the new record's
 
 
 def test_a_reference_changed_after_its_record_is_refused_by_every_reader(gold, tmp_path):
@@ -376,6 +397,7 @@ def test_twin_run_on_the_analytic_model_writes_its_directory_as_a_unit(tmp_path)
                                          .read_bytes())
     (staged.path / "metrics.json").write_text('{"experiment": "paper-exp1", "controllers": {"t1": {}}}')
     staged.commit(0)
+    staged.close()  # held from its making to here, as a command holds its output directory
     assert _complete(old)["command"] == "twin analytic"
     status, stdout, err = twin("compare", out, old)
     assert_one_line_error(status, stdout, err, f"{old}: a directory of 'twin analytic', which gave way to 'twin run'",

@@ -18,6 +18,7 @@ import pytest
 from slow_plugin import write_slow_plugin
 from test_scenarios import twin
 from twin.scenarios import load_scenario
+from twin.outputs import rundir
 from twin.sweep.table import read_sweep_csv
 
 SETS = ["--set", "duration=1.0", "--set", "sweep.levels=[0.0, 0.3]", "--set", "sweep.initial_theta=[0.3, 0.5]"]
@@ -365,7 +366,8 @@ def test_a_folder_a_sweep_is_using_is_refused_to_other_commands(reference, tmp_p
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
     try:
         deadline = time.monotonic() + 120
-        while not (out / "samples.jsonl").exists() or not (out / ".twin.lock").read_text().strip():
+        lock = rundir.lock_path(out)  # beside the folder: .busy.twin-lock
+        while not (out / "samples.jsonl").exists() or not lock.exists() or not lock.read_text().strip():
             assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
             time.sleep(0.02)
         holder = f"'twin sweep' (process {proc.pid})"

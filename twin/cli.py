@@ -18,6 +18,24 @@ from pathlib import Path
 # project's 2-core machine; sweeps run one process per CPU already
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
+
+def _the_process() -> bool:
+    """True when this module is the process's command (the ``twin`` script, ``python -m
+    twin.cli``), not imported by a program or a test that calls :func:`main` in its own process
+    (click's CliRunner): the command then owns the process's signals from its start, and its end."""
+    m = sys.modules.get("__main__")
+    spec = getattr(m, "__spec__", None)
+    if spec is not None and getattr(spec, "name", None) == "twin.cli":
+        return True
+    return os.path.basename(getattr(m, "__file__", None) or "") in ("twin", "twin-script.py", "twin.exe")
+
+
+if _the_process():  # from here (before the heavy imports below) a signal is noted, and raised once main() runs
+    from twin.outputs import rundir as _rundir
+
+    _rundir.hold_from_start()
+
+
 import click  # noqa: E402
 
 from twin.errors import TwinError  # noqa: E402
@@ -64,38 +82,60 @@ class _Group(click.Group):
         # process where it stands: no clean-up, no message; SIGINT's KeyboardInterrupt became
         # "error: aborted" and exit status 1, a failed bound's. Both now raise Interrupted,
         # which every command's clean-up sees, and end here with 128 + the signal's number.
+        # Every way out goes through _leave: from the moment the exit status is decided, a
+        # signal is noted, not raised (no traceback, no second line while the command ends).
         with rundir.interrupts_raise():
             try:
-                rv = super().main(args=args, prog_name=prog_name, standalone_mode=False, **extra)
-            except click.UsageError as exc:
-                hint = f" (see 'twin {exc.ctx.info_name if exc.ctx and exc.ctx.parent else ''} --help')".replace("  ", " ")
-                click.echo(f"error: {' '.join(exc.format_message().split())}{hint}", err=True)
-                sys.exit(2)
-            except click.ClickException as exc:
-                click.echo(f"error: {exc.format_message()}", err=True)
-                sys.exit(exc.exit_code)
-            except click.Abort as exc:
-                cause = exc.__cause__ or exc.__context__
-                if isinstance(cause, KeyboardInterrupt):  # while click parsed the arguments
-                    _interrupted(cause)
-                click.echo("error: aborted", err=True)
-                sys.exit(1)
-            except KeyboardInterrupt as exc:  # after click's own handling (while it prints, say)
-                _interrupted(exc)
-        sys.exit(rv if isinstance(rv, int) else 0)
+                try:
+                    rundir.started()  # a signal that came while the command line loaded: raised here
+                    rv = super().main(args=args, prog_name=prog_name, standalone_mode=False, **extra)
+                    status = rv if isinstance(rv, int) else 0
+                except click.UsageError as exc:
+                    rundir.leaving()
+                    hint = f" (see 'twin {exc.ctx.info_name if exc.ctx and exc.ctx.parent else ''} --help')".replace("  ", " ")
+                    click.echo(f"error: {' '.join(exc.format_message().split())}{hint}", err=True)
+                    status = 2
+                except click.ClickException as exc:
+                    rundir.leaving()
+                    click.echo(f"error: {exc.format_message()}", err=True)
+                    status = exc.exit_code
+                except click.Abort as exc:
+                    cause = exc.__cause__ or exc.__context__
+                    if isinstance(cause, KeyboardInterrupt):  # while click parsed the arguments
+                        status = _interrupted(cause)
+                    else:
+                        rundir.leaving()
+                        click.echo("error: aborted", err=True)
+                        status = 1
+            except KeyboardInterrupt as exc:  # after click's own handling (while it prints), or in the clauses above
+                status = _interrupted(exc)
+            except SystemExit as exc:  # an error's or an interrupt's in invoke, or a command's own exit
+                status = _exit_code(exc)
+            except BaseException as exc:  # noqa: BLE001 -- what a library made of an interrupt (a Rust panic, say)
+                if rundir.signal_received() is None:
+                    raise  # a bug: its traceback
+                status = _interrupted(exc)
+            _leave(status)
 
     def invoke(self, ctx):
+        from twin.outputs import rundir
+
         try:
-            return super().invoke(ctx)
+            rv = super().invoke(ctx)
         except KeyboardInterrupt as exc:
-            _interrupted(exc)
+            sys.exit(_interrupted(exc))
         except TwinError as exc:
+            rundir.leaving()
             click.echo(f"error: {_with_kept(str(exc), exc)}", err=True)
             sys.exit(2)
         except OSError as exc:
+            rundir.leaving()
             text = f"{exc.strerror or exc}: {exc.filename or ''}".rstrip(": ")
             click.echo(f"error: {_with_kept(text, exc)}", err=True)
             sys.exit(2)
+        if not rundir.kept_so_far():  # a signal from here on finds the command's work done
+            rundir.keep_so_far("the command had finished: its outputs are complete")
+        return rv
 
 
 def _with_kept(text: str, exc: BaseException) -> str:
@@ -105,13 +145,78 @@ def _with_kept(text: str, exc: BaseException) -> str:
     return f"{text}; {kept}" if kept else text
 
 
-def _interrupted(exc: BaseException):
-    """One line on stderr, what was kept and the signal, then exit 130 (SIGINT) or 143 (SIGTERM)."""
+def _interrupted(exc: BaseException) -> int:
+    """One line on stderr, the signal and what was kept; the exit status, 130 (SIGINT) or 143
+    (SIGTERM). Signals are noted, not raised, from here on (rundir.leaving)."""
     from twin.outputs import rundir
 
-    kept = rundir.kept_text(exc)
+    rundir.leaving()
+    kept = rundir.kept_text(exc) or rundir.kept_so_far()
     click.echo(f"interrupted: {rundir.signal_name(exc)}" + (f"; {kept}" if kept else ""), err=True)
-    sys.exit(rundir.exit_status_of(exc))
+    return rundir.exit_status_of(exc)
+
+
+def _exit_code(exc: SystemExit) -> int:
+    """The exit status ``sys.exit(code)`` asks for, as Python would make it (a text is said, and is 1)."""
+    code = exc.code
+    if code is None:
+        return 0
+    if isinstance(code, int):
+        return code
+    from twin.outputs import rundir
+
+    rundir.leaving()
+    click.echo(str(code), err=True)
+    return 1
+
+
+def _late(status: int) -> int:
+    """``status``, or 130 / 143 with its one line if a signal came to a command ending well (one
+    noted as it ended, or one a library swallowed): a signal is never an exit status of 0."""
+    from twin.outputs import rundir
+
+    got = rundir.signal_received() if status == 0 else None
+    if got is None:
+        return status
+    exc = rundir.Interrupted(got)
+    kept = rundir.kept_so_far()
+    click.echo(f"interrupted: {exc.name}" + (f"; {kept}" if kept else ""), err=True)
+    return 128 + got
+
+
+def _leave(status: int):
+    """End the command with ``status`` (SIGINT and SIGTERM noted from now on: rundir.leaving).
+
+    As the process's command, without the interpreter's teardown: the atexit functions run,
+    the output is flushed and the process ends (os._exit). Python's teardown takes 50-60 ms
+    after a run (numpy, matplotlib, PyBullet), and puts the default handlers back while it
+    runs: a SIGTERM there ended the process with no word (exit status -15), a SIGINT with a
+    KeyboardInterrupt, and an extension module half made by an interrupt could crash it
+    (abort, -6). Imported by a program or a test, main() ends with SystemExit as before."""
+    import threading
+
+    from twin.outputs import rundir
+
+    rundir.leaving()
+    status = _late(status)
+    others = [t for t in threading.enumerate() if t is not threading.main_thread() and not t.daemon and t.is_alive()]
+    if not _the_process() or others:  # threads to wait for: Python's own exit does that
+        sys.exit(status)
+    import atexit
+
+    try:
+        sys.stdout.flush()
+        sys.stderr.flush()
+    except (OSError, ValueError):  # a closed pipe, say: Python's own exit says so, as before
+        sys.exit(status)
+    atexit._run_exitfuncs()
+    status = _late(status)  # one that came meanwhile
+    try:
+        sys.stdout.flush()
+        sys.stderr.flush()
+    except (OSError, ValueError):
+        pass
+    os._exit(status)
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
@@ -210,6 +315,21 @@ LIMIT_OPTIONS = (
     ("memory_limit", "--memory-limit", "run_memory_mb", "MB", "(0, 1e+06] MB",
      "Growth in MB (10⁶ bytes) of the process's resident memory over one controller's run"),
 )
+
+
+CONTAINED = """A plugin (package.module:attribute) is imported, built and run only in worker
+    processes this command kills: its sys.exit, KeyboardInterrupt, os._exit or crash, a
+    call that overruns --step-limit, a run that overruns --run-limit or grows the worker
+    by more than --memory-limit end that run alone, as one line naming the plugin; its
+    threads and child processes end with the run. It can still write files, use the
+    network or signal other processes (see docs/howto/limits.md)."""
+
+
+def _contained(f):
+    """Put :data:`CONTAINED` (what the worker processes contain) in the command's help, where the
+    docstring says {CONTAINED}: one text for twin run, sweep and check."""
+    f.__doc__ = f.__doc__.replace("{CONTAINED}", CONTAINED)
+    return f
 
 
 def _limit_options(where: str, run_default: str = ""):
@@ -455,6 +575,7 @@ _gave_way("physics", lambda n: (
                    "true plant scale and IMU latency (before any --set).")
 @_limit_options("")
 @_no_cache_option
+@_contained
 def run(scenario, controller, seed, duration, overrides, out, video, sample, log_every, log_format, log_sensors,
         plant_file, step_limit, run_limit, memory_limit, no_cache):
     """Run a scenario on the PyBullet twin: trajectory, metrics, figure and video.
@@ -467,7 +588,12 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample, log
     same scenario and seed give identical metrics.json and trajectory.csv. A controller's
     run stopped by a limit ([limits], --step-limit, --run-limit, --memory-limit) is one
     line naming it and the limit, exit status 2; the other controllers' results are
-    written, and metrics.json's 'errors' names the run stopped.
+    written, and metrics.json's 'errors' names the run stopped. A plugin that breaks its
+    contract (or ends its process) is one line, exit status 2, and nothing is written.
+    --out must be a new or empty directory or an earlier run's: one another command
+    wrote (a sweep, a replay) is refused, and so is one another command is writing.
+
+    {CONTAINED}
 
     \b
     Examples:
@@ -481,10 +607,12 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample, log
       twin run paper-exp2 --duration 3600 --log-every 20 --log-format csv.gz --no-video   # an hour at 10 Hz
       twin run paper-exp3 --plant runs/calibration/calibration.toml   # the robot 'twin calibrate' fitted
     """
-    from twin.registry import label
-    from twin.scenarios.runner import controllers_of, plan, plugins_of, run_scenario
+    import contextlib
 
     from twin.outputs import rundir
+    from twin.registry import label
+    from twin.scenarios.contained import ContainedScenario, involves_plugins
+    from twin.scenarios.runner import controllers_of, plan, plugins_of, run_scenario
 
     every = _log_every(log_every)
     if plant_file is not None:
@@ -504,18 +632,29 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample, log
 
             picked = sample_scenario(sc, sc.seed, sample)
             sc = picked.scenario
-        specs = plan(sc, kinds)  # every plugin built once, before anything runs or is said
-        if picked is not None:
-            click.echo(f"sample {picked.index} of a sweep (root seed {root}): level λ = {picked.level:g}, "
-                       f"draw {picked.draw}, seed {picked.seed}")
-        click.echo(_title(sc))
-        _echo_plugins(plugins_of(sc, kinds))
-        with _Progress() as bar:
-            result = run_scenario(sc, kinds, out=out, video=video, progress=bar.update, log_every=every,
-                                  log_format=log_format, keep_limited=True, specs=specs, log_sensors=log_sensors)
+        with contextlib.ExitStack() as stack:
+            # every plugin built once, before anything runs or is said: a user's in a worker process
+            # (twin.containment), where its exits, crashes, hangs, threads and processes are contained
+            box, specs = None, None
+            if involves_plugins(sc, kinds):
+                box = stack.enter_context(ContainedScenario(sc, kinds))
+                plugins = box.plan()["plugins"]
+            else:
+                specs, plugins = plan(sc, kinds), plugins_of(sc, kinds)
+            if picked is not None:
+                click.echo(f"sample {picked.index} of a sweep (root seed {root}): level λ = {picked.level:g}, "
+                           f"draw {picked.draw}, seed {picked.seed}")
+            click.echo(_title(sc))
+            _echo_plugins(plugins)
+            with _Progress() as bar:
+                result = run_scenario(sc, kinds, out=out, video=video, progress=bar.update, log_every=every,
+                                      log_format=log_format, keep_limited=True, specs=specs, log_sensors=log_sensors,
+                                      contained=box or False)
     except KeyboardInterrupt as exc:  # what the run kept, if it got that far, stands
         rundir.kept(exc, target.unchanged())
         raise
+    finally:
+        target.close()  # the directory was held from the start: a second command writing there is refused
     limited, kinds = result.errors, tuple(k for k in kinds if k in result.metrics)  # runs a limit stopped: said last
     keys = ("status", "settling_time_s", "theta_rms_rad", "oscillation_peak_to_peak_rad", "final_position_error_m",
             "final_heading_error_rad", "iae_theta", "control_effort", "max_abs_torque_nm", "estimator_theta_rmse_rad",
@@ -608,12 +747,16 @@ def replay(logs, estimators, out):
     rejected readings and the cost per step. Writes replay.json, estimates.csv and figure.png
     (the first log: θ, ψ, α against the truth, NIS with its χ² bounds).
 
+    An estimator plugin (package.module:attribute) replays in a worker process this
+    command kills: its sys.exit, os._exit or crash, its threads and its child processes end
+    with the replay, which ends with one line naming it (see docs/howto/limits.md).
+
     \b
     Examples:
       twin run paper-exp3 --log-sensors --no-video --out runs/exp3
       twin replay runs/exp3/sensor-logs/it2 --estimator ekf,complementary,kalman2
     """
-    from twin.logs.replay import figure_name, replay_logs, write_estimates_csv, write_figure
+    from twin.logs.replay import figure_name, replay_logs_contained, write_estimates_csv, write_figure
     from twin.outputs import report, rundir
     from twin.registry import check_kinds
 
@@ -622,7 +765,7 @@ def replay(logs, estimators, out):
         raise TwinError("--estimator: 'ideal' reads the truth, which a log's readings are not; allowed: ekf, "
                         "complementary, kalman2 or package.module:attribute")
     with rundir.written_whole(out, "twin replay") as path:
-        doc, replays = replay_logs(logs, kinds)
+        doc, replays = replay_logs_contained(logs, kinds)  # a plugin estimator in a worker process
         report.write_json(doc, path / "replay.json")
         write_estimates_csv(replays, path / "estimates.csv")
         figures = [figure_name(k) for k in range(len(doc["logs"]))]
@@ -680,6 +823,7 @@ def replay(logs, estimators, out):
                    "writes.")
 @_limit_options(" for each controller's run of a sample",
                 "the scenario's, else 60 s + 10 × the simulated time in s (210 s for 15 s)")
+@_contained
 def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overrides, out, controller, reference,
           log_sensors, step_limit, run_limit, memory_limit):
     """Monte Carlo sweep: controllers compared on sampled plants, noise, tilts and pushes.
@@ -691,7 +835,11 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
     summary.md, summary.json, success.png, distributions.png and paired.png (and, with
     --log-sensors, the chosen samples' sensor logs for 'twin replay'). A run
     stopped by a limit (--step-limit, --run-limit, --memory-limit; by default each run
-    may take 60 s + 10 s per simulated s) is an error of that controller on that sample.
+    may take 60 s + 10 s per simulated s) is an error of that controller on that sample;
+    a plugin that breaks its contract or ends its process on some samples is recorded there,
+    and the sweep ends with exit status 2.
+
+    {CONTAINED}
 
     \b
     Examples:
@@ -702,9 +850,9 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
       twin sweep paper-exp3 --samples 50 --log-sensors 0,17   # and samples 0 and 17 as sensor logs
     """
     from twin.outputs import rundir
-    from twin.scenarios.runner import controllers_of, plan, plugins_of
+    from twin.scenarios.runner import controllers_of
     from twin.sweep import run_sweep
-    from twin.sweep.runner import check_log_samples, sweep_controllers
+    from twin.sweep.runner import check_log_samples, sweep_controllers, sweep_plan
 
     if ray_address is not None and backend != "ray":
         raise TwinError("--ray-address needs --backend ray")
@@ -713,19 +861,23 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
     if out is None:
         out = rundir.child_of(Path("runs"), f"sweep-{sc.name}", "the scenario's name")
     rundir.refuse_if_in_use(out)
+    from twin.sweep.store import refuse_others
+
+    refuse_others(out)  # another command's folder, said before anything runs
     levels = sc.sweep["levels"]
     kinds, reference = sweep_controllers(sc, controllers_of(controller, sc), reference)
     chosen = check_log_samples(sc, chosen, draws * len(levels))  # said before anything is
-    plan(sc, kinds)  # every plugin built once here: one that cannot be is one line before anything runs
+    # every plugin built once here (a user's in a worker process): one that cannot be is one line before anything runs
+    summary = sweep_plan(sc, kinds)
     click.echo(_title(sc))
-    _echo_plugins(plugins_of(sc, kinds))
+    _echo_plugins(summary["plugins"])
     click.echo(f"  {draws} samples × {len(levels)} levels λ = {', '.join(f'{v:g}' for v in levels)}, "
                f"root seed {sc.seed}, backend {backend}" + (f", {workers} worker{'s' * (workers > 1)}" if workers else ""))
     bar = _SweepBar()
     try:
         result = run_sweep(sc, draws, out, scenario_arg=scenario, workers=workers, backend=backend,
                            address=ray_address, progress=bar.update, controllers=kinds, reference=reference,
-                           log_sensors=chosen)
+                           log_sensors=chosen, summary=summary)
     except KeyboardInterrupt as exc:
         bar.close()
         if bar.total and bar.done >= bar.total:  # stopped while the report was written
@@ -792,6 +944,7 @@ def _sample_numbers(text: str | None) -> tuple[int, ...]:
               help="Compare every run with the golden trajectory stored under DIR; report where it departs.")
 @_tolerance_options("the golden trajectories (with --golden)")
 @_limit_options(" in every scenario checked")
+@_contained
 def check(targets, controller, seeds, workers, overrides, junit, record, golden, atol, rtol, tolerance, step_limit,
           run_limit, memory_limit):
     """Check scenarios against their [expect] bounds: exit 0 if all hold, 1 if any fails.
@@ -801,8 +954,11 @@ def check(targets, controller, seeds, workers, overrides, junit, record, golden,
     [expect] table. With --golden, each run must also follow its recorded trajectory: bit
     for bit unless --atol, --rtol, --tolerance or the scenario's [expect.golden] allow
     more; a departure says whether the environment or a design differs from the
-    reference's. A run stopped by a limit (--step-limit, --run-limit, --memory-limit)
-    fails its check. Exit status 2 on a user error (a bad file, key or kind).
+    reference's. A run stopped by a limit (--step-limit, --run-limit, --memory-limit),
+    or by a plugin that breaks its contract or ends its process, fails its check. Exit
+    status 2 on a user error (a bad file, key or kind).
+
+    {CONTAINED}
 
     \b
     Examples:
@@ -821,6 +977,7 @@ def check(targets, controller, seeds, workers, overrides, junit, record, golden,
     from twin.outputs import rundir
 
     if golden is not None:  # references of a record that did not finish are not judged against
+        rundir.finish_batch(golden)  # one killed while it committed is carried through first
         rundir.read_manifest(golden, (rundir.RECORD_COMMAND,), "golden directory",
                              f"record it again with 'twin check ... --record {golden}'")
     tolerances = _tolerances(atol, rtol, tolerance)
@@ -992,19 +1149,24 @@ def compare_(a, b, atol, rtol, tolerance, figure_path, out):
     if figure_path is not None and out is not None:
         raise TwinError("--figure PATH and --out DIR both say where the figure goes; give one of them")
     tolerances = _tolerances(atol, rtol, tolerance)
-    if out is not None:
-        from twin.outputs.rundir import refuse_if_in_use
+    from twin.outputs import rundir
 
-        refuse_if_in_use(out)
-    result = cmp.compare(cmp.load(a), cmp.load(b), tolerances)
-    click.echo(cmp.report(result))
-    if out is not None:
-        from twin.outputs.report import write_json
+    target = rundir.StagedDirectory(out, "twin compare", "comparison") if out is not None else None
+    try:
+        result = cmp.compare(cmp.load(a), cmp.load(b), tolerances)
+        click.echo(cmp.report(result))
+        if target is not None:  # written as a unit, with its manifest: a directory of twin compare's
+            from twin.outputs.report import write_json
 
-        figure_path = out / "comparison.png"
-        click.echo(f"wrote {write_json(cmp.as_json(result), out / 'comparison.json')}")
-    if figure_path is not None:
-        click.echo(f"wrote {cmp.figure(result, figure_path)}")
+            with rundir.written_whole(out, "twin compare") as path:
+                write_json(cmp.as_json(result), path / "comparison.json")
+                cmp.figure(result, path / "comparison.png")
+            click.echo(f"wrote {out}/: comparison.json, comparison.png, {rundir.MANIFEST}")
+        elif figure_path is not None:
+            click.echo(f"wrote {cmp.figure(result, figure_path)}")
+    finally:
+        if target is not None:
+            target.close()
     return 0 if result.agree else 1
 
 
@@ -1145,19 +1307,21 @@ def surface(which, controller, points, out):
     from twin.outputs import report
     from twin.controllers import mamdani
 
-    from twin.outputs.rundir import refuse_if_in_use
+    from twin.outputs.rundir import FileBatch
 
-    refuse_if_in_use(out)
+    batch = FileBatch(out, "twin surface")  # added beside the other surfaces there, with a manifest
     fls = mamdani.position_controller(controller) if which == "position" else mamdani.direction_controller(controller)
     g1, g2, z = fls.surface(points)
     labels = {"position": ("p_e [m]", "θ̇ [rad/s]", "θ_off [rad]"),
               "direction": ("α_e [rad]", "α̇_e [rad/s]", "u_α [N·m]")}[which]
-    out.mkdir(parents=True, exist_ok=True)
-    stem = out / f"{which}_{controller}"
+    stem = f"{which}_{controller}"
     rows = [(a, b, z[i, j]) for i, a in enumerate(g1) for j, b in enumerate(g2)]
-    np.savetxt(f"{stem}.csv", np.array(rows), delimiter=",", header=",".join(labels), comments="")
-    report.plot_surface(g1, g2, z, Path(f"{stem}.png"), labels, f"{controller.upper()} {which} controller (Table II)")
-    click.echo(f"wrote {stem}.csv and {stem}.png")
+    with batch:
+        np.savetxt(batch.temp(f"{stem}.csv"), np.array(rows), delimiter=",", header=",".join(labels), comments="")
+        report.plot_surface(g1, g2, z, batch.temp(f"{stem}.png"), labels,
+                            f"{controller.upper()} {which} controller (Table II)")
+        batch.commit()
+    click.echo(f"wrote {out / stem}.csv and {out / stem}.png")
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -48,4 +48,24 @@ def shown(value, limit: int = QUOTE_LIMIT, *, as_json: bool = False) -> str:
     return text if len(text) <= limit else text[:limit - 1] + "…"
 
 
-__all__ = ["InfeasibleDesign", "PluginError", "QUOTE_LIMIT", "TwinError", "shown"]
+def raised_text(exc: BaseException, limit: int = 500) -> str:
+    """What a plugin raised, for a one-line message: ``RuntimeError: boom``; an exit or an
+    interrupt as what it is, ``SystemExit(0)`` or ``KeyboardInterrupt`` (:func:`ends_process`)."""
+    if ends_process(exc):
+        return f"{type(exc).__name__}({shown(exc.code)})" if isinstance(exc, SystemExit) else type(exc).__name__
+    text = " ".join(str(exc).split())
+    text = text if len(text) <= limit else text[:limit - 1] + "…"
+    return f"{type(exc).__name__}: {text}"
+
+
+def ends_process(exc: BaseException) -> bool:
+    """True for what ends a process when nobody catches it (SystemExit, KeyboardInterrupt):
+    raised by a plugin, a failure of that plugin, said with :data:`MAY_NOT_END`."""
+    return isinstance(exc, (SystemExit, KeyboardInterrupt))
+
+
+MAY_NOT_END = "a plugin may not end the process"
+
+
+__all__ = ["InfeasibleDesign", "MAY_NOT_END", "PluginError", "QUOTE_LIMIT", "TwinError", "ends_process", "raised_text",
+           "shown"]

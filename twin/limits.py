@@ -9,12 +9,14 @@ one :class:`~twin.errors.PluginError` line naming the plugin and the limit. Each
 loop (each :meth:`~twin.sim.loop.ClosedLoop.reset`) starts its own clock: in a scenario with
 several controllers, each controller's run has the whole budget, whatever the others took.
 
-What the limits cannot do: they are checked when a call returns, so a call that never
-returns is not stopped (interrupting it would take a signal, which would also land in the
-twin's own code, pytest's timeouts or a user's handler); the memory is the whole process's
-(the run's own log included, about 0.4 kB per control step), read every
-:data:`MEMORY_EVERY` control steps, so a plugin leaking L bytes per call may exceed the
-limit by up to ``MEMORY_EVERY · L`` before it is seen.
+Two enforcers. In the run's own process :class:`RunGuard` checks each call when it returns
+(the time it took, the run's time so far, and, with a memory limit, the resident memory
+after every call of the controller or the estimator): what it stops, it names precisely.
+A call that never returns cannot be stopped from inside the process; that is the second
+enforcer's: the ``twin`` commands run every run that involves a user's plugin in a worker
+process (:mod:`twin.containment`), which publishes through :data:`STATUS` (shared memory)
+when its run started, which plugin call is under way since when, and its memory baseline;
+the command reads it and kills the worker when a limit is overrun by more than a grace.
 """
 from __future__ import annotations
 
@@ -26,8 +28,43 @@ from time import perf_counter
 
 from twin.errors import PluginError, TwinError
 
-MEMORY_EVERY = 64  # control steps between two reads of the resident memory (about 5 µs each on Linux)
+MEMORY_EVERY = 1  # control steps between two reads of the resident memory: every call (about 3 µs a read on Linux)
 MB = 1e6  # bytes: the limits' memory unit (SI megabyte)
+
+# What a plugin's call may raise that is the plugin's failure, reported as a PluginError naming it:
+# any Exception, and SystemExit (a plugin may not end the process; sys.exit() in a controller
+# ended 'twin run' with exit status 0 and nothing written). In a contained worker
+# (twin.containment) KeyboardInterrupt too: the worker ignores SIGINT, so only a plugin raises it
+# there; in one's own process Ctrl-C is a KeyboardInterrupt and must stay one.
+PLUGIN_FAILURES: tuple = (Exception, SystemExit)
+
+# The shared status of a contained worker's run (twin.containment sets it in the worker; None
+# elsewhere): a float64 array read by the command that started the worker. Its slots:
+RUN_T0, CALL_T0, ROLE, METHOD, STEP, RSS0, DT, PEAK = range(8)
+STATUS_SIZE = 8
+ROLES = ("", "controller", "estimator", "plant")  # ROLE's values: 0 none, 1 controller, ...
+METHODS = ("", "reset()", "__call__()", "start()", "step()", "building it", "importing it")
+STATUS = None
+IMPORTING, BUILDING = 6, 5  # METHODS' indices of a plugin's import and construction
+
+
+def mark(role: int, method: int) -> None:
+    """A contained worker's plugin ``role`` begins ``method`` outside a run (its import or its
+    construction: :data:`IMPORTING`, :data:`BUILDING`), for the command that watches; nothing
+    elsewhere."""
+    status = STATUS
+    if status is not None:
+        status[ROLE] = role
+        status[METHOD] = method
+        status[STEP] = 0
+        status[CALL_T0] = perf_counter()
+
+
+def unmark() -> None:
+    """The call :func:`mark` announced returned."""
+    status = STATUS
+    if status is not None:
+        status[CALL_T0] = 0.0
 
 
 @dataclass(frozen=True)
@@ -63,10 +100,24 @@ class PluginLimits:
         return self.step_wall_s is not None or self.run_wall_s is not None or self.run_memory_mb is not None
 
 
+_STATM_FD: list = []  # /proc/self/statm held open (in this process: a forked child reopens it), read with pread
+
+
 def _statm() -> int:
-    """The current resident set in bytes (Linux)."""
-    with open("/proc/self/statm", "rb") as f:
-        return int(f.read().split()[1]) * _PAGE
+    """The current resident set in bytes (Linux): about 3 µs with the file held open."""
+    pid = os.getpid()
+    if not _STATM_FD or _STATM_FD[0] != pid:
+        _STATM_FD[:] = [pid, os.open("/proc/self/statm", os.O_RDONLY)]
+    return int(os.pread(_STATM_FD[1], 128, 0).split()[1]) * _PAGE
+
+
+def resident_of(pid: int) -> int | None:
+    """The resident set in bytes of process ``pid`` (Linux), None if it is gone or unknown."""
+    try:
+        with open(f"/proc/{pid}/statm", "rb") as f:
+            return int(f.read().split()[1]) * _PAGE
+    except (OSError, ValueError, IndexError):
+        return None
 
 
 def _maxrss() -> int:
@@ -107,10 +158,11 @@ class RunGuard:
     :meth:`charge` after each timed call, :meth:`memory` every :data:`MEMORY_EVERY` steps."""
 
     __slots__ = ("limits", "step", "run", "memory_bytes", "controller", "estimator", "control_dt", "t0", "spent",
-                 "rss0", "_read")
+                 "rss0", "_read", "status")
 
     def __init__(self, limits: PluginLimits, controller, estimator, control_dt: float):
-        self.limits = limits
+        self.limits = limits = limits if limits is not None else PluginLimits()
+        self.status = STATUS  # a contained worker's shared status, or None
         inf = math.inf
         self.step = limits.step_wall_s if limits.step_wall_s is not None else inf
         self.run = limits.run_wall_s if limits.run_wall_s is not None else inf
@@ -126,11 +178,40 @@ class RunGuard:
         self.spent = {"controller": 0.0, "estimator": 0.0}
         self.rss0 = self._read() if self._read is not None else 0
         self.t0 = perf_counter()
+        status = self.status
+        if status is not None:
+            status[RSS0] = self.rss0 if self._read is not None else (resident_bytes() or 0)
+            status[DT] = self.control_dt
+            status[CALL_T0] = 0.0
+            status[RUN_T0] = self.t0
+
+    def enter(self, role: int, method: int, k: int) -> float:
+        """A call of the ``role`` (1 controller, 2 estimator: :data:`ROLES`) begins, its
+        ``method`` (:data:`METHODS`) at control step ``k``: published for the command that
+        watches a contained worker; the time it began (perf_counter)."""
+        t0 = perf_counter()
+        status = self.status
+        if status is not None:
+            status[ROLE] = role
+            status[METHOD] = method
+            status[STEP] = k
+            status[CALL_T0] = t0
+        return t0
+
+    def leave(self) -> float:
+        """The call begun by :meth:`enter` returned; the time it did (perf_counter)."""
+        t1 = perf_counter()
+        status = self.status
+        if status is not None:
+            status[CALL_T0] = 0.0
+        return t1
 
     def charge(self, role: str, dt: float, now: float, k: int, per_step: bool = True) -> None:
         """``role`` ("controller" or "estimator") took ``dt`` s in one call that ended at
         ``now`` (perf_counter) at control step ``k``: a PluginError if that is over a limit."""
         self.spent[role] += dt
+        if self.memory_bytes is not None:  # after every call: a plugin that grows a lot per call is seen at once
+            self.memory(k)
         if per_step and dt > self.step:
             raise _over("step_wall_s", f"{self._who(role)} took {dt:.3g} s for one control step, over "
                                        f"limits.step_wall_s = {self.step:g} s (at t = {k * self.control_dt:.3f} s)")
@@ -188,4 +269,11 @@ def limit_of(exc: BaseException) -> str | None:
 
 LIMIT_KEYS = ("step_wall_s", "run_wall_s", "run_memory_mb")
 
-__all__ = ["LIMIT_KEYS", "MEMORY_EVERY", "PluginLimits", "RunGuard", "limit_of", "resident_bytes"]
+def over(limit: str, message: str) -> PluginError:
+    """The PluginError of a run stopped by ``limit``, as :class:`RunGuard` raises it (for the
+    command that stops a contained worker from outside)."""
+    return _over(limit, message)
+
+
+__all__ = ["LIMIT_KEYS", "MEMORY_EVERY", "PLUGIN_FAILURES", "PluginLimits", "RunGuard", "limit_of", "over",
+           "resident_bytes", "resident_of"]

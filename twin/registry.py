@@ -31,7 +31,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from twin.errors import PluginError, TwinError
+from twin import limits as _limits
+from twin.errors import MAY_NOT_END, PluginError, TwinError, ends_process, raised_text
 from twin.protocols import Targets, one_line, shown
 
 _IMPORT_PATH = re.compile(r"^[A-Za-z_][\w]*(\.[A-Za-z_][\w]*)*:[A-Za-z_][\w]*(\.[A-Za-z_][\w]*)*$")
@@ -181,6 +182,7 @@ ESTIMATORS: dict[str, Kind] = {
 }
 
 _ROLES = {"controller": CONTROLLERS, "estimator": ESTIMATORS}
+_ROLE_CODES = {"controller": 1, "estimator": 2}  # twin.limits.ROLES' codes
 _METHODS = {"controller": ("reset", "__call__"), "estimator": ("start", "step")}
 _SIGNATURES = {"controller": "reset(targets) and __call__(estimate, targets)",
                "estimator": "start(measurement) and step(measurement, command)"}
@@ -245,14 +247,18 @@ def resolve(role: str, kind: str) -> tuple[Callable, bool]:
         return table[kind].factory, False
     module_name, attr = kind.split(":", 1)
     try:
-        module = _import(module_name)
+        _limits.mark(_ROLE_CODES[role], _limits.IMPORTING)
+        try:
+            module = _import(module_name)
+        finally:
+            _limits.unmark()
     except ModuleNotFoundError as exc:
         where = "" if exc.name == module_name else f" (it imports {shown(exc.name)}, which is missing)"
         raise PluginError(f"{role} {shown(kind)}: no module named {shown(module_name)}{where}; the module must be importable "
                           f"(on sys.path, installed, in the current directory or beside the scenario file)") from None
-    except Exception as exc:  # noqa: BLE001 -- a plugin's import error is the user's, reported in one line
-        raise PluginError(f"{role} {shown(kind)}: importing {shown(module_name)} failed: {type(exc).__name__}: "
-                          f"{one_line(exc)}") from None
+    except _limits.PLUGIN_FAILURES as exc:  # a plugin's import error is the user's, reported in one line
+        raise PluginError(f"{role} {shown(kind)}: importing {shown(module_name)} failed: {raised_text(exc)}"
+                          + (f"; {MAY_NOT_END}" if ends_process(exc) else "")) from None
     obj = module
     for part in attr.split("."):
         if not hasattr(obj, part):
@@ -322,7 +328,11 @@ def _build(role: str, kind: str, params: dict | None, context: BuildContext | No
         if not plugin:
             obj = factory(context, **params)
         else:
-            obj = factory(**params, context=context) if _accepts_context(factory) else factory(**params)
+            _limits.mark(_ROLE_CODES[role], _limits.BUILDING)
+            try:
+                obj = factory(**params, context=context) if _accepts_context(factory) else factory(**params)
+            finally:
+                _limits.unmark()
     except PluginError:
         raise
     except TypeError as exc:
@@ -331,9 +341,9 @@ def _build(role: str, kind: str, params: dict | None, context: BuildContext | No
                           f"({one_line(exc)}); allowed parameters: {', '.join(allowed) or 'none'}") from None
     except TwinError as exc:
         raise PluginError(f"{role} {shown(kind)}: {exc}") from None
-    except Exception as exc:  # noqa: BLE001 -- the plugin's own failure, in one line
-        raise PluginError(f"{role} {shown(kind)}: building it raised {type(exc).__name__}: "
-                          f"{one_line(exc)}") from None
+    except _limits.PLUGIN_FAILURES as exc:  # the plugin's own failure, in one line
+        raise PluginError(f"{role} {shown(kind)}: building it raised {raised_text(exc)}"
+                          + (f"; {MAY_NOT_END}" if ends_process(exc) else "")) from None
     check_protocol(role, kind, obj)
     return obj
 

@@ -95,21 +95,22 @@ def streams(log, estimates=None) -> Streams:
 
     ``estimates`` (n, 6): the state at each instant if already known (else the EKF is replayed
     on the log, :func:`twin.logs.replay.replay`)."""
-    from twin.logs.replay import build_for, instants, replay
+    from twin.logs.replay import build_for, replay, schedule
 
-    t, ms, commands = instants(log)
-    n = len(t)
+    # the readings of each instant gathered from the log's arrays by the replay's schedule (the very
+    # values the estimator gets, twin.logs.replay.instants, with no Measurement object per instant)
+    sched = schedule(log)
+    t, n = sched.t, len(sched.t)
+    commands = log.commands[sched.command]
     sens = log.sensors
     gyro = np.full((n, 3), np.nan)
     accel = np.full((n, 3), np.nan)
     angles = np.full((n, 2), np.nan)
-    for k, m in enumerate(ms):
-        if m.gyro is not None:
-            gyro[k] = m.gyro
-        if m.accel is not None:
-            accel[k] = m.accel
-        if m.encoders is not None:
-            angles[k] = m.encoders
+    for out, rows, values in ((gyro, sched.gyro, log.gyro), (accel, sched.accel, log.accel)):
+        on = rows >= 0
+        out[on] = values[rows[on]]
+    on = sched.encoders >= 0
+    angles[on] = log.counts[sched.encoders[on]] * (1.0 / (log.counts_per_rev / (2.0 * math.pi)))
     dt = 1.0 / sens.imu.rate
     for arr, spec in ((gyro, sens.imu.gyro), (accel, sens.imu.accel)):
         # a clipped reading is not a measurement of the motion (the EKF's rule, estimation/ekf.py)

@@ -178,23 +178,28 @@ def store(key: str, inputs: dict, design) -> None:
            "checksum": hashlib.sha256(_canonical(body)).hexdigest()}
     target = path_of(key)
     tmp = None
-    try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f"{_PREFIX}{key[:16]}.", suffix=".tmp", dir=target.parent)
-        with os.fdopen(fd, "wb") as f:
-            f.write(json.dumps(doc, indent=1, sort_keys=True).encode())
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, target)  # atomic: readers see the old file or the whole new one
-        tmp = None
-    except OSError as exc:
-        _note(f"could not write {target} ({exc.strerror or exc}); the design is used but not cached")
-    finally:
-        if tmp is not None:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
+    from twin.outputs.rundir import deferred_signals
+
+    # signals held while it writes (a few ms), delivered after: an interrupt between mkstemp and its
+    # name's being kept, or in the clean-up below, left a temporary file in the store
+    with deferred_signals():
+        try:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=f"{_PREFIX}{key[:16]}.", suffix=".tmp", dir=target.parent)
+            with os.fdopen(fd, "wb") as f:
+                f.write(json.dumps(doc, indent=1, sort_keys=True).encode())
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, target)  # atomic: readers see the old file or the whole new one
+            tmp = None
+        except OSError as exc:
+            _note(f"could not write {target} ({exc.strerror or exc}); the design is used but not cached")
+        finally:
+            if tmp is not None:
+                try:
+                    os.unlink(tmp)
+                except OSError:
+                    pass
 
 
 # ---- loading ---------------------------------------------------------------------------------

@@ -309,7 +309,8 @@ def _solve(A, B, decay_rate, solver, T=None, feasibility_only=False):
                 opts = dict(_SOLVER_OPTIONS.get(name, {}))
                 if feasibility_only:
                     opts.update(_QUICK_OPTIONS.get(name, {}))
-                prob.solve(solver=name, **opts)
+                with _solver_call():
+                    prob.solve(solver=name, **opts)
             status, used = prob.status, name
         except Exception as exc:  # solver missing or crashed: try the fallback
             status, used = f"error: {exc}".splitlines()[0], name
@@ -320,6 +321,17 @@ def _solve(A, B, decay_rate, solver, T=None, feasibility_only=False):
         return status, None, None, None, None, used
     Yv = [[np.array(Yb[i][j].value) for j in range(r)] for i in range(r)]
     return status, np.array(Q.value), [np.array(Ni.value) for Ni in N], Yv, float(t.value), used
+
+
+def _solver_call():
+    """SIGINT and SIGTERM held while a solver runs, delivered as it returns
+    (:func:`twin.outputs.rundir.deferred_signals`): Clarabel is Rust, and calls back into Python
+    while it solves (it imports SciPy's LAPACK on its first solve); an interrupt raised there
+    became a Rust panic (a traceback, exit status 1), or an error the fallback to SCS took for
+    a failed solver, the signal lost. A solve takes 0.1-0.5 s here (SCS, the fallback, a few s)."""
+    from twin.outputs.rundir import deferred_signals
+
+    return deferred_signals()
 
 
 def verify_certificate(A, B, Q, N, Y, epsilon, rho, decay_rate, T=None, weight_grid: int = 201, *,
@@ -765,7 +777,8 @@ def _certified_models(models, decay_rate, damping, solver, all_vertices=False):
     that passes the independent check, or a string saying why not."""
     T = DEFAULT_SCALING
     for attempt in range(2):
-        sol = regions.solve_program(models, decay_rate, damping, solver, T, _ROOM, all_vertices=all_vertices)
+        with _solver_call():
+            sol = regions.solve_program(models, decay_rate, damping, solver, T, _ROOM, all_vertices=all_vertices)
         if sol.Q is None:
             return f"solver status {sol.status}"
         found = _ModelsSolution(sol.Q, sol.N, sol.Y, sol.Z, T, sol.solver, sol.t)
@@ -793,8 +806,9 @@ def _sampled_margin(models, gains, Px, decay_rate, damping, any_weights=False, w
 def _feasible(models, decay_rate, damping, solver, all_vertices=False) -> bool:
     """A quick yes/no: does the region / robust SDP have a solution?"""
     name = solver or "CLARABEL"
-    sol = regions.solve_program(models, decay_rate, damping, name, DEFAULT_SCALING, _ROOM, feasibility_only=True,
-                                quick_iters=_QUICK_ITERS.get(name), all_vertices=all_vertices)
+    with _solver_call():
+        sol = regions.solve_program(models, decay_rate, damping, name, DEFAULT_SCALING, _ROOM, feasibility_only=True,
+                                    quick_iters=_QUICK_ITERS.get(name), all_vertices=all_vertices)
     return sol.Q is not None and sol.status == "optimal"
 
 

@@ -27,7 +27,9 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-from twin.errors import TwinError
+from twin.errors import TwinError, shown
+from twin.inputs import read_text, toml_loads
+from twin.logs.bounds import MAX_MANIFEST_BYTES
 
 
 @dataclass(frozen=True)
@@ -48,9 +50,9 @@ def is_log_target(target) -> bool:
     if p.is_dir():
         return (p / "log.toml").is_file()
     if p.suffix == ".toml" and p.is_file():
-        try:
-            return "log" in tomllib.loads(p.read_text(encoding="utf-8"))
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError, OSError):
+        try:  # bounded as every file read (twin.inputs): a file it cannot read is left to the scenario reader
+            return "log" in toml_loads(read_text(p, MAX_MANIFEST_BYTES, "check file"))
+        except (TwinError, ValueError, OSError):  # TOMLDecodeError and TooDeep are ValueErrors
             return False
     return False
 
@@ -62,17 +64,24 @@ def load_log_check(target) -> LogCheck:
     p = Path(target)
     file = p / "log.toml" if p.is_dir() else p
     try:
-        doc = tomllib.loads(file.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        doc = toml_loads(read_text(file, MAX_MANIFEST_BYTES, "check file"))
+    except FileNotFoundError:
+        raise TwinError(f"{file}: no such file") from None
+    except tomllib.TOMLDecodeError as exc:
         raise TwinError(f"{file}: not valid TOML ({' '.join(str(exc).split())})") from None
+    except TwinError:
+        raise
+    except ValueError as exc:  # nested too deeply, an integer of 5000 digits
+        raise TwinError(f"{file}: cannot be read: {exc}") from None
     if p.is_dir():
         log = p
     else:
         extra = sorted(set(doc) - {"log", "expect"})
         if extra:
             raise TwinError(f"{file}: unknown key {extra[0]!r}; a replay check holds log = \"DIR\" and [expect]")
-        if not isinstance(doc["log"], str) or not doc["log"]:
-            raise TwinError(f"{file}: log must be the log's directory (relative to this file), got {doc['log']!r}")
+        if not isinstance(doc["log"], str) or not doc["log"] or not doc["log"].isprintable():
+            raise TwinError(f"{file}: log must be the log's directory (relative to this file), got "
+                            f"{shown(doc['log'])}")
         log = (file.parent / doc["log"]).resolve() if not Path(doc["log"]).is_absolute() else Path(doc["log"])
         if not (log / "log.toml").is_file():
             raise TwinError(f"{file}: log: {log} is not a sensor log (no log.toml there)")
@@ -109,14 +118,14 @@ def replay_metrics(entry: dict) -> dict:
 
 def run_log_checks(checks) -> list:
     """A :class:`twin.verify.check.CaseResult` per log and estimator (seed 0: a replay has none)."""
-    from twin.logs.replay import replay_logs
+    from twin.logs.replay import replay_logs_contained
     from twin.verify.check import CaseResult
     from twin.verify.expectations import evaluate, failed
 
     cases = []
     for chk in checks:
         try:
-            doc, _ = replay_logs([chk.log], chk.kinds)
+            doc, _ = replay_logs_contained([chk.log], chk.kinds)  # a plugin's in a worker: it cannot end the check
             entries = doc["logs"][str(chk.log)]["estimators"]
             errors = {}
         except TwinError as exc:

@@ -86,10 +86,18 @@ Anything wrong that can be detected is one :class:`~twin.errors.TwinError` line 
 file (and the row or key) and what is allowed: a missing manifest or stream, an unknown format
 or version, an unknown key, non-numeric or non-finite values, counts that are not integers, time
 that runs backwards, an accelerometer in g rather than m/s², gravity on another axis than z.
+
+A log is input from outside, read as such: what it may ask for is bounded
+(:mod:`twin.logs.bounds`: a stream's bytes, rows and row length, |t|, a stream's span, the
+replay's control instants, a count's digits, the manifest's size and nesting), each bound
+checked on the row that exceeds it before anything is allocated from it; its files are read only
+if they are regular files (:func:`twin.inputs.open_regular`: a FIFO or ``/dev/zero`` is refused
+unread) inside the log's directory (:func:`twin.inputs.inside`: a symbolic link out of it is
+refused unopened, so no message quotes another file). "Beside log.toml" means that: a
+``scenario`` file is a file name alone in the log's directory, and its bases lie there too.
 """
 from __future__ import annotations
 
-import csv
 import math
 import tomllib
 from dataclasses import dataclass, field
@@ -98,6 +106,8 @@ from pathlib import Path
 import numpy as np
 
 from twin.errors import TwinError, shown
+from twin.inputs import inside, read_text, toml_loads
+from twin.logs.bounds import MAX_INSTANTS, MAX_MANIFEST_BYTES
 
 FORMAT = "mtwip-sensor-log"
 VERSION = 1
@@ -205,16 +215,23 @@ def read_log(path) -> SensorLog:
     from twin.params import NOMINAL, RobotParams
 
     root = Path(path)
-    if not root.is_dir():
-        raise TwinError(f"{root}: not a sensor log (a directory holding log.toml and the streams)")
+    if not root.is_dir():  # (False for a name with a null character too)
+        name = str(root) if str(root).isprintable() else shown(str(root))
+        raise TwinError(f"{name}: not a sensor log (a directory holding log.toml and the streams)")
     mfile = root / "log.toml"
-    if not mfile.is_file():
+    try:  # the log's own file (inside its directory), a regular file, at most MAX_MANIFEST_BYTES
+        inside(mfile, root, "manifest")
+        text = read_text(mfile, MAX_MANIFEST_BYTES, "sensor log's manifest (log.toml)")
+    except FileNotFoundError:
         raise TwinError(f"{mfile}: missing; a sensor log's manifest says format = \"{FORMAT}\", version, "
-                        f"control_rate, wheel_radius, track, encoder_counts and imu_position")
+                        f"control_rate, wheel_radius, track, encoder_counts and imu_position") from None
     try:
-        m = tomllib.loads(mfile.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        m = toml_loads(text)
+    except tomllib.TOMLDecodeError as exc:
         raise TwinError(f"{mfile}: not valid TOML ({' '.join(str(exc).split())})") from None
+    except ValueError as exc:  # TooDeep, or an integer beyond Python's 4300-digit conversion
+        raise TwinError(f"{mfile}: cannot be read: {exc}; allowed: a manifest as documented "
+                        f"(docs/howto/robot-logs.md)") from None
     where = str(mfile)
     if m.get("format") != FORMAT:
         raise TwinError(f"{where}: format: {shown(m.get('format'))} is not a sensor log's; allowed: \"{FORMAT}\"")
@@ -316,12 +333,28 @@ def read_log(path) -> SensorLog:
         commands = commands * motor.stall_torque
     if len(cmd) < 2:
         raise TwinError(f"{root / 'commands.csv'}: {len(cmd)} row(s); a log needs at least 2 control instants")
+    _check_instants(root / "commands.csv", cmd[:, 0], rate)
     if duty is not None:
         _check_duty(root / "duty.csv", duty, cmd[:, 0])
     return SensorLog(root, m, rate, model, sensors, motor, heading, t_imu, gyro, accel, enc[:, 0], counts_i, has,
                      cmd[:, 0], commands, None if tru is None else tru[:, 0], None if tru is None else tru[:, 1:7],
                      scenario, None if tru is None or tru.shape[1] == 7 else tru[:, 7:], constants,
                      None if duty is None else duty[:, 0], None if duty is None else duty[:, 1:3])
+
+
+def _check_instants(path: Path, t: np.ndarray, rate: float) -> None:
+    """The replay's control instants, one per 1/``rate`` s from the first command to the last
+    (:func:`twin.logs.replay.instants`), at most :data:`~twin.logs.bounds.MAX_INSTANTS`: checked
+    here, in floating point, before anything is allocated per instant (a stray row at t = 1e9 s
+    would ask for 2·10¹¹ of them at 200 Hz)."""
+    span = (t - t[0]) * rate  # control periods from the first command (|t| is bounded: no overflow)
+    over = np.flatnonzero(span > MAX_INSTANTS - 1)
+    if over.size:
+        row = int(over[0])
+        raise TwinError(f"{path}: row {row + 2}: t = {float(t[row])!r} s is {float(span[row]):.6g} control periods "
+                        f"after the first command (t = {float(t[0])!r} s, {rate:g} Hz); allowed: a replay of at most "
+                        f"{MAX_INSTANTS:,} control instants ({(MAX_INSTANTS - 1) / rate:.6g} s at this rate; split "
+                        f"a longer log)")
 
 
 def _check_duty(path: Path, duty: np.ndarray, commands_t: np.ndarray) -> None:
@@ -390,92 +423,51 @@ def _scenario(root: Path, m: dict, where: str, counts: int, pos):
 
     name = m.get("scenario", "paper-exp1")
     items = m.get("set", [])
+    beside = "a built-in name or the name of a .toml file beside log.toml (no directory: the log's own file)"
     if not isinstance(name, str) or not name:
-        raise TwinError(f"{where}: scenario: {shown(name)}; allowed: a built-in name or a .toml file beside log.toml")
+        raise TwinError(f"{where}: scenario: {shown(name)}; allowed: {beside}")
     if not (isinstance(items, list) and all(isinstance(s, str) for s in items)):
         raise TwinError(f"{where}: set: {shown(items)}; allowed: a list of \"KEY=VALUE\" strings (as --set takes)")
     if name.endswith(".toml"):
+        # "beside log.toml": a file name alone, never a path out of the log's directory ("../x.toml",
+        # "/etc/x.toml"); what it or its bases resolve to through symbolic links must stay inside too
+        if Path(name).name != name or "\\" in name or not name.isprintable():
+            raise TwinError(f"{where}: scenario: {shown(name)} is not beside log.toml; allowed: {beside}")
         name = str(root / name)
     items = [*items, f"sensors.encoder_counts={counts}", f"sensors.imu_position=[{', '.join(map(repr, pos))}]",
              "sensors.sensing=\"estimated\""]
     try:
-        return load_scenario(name, items)
+        return load_scenario(name, items, within=root)
     except TwinError as exc:
         raise TwinError(f"{where}: scenario: {exc}") from None
 
 
 def _stream(root: Path, name: str, required: bool, integers: bool = False, need_all: bool = False):
-    """Stream ``name`` as a float array (rows, columns), in file order; None if absent and optional."""
+    """Stream ``name`` as a float array (rows, columns), in file order; None if absent and optional.
+
+    The log's own file only: one that leads out of the log's directory (a symbolic link to
+    another file) is refused before it is opened; read row by row within the bounds of
+    :mod:`twin.logs.bounds` (:func:`twin.logs.streams.read_stream`)."""
+    from twin.logs.streams import read_stream
+
     path = root / f"{name}.csv"
     cols = STREAMS[name]
-    if not path.is_file():
-        if required:
-            raise TwinError(f"{path}: missing; a sensor log needs {', '.join(s + '.csv' for s in REQUIRED)} "
-                            f"(truth.csv and duty.csv are optional)")
-        return None
-    try:
-        with open(path, newline="", encoding="utf-8") as fh:
-            rows = list(csv.reader(fh))
-    except (OSError, UnicodeDecodeError) as exc:
-        raise TwinError(f"{path}: cannot be read ({exc})") from None
     groups = {"imu": ((1, 4), (4, 7)), "encoders": ((1, 3),), "commands": ((1, 3),), "truth": ((1, 7),),
               "duty": ((1, 3),)}[name]
-    header = tuple(h.strip() for h in rows[0]) if rows else ()
-    if name == "truth" and header == cols + TRUTH_STATE:  # the optional state truth (see the docstring)
-        cols, groups = header, ((1, 7), (7, 9), (9, 12))
-    if not rows or header != cols:
-        also = f" (optionally followed by {','.join(TRUTH_STATE)})" if name == "truth" else ""
-        raise TwinError(f"{path}: row 1: the header must be {','.join(cols)}{also}, got "
-                        f"{shown(','.join(rows[0]) if rows else '')}")
-    out = np.empty((len(rows) - 1, len(cols)))
-    last = -math.inf
-    for i, row in enumerate(rows[1:]):
-        line = i + 2
-        if len(row) != len(cols):
-            raise TwinError(f"{path}: row {line}: {len(row)} fields; allowed: {len(cols)} ({','.join(cols)})")
-        cells = [c.strip() for c in row]
-        t = _cell(cells[0], path, line, "t")
-        if t is None:
-            raise TwinError(f"{path}: row {line}: t is empty; every row needs its time in s")
-        if t < last - TIME_TOLERANCE:
-            raise TwinError(f"{path}: row {line}: t = {t!r} s runs backwards ({last!r} s on the row before); "
-                            f"allowed: rows in time order (equal times, or up to {TIME_TOLERANCE:g} s earlier, "
-                            f"count as simultaneous)")
-        last = max(last, t)
-        out[i, 0] = t
-        for a, b in groups:
-            vals = [_cell(cells[j], path, line, cols[j], integers) for j in range(a, b)]
-            empty = [v is None for v in vals]
-            if all(empty) and not need_all:
-                out[i, a:b] = np.nan
-            elif any(empty):
-                missing = cols[a + empty.index(True)]
-                raise TwinError(f"{path}: row {line}: {missing} is empty while {', '.join(cols[a:b])} are not; "
-                                f"allowed: all of them, or none (nothing arrived)" if not need_all else
-                                f"{path}: row {line}: {missing} is empty; every row needs "
-                                f"{' and '.join(cols[a:b])}")
-            else:
-                out[i, a:b] = vals
-    return out
-
-
-def _cell(text: str, path: Path, line: int, col: str, integer: bool = False):
-    if text == "":
-        return None
-    if integer:
-        sign = text[1:] if text[:1] in "+-" else text
-        if not sign.isdigit():
-            raise TwinError(f"{path}: row {line}: {col} = {shown(text)} is not a whole number of counts; "
-                            f"allowed: integers (encoders count, they do not measure angles)")
-        return float(int(text))
+    layouts = [(cols, groups)]
+    if name == "truth":  # the optional state truth (see the docstring)
+        layouts.append((cols + TRUTH_STATE, ((1, 7), (7, 9), (9, 12))))
+    also = f" (optionally followed by {','.join(TRUTH_STATE)})" if name == "truth" else ""
     try:
-        v = float(text)
-    except ValueError:
-        raise TwinError(f"{path}: row {line}: {col} = {shown(text)} is not a number") from None
-    if not math.isfinite(v):
-        raise TwinError(f"{path}: row {line}: {col} = {text}; allowed: a finite number (an empty field: "
-                        f"nothing arrived)")
-    return v
+        inside(path, root, "stream")
+        out, _ = read_stream(path, layouts, tolerance=TIME_TOLERANCE, integers=integers, need_all=need_all,
+                             also=also)
+    except FileNotFoundError:
+        if required:
+            raise TwinError(f"{path}: missing; a sensor log needs {', '.join(s + '.csv' for s in REQUIRED)} "
+                            f"(truth.csv and duty.csv are optional)") from None
+        return None
+    return out
 
 
 def _check_gravity(path: Path, accel: np.ndarray, t: np.ndarray) -> None:

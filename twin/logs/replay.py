@@ -12,6 +12,12 @@ on its way). The estimator gets ``start(m_0)``, then ``step(m_k, u_{k-1})`` with
 the instant before (the torques applied over the period that just ended), so a log the twin
 wrote replays to the very estimates of its run.
 
+A replay streams: :func:`schedule` puts every reading on its instant as a row number (checked
+in floating point first: no timestamp becomes an index unless it falls inside the replay), the
+Measurements are made :data:`CHUNK` instants at a time, and :func:`replay_logs` keeps the
+estimators' diagnostics as arrays (:mod:`twin.logs.diagnostics`): a few hundred bytes an instant
+in all, no object per instant.
+
 Consistency (:func:`consistency`), from the estimator's ``diagnostics()`` (the optional keys
 :class:`twin.protocols.Estimator` documents):
 
@@ -37,7 +43,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from twin.errors import PluginError, TwinError
+from twin import limits as _limits
+from twin.errors import MAY_NOT_END, PluginError, TwinError, ends_process, raised_text
+from twin.logs.bounds import MAX_INSTANTS
+from twin.logs.diagnostics import DiagnosticsLog, normalised_innovation
 from twin.logs.format import SensorLog
 from twin.sensors import Measurement
 
@@ -51,8 +60,10 @@ WHITENESS_Z = 1.959963984540054  # the two-sided 95 % point of N(0, 1): the band
 class Replay:
     """One estimator's replay of one log: ``t`` (N,) s the control instants, ``estimates``
     (N, 6) [θ, θ̇, ψ, ψ̇, α, α̇], ``diagnostics`` the estimator's ``diagnostics()`` at each
-    instant when asked for (else None), ``stats`` its ``stats()`` at the end, and the wall time
-    per step ``step_s`` (s); ``log`` the log replayed."""
+    instant when asked for (else None: a list of its dicts from :func:`replay`, a
+    :class:`~twin.logs.diagnostics.DiagnosticsLog` of arrays from :func:`replay_logs`), ``stats``
+    its ``stats()`` at the end, and the estimator's wall time per step ``step_s`` (s); ``log``
+    the log replayed."""
 
     estimator: str
     t: np.ndarray
@@ -63,8 +74,29 @@ class Replay:
     log: SensorLog | None = None
 
 
-def instants(log: SensorLog) -> tuple[np.ndarray, list, np.ndarray]:
-    """(t (N,) s, the Measurement of each instant, the command (N, 2) N·m in force from each)."""
+@dataclass(frozen=True)
+class Schedule:
+    """What reaches the estimator at each control instant of a log (:func:`schedule`), as row
+    numbers into the log's arrays (40 bytes an instant, no object per instant): ``t`` (N,) s
+    the instants; ``gyro``, ``accel`` and ``encoders`` (N,) the row of imu.csv or encoders.csv
+    whose reading arrives at each (−1: none); ``command`` (N,) the commands.csv row in force
+    from each."""
+
+    t: np.ndarray
+    gyro: np.ndarray
+    accel: np.ndarray
+    encoders: np.ndarray
+    command: np.ndarray
+
+
+def schedule(log: SensorLog) -> Schedule:
+    """The control instants of ``log`` and the rows that reach each (see the module docstring).
+
+    Their number is checked before anything is allocated for them: at most
+    :data:`twin.logs.bounds.MAX_INSTANTS` (:func:`twin.logs.format.read_log` refuses a log asking
+    for more; a :class:`SensorLog` made otherwise is held to it here). A reading is put on its
+    instant in floating point and only then, if it falls inside the replay, made an index: a
+    timestamp far beyond the last instant can neither overflow nor wrap round to instant 0."""
     rate = log.control_rate
     both = np.isfinite(log.gyro).all(axis=1) & np.isfinite(log.accel).all(axis=1)
     if not both.any():
@@ -76,67 +108,120 @@ def instants(log: SensorLog) -> tuple[np.ndarray, list, np.ndarray]:
         raise TwinError(f"{log.path / 'commands.csv'}: fewer than 2 commands from the first IMU reading on "
                         f"(t = {float(log.imu_t[both][0]):g} s); a replay needs at least 2 control instants")
     t0 = float(log.commands_t[first])
-    n = int(math.floor((float(log.commands_t[-1]) - t0) * rate + INSTANT_TOLERANCE)) + 1
-    t = np.array([t0 + k / rate for k in range(n)])
-
-    def slot(times: np.ndarray) -> np.ndarray:
-        k = np.ceil((times - t0) * rate - INSTANT_TOLERANCE).astype(np.int64)
-        return np.clip(k, 0, None)
+    periods = (float(log.commands_t[-1]) - t0) * rate + INSTANT_TOLERANCE
+    if not periods < MAX_INSTANTS:  # (NaN too)
+        raise TwinError(f"{log.path / 'commands.csv'}: the commands span {periods / rate:.6g} s at {rate:g} Hz, "
+                        f"{periods:.6g} control periods; allowed: a replay of at most {MAX_INSTANTS:,} control "
+                        f"instants (split a longer log)")
+    n = int(math.floor(periods)) + 1
+    t = t0 + np.arange(n) / rate  # t_0 + k / rate, each rounded once: as the closed loop's clock
 
     def last_at(times: np.ndarray, ok: np.ndarray) -> np.ndarray:
         """For each instant, the index of the last ok row that arrives there (-1: none)."""
         idx = np.full(n, -1, dtype=np.int64)
         rows = np.flatnonzero(ok)
-        k = slot(times[rows])
-        keep = k < n
-        idx[k[keep]] = rows[keep]  # later rows overwrite earlier ones: the last one arrives
+        k = np.ceil((times[rows] - t0) * rate - INSTANT_TOLERANCE)  # the instant each arrives at, in floats
+        keep = k < n  # (a reading after the last instant never arrives)
+        k = np.maximum(k[keep], 0.0).astype(np.int64)  # a reading before t_0 belongs to t_0
+        idx[k] = rows[keep]  # later rows overwrite earlier ones: the last one arrives
         return idx
 
     gi = last_at(log.imu_t, np.isfinite(log.gyro).all(axis=1))
     ai = last_at(log.imu_t, np.isfinite(log.accel).all(axis=1))
     ei = last_at(log.encoders_t, log.has_counts)
-    res = 1.0 / (log.counts_per_rev / (2.0 * math.pi))  # rad per count, as the twin's encoders
-    gyro, accel, counts = log.gyro.tolist(), log.accel.tolist(), log.counts.tolist()
-    ms = []
-    for k in range(n):
-        g, a, e = gi[k], ai[k], ei[k]
-        ms.append(Measurement(float(t[k]), tuple(gyro[g]) if g >= 0 else None, tuple(accel[a]) if a >= 0 else None,
-                              (counts[e][0] * res, counts[e][1] * res) if e >= 0 else None))
     # the command in force at instant k: the last row at or before it
     ci = np.searchsorted(log.commands_t, t + INSTANT_TOLERANCE / rate, side="right") - 1
-    commands = log.commands[np.clip(ci, 0, None)]
-    return t, ms, commands
+    return Schedule(t, gi, ai, ei, np.clip(ci, 0, None))
+
+
+CHUNK = 4096  # control instants whose Measurements are made at a time: a replay holds no list of them
+
+
+def _chunk(log: SensorLog, sched: Schedule, a: int, b: int) -> tuple[list, list, list]:
+    """(t, the Measurement of each instant, the command [ul, ur] N·m in force from each) of
+    instants a … b−1, as plain floats (the readings' floats as the log holds them)."""
+    res = 1.0 / (log.counts_per_rev / (2.0 * math.pi))  # rad per count, as the twin's encoders
+    gi, ai, ei = sched.gyro[a:b], sched.accel[a:b], sched.encoders[a:b]
+    g = log.gyro[np.maximum(gi, 0)].tolist()
+    acc = log.accel[np.maximum(ai, 0)].tolist()
+    e = log.counts[np.maximum(ei, 0)].tolist() if len(log.counts) else [None] * (b - a)
+    hg, ha, he = (gi >= 0).tolist(), (ai >= 0).tolist(), (ei >= 0).tolist()
+    ts = sched.t[a:b].tolist()
+    ms = [Measurement(ts[j], tuple(g[j]) if hg[j] else None, tuple(acc[j]) if ha[j] else None,
+                      (e[j][0] * res, e[j][1] * res) if he[j] else None) for j in range(b - a)]
+    return ts, ms, log.commands[sched.command[a:b]].tolist()
+
+
+def instants(log: SensorLog) -> tuple[np.ndarray, list, np.ndarray]:
+    """(t (N,) s, the Measurement of each instant, the command (N, 2) N·m in force from each).
+
+    A list of N Measurements: for a look at a log's instants; :func:`replay` makes them
+    :data:`CHUNK` at a time instead (:func:`schedule`)."""
+    sched = schedule(log)
+    ms = []
+    for a in range(0, len(sched.t), CHUNK):
+        ms += _chunk(log, sched, a, min(len(sched.t), a + CHUNK))[1]
+    return sched.t, ms, log.commands[sched.command]
 
 
 def replay(log: SensorLog, estimator, name: str = "", diagnostics: bool = False) -> Replay:
-    """Run ``estimator`` (an object meeting :class:`twin.protocols.Estimator`) over ``log``."""
+    """Run ``estimator`` (an object meeting :class:`twin.protocols.Estimator`) over ``log``.
+
+    ``diagnostics``: keep its ``diagnostics()`` of every instant, as it returns them (a list of
+    dicts: the EKF's hold its states and covariance, 2 kB an instant); :func:`replay_logs` keeps
+    them as arrays instead (:class:`twin.logs.diagnostics.DiagnosticsLog`). Memory: the
+    schedule, the estimates and (without ``diagnostics``) nothing else per instant; the
+    readings reach the estimator :data:`CHUNK` instants at a time."""
+    return _replay(log, estimator, name, [] if diagnostics else None)
+
+
+def _replay(log: SensorLog, estimator, name: str, diag) -> Replay:
+    """:func:`replay`, the diagnostics appended to ``diag`` (a list, or a DiagnosticsLog made
+    here for ``diag = "arrays"``; None: not asked for)."""
+    from twin.logs.diagnostics import DiagnosticsLog, normalised_innovation
     from twin.protocols import describe_object
 
-    t, ms, commands = instants(log)
+    sched = schedule(log)
+    n = len(sched.t)
     who = name or describe_object(estimator)
-    out = np.empty((len(t), 6))
-    diag = [] if diagnostics else None
-    cmd = commands.tolist()
-    t_start = time.perf_counter()
-    try:
-        est = estimator.start(ms[0])
-        out[0] = _checked(est, who, 0.0)
-        if diag is not None:
-            diag.append(estimator.diagnostics())
-        step = estimator.step
-        for k in range(1, len(t)):
-            est = step(ms[k], (cmd[k - 1][0], cmd[k - 1][1]))
-            out[k] = _checked(est, who, t[k])
-            if diag is not None:
-                diag.append(estimator.diagnostics())
-    except TwinError:  # a PluginError too: already one line naming the plugin
-        raise
-    except Exception as exc:  # noqa: BLE001 -- a plugin's failure is one line naming it
-        raise PluginError(f"estimator {who}: raised {type(exc).__name__}: {' '.join(str(exc).split())[:300]} on "
-                          f"the log {log.path}") from None
-    wall = time.perf_counter() - t_start
+    if diag == "arrays":
+        diag = DiagnosticsLog(who, log, sched.t)
+    out = np.empty((n, 6))
+    wall, prev = 0.0, None
+    for a in range(0, n, CHUNK):
+        ts, ms, cmds = _chunk(log, sched, a, min(n, a + CHUNK))
+        t_start = time.perf_counter()  # the estimator's time only: making the chunk is the replay's
+        try:
+            j0 = 0
+            if a == 0:
+                out[0] = _checked(estimator.start(ms[0]), who, 0.0)
+                if diag is not None:
+                    _keep(diag, ts[0], estimator.diagnostics())
+                prev, j0 = cmds[0], 1
+            step = estimator.step
+            for j in range(j0, len(ms)):
+                # the command of the instant before: the torques applied over the period that just ended
+                out[a + j] = _checked(step(ms[j], (prev[0], prev[1])), who, ts[j])
+                if diag is not None:
+                    _keep(diag, ts[j], estimator.diagnostics())
+                prev = cmds[j]
+        except TwinError:  # a PluginError too: already one line naming the plugin
+            raise
+        except _limits.PLUGIN_FAILURES as exc:  # a plugin's failure (its sys.exit() too) is one line naming it
+            raise PluginError(f"estimator {who}: raised {raised_text(exc, 300)} on the log {log.path}"
+                              + (f"; {MAY_NOT_END}" if ends_process(exc) else "")) from None
+        wall += time.perf_counter() - t_start
+    if isinstance(diag, DiagnosticsLog):
+        diag.finish()
     stats = dict(estimator.stats()) if callable(getattr(estimator, "stats", None)) else {}
-    return Replay(who, t, out, diag, stats, wall / len(t), log)
+    return Replay(who, sched.t, out, diag, stats, wall / n, log)
+
+
+def _keep(diag, t: float, d) -> None:
+    if isinstance(diag, list):
+        diag.append(d)
+    else:
+        diag.add(t, d)
 
 
 def _checked(est, who: str, t: float):
@@ -177,9 +262,9 @@ def errors(log: SensorLog, r: Replay) -> dict | None:
     return out
 
 
-__all__ = ["INSTANT_TOLERANCE", "NEES_START", "Replay", "WHITENESS_LAGS", "build_for", "consistency", "errors",
-           "filter_record", "instants", "monte_carlo", "normalised_innovations", "replay", "replay_logs",
-           "state_truth", "whiteness", "write_estimates_csv", "write_figure"]
+__all__ = ["CHUNK", "INSTANT_TOLERANCE", "NEES_START", "Replay", "Schedule", "WHITENESS_LAGS", "build_for",
+           "consistency", "errors", "filter_record", "instants", "monte_carlo", "normalised_innovations", "replay",
+           "replay_logs", "schedule", "state_truth", "whiteness", "write_estimates_csv", "write_figure"]
 
 
 def consistency(r: Replay, log: SensorLog | None = None, start: float = NEES_START) -> dict:
@@ -192,49 +277,54 @@ def consistency(r: Replay, log: SensorLog | None = None, start: float = NEES_STA
     if not r.diagnostics:
         return {}
     out = {}
-    ds = [d if isinstance(d, dict) else {} for d in r.diagnostics]
-    nis = np.array([d.get("nis", math.nan) for d in ds], float)
-    dof = np.array([d.get("nis_dof", 0) for d in ds], float)
+    nis, dof = _nis_and_dof(r)
     on = np.isfinite(nis) & (dof > 0)
     if on.any():
         out.update(nis_per_dof=float(nis[on].sum() / dof[on].sum()), nis_updates=int(on.sum()))
-    rec = filter_record(log, r) if log is not None else None
-    if rec is not None and rec.truth is not None:
-        from estimation.consistency import nees
+    e = t = None
+    if isinstance(r.diagnostics, DiagnosticsLog):  # the NEES was computed while the replay went
+        e = r.diagnostics.nees if log is not None else None
+        t, dim = r.t - r.t[0], 12
+    else:
+        rec = filter_record(log, r) if log is not None else None
+        if rec is not None and rec.truth is not None:
+            from estimation.consistency import nees
 
-        e = nees(rec)
-        keep = (rec.t >= start - 1e-9) & np.isfinite(e)
+            e, t, dim = nees(rec), rec.t, int(rec.filter_log["x"].shape[1])
+    if e is not None:
+        keep = (t >= start - 1e-9) & np.isfinite(e)
         if keep.any():
-            out.update(nees_mean=float(e[keep].mean()), nees_dim=int(rec.filter_log["x"].shape[1]),
-                       nees_rows=int(keep.sum()), nees_start_s=float(start))
+            out.update(nees_mean=float(e[keep].mean()), nees_dim=dim, nees_rows=int(keep.sum()),
+                       nees_start_s=float(start))
     w = whiteness(r)
     if w is not None:
         out.update(whiteness_outside_fraction=w["outside_fraction"], whiteness=w)
     return out
 
 
+def _nis_and_dof(r: Replay) -> tuple[np.ndarray, np.ndarray]:
+    """(NIS (N,), its degrees of freedom (N,) as floats) of each instant of ``r``'s diagnostics
+    (NaN and 0 where the estimator reported none)."""
+    if isinstance(r.diagnostics, DiagnosticsLog):
+        return r.diagnostics.nis(), r.diagnostics.nis_dof()
+    ds = [d if isinstance(d, dict) else {} for d in r.diagnostics or []]
+    return (np.array([d.get("nis", math.nan) for d in ds], float),
+            np.array([d.get("nis_dof", 0) for d in ds], float))
+
+
 def normalised_innovations(r: Replay) -> tuple[np.ndarray, np.ndarray]:
     """(t (N,) s, s (N,)) at the instants with an ``innovation`` and ``innovation_cov``: s_k =
     1ᵀ L⁻¹ y / √m, L the Cholesky factor of S, m = dim y (N(0, 1) for a consistent filter)."""
+    if isinstance(r.diagnostics, DiagnosticsLog):  # computed, with the same checks, while the replay went
+        return r.diagnostics.innovations()
     ts, ss = [], []
     for t, d in zip(r.t.tolist(), r.diagnostics or []):
         if not isinstance(d, dict) or "innovation" not in d or "innovation_cov" not in d:
             continue
-        y = np.atleast_1d(np.asarray(d["innovation"], float))
-        S = np.atleast_2d(np.asarray(d["innovation_cov"], float))
-        if y.size == 0:
-            continue
-        if S.shape != (y.size, y.size) or not np.isfinite(y).all() or not np.isfinite(S).all():
-            raise PluginError(f"estimator {r.estimator}: diagnostics() at t = {t:.3f} s: innovation {y.shape} and "
-                              f"innovation_cov {S.shape}; allowed: finite (m,) and (m, m) (see "
-                              f"twin.protocols.Estimator)")
-        try:
-            w = np.linalg.solve(np.linalg.cholesky(S), y)
-        except np.linalg.LinAlgError:
-            raise PluginError(f"estimator {r.estimator}: diagnostics() at t = {t:.3f} s: innovation_cov is not "
-                              f"positive definite; allowed: a covariance (symmetric, positive definite)") from None
-        ts.append(t)
-        ss.append(float(w.sum()) / math.sqrt(y.size))
+        value = normalised_innovation(r.estimator, t, d["innovation"], d["innovation_cov"])
+        if value is not None:
+            ts.append(t)
+            ss.append(value)
     return np.array(ts), np.array(ss)
 
 
@@ -283,10 +373,13 @@ def state_truth(log: SensorLog, t: np.ndarray):
 def filter_record(log: SensorLog | None, r: Replay):
     """The :class:`estimation.consistency.FilterRecord` of replay ``r`` (t from the first
     instant, s) with ``log``'s state truth (None if it has none), or None unless the estimator
-    reported the EKF's ``x``, ``P`` and ``lag`` at every instant."""
+    reported the EKF's ``x``, ``P`` and ``lag`` at every instant and they were kept (a replay
+    of :func:`replay` with ``diagnostics``; :func:`replay_logs` keeps the NEES instead)."""
     from estimation.consistency import FilterRecord
     from twin.sim.recorder import _filter_log  # the arrays Run.filter_log holds, built the same way
 
+    if isinstance(r.diagnostics, DiagnosticsLog):
+        return None
     ds = r.diagnostics
     if not ds or not all(isinstance(d, dict) and {"x", "P", "lag"} <= set(d) for d in ds):
         return None
@@ -303,13 +396,17 @@ def monte_carlo(records, start: float = NEES_START) -> dict | None:
     one estimator (each log an independent run; truncated to the shortest), in JSON: ``runs``,
     ``dim``, ``rows``, ``start_s``, ``nees_mean`` with its 95 % χ² ``nees_bounds`` and Student-t
     ``nees_mean_interval``, ``nees_inside`` (the fraction of instants whose average NEES lies in
-    the bounds), ``nis_inside`` and ``nis_per_dof``; None with fewer than 2 records with truth."""
+    the bounds), ``nis_inside`` and ``nis_per_dof``; None with fewer than 2 records with truth.
+    The records may also be :class:`twin.logs.diagnostics.NeesRecord` s (what :func:`replay_logs`
+    keeps: the NEES of each instant), all of one kind."""
     from estimation.consistency import monte_carlo as mc
+    from twin.logs.diagnostics import NeesRecord
+    from twin.logs.diagnostics import monte_carlo as mc_arrays
 
-    recs = [x for x in records if x is not None and x.truth is not None]
+    recs = [x for x in records if x is not None and (isinstance(x, NeesRecord) or x.truth is not None)]
     if len(recs) < 2:
         return None
-    m = mc(recs, start=start)
+    m = mc_arrays(recs, start=start) if isinstance(recs[0], NeesRecord) else mc(recs, start=start)
     return {"runs": m["runs"], "dim": m["dim"], "rows": m["rows"], "start_s": float(start),
             "nees_mean": m["nees_mean"], "nees_bounds": list(m["nees_bounds"]),
             "nees_mean_interval": list(m["nees_mean_interval"]), "nees_inside": m["nees_inside"],
@@ -329,10 +426,12 @@ def replay_logs(paths, kinds) -> dict:
                  "estimators": {}}
         for kind in kinds:
             est = build_for(log, kind)
-            r = replay(log, est, kind, diagnostics=callable(getattr(est, "diagnostics", None)))
+            # the diagnostics as arrays (twin.logs.diagnostics): a long log's replay in memory that grows by
+            # a few numbers an instant, not by the EKF's 12 × 12 covariance
+            r = _replay(log, est, kind, "arrays" if callable(getattr(est, "diagnostics", None)) else None)
             replays[(str(p), kind)] = r
             entry["instants"] = len(r.t)
-            records[kind].append(filter_record(log, r))
+            records[kind].append(r.diagnostics.record(r.t) if r.diagnostics is not None else None)
             entry["estimators"][kind] = {
                 "errors": errors(log, r), "consistency": consistency(r, log),
                 "rejected_total": int(r.stats.get("rejected_total", 0)), "step_us": r.step_s * 1e6,
@@ -340,6 +439,21 @@ def replay_logs(paths, kinds) -> dict:
         doc["logs"][str(p)] = entry
     doc["estimators"] = {k: {"monte_carlo": monte_carlo(records[k])} for k in kinds}
     return doc, replays
+
+
+def replay_logs_contained(paths, kinds) -> dict:
+    """:func:`replay_logs`, in a worker process the command kills (:mod:`twin.containment`) if an
+    estimator is a user's plugin (``package.module:attribute``): its exit, its crash, its threads
+    and its processes end with the replay, which then ends with one line naming it. Built-in
+    estimators alone replay here. The same numbers either way."""
+    from twin.containment import Task, run_contained
+    from twin.registry import is_import_path
+
+    plugins = tuple(("estimator", k) for k in kinds if is_import_path(k))
+    if not plugins:
+        return replay_logs(paths, kinds)
+    return run_contained(Task(replay_logs, ([str(p) for p in paths], list(kinds)), plugins=plugins,
+                              what="replay"))
 
 
 def write_estimates_csv(replays: dict, path) -> None:
@@ -351,11 +465,33 @@ def write_estimates_csv(replays: dict, path) -> None:
         w.writerow(["log", "estimator", "t [s]", "theta [rad]", "theta_dot [rad/s]", "psi [rad]", "psi_dot [rad/s]",
                     "alpha [rad]", "alpha_dot [rad/s]"])
         for (log, kind), r in replays.items():
-            for t, row in zip(r.t.tolist(), r.estimates.tolist()):
-                fh.write(",".join([log, kind, repr(t)] + [repr(v) for v in row]) + "\r\n")
+            for a in range(0, len(r.t), CHUNK):  # a chunk of rows as Python floats at a time, not the whole log
+                for t, row in zip(r.t[a:a + CHUNK].tolist(), r.estimates[a:a + CHUNK].tolist()):
+                    fh.write(",".join([log, kind, repr(t)] + [repr(v) for v in row]) + "\r\n")
 
 
 FIGURE_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown")
+FIGURE_POINTS = 20_000  # points a curve of the figure is drawn with at most (a panel is ~550 pixels wide)
+
+
+def _thinned(t: np.ndarray, y: np.ndarray, points: int = FIGURE_POINTS) -> tuple[np.ndarray, np.ndarray]:
+    """(t, y) as drawn: every point of a curve of at most ``points``; of a longer one (a long
+    log's: 10⁶ instants would cost the figure seconds and hundreds of MB for what no pixel
+    shows), the lowest and the highest point of each of ``points / 2`` equal runs of samples, in
+    time order: the envelope the full curve draws at the figure's resolution."""
+    n = len(t)
+    if n <= points:
+        return t, y
+    runs = points // 2
+    size = -(-n // runs)  # samples per run (the last one may be shorter)
+    pad = runs * size - n
+    v = np.concatenate([y, np.full(pad, np.nan)]).reshape(runs, size)
+    base = np.arange(runs) * size
+    lo = base + np.argmin(np.where(np.isnan(v), np.inf, v), axis=1)  # (a gap, NaN, is no extreme)
+    hi = base + np.argmax(np.where(np.isnan(v), -np.inf, v), axis=1)
+    idx = np.sort(np.concatenate([lo, hi]))
+    idx = idx[idx < n]
+    return t[idx], y[idx]
 
 
 def figure_name(k: int) -> str:
@@ -387,9 +523,10 @@ def write_figure(doc: dict, replays: dict, path, confidence: float = 0.95, which
     for ax, (title, j, _) in zip(axes, panels):
         ax.set_title(title, fontsize=9)
         if truth is not None:
-            ax.plot(truth[0], truth[1][:, j], color="k", lw=1.6, label="truth")
+            ax.plot(*_thinned(truth[0], truth[1][:, j]), color="k", lw=1.6, label="truth")
         for i, (kind, r) in enumerate(runs):
-            ax.plot(r.t, r.estimates[:, j], color=FIGURE_COLOURS[i % len(FIGURE_COLOURS)], lw=1.0, label=kind)
+            ax.plot(*_thinned(r.t, r.estimates[:, j]), color=FIGURE_COLOURS[i % len(FIGURE_COLOURS)], lw=1.0,
+                    label=kind)
     ax = axes[3]
     ax.set_title(f"NIS per degree of freedom at each update ({confidence:.0%} χ² bounds of one update dashed)",
                  fontsize=9)
@@ -398,15 +535,14 @@ def write_figure(doc: dict, replays: dict, path, confidence: float = 0.95, which
     for i, (kind, r) in enumerate(runs):
         if not r.diagnostics:
             continue
-        ds = [d if isinstance(d, dict) else {} for d in r.diagnostics]
-        nis = np.array([d.get("nis", math.nan) for d in ds], float)
-        dof = np.array([d.get("nis_dof", 0) for d in ds], int)
+        nis, dof = _nis_and_dof(r)
+        dof = dof.astype(int)
         on = np.isfinite(nis) & (dof > 0)
         if not on.any():
             continue
         c = FIGURE_COLOURS[i % len(FIGURE_COLOURS)]
         per = doc["logs"][first]["estimators"][kind]["consistency"].get("nis_per_dof", math.nan)
-        ax.plot(r.t[on], np.maximum(nis[on] / dof[on], 1e-6), ls="none", marker=".", ms=2.5, color=c,
+        ax.plot(*_thinned(r.t[on], np.maximum(nis[on] / dof[on], 1e-6)), ls="none", marker=".", ms=2.5, color=c,
                 label=f"{kind} (mean {per:.3g})")
         dofs |= set(dof[on].tolist())
     for d in sorted(dofs):

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import csv
 import gzip
-import json
 import math
 import re
 from dataclasses import dataclass, field
@@ -31,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from twin.errors import TwinError
+from twin.inputs import json_loads
 from twin.verify.golden import Departure, Trajectory, ends_text, first_departures, signals_text
 from twin.verify.tolerances import Tolerances
 
@@ -87,6 +87,10 @@ def _load_run(path: Path) -> Result:
         raise TwinError(f"{path}: not a run directory of 'twin run' (no metrics.json)")
     # the manifest first: a directory an interrupted or failed command left is said to be one,
     # rather than read as if its files belonged together
+    who = rundir.owner(path)  # a run's (a sweep's folder was read as one)
+    if who is not None and who not in (*rundir.RUN_COMMANDS, "twin analytic"):
+        raise TwinError(f"{path}: holds the output of {who!r}, not a run directory; twin compare reads run "
+                        f"directories of 'twin run' and golden .npz files of 'twin check --record'")
     manifest = rundir.read_manifest(path, None, "run directory", "run 'twin run' again")
     if manifest.get("command") == "twin analytic":  # the command of before issue 27, which gave way to twin run
         raise TwinError(f"{path}: a directory of 'twin analytic', which gave way to 'twin run'; for one twin compare "
@@ -99,7 +103,7 @@ def _load_run(path: Path) -> Result:
         raise TwinError(f"{mfile}: not readable ({exc.strerror or exc})") from None
     rundir.check_listed(path, manifest, "metrics.json", raw)
     try:
-        doc = json.loads(raw.decode("utf-8"))
+        doc = json_loads(raw.decode("utf-8"))  # nesting bounded (twin.inputs): no RecursionError
     except ValueError as exc:
         raise TwinError(f"{mfile}: not readable as JSON ({' '.join(str(exc).split())})") from None
     if not isinstance(doc, dict) or not isinstance(doc.get("runs"), dict):

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import os
 import pickle
+import signal
 import subprocess
 import sys
 import tempfile
@@ -158,6 +159,9 @@ def main() -> None:
     from twin.workers import subprocess_worker_init
 
     subprocess_worker_init()  # first: it goes with a killed parent at once, not when its warm-up ends
+    # Ctrl-C (SIGINT to the terminal's process group) is the command's to handle: it ends this worker
+    # (EOF, or a kill) when it stops; a KeyboardInterrupt here only wrote a traceback for it to read
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     from twin.outputs.figure import fill_figure, new_figure, save_figure, warm_up
 
     fig, axes = new_figure()

@@ -17,7 +17,36 @@ _COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab
             "tab:olive", "tab:cyan")  # matplotlib's tab10, in the order the runs are given
 
 
+def _load_matplotlib(pyplot: bool = False) -> None:
+    """Import what the figures are drawn with (the Agg canvas, Figure; ``pyplot``: pyplot on
+    Agg), SIGINT and SIGTERM held meanwhile (:func:`twin.outputs.rundir.deferred_signals`,
+    delivered as the imports end; 0.3-0.5 s, once). matplotlib's extension modules are C++
+    (pybind11), which turns an exception raised while one loads (an interrupt, from a Python
+    import it makes) into ``ImportError: initialization failed``, the module left half made: a
+    command interrupted there ended with that error (exit status 1, its manifest saying "error
+    during the figure"), or crashed as the interpreter ended (abort, -6)."""
+    import sys
+
+    wanted = ("matplotlib.pyplot",) if pyplot else ("matplotlib.backends.backend_agg", "matplotlib.figure")
+    if all(name in sys.modules for name in wanted):
+        return
+    from twin.outputs.rundir import deferred_signals
+
+    with deferred_signals():
+        import matplotlib
+
+        if pyplot:
+            matplotlib.use("Agg")
+            import matplotlib.pyplot  # noqa: F401
+        else:
+            import matplotlib.backends.backend_agg  # noqa: F401
+            import matplotlib.figure  # noqa: F401
+            import matplotlib.ticker  # noqa: F401
+            import matplotlib.transforms  # noqa: F401
+
+
 def _pyplot():
+    _load_matplotlib(pyplot=True)
     import matplotlib
 
     matplotlib.use("Agg")
@@ -51,6 +80,7 @@ def figure_runs(runs: list, title: str = ""):
     ``runs``: :class:`~twin.sim.runs.Run` (from the twin or the analytic model)."""
     from twin.outputs.figure import fill_figure, new_figure
 
+    _load_matplotlib()
     fig, axes = new_figure()
     return fill_figure(fig, axes, figure_data(runs), title)
 

@@ -40,7 +40,8 @@ import threading
 import time
 from pathlib import Path
 
-from twin.errors import TwinError
+from twin.errors import TwinError, shown
+from twin.inputs import json_loads
 
 LOCK_NAME = ".twin.lock"
 
@@ -50,66 +51,127 @@ except ImportError:  # pragma: no cover - Windows: no locking, as before
     fcntl = None
 
 
+LOCK_SUFFIX = ".twin-lock"  # the lock beside an output directory: .NAME.twin-lock in its parent
+
+_HELD: dict = {}  # lock file → [fd, count, command]: what this process holds (a command may hold one twice)
+
+
 def _holder(path: Path) -> str:
     try:
-        text = path.read_text(encoding="utf-8").strip()
+        with open(path, "rb") as fh:
+            text = fh.read(200).decode("utf-8", "replace").strip()
     except OSError:
         return "another process"
-    return text or "another process"
+    return shown(text, 120)[1:-1] if text and not text.isprintable() else (text or "another process")
 
 
-def in_use(directory: Path) -> str | None:
-    """Who holds ``directory``'s lock ("'twin sweep' (process 123)"), or None if nobody does."""
+def lock_path(directory: Path) -> Path:
+    """The lock file of ``directory``: beside it, in its parent (``runs/.NAME.twin-lock``), so
+    that it survives the directory's being swapped for a new one as a whole, and so that a
+    command holds a directory that does not exist yet."""
+    d = Path(directory)
+    with contextlib.suppress(OSError, RuntimeError, ValueError):
+        d = d.resolve()
+    return d.parent / f".{d.name}{LOCK_SUFFIX}"
+
+
+def in_use(directory: Path, command: str | None = None) -> str | None:
+    """Who holds ``directory`` ("'twin sweep' (process 123)"), or None if nobody does (or this
+    process does, for ``command``: a command holds its directory again while it writes it)."""
     if fcntl is None:
         return None
-    path = Path(directory) / LOCK_NAME
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return None
-    try:
+    for path in (lock_path(directory), Path(directory) / LOCK_NAME):  # and an earlier version's lock inside it
+        if str(path) in _HELD:
+            if _HELD[str(path)][2] == command:
+                continue
+            return f"'{_HELD[str(path)][2]}' (process {os.getpid()})"
         try:
-            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+            fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0))
         except OSError:
-            return _holder(path)
-        fcntl.flock(fd, fcntl.LOCK_UN)
-        return None
-    finally:
+            continue
+        try:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+            except OSError:
+                return _holder(path)
+            fcntl.flock(fd, fcntl.LOCK_UN)
+        finally:
+            os.close(fd)
+    return None
+
+
+def acquire(directory: Path, command: str) -> str:
+    """Hold ``directory`` for ``command`` ("twin run") until :func:`release`: a one-line
+    TwinError if another process holds it. A process may hold a directory more than once
+    (``twin run`` holds its output directory from the start, and the run writing it again)."""
+    path = lock_path(directory)
+    key = str(path)
+    if key in _HELD:
+        if _HELD[key][2] != command:  # another command of this process (a test's, a script's)
+            raise TwinError(f"{directory} is in use by '{_HELD[key][2]}' (process {os.getpid()}); wait for it to "
+                            f"finish or choose another directory")
+        _HELD[key][1] += 1
+        return key
+    if fcntl is None:  # pragma: no cover - Windows: no locking, as before
+        _HELD[key] = [None, 1, command]
+        return key
+    path.parent.mkdir(parents=True, exist_ok=True)
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            raise TwinError(f"{directory} is in use by {_holder(path)}; wait for it to finish or choose another "
+                            f"directory") from None
+        try:  # the file a releaser unlinked after this process opened it is no lock: open it anew
+            same = os.fstat(fd).st_ino == os.stat(path, follow_symlinks=False).st_ino
+        except OSError:
+            same = False
+        if same:
+            break
         os.close(fd)
+    os.ftruncate(fd, 0)
+    os.write(fd, f"'{command}' (process {os.getpid()})\n".encode())
+    _HELD[key] = [fd, 1, command]
+    return key
+
+
+def release(key: str) -> None:
+    """Let go of what :func:`acquire` held (the lock file goes when the last hold ends)."""
+    entry = _HELD.get(key)
+    if entry is None:
+        return
+    entry[1] -= 1
+    if entry[1] > 0:
+        return
+    del _HELD[key]
+    fd = entry[0]
+    if fd is None:
+        return
+    with contextlib.suppress(OSError):
+        os.unlink(key)  # while still held: a command opening it now finds it unlinked and starts anew
+    with contextlib.suppress(OSError):
+        fcntl.flock(fd, fcntl.LOCK_UN)
+    os.close(fd)
 
 
 @contextlib.contextmanager
 def lock(directory: Path, command: str):
     """Hold ``directory`` (created if missing) for ``command`` ("twin sweep") until the block
     ends; a one-line TwinError if another process holds it."""
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    if fcntl is None:  # pragma: no cover
-        yield
-        return
-    path = directory / LOCK_NAME
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    key = acquire(directory, command)
     try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            raise TwinError(f"{directory} is in use by {_holder(path)}; wait for it to finish or choose another "
-                            f"directory") from None
-        os.ftruncate(fd, 0)
-        os.write(fd, f"'{command}' (process {os.getpid()})\n".encode())
-        try:
-            yield
-        finally:
-            with contextlib.suppress(OSError):
-                os.ftruncate(fd, 0)
-            fcntl.flock(fd, fcntl.LOCK_UN)
+        Path(directory).mkdir(parents=True, exist_ok=True)
+        yield
     finally:
-        os.close(fd)
+        release(key)
 
 
-def refuse_if_in_use(directory: Path) -> None:
-    """A one-line TwinError if another command holds ``directory``."""
-    who = in_use(directory)
+def refuse_if_in_use(directory: Path, command: str | None = None) -> None:
+    """A one-line TwinError if another command holds ``directory`` (``command``: this one, which
+    may hold it already)."""
+    who = in_use(directory, command)
     if who is not None:
         raise TwinError(f"{directory} is in use by {who}; wait for it to finish or choose another directory")
 
@@ -133,69 +195,306 @@ class Interrupted(KeyboardInterrupt):
         return SIGNAL_NAMES.get(self.signum, f"signal {self.signum}")
 
 
+def _signal_of(exc: BaseException) -> int | None:
+    """The signal that stopped the command ``exc`` stops, if one did: the Interrupted's; else the
+    one this command's handler raised (what reached here instead is its copy, as Ray's waits
+    make a bare KeyboardInterrupt of it, or what a library made of it: an ImportError of an
+    extension module interrupted while it loaded, say); else a bare KeyboardInterrupt's SIGINT."""
+    if isinstance(exc, Interrupted):
+        return exc.signum
+    if _raised is not None:
+        return _raised
+    if isinstance(exc, KeyboardInterrupt):
+        return int(signal.SIGINT)
+    return None
+
+
 def exit_status_of(exc: BaseException) -> int:
     """The exit status a command ends with when ``exc`` stops it: 128 + the signal for an
-    interrupt (a bare KeyboardInterrupt is SIGINT's 130), 2 for a user error or a file error
-    (the command line's one-line errors), 1 for anything else (a traceback)."""
-    if isinstance(exc, Interrupted):
-        return 128 + exc.signum
-    if isinstance(exc, KeyboardInterrupt):
-        return 128 + signal.SIGINT
+    interrupt (a bare KeyboardInterrupt is SIGINT's 130; any exception after this command's
+    handler raised an interrupt is that interrupt's), 2 for a user error or a file error (the
+    command line's one-line errors), 1 for anything else (a traceback)."""
+    signum = _signal_of(exc)
+    if signum is not None:
+        return 128 + signum
     if isinstance(exc, (TwinError, OSError)):
         return 2
     return 1
 
 
 def signal_name(exc: BaseException) -> str:
-    return exc.name if isinstance(exc, Interrupted) else "SIGINT"
+    """SIGINT or SIGTERM: the signal that stopped the command ``exc`` stops (see :func:`exit_status_of`)."""
+    signum = _signal_of(exc)
+    return SIGNAL_NAMES.get(signum, f"signal {signum}") if signum is not None else "SIGINT"
 
 
-_deferred: list = []  # signals received while a commit could not be interrupted (see deferred_signals)
+_deferred: list = []  # signals noted, not raised: held (deferred_signals), or come after the command's end was decided
+_holds = 0  # blocks holding SIGINT and SIGTERM now (deferred_signals, the start-up's), in any thread
+_ours = False  # the handlers are this module's (interrupts_raise, hold_from_start): a hold swaps nothing
+_raised: int | None = None  # the signal an Interrupted was raised for: one per command, the next ones are noted
+_leaving = False  # the command's exit status is decided (leaving): signals are noted, never raised
+_start_hold = False  # hold_from_start's hold, open until started()
+_early: dict | None = None  # the handlers before hold_from_start's, for interrupts_raise to put back
+_standing = ""  # what stands if a signal ends the command now (keep_so_far)
+_raised_exc: BaseException | None = None  # the Interrupted raised, which _watch follows on its way out
+_asking = False  # _watch asks the handler whether _raised_exc is still on its way (not a signal)
+_watching = threading.Lock()  # _watch's question against interrupts_raise's putting the handlers back
+_watcher: threading.Thread | None = None
+WATCH_S = 0.1  # how often _watch asks
+# (_holds is counted up and down by plain statements, not under a lock: the handler runs in the main thread
+# between two of its instructions, and would wait forever for a lock that thread holds; in CPython a
+# global's += is not cut by a signal handler or another thread, which both run at calls and jumps only)
 
 
 def _raise_interrupted(signum, frame):
-    raise Interrupted(signum)
+    """The handler of SIGINT and SIGTERM (:func:`interrupts_raise`): :class:`Interrupted` where the
+    main thread is, or the signal noted for later while it must not be raised: a hold is open
+    (:func:`deferred_signals`), the command's exit status is decided (:func:`leaving`), an
+    interrupt was raised already (its clean-up runs on, its exit status stands), or the
+    interpreter is shutting down (where an exception is only printed)."""
+    global _asking, _raised
+    if _asking and _raised is not None:  # _watch's question, not a signal
+        _asking = False
+        if _holds or _leaving or sys.is_finalizing() or _in_hook(frame) or _on_its_way(_raised_exc):
+            return  # (in the hook: asked again later, once it has returned)
+        signum, _raised = _raised, None  # swallowed on its way (see _watch): raised again, here
+    elif _holds or _leaving or _raised is not None or sys.is_finalizing():
+        _deferred.append(signum)
+        return
+    exc = _interrupt(signum)
+    if _in_hook(frame):  # an exception here would be printed, not raised: _watch raises it after the hook
+        return
+    raise exc
+
+
+def _in_hook(frame) -> bool:
+    """Whether ``frame`` is :func:`_unraisable`'s, or one it called."""
+    depth = 0
+    while frame is not None and depth < 8:
+        if frame.f_code is _unraisable.__code__:
+            return True
+        frame, depth = frame.f_back, depth + 1
+    return False
+
+
+def _interrupt(signum: int) -> Interrupted:
+    """The Interrupted for ``signum``, noted as the command's interrupt (and followed: _watch)."""
+    global _raised, _raised_exc, _watcher
+    _raised = int(signum)
+    _deferred.clear()
+    _raised_exc = exc = Interrupted(signum)
+    if _ours and (_watcher is None or not _watcher.is_alive()):
+        _watcher = threading.Thread(target=_watch, name="twin-interrupt-watch", daemon=True)
+        _watcher.start()
+    return exc
+
+
+def _watch() -> None:
+    """Every :data:`WATCH_S` until the command ends, after an interrupt was raised: ask the main
+    thread's handler whether the Interrupted is still on its way out (being handled, or in a
+    ``finally`` or an ``__exit__`` on the way: in the exception the main thread handles, or in
+    its chain). One that is not was swallowed where it was raised, and is raised again. Who
+    swallows one: Cython's module initialisation (``try: Sequence.register(...) except: pass``,
+    in every module with memoryviews: numpy.random's, SciPy's, loaded as they are first
+    used), where SIGTERM was lost and the command ended with exit status 0; a C++ module's
+    initialisation, which makes an ImportError of it that a fallback import catches."""
+    import _thread
+
+    global _asking
+    while True:
+        time.sleep(WATCH_S)
+        with _watching:
+            if not _ours or _leaving:
+                return
+            if _raised is not None and not _asking:
+                _asking = True
+                _thread.interrupt_main(_raised)
+
+
+def _on_its_way(exc) -> bool:
+    """Whether ``exc`` is the exception the main thread handles now (in an ``except``, a
+    ``finally``, an ``__exit__``), or in that one's chain (``raise ... from``, or raised while
+    handling it); or a KeyboardInterrupt is (a copy of it: Ray's waits make a bare one)."""
+    todo, seen = [sys.exc_info()[1]], set()
+    while todo:
+        e = todo.pop()
+        if e is None or id(e) in seen:
+            continue
+        if e is exc or isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        todo += [e.__cause__, e.__context__]
+    return False
+
+
+def _take() -> int | None:
+    """The signal to deliver as the last hold ends (None: none, or not now)."""
+    if _holds or _leaving or _raised is not None or not _deferred:
+        return None
+    got = _deferred[0]
+    _deferred.clear()
+    return got
+
+
+def _unraisable(unraisable) -> None:
+    """``sys.unraisablehook`` while :func:`interrupts_raise` is on. An Interrupted raised where
+    Python cannot raise (the handler ran inside a ``__del__``, a weakref callback such as the
+    one importlib's module locks have, the garbage collector) would be printed as "Exception
+    ignored" (or not at all: PyBullet's connection points stderr at /dev/null meanwhile) and
+    lost, the command going on as if no signal had come and ending with exit status 0: it is
+    not printed, and :func:`_watch` raises it again once this hook has returned."""
+    exc = unraisable.exc_value
+    if isinstance(exc, Interrupted) and _ours and exc is _raised_exc:
+        return
+    (_unraisable_before or sys.__unraisablehook__)(unraisable)
+
+
+_unraisable_before = None
+
+
+def _install() -> dict:
+    """This module's handler for SIGINT and SIGTERM; the handlers before."""
+    old = {}
+    for s in SIGNAL_NAMES:
+        old[s] = signal.signal(s, _raise_interrupted)
+    return old
+
+
+def hold_from_start() -> None:
+    """For the command line, as its process starts (before the heavy imports): SIGINT and SIGTERM
+    are noted from now on, so that one that comes while the command is still loading is not a
+    KeyboardInterrupt traceback, or SIGTERM's end without a word; :func:`interrupts_raise` takes
+    the handlers over and :func:`started` raises what was noted. Main thread only; once."""
+    global _holds, _start_hold, _early, _ours
+    if _early is not None or _ours or threading.current_thread() is not threading.main_thread():
+        return
+    _holds += 1
+    _start_hold = True
+    _early = _install()
+    _ours = True
+
+
+def started() -> None:
+    """The command line is ready for interrupts: :func:`hold_from_start`'s hold ends, and a
+    signal noted since is raised here, as :class:`Interrupted`."""
+    global _holds, _start_hold
+    if not _start_hold:
+        return
+    _start_hold = False
+    _holds -= 1
+    got = _take()
+    if got is not None:
+        raise _interrupt(got)
 
 
 @contextlib.contextmanager
 def interrupts_raise():
     """While the block runs, SIGINT and SIGTERM raise :class:`Interrupted` in the main thread
     (SIGTERM would otherwise end the process where it stands: no clean-up, no message, and
-    SIGINT's KeyboardInterrupt does not say which signal came). The handlers before are put
-    back afterwards. Outside the main thread, nothing changes (Python allows handlers there
+    SIGINT's KeyboardInterrupt does not say which signal came), one per command: a second
+    signal is noted, not raised, while the first one's clean-up runs. The handlers before are
+    put back afterwards. Outside the main thread, nothing changes (Python allows handlers there
     only)."""
+    global _ours, _raised, _raised_exc, _leaving, _early, _standing, _unraisable_before, _holds, _start_hold
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    old = {s: signal.signal(s, _raise_interrupted) for s in SIGNAL_NAMES}
+    hook = sys.unraisablehook
+    old, _early = _early, None
     try:
+        if old is None:
+            old = {}
+            for s in SIGNAL_NAMES:
+                old[s] = signal.signal(s, _raise_interrupted)
+        _ours = True
+        if hook is not _unraisable:
+            _unraisable_before, sys.unraisablehook = hook, _unraisable
         yield
     finally:
-        for s, handler in old.items():
+        if _start_hold:  # started() never came: the block ended before the command did
+            _start_hold = False
+            _holds -= 1
+        with _watching:  # _watch asks no more: the handler is about to go
+            _ours = False
+        for s, handler in (old or {}).items():
             signal.signal(s, handler)
+        if sys.unraisablehook is _unraisable:
+            sys.unraisablehook = hook
+        _raised, _raised_exc, _leaving, _standing = None, None, False, ""
+        _deferred.clear()
 
 
 @contextlib.contextmanager
 def deferred_signals():
-    """SIGINT and SIGTERM held while the block runs (a commit's renames and its manifest: cut
-    short, they would leave a directory neither old nor new), then delivered to the handlers
-    there were before. Python-level, not a signal mask: a mask holds a signal for one thread,
-    and the kernel hands a process's signal to any thread that does not block it (the video
-    encoder's, a pool's), whose C handler would still raise in the main thread."""
-    if threading.current_thread() is not threading.main_thread():
+    """SIGINT and SIGTERM held while the block runs, then delivered: raised as
+    :class:`Interrupted` as the last hold ends (under :func:`interrupts_raise`), or to the
+    handlers there were before. For a commit's renames and its manifest (cut short, they would
+    leave a directory neither old nor new), and for what an exception must not cut: a call into
+    a foreign library that calls back into Python (the LMI solver: an exception there is a
+    Rust panic, or lost), an import of a C++ extension (an exception there becomes an
+    ImportError, and leaves the module half made).
+
+    Python-level, not a signal mask: a mask holds a signal for one thread, and the kernel
+    hands a process's signal to any thread that does not block it (the video encoder's, a
+    pool's), whose C handler would still raise in the main thread. Under interrupts_raise it
+    holds from any thread (one held outside the main thread is delivered to the main thread
+    as the hold ends); outside it, from the main thread only (as before)."""
+    global _holds
+    main = threading.current_thread() is threading.main_thread()
+    if not (main or _ours):
         yield
         return
-    start = len(_deferred)
-    old = {s: signal.signal(s, lambda signum, frame: _deferred.append(signum)) for s in SIGNAL_NAMES}
+    swapped = {}
+    _holds += 1
     try:
+        if not _ours:  # outside a command (the Python API): this module's handler for the block, noting
+            swapped = _install()
         yield
     finally:
-        for s, handler in old.items():
-            signal.signal(s, handler)
-        got = _deferred[start:]
-        del _deferred[start:]
-        if got:
-            signal.raise_signal(got[0])  # now, to the handler that was there: Interrupted, or the default
+        try:
+            for s, handler in swapped.items():
+                signal.signal(s, handler)
+        finally:
+            _holds -= 1
+            got = _take()
+        if got is not None:
+            if swapped:
+                signal.raise_signal(got)  # to the handler that was there: the default, or the caller's
+            elif main:
+                raise _interrupt(got)
+            else:
+                import _thread
+
+                _thread.interrupt_main(got)  # the main thread's handler raises it there
+
+
+def leaving() -> None:
+    """The command's exit status is decided (it returned, or says its error or its interrupt):
+    from now on SIGINT and SIGTERM are noted, never raised, so that nothing cuts the exit into
+    a traceback or a second line. :func:`signal_received` says whether one came."""
+    global _leaving
+    _leaving = True
+
+
+def signal_received() -> int | None:
+    """The first SIGINT or SIGTERM the command received under :func:`interrupts_raise`, raised or
+    noted (None: none). A command that would end well after one ends with it instead."""
+    if _raised is not None:
+        return _raised
+    return _deferred[0] if _ours and _deferred else None
+
+
+def keep_so_far(text: str) -> None:
+    """What stands if a signal ends the command from now on and its exception says nothing (a
+    run directory committed: "this run was complete: R holds it, with its manifest.json"); the
+    command line says it after "interrupted: SIGNAL". Reset when the command ends."""
+    global _standing
+    _standing = text
+
+
+def kept_so_far() -> str:
+    """What :func:`keep_so_far` said ("" if nothing)."""
+    return _standing
 
 
 def kept(exc: BaseException, text: str) -> BaseException:
@@ -243,11 +542,81 @@ MANIFEST = "manifest.json"
 RECORD_COMMAND = "twin check --record"  # the command whose manifest a golden directory has
 MANIFEST_FORMAT = 1
 PARTIAL = ".twin-partial-"  # in the name of every file or directory a command has not finished
+INCOMPLETE = "-incomplete"  # NAME-incomplete: a new result kept beside an earlier complete one (commit_incomplete)
 # what 'twin run' writes into a run directory (and older versions left there, 'twin analytic''s
 # trajectory_<controller>.csv among them): a run may replace a directory holding these and nothing else
 RUN_OUTPUTS = ("metrics.json", "trajectory.csv", "trajectory.csv.gz", "figure.png", "video.mp4", "design.json",
                MANIFEST, LOCK_NAME)
 _RUN_PATTERNS = ("trajectory_*.csv", ".video.*.partial.mp4")
+SWEEP_COMMAND = "twin sweep"
+# Each command's output directory, by the names it writes there (patterns; "NAME/" a directory):
+# a directory holding only these, with no manifest of another command's, may be that command's
+# output. Every command that writes a directory refuses one another command wrote (owner()):
+# a replay's --out over a run's folder deleted the run.
+OUTPUTS = {
+    "twin run": (*RUN_OUTPUTS, *_RUN_PATTERNS, "sensor-logs/"),
+    "twin replay": ("replay.json", "estimates.csv", "figure.png", "figure-*.png", MANIFEST, LOCK_NAME),
+    "twin calibrate": ("report.json", "calibration.toml", "figure.png", MANIFEST, LOCK_NAME),
+    "twin compare": ("comparison.json", "comparison.png", MANIFEST, LOCK_NAME),
+    SWEEP_COMMAND: ("sweep.json", "samples.jsonl", "sweep.csv", "summary.md", "summary.json", "success.png",
+                    "distributions.png", "paired.png", "sensor-logs/", ".sweep.json.partial-*", MANIFEST, LOCK_NAME),
+}
+RUN_COMMANDS = ("twin run",)  # what wrote a run directory that twin compare reads
+_SAME = {"twin run": ("twin run", "twin analytic")}  # what a command may replace besides its own ('twin analytic' gave way to 'twin run')
+MANIFEST_BYTES = 64 << 20  # a manifest larger than this is not one (a file per line: about 150 bytes each)
+
+
+def owner(directory: Path) -> str | None:
+    """Which command wrote ``directory``: its manifest's ``command``, else ``"twin sweep"`` for a
+    sweep not yet finished (its sweep.json), else None (none of ours, or not one yet)."""
+    directory = Path(directory)
+    path = directory / MANIFEST
+    try:
+        if path.is_file() and path.stat().st_size <= MANIFEST_BYTES:
+            doc = json.loads(path.read_bytes().decode("utf-8"))
+            command = doc.get("command") if isinstance(doc, dict) else None
+            if isinstance(command, str):
+                return command
+    except (OSError, ValueError, RecursionError):
+        pass
+    if (directory / "sweep.json").is_file():
+        return SWEEP_COMMAND
+    return None
+
+
+def refuse_another_commands(directory: Path, command: str, what: str = "directory") -> None:
+    """A one-line TwinError if ``directory`` is the output of another command than ``command``
+    (its manifest says so, or it holds a sweep): a command never writes over, mixes with or
+    deletes another's results."""
+    who = owner(directory)
+    if who is None or who == command or who in _SAME.get(command, ()):
+        return
+    why = "its sweep.json" if who == SWEEP_COMMAND and not (Path(directory) / MANIFEST).is_file() else \
+        f"its {MANIFEST}"
+    raise TwinError(f"{directory}: holds the output of {shown(who, 40)} ({why} says so); '{command}' writes only "
+                    f"into a new, empty or earlier '{command}' {what}: give another --out")
+
+
+def foreign_entries(directory: Path, command: str) -> list[str]:
+    """The entries of ``directory`` that ``command`` did not write: neither its known outputs
+    (:data:`OUTPUTS`) nor files its own manifest lists ("NAME/" for a directory)."""
+    directory = Path(directory)
+    listed: set = set()
+    if owner(directory) == command:
+        with contextlib.suppress(Exception):
+            listed = set(json.loads((directory / MANIFEST).read_text(encoding="utf-8"))["files"])
+    tops = {name.split("/", 1)[0] + "/" for name in listed if "/" in name}
+    patterns = OUTPUTS.get(command, (MANIFEST, LOCK_NAME))
+    out = []
+    for entry in sorted(directory.iterdir()):
+        name = entry.name
+        if entry.is_dir() and not entry.is_symlink():
+            ours = name + "/" in patterns or name + "/" in tops
+        else:
+            ours = name in listed or any(fnmatch.fnmatch(name, p) for p in patterns if not p.endswith("/"))
+        if not ours:
+            out.append(name + ("/" if entry.is_dir() else ""))
+    return out
 
 
 def digest(path: Path) -> tuple[int, str]:
@@ -312,7 +681,7 @@ def read_manifest(directory: Path, commands=None, what: str = "directory",
         raise Incomplete(f"{directory}: an incomplete {what}: no {MANIFEST} (the command writing it was interrupted "
                          f"or failed, or it is older than manifests); {again}")
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
+        doc = json_loads(path.read_text(encoding="utf-8"))  # nesting bounded (twin.inputs): no RecursionError
     except (OSError, ValueError) as exc:
         raise Incomplete(f"{path}: not readable as a manifest ({' '.join(str(exc).split())}); {again}") from None
     files = doc.get("files") if isinstance(doc, dict) else None
@@ -322,7 +691,8 @@ def read_manifest(directory: Path, commands=None, what: str = "directory",
         raise Incomplete(f"{path}: not a manifest of this mtwip-twin (format {MANIFEST_FORMAT}, files with bytes "
                          f"and sha256); {again}")
     if commands is not None and doc.get("command") not in commands:
-        raise Incomplete(f"{directory}: written by {doc.get('command')!r}, not {' or '.join(map(repr, commands))}")
+        raise TwinError(f"{directory}: holds the output of {shown(doc.get('command'), 40)}, not a {what} (one of "
+                        f"{' or '.join(map(repr, commands))})")
     return doc
 
 
@@ -512,14 +882,25 @@ class StagedDirectory:
         self.existed = self.target.is_dir()
         self._staging: Path | None = None
         self._fd: int | None = None
+        self._hold: str | None = None
         self.committed = False
+        self.aside: Path | None = None  # where an incomplete result went instead of the target (commit_aside)
         self.check()
+        # held from now to the end (discard): a second command writing here is refused at its start; it used to
+        # run alongside, and both said "wrote" while the last one's results stood
+        self._hold = acquire(self.shown, command)
+        try:
+            self.check()  # again, holding it: what another command left meanwhile
+        except BaseException:
+            self.discard()
+            raise
 
     # -- before anything is written --
     def check(self) -> None:
         """One line if the target cannot become this run's directory: a file, a directory
-        another command holds, one holding files no run wrote, or the current directory (or
-        one above it), which would be swapped from under the shell that runs the command."""
+        another command holds or wrote, one holding files no run wrote, or the current
+        directory (or one above it), which would be swapped from under the shell that runs
+        the command."""
         t = self.target
         if t.exists() and not t.is_dir():
             raise TwinError(f"{self.shown}: exists and is not a directory; give an output directory")
@@ -534,26 +915,23 @@ class StagedDirectory:
             raise TwinError(f"{self.shown}: is a mount point; a {self.what} replaces its directory as a whole: give "
                             f"a directory inside it, e.g. --out {self.shown / 'run'}")
         if t.is_dir():
-            refuse_if_in_use(t)
+            if self._hold is None:
+                refuse_if_in_use(self.shown, self.command)
+            refuse_another_commands(self.shown, self.command)
             foreign = self._foreign()
             if foreign:
                 more = f" and {len(foreign) - 3} more" if len(foreign) > 3 else ""
-                raise TwinError(f"{self.shown}: holds {', '.join(foreign[:3])}{more}, which no run wrote; a "
+                raise TwinError(f"{self.shown}: holds {', '.join(foreign[:3])}{more}, which no "
+                                f"{self.command[5:] if self.command.startswith('twin ') else self.command} wrote; a "
                                 f"{self.what} replaces its whole directory, so it writes only into a new, empty or "
-                                f"earlier run's directory: give another --out, or move them")
+                                f"earlier {self.what}'s directory: give another --out, or move them")
 
     def _foreign(self) -> list[str]:
-        """The entries of the target that no run wrote (a manifest's files and the known outputs
-        are a run's)."""
-        listed: set = set()
-        with contextlib.suppress(Exception):
-            listed = set(json.loads((self.target / MANIFEST).read_text(encoding="utf-8"))["files"])
-        out = []
-        for entry in sorted(self.target.iterdir()):
-            name = entry.name
-            ours = (name in RUN_OUTPUTS or name in listed or any(fnmatch.fnmatch(name, p) for p in _RUN_PATTERNS))
-            if not ours or (entry.is_dir() and not entry.is_symlink()):
-                out.append(name + ("/" if entry.is_dir() else ""))
+        """The entries of the target that no run of this command wrote."""
+        out = foreign_entries(self.target, self.command)
+        for same in _SAME.get(self.command, ()):  # an earlier command's directory that this one replaces
+            if same != self.command and owner(self.target) == same:
+                out = [n for n in out if n in foreign_entries(self.target, same)]
         return out
 
     # -- while writing --
@@ -595,61 +973,135 @@ class StagedDirectory:
                                                                 missing, stopped))
         test_point("commit")
         with deferred_signals():
-            with lock(self.target, self.command):  # a sweep that took the target meanwhile is refused here
-                foreign = self._foreign()
-                if foreign:
-                    raise TwinError(f"{self.shown}: gained {', '.join(foreign[:3])} while this {self.what} ran; "
-                                    f"nothing was replaced: give another --out, or move them")
-                if not _exchange(staging, self.target):
-                    old = self.target.with_name(f".{self.target.name}{PARTIAL}old-{os.getpid()}")
-                    os.rename(self.target, old)
-                    try:
-                        os.rename(staging, self.target)
-                    except OSError:
-                        os.rename(old, self.target)
-                        raise
-                    staging = old
-                test_point("exchanged")
-                self.committed = True
-                self._staging = staging  # now the earlier directory (or the empty one lock() made)
-                shutil.rmtree(staging, ignore_errors=True)
+            self._swap(staging, self.target)
         return self.files()
+
+    def _swap(self, staging: Path, target: Path) -> None:
+        """Put ``staging`` in ``target``'s place in one step and delete what was there (the
+        directory is held: nobody else writes it meanwhile)."""
+        if target.is_dir():
+            foreign = foreign_entries(target, self.command) if target != self.target else self._foreign()
+            if foreign:
+                raise TwinError(f"{target}: gained {', '.join(foreign[:3])} while this {self.what} ran; "
+                                f"nothing was replaced: give another --out, or move them")
+        if not target.exists():
+            os.rename(staging, target)
+            old = None
+        elif _exchange(staging, target):
+            old = staging
+        else:
+            old = target.with_name(f".{target.name}{PARTIAL}old-{os.getpid()}")
+            os.rename(target, old)
+            try:
+                os.rename(staging, target)
+            except OSError:
+                os.rename(old, target)
+                raise
+        self.committed = True
+        keep_so_far(self.unchanged())  # what a signal from now on says stands: this output, complete
+        self._staging = old  # the earlier directory, if there was one
+        test_point("exchanged")
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+
+    def holds_complete(self) -> bool:
+        """Whether the target holds an earlier complete output of this command (its manifest says so)."""
+        if not self.target.is_dir() or owner(self.target) not in (self.command, *_SAME.get(self.command, ())):
+            return False
+        with contextlib.suppress(Exception):
+            return bool(json.loads((self.target / MANIFEST).read_text(encoding="utf-8")).get("complete"))
+        return False
+
+    def commit_incomplete(self, exit_status: int, missing=(), stopped: str | None = None) -> Path:
+        """Keep an incomplete result (the data of a run whose figure or video failed): in the
+        target, unless it holds an earlier complete one, which is kept until a new one is
+        complete; then beside it, in ``NAME-incomplete`` (replacing an earlier incomplete one
+        there, never anything else). Where it went."""
+        if not self.holds_complete():
+            self.commit(exit_status, missing, stopped)
+            return self.shown
+        aside = self.target.with_name(f"{self.target.name}{INCOMPLETE}")
+        hold = acquire(aside, self.command)
+        try:
+            if aside.exists() and (not aside.is_dir() or owner(aside) not in (self.command, None)
+                                   or foreign_entries(aside, self.command) or self._complete(aside)):
+                raise TwinError(f"{aside}: exists and is not an incomplete {self.what}'s directory; the new "
+                                f"{self.what} was not kept")
+            staging = self.path
+            _write_json_atomically(staging / MANIFEST, manifest_doc(self.command, _listed_files(staging),
+                                                                    exit_status, missing, stopped))
+            with deferred_signals():
+                self._swap(staging, aside)
+        finally:
+            release(hold)
+        self.aside = self.shown.with_name(aside.name)
+        return self.aside
+
+    @staticmethod
+    def _complete(directory: Path) -> bool:
+        with contextlib.suppress(Exception):
+            return bool(json.loads((directory / MANIFEST).read_text(encoding="utf-8")).get("complete"))
+        return False
 
     def files(self) -> list[Path]:
         """The files of the committed directory, as the user named them (the manifest last)."""
-        names = sorted(p.name for p in self.target.iterdir() if p.is_file() and p.name not in (MANIFEST, LOCK_NAME))
-        return [self.shown / n for n in names] + [self.shown / MANIFEST]
+        where, shown_as = (self.target, self.shown) if self.aside is None else (
+            self.target.with_name(self.aside.name), self.aside)
+        names = sorted(p.name for p in where.iterdir() if p.is_file() and p.name not in (MANIFEST, LOCK_NAME))
+        return [shown_as / n for n in names] + [shown_as / MANIFEST]
 
     def discard(self) -> None:
-        """Remove the staging (if not committed) and let go of it; the target is as it was."""
+        """Remove the staging (if not committed) and let go of it and of the target; the target is
+        as it was."""
         if self._staging is not None and not self.committed:
             shutil.rmtree(self._staging, ignore_errors=True)
         if self._fd is not None:
             os.close(self._fd)
             self._fd = None
+        if self._hold is not None:
+            release(self._hold)
+            self._hold = None
+
+    close = discard
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.discard()
 
     def unchanged(self) -> str:
         """What an interrupted or failed command leaves, as a clause: nothing of its own."""
+        if self.committed and self.aside is not None:
+            return (f"this {self.what}'s data are in {self.aside}, incomplete; {self.shown} still holds the earlier "
+                    f"complete {self.what}")
         if self.committed:
             return f"this {self.what} was complete: {self.shown} holds it, with its {MANIFEST}"
         return (f"nothing of this {self.what} was written: {self.shown} is as it was" if self.existed else
                 f"nothing of this {self.what} was written ({self.shown} was not created)")
 
 
+JOURNAL = ".twin-journal.json"  # a FileBatch's commit under way: what goes where, and the manifest after
+
+
 class FileBatch:
     """Files added to a directory that keeps the others (``twin check --record``: golden
-    references accumulate across commands, a scenario's beside another's).
+    references accumulate across commands, a scenario's beside another's; ``twin surface``).
 
     Each file is written under a hidden name (``.<name>.twin-partial-XXXX.npz``) beside its
-    place; when all are written, the manifest goes, each takes its place by a rename, and the
-    new manifest lists every file the directory holds (those listed before, still there,
-    and the new ones) with its size and SHA-256 and the command's exit status: SIGINT and
-    SIGTERM are held meanwhile, so an interrupt leaves the directory as it was or complete.
-    Why not a staged copy of the directory (as run directories are written): a golden
-    directory keeps every scenario's references, and copying it for each record would cost
-    in proportion to all of them, and a record replaces some files, never the whole.
-    The directory is locked (:func:`lock`) while the batch runs: two records into it would
-    each write a manifest without the other's files."""
+    place. When all are written, a journal (:data:`JOURNAL`: each hidden file's place, and the
+    new manifest, which lists every file the directory will hold with its size and SHA-256
+    and the command's exit status) is written in one step, then each file takes its place by a
+    rename, then the manifest, then the journal goes. A command killed anywhere in between,
+    SIGKILL included, leaves a journal that the next command to read or write the directory
+    carries through (:func:`finish_batch`), so the directory is the earlier one or the new one,
+    whole, never a mix (a killed record's references used to be refused until recorded again).
+    SIGINT and SIGTERM are held meanwhile. Why not a staged copy of the directory (as run
+    directories are written): a golden directory keeps every scenario's references, and
+    copying it for each record would cost in proportion to all of them.
+    The directory is held (:func:`acquire`) while the batch runs: two records into it would
+    each write a manifest without the other's files. A directory another command wrote is
+    refused (:func:`refuse_another_commands`)."""
 
     def __init__(self, root: Path, command: str):
         self.root = Path(root)
@@ -659,13 +1111,21 @@ class FileBatch:
         if self.root.exists() and not self.root.is_dir():
             raise TwinError(f"{self.root}: exists and is not a directory; give a directory")
         refuse_if_in_use(self.root)
-        self._lock = None
+        if self.root.is_dir():
+            refuse_another_commands(self.root, command)
+        self._hold = None
 
     def __enter__(self):
-        self._lock = lock(self.root, self.command)
-        self._lock.__enter__()
-        # we hold the directory: whatever is unfinished in it was left by a killed command
-        _remove_stale(p for p in self.root.rglob(f"*{PARTIAL}*") if p.name.startswith("."))
+        self._hold = acquire(self.root, self.command)
+        try:
+            self.root.mkdir(parents=True, exist_ok=True)
+            refuse_another_commands(self.root, self.command)
+            finish_batch(self.root, held=True)  # a commit a killed command began: carried through first
+            # we hold the directory: whatever else is unfinished in it was left by a killed command
+            _remove_stale(p for p in self.root.rglob(f"*{PARTIAL}*") if p.name.startswith("."))
+        except BaseException:
+            release(self._hold)
+            raise
         return self
 
     def __exit__(self, *exc):
@@ -673,7 +1133,7 @@ class FileBatch:
             with contextlib.suppress(OSError):
                 tmp.unlink()
         self._pending.clear()
-        self._lock.__exit__(*exc)
+        release(self._hold)
         return False
 
     def temp(self, relative: str) -> Path:
@@ -698,19 +1158,67 @@ class FileBatch:
                     if name not in self._pending and (self.root / name).stat().st_size == entry["bytes"]:
                         files[name] = (entry["bytes"], entry["sha256"])
         new = {name: digest(tmp) for name, tmp in self._pending.items()}
+        files.update(new)
+        moves = {name: Path(os.path.relpath(tmp, self.root)).as_posix() for name, tmp in self._pending.items()}
+        _write_json_atomically(self.root / JOURNAL, {"format": MANIFEST_FORMAT, "moves": moves,
+                                                     "manifest": manifest_doc(self.command, files, exit_status)})
         with deferred_signals():
-            (self.root / MANIFEST).unlink(missing_ok=True)  # cut short from here on, it reads as incomplete
             for i, (name, tmp) in enumerate(list(self._pending.items())):
                 os.replace(tmp, self.root / name)
                 del self._pending[name]
                 if i == 0:
                     test_point("record-commit")
-            files.update(new)
-            _write_json_atomically(self.root / MANIFEST, manifest_doc(self.command, files, exit_status))
+            _finish(self.root)
             self.committed = True
+            keep_so_far(f"the record is complete: {self.root} holds {len(new)} new file{'s' * (len(new) != 1)} "
+                        f"({MANIFEST})")
         return len(new)
 
 
-__all__ = ["Incomplete", "Interrupted", "FileBatch", "LOCK_NAME", "MANIFEST", "StagedDirectory", "check_all_present",
-           "check_listed", "child_of", "deferred_signals", "digest", "exit_status_of", "in_use", "interrupts_raise",
-           "kept", "kept_text", "lock", "read_manifest", "refuse_if_in_use", "seal", "test_point"]
+def _finish(root: Path) -> None:
+    """Carry the journal of ``root`` through: the renames not yet made, the manifest, then the
+    journal goes (held by the caller)."""
+    journal = Path(root) / JOURNAL
+    doc = json.loads(journal.read_text(encoding="utf-8"))
+    for name, tmp in doc["moves"].items():
+        src, dst = Path(root) / tmp, Path(root) / name
+        inside = Path(root).resolve()
+        if PARTIAL not in src.name or inside not in dst.resolve().parents or inside not in src.resolve().parents:
+            raise Incomplete(f"{journal}: not a journal of this mtwip-twin's (it names {shown(tmp, 60)}); delete it "
+                             f"and record again")
+        if src.exists():
+            os.replace(src, dst)
+    _write_json_atomically(Path(root) / MANIFEST, doc["manifest"])
+    journal.unlink()
+
+
+def finish_batch(root: Path, held: bool = False) -> bool:
+    """If a command was killed while it committed a :class:`FileBatch` into ``root`` (a journal
+    is there), finish that commit now: the directory becomes the complete new one. True if it
+    did. ``held``: the caller holds ``root`` already (else it is held here; a one-line error if
+    another command holds it)."""
+    root = Path(root)
+    if not (root / JOURNAL).is_file():
+        return False
+    key = None if held else acquire(root, "finishing an interrupted record")
+    try:
+        if not (root / JOURNAL).is_file():
+            return False
+        try:
+            with deferred_signals():
+                _finish(root)
+        except (ValueError, KeyError, TypeError, AttributeError) as exc:
+            raise Incomplete(f"{root / JOURNAL}: not readable ({' '.join(str(exc).split())[:80]}); delete it and "
+                             f"record again") from None
+        return True
+    finally:
+        if key is not None:
+            release(key)
+
+
+__all__ = ["FileBatch", "INCOMPLETE", "Incomplete", "Interrupted", "JOURNAL", "LOCK_NAME", "MANIFEST", "OUTPUTS",
+           "RUN_COMMANDS", "StagedDirectory", "acquire", "check_all_present", "check_listed", "child_of",
+           "deferred_signals", "digest", "exit_status_of", "finish_batch", "foreign_entries", "in_use",
+           "hold_from_start", "interrupts_raise", "keep_so_far", "kept", "kept_so_far", "kept_text", "leaving", "lock",
+           "lock_path", "owner", "read_manifest", "refuse_another_commands", "refuse_if_in_use", "release", "seal",
+           "signal_received", "started", "test_point"]

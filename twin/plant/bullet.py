@@ -251,8 +251,15 @@ def quiet_native_output():
 
 
 def _connect():
-    """A new DIRECT physics server of its own, and the pybullet module."""
-    with quiet_native_output():
+    """A new DIRECT physics server of its own, and the pybullet module.
+
+    SIGINT and SIGTERM are held meanwhile (:func:`twin.outputs.rundir.deferred_signals`, delivered
+    as it returns): an interrupt raised between ``pybullet.connect`` and BulletClient's storing its
+    id left a client without one, whose ``__del__`` then printed an AttributeError traceback after
+    the command's one line (and the server it had connected was never disconnected)."""
+    from twin.outputs.rundir import deferred_signals
+
+    with deferred_signals(), quiet_native_output():
         import pybullet
         from pybullet_utils.bullet_client import BulletClient
 

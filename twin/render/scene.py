@@ -261,7 +261,11 @@ class Scene:
         self.config = config
         self.client = None
         self._plugin = -1
-        with quiet_native_output():
+        from twin.outputs.rundir import deferred_signals
+
+        # signals held: an interrupt raised before BulletClient stored its server's id left a
+        # client whose __del__ printed a traceback after the command's line (see twin.plant.bullet._connect)
+        with deferred_signals(), quiet_native_output():
             import pybullet
             import pybullet_data
             from pybullet_utils.bullet_client import BulletClient

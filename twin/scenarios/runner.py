@@ -91,7 +91,8 @@ def plugins_of(scenario: Scenario, controllers) -> list[dict]:
 
 def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, video: bool | None = None,
                  progress=None, log_every: int = 1, log_format: str = "csv",
-                 keep_limited: bool = False, specs=None, log_sensors: bool = False) -> ScenarioResult:
+                 keep_limited: bool = False, specs=None, log_sensors: bool = False,
+                 contained=False) -> ScenarioResult:
     """Run ``scenario`` with each of ``controllers`` (kinds; None: the scenario's
     ``controller.kinds``) on identical conditions: same true plant, sensor seed,
     estimator kind, pushes and faults.
@@ -119,6 +120,11 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
     ``specs``: the runs' specifications as :func:`plan` made them for these controllers
     (their plugins built already, as ``twin run`` does before it prints anything); None:
     planned here.
+
+    ``contained``: run a scenario that involves a user's plugin in a worker process
+    (:mod:`twin.containment`): True, or the :class:`twin.scenarios.contained.ContainedScenario`
+    that planned it already (the ``twin`` commands); False (the default): in this process. A
+    scenario of built-in kinds alone always runs here. The numbers are the same either way.
     """
     from twin.sim.recorder import check_log_every
     from twin.registry import check_kinds, parse_controllers
@@ -141,6 +147,16 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
         if every != 1:
             raise TwinError(f"--log-sensors needs every control step (a sensor log holds every reading), so "
                             f"--log-every must be 1, got {every}")
+    from twin.scenarios.contained import ContainedScenario, involves_plugins
+
+    box = contained if isinstance(contained, ContainedScenario) else None
+    if box is None and contained and involves_plugins(scenario, kinds):
+        with ContainedScenario(scenario, kinds) as box:
+            return run_scenario(scenario, kinds, out, video, progress, log_every, log_format, keep_limited, None,
+                                log_sensors, box)
+    if box is not None and box.kinds != tuple(kinds):
+        raise TwinError(f"contained must be the ContainedScenario of controllers {list(kinds)!r}, got one of "
+                        f"{list(box.kinds)!r}")
     # checked before the runs simulate, so that a directory that cannot take them is said at once
     staged = rundir.StagedDirectory(out, "twin run") if out is not None else None
     try:
@@ -148,7 +164,7 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
         worker = figure_worker.start() if out is not None else None
         try:
             return _run_and_write(scenario, kinds, staged, video, progress, every, log_format, worker, keep_limited,
-                                  specs, log_sensors)
+                                  specs, log_sensors, box)
         finally:
             if worker is not None:  # ended before its staging goes: it may be writing figure.png there
                 worker.close()
@@ -214,32 +230,49 @@ def reads_truth(run) -> bool:
 
 
 def _run_and_write(scenario, kinds, staged, video, progress, every, log_format, worker,
-                   keep_limited: bool = False, specs=None, log_sensors: bool = False) -> ScenarioResult:
+                   keep_limited: bool = False, specs=None, log_sensors: bool = False, box=None) -> ScenarioResult:
     """:func:`run_scenario` after its checks; ``staged`` a :class:`twin.outputs.rundir.StagedDirectory`
     (None: write nothing); ``worker`` a :class:`twin.outputs.figure_worker.FigureWorker` for the
-    figure, or None (drawn here)."""
+    figure, or None (drawn here); ``box`` a :class:`twin.scenarios.contained.ContainedScenario`
+    whose worker runs every controller, or None (here)."""
     from twin.outputs.metrics import run_metrics
     from twin.sim.simulate import simulate
     from twin.sim.spec import Logging
 
     timings = {}
-    if specs is None:
-        specs = plan(scenario, kinds)
-    lazy = specs[0].design if specs and isinstance(specs[0].design, LazyDesign) else None
-    plugins = plugins_of(scenario, kinds)
+    if box is not None:
+        summary = box.plan()
+        lazy = LazyDesign(scenario)
+        if summary["design"] is not None:
+            lazy.solved, lazy.seconds = summary["design"], summary["design_s"]
+        plugins = summary["plugins"]
+        sensors, config = scenario.sensor_config(), scenario.twin_config()
+        specs = [None] * len(kinds)
+    else:
+        if specs is None:
+            specs = plan(scenario, kinds)
+        lazy = specs[0].design if specs and isinstance(specs[0].design, LazyDesign) else None
+        plugins = plugins_of(scenario, kinds)
+        sensors, config = specs[0].sensing.true, specs[0].plant
     runs, metrics, controllers, errors = [], {}, [], {}
     for kind, spec in zip(kinds, specs):
-        spec = replace(spec, logging=Logging(every, format=log_format))
         cb = None if progress is None else (lambda done, total, k=kind: progress(f"run {k}", done, total))
         t0 = time.perf_counter()
         try:
-            run = simulate(spec, cb)
+            if box is None:
+                spec = replace(spec, logging=Logging(every, format=log_format))
+                run = simulate(spec, cb)
+            else:
+                done = box.run(kind, every, log_format, cb)
+                run = done["run"]
+                if done["design"] is not None and lazy.solved is None:
+                    lazy.solved, lazy.seconds = done["design"], done["design_s"]
         except PluginError as exc:
             if not keep_limited or limit_of(exc) is None:
                 raise
             errors[kind] = exc  # that controller's alone: the others run on
             continue
-        controllers.append((kind, spec.controller.kind))
+        controllers.append((kind, spec.controller.kind if box is None else _Digest(done["digest"])))
         run.sensing = scenario.estimator
         timings[f"run_{kind}_s"] = time.perf_counter() - t0
         runs.append(run)
@@ -258,9 +291,17 @@ def _run_and_write(scenario, kinds, staged, video, progress, every, log_format, 
                             designs=digests(solved[0] if solved else None, controllers), errors=errors)
     if staged is None:
         return result
-    _write(result, staged, video, progress, every, log_format, worker, specs[0].sensing.true, specs[0].plant,
-           log_sensors)
+    _write(result, staged, video, progress, every, log_format, worker, sensors, config, log_sensors)
     return result
+
+
+class _Digest:
+    """A controller run in a worker, as :func:`twin.outputs.fingerprint.digests` asks of it: its
+    ``design_digest()`` (None: it has none)."""
+
+    def __init__(self, digest: str | None):
+        if digest is not None:
+            self.design_digest = lambda: digest
 
 
 def _write(result, staged, video, progress, every, log_format, worker, sensors, config,
@@ -361,19 +402,29 @@ def _keep_data(exc, staged, worker, stage: str, drawn: bool, want_video: bool) -
             missing.append("video.mp4")
     for name in missing:
         (out / name).unlink(missing_ok=True)
-    how = (f"{rundir.signal_name(exc)} during the {stage}" if isinstance(exc, KeyboardInterrupt)
+    # an interrupt a library turned into another exception is the interrupt (rundir.exit_status_of knows)
+    how = (f"{rundir.signal_name(exc)} during the {stage}" if rundir.exit_status_of(exc) >= 128
            else f"error during the {stage}: {' '.join(str(exc).split())}")
     try:
-        staged.commit(rundir.exit_status_of(exc), missing, how)
+        # an earlier complete run in the target stays there until a new one is complete: this one's data go
+        # beside it then (NAME-incomplete); a full disk during the video replaced a complete run by data alone
+        if missing:
+            where = staged.commit_incomplete(rundir.exit_status_of(exc), missing, how)
+        else:  # stopped in the commit itself: everything is there
+            staged.commit(rundir.exit_status_of(exc), missing, how)
+            where = staged.shown
     except BaseException:  # noqa: BLE001 -- whatever stops the commit, the original error is the one said
         if not staged.committed:
             staged.discard()
             rundir.kept(exc, staged.unchanged())
             return
+        where = staged.aside or staged.shown
     names = [p.name for p in staged.files() if p.name != rundir.MANIFEST]
-    rundir.kept(exc, f"kept {', '.join(names[:-1])} and {names[-1]} in {staged.shown}"
+    earlier = (f"; {staged.shown} still holds the earlier complete run (move {where} to {staged.shown} to keep this "
+               f"one instead)") if where != staged.shown else ""
+    rundir.kept(exc, f"kept {', '.join(names[:-1])} and {names[-1]} in {where}"
                      + (f", without {' and '.join(missing)}" if missing else " (complete)")
-                     + f"; its {rundir.MANIFEST} says so, with exit status {rundir.exit_status_of(exc)}")
+                     + f"; its {rundir.MANIFEST} says so, with exit status {rundir.exit_status_of(exc)}{earlier}")
 
 
 def _video(result, out: Path, progress, every: int, config) -> None:

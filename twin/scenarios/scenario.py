@@ -15,6 +15,7 @@ from importlib import resources
 from pathlib import Path
 
 from twin.errors import TwinError, shown
+from twin.inputs import MAX_TOML_BYTES, inside, read_text
 from twin.scenarios.schema import (MAX_DEPTH, NAME_RULE, ScenarioError, check_depth, key_text, lookup, name_problem,
                                    record, split_key, validate)
 from twin.timing import steps_per_control
@@ -446,23 +447,37 @@ def apply_overrides(raw: dict, overrides) -> dict:
     return raw
 
 
-def _read(name_or_path: str) -> tuple[dict, str, str]:
-    """(parsed TOML, source for messages, default name)."""
+MAX_FILE_BYTES = MAX_TOML_BYTES  # a scenario file (the built-ins are about 2 kB): 1 MiB
+
+
+def _read(name_or_path: str, within: Path | None = None) -> tuple[dict, str, str]:
+    """(parsed TOML, source for messages, default name). A file is read only if it is a regular
+    file of at most :data:`MAX_FILE_BYTES` (a FIFO would block, ``/dev/zero`` never ends) and,
+    with ``within``, only if it lies in that directory (a sensor log's scenario and its bases:
+    the log's own files, :func:`twin.inputs.inside`)."""
+    if "\x00" in name_or_path:  # no file name holds one (the OS refuses it): one line, not a ValueError
+        raise ScenarioError(f"{shown(name_or_path, 300)}: a name with a null character; allowed: a built-in "
+                            f"scenario's name or a .toml file's path")
     path = Path(name_or_path)
     if name_or_path in builtin_names():
         text = resources.files(BUILTIN_PACKAGE).joinpath(f"{name_or_path}.toml").read_text(encoding="utf-8")
         source, stem = f"built-in scenario {name_or_path}", name_or_path
     elif path.suffix == ".toml" or path.exists():
+        shown_path = str(path) if str(path).isprintable() else shown(str(path))  # a message stays one line
         try:
-            text = path.read_text(encoding="utf-8")
+            if within is not None:
+                inside(path, within, "scenario file")
+            text = read_text(path, MAX_FILE_BYTES, "scenario file")
         except FileNotFoundError:
-            raise ScenarioError(f"{path}: no such scenario file") from None
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ScenarioError(f"{path}: cannot be read ({exc})") from None
-        source, stem = str(path), path.stem
-        from twin.registry import look_beside
+            raise ScenarioError(f"{shown_path}: no such scenario file") from None
+        except TwinError as exc:  # not a regular file, too large, not UTF-8, outside ``within``: already one line
+            raise ScenarioError(str(exc) if shown_path == str(path) else str(exc).replace(str(path), shown_path, 1)) \
+                from None
+        source, stem = shown_path, path.stem
+        if within is None:  # a sensor log's scenario is data: its folder is no place to import code from
+            from twin.registry import look_beside
 
-        look_beside(path.parent)  # the plugins a scenario file names may lie beside it
+            look_beside(path.parent)  # the plugins a scenario file names may lie beside it
     else:
         raise ScenarioError(f"{name_or_path!r} is neither a built-in scenario nor a .toml file; built-ins: "
                             f"{', '.join(builtin_names())} (see 'twin scenarios')")
@@ -494,11 +509,12 @@ def merged(base: dict, child: dict) -> dict:
     return out
 
 
-def _with_bases(raw: dict, source: str, path: Path | None, chain: tuple = ()) -> dict:
+def _with_bases(raw: dict, source: str, path: Path | None, chain: tuple = (), within: Path | None = None) -> dict:
     """``raw`` over the scenario its ``base`` names (a built-in's name, or a .toml file
     relative to ``path``'s directory), itself resolved first; ``name`` is never inherited (a
     derived scenario is named by its own file or its own ``name``). ``chain``: the sources
-    that lead here (for the depth limit and the cycle)."""
+    that lead here (for the depth limit and the cycle); ``within``: the directory every base
+    file must lie in (:func:`_read`)."""
     if BASE_KEY not in raw:
         return raw
     chain = (*chain, source)
@@ -506,6 +522,9 @@ def _with_bases(raw: dict, source: str, path: Path | None, chain: tuple = ()) ->
     if not isinstance(base, str) or not base:
         raise ScenarioError(f"{source}: base: {shown(base)} is not a name; allowed: a built-in scenario's name "
                             f"({', '.join(builtin_names())}) or a .toml file, relative to this file")
+    if "\x00" in base:  # no file name holds one: one line, not the OS's ValueError
+        raise ScenarioError(f"{source}: base: {shown(base)} holds a null character; allowed: a built-in scenario's "
+                            f"name or a .toml file, relative to this file")
     if len(chain) > MAX_BASES:
         raise ScenarioError(f"{chain[0]}: base: more than {MAX_BASES} scenarios deep ({' -> '.join(chain)}); "
                             f"allowed: a chain of at most {MAX_BASES}")
@@ -518,23 +537,26 @@ def _with_bases(raw: dict, source: str, path: Path | None, chain: tuple = ()) ->
         raise ScenarioError(f"{source}: base: {shown(base)} is neither a built-in scenario nor a .toml file; "
                             f"allowed: {', '.join(builtin_names())}, or a .toml file relative to this file")
     try:
-        parent, parent_source, _ = _read(target)
+        parent, parent_source, _ = _read(target, within)
     except ScenarioError as exc:
         raise ScenarioError(f"{source}: base: {exc}") from None
     if parent_source in chain:
         raise ScenarioError(f"{chain[0]}: base: the scenarios name each other in a cycle "
                             f"({' -> '.join(chain + (parent_source,))})")
-    parent = _with_bases(parent, parent_source, None if builtin else Path(target), chain)
+    parent = _with_bases(parent, parent_source, None if builtin else Path(target), chain, within)
     return merged({k: v for k, v in parent.items() if k != "name"}, {k: v for k, v in raw.items() if k != BASE_KEY})
 
 
-def load_scenario(name_or_path: str, overrides=()) -> Scenario:
+def load_scenario(name_or_path: str, overrides=(), *, within=None) -> Scenario:
     """A built-in scenario by name, or a scenario file, with ``--set`` ``overrides`` applied;
     validated and checked (:meth:`Scenario.check`). A file may start from another scenario
     with ``base = "NAME"`` (a built-in) or ``base = "FILE.toml"`` (relative to the file): its
-    keys are laid over that scenario's (see :func:`merged`)."""
-    raw, source, stem = _read(str(name_or_path))
-    raw = _with_bases(raw, source, None if source.startswith("built-in") else Path(str(name_or_path)))
+    keys are laid over that scenario's (see :func:`merged`). ``within``: a directory the file
+    and every base file must lie in (a sensor log's; None: anywhere)."""
+    within = None if within is None else Path(within)
+    raw, source, stem = _read(str(name_or_path), within)
+    raw = _with_bases(raw, source, None if source.startswith("built-in") else Path(str(name_or_path)),
+                      within=within)
     overrides = tuple(overrides)
     # each item as the user gave it, on one line and shortened: the message must stay one line
     where = source + (f" with --set {' '.join(_item(o) for o in overrides)}" if overrides else "")

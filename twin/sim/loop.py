@@ -65,8 +65,9 @@ from typing import Sequence
 
 import numpy as np
 
-from twin.errors import PluginError, TwinError, shown
-from twin.limits import MEMORY_EVERY, RunGuard
+from twin.errors import MAY_NOT_END, PluginError, TwinError, ends_process, raised_text, shown
+from twin import limits as _limits
+from twin.limits import RunGuard
 from twin.plant.bullet import Actuation, BulletTwin, GroundTruth, TwinConfig
 from twin.protocols import StepResult, Targets, describe_object, one_line
 from twin.sensors import ImuMotion, Measurement, SensorConfig, SensorSuite
@@ -142,8 +143,11 @@ class ClosedLoop:
         self._attach_truth = bool(getattr(estimator, "reads_truth", False))
         if limits is None and self.config is not None:
             limits = self.config.limits
-        # None (no limits): the hot path below times nothing
-        self._guard = RunGuard(limits, controller, estimator, self.control_dt) if limits and limits.active else None
+        # None (no limits, and not in a contained worker, whose command watches each call): the hot
+        # path below times nothing
+        watched = _limits.STATUS is not None
+        self._guard = RunGuard(limits, controller, estimator, self.control_dt) \
+            if (limits and limits.active) or watched else None
         self.twin = None  # the plant of the current run (a BulletTwin, or the plant given)
         self.suite: SensorSuite | None = None
         self._motion: ImuMotion | None = None  # the IMU's lever-arm kinematics of the current run
@@ -174,7 +178,7 @@ class ClosedLoop:
             if self._foreign:
                 try:
                     tr = twin.reset(self.theta0, self.alpha0, self.position)
-                except Exception as exc:  # noqa: BLE001 -- the plant's failure, in one line
+                except _limits.PLUGIN_FAILURES as exc:  # the plant's failure, in one line
                     raise self._raised("plant", twin, "reset()", exc) from None
                 tr = self._check_truth(tr, "reset")
             else:
@@ -194,24 +198,24 @@ class ClosedLoop:
         guard = self._guard
         if guard is not None:
             guard.start()  # the run's clock: start() and reset() count towards limits.run_wall_s
-        t0 = perf_counter()
+        t0 = perf_counter() if guard is None else guard.enter(2, 3, 0)
         try:
             est = self.estimator.start(self.measurement)
-        except Exception as exc:  # noqa: BLE001 -- the plugin's failure, in one line
+        except _limits.PLUGIN_FAILURES as exc:  # the plugin's failure, in one line
             raise self._raised("estimator", self.estimator, "start()", exc) from None
         if guard is not None:
-            t1 = perf_counter()
+            t1 = guard.leave()
             guard.charge("estimator", t1 - t0, t1, 0, per_step=False)
         est = self._check_estimate(est, "start")
         self.estimate = est if isinstance(est, tuple) else tuple(float(v) for v in est)
         if self.controller is not None:
-            t0 = perf_counter()
+            t0 = perf_counter() if guard is None else guard.enter(1, 1, 0)
             try:
                 self.controller.reset(self.targets)
-            except Exception as exc:  # noqa: BLE001
+            except _limits.PLUGIN_FAILURES as exc:
                 raise self._raised("controller", self.controller, "reset()", exc) from None
             if guard is not None:
-                t1 = perf_counter()
+                t1 = guard.leave()
                 guard.charge("controller", t1 - t0, t1, 0, per_step=False)
         return self.result()
 
@@ -224,7 +228,7 @@ class ClosedLoop:
             else:
                 try:
                     twin.close()
-                except Exception as exc:  # noqa: BLE001 -- the plant's failure, in one line
+                except _limits.PLUGIN_FAILURES as exc:  # the plant's failure, in one line
                     raise self._raised("plant", twin, "close()", exc) from None
 
     def __enter__(self):
@@ -246,10 +250,10 @@ class ClosedLoop:
                 if guard is None:
                     out = self.controller(self.estimate, self.targets)
                 else:
-                    t0 = perf_counter()
+                    t0 = guard.enter(1, 2, self.k)
                     out = self.controller(self.estimate, self.targets)
-                    t1 = perf_counter()
-            except Exception as exc:  # noqa: BLE001 -- the plugin's failure, in one line
+                    t1 = guard.leave()
+            except _limits.PLUGIN_FAILURES as exc:  # the plugin's failure, in one line
                 raise self._raised("controller", self.controller, "__call__()", exc) from None
             if guard is not None:
                 guard.charge("controller", t1 - t0, t1, self.k)
@@ -294,15 +298,13 @@ class ClosedLoop:
             if guard is None:
                 est = self.estimator.step(meas, (ul, ur))
             else:
-                t0 = perf_counter()
+                t0 = guard.enter(2, 4, self.k)
                 est = self.estimator.step(meas, (ul, ur))
-                t1 = perf_counter()
-        except Exception as exc:  # noqa: BLE001 -- the plugin's failure, in one line
+                t1 = guard.leave()
+        except _limits.PLUGIN_FAILURES as exc:  # the plugin's failure, in one line
             raise self._raised("estimator", self.estimator, "step()", exc) from None
         if guard is not None:
             guard.charge("estimator", t1 - t0, t1, self.k)
-            if guard.memory_bytes is not None and self.k % MEMORY_EVERY == 0:
-                guard.memory(self.k)
         try:
             ok = len(est) == 6 and isfinite(sum(est))
         except TypeError:
@@ -338,7 +340,7 @@ class ClosedLoop:
         self._last_command = (ul, ur)
         try:
             tr = plant.step(ul, ur)
-        except Exception as exc:  # noqa: BLE001 -- the plant's failure, in one line
+        except _limits.PLUGIN_FAILURES as exc:  # the plant's failure, in one line
             raise self._raised("plant", plant, "step()", exc) from None
         tr = self._check_truth(tr, "step", 1)
         status = getattr(plant, "status", None)
@@ -389,11 +391,11 @@ class ClosedLoop:
                               f"{n} finite numbers ({names}; torques in N·m)")
         return out
 
-    def _raised(self, role: str, obj, method: str, exc: Exception) -> PluginError:
+    def _raised(self, role: str, obj, method: str, exc: BaseException) -> PluginError:
         if isinstance(exc, PluginError):
             return exc
-        return PluginError(f"{role} {describe_object(obj)}: {method} raised {type(exc).__name__}: "
-                           f"{one_line(exc)} at t = {self.k * self.control_dt:.3f} s")
+        return PluginError(f"{role} {describe_object(obj)}: {method} raised {raised_text(exc)} at "
+                           f"t = {self.k * self.control_dt:.3f} s" + (f"; {MAY_NOT_END}" if ends_process(exc) else ""))
 
     def _require_running(self):
         if self.twin is None:

@@ -1,14 +1,17 @@
 """Where a sweep's samples run: local worker processes, or Ray.
 
-Both backends run :func:`twin.sweep.worker.run_sample` on the same :class:`SweepJob` and
-hand each record to ``on_result`` in the parent as soon as it arrives (the parent
-stores it), so results are identical whichever backend ran them, and finishing order
-does not matter. At most ``workers`` samples are in flight, so an interruption loses at
-most those.
+Both backends run each controller's run of a sample (:func:`twin.sweep.worker.run_part`) in a
+contained worker process (:mod:`twin.containment`: a plugin's exits, crashes, hangs, threads
+and child processes stay there, and the scenario's limits are enforced from outside) and
+hand each sample's record to ``on_result`` in the parent as soon as it is complete (the
+parent stores it), so results are identical whichever backend ran them, and finishing
+order does not matter. At most ``workers`` runs are in flight, so an interruption loses at
+most those samples.
 
-A worker that dies (a crash in native code, the OOM killer) breaks only the samples it
-held: they run again, each alone, and a sample that kills its worker ``MAX_CRASHES``
-times is recorded with an error instead of stopping the sweep.
+A worker that dies outside a plugin's call (a crash in the twin's native code, the OOM
+killer) loses only the run it held: it runs again, and one that kills its worker
+``MAX_CRASHES`` times is recorded with an error instead of stopping the sweep; one that
+dies in a plugin's call is that plugin's error on that sample.
 
 Local workers die with the sweep, however it ends (:mod:`twin.workers`: SIGKILL included);
 Ray's tasks are cancelled when the sweep stops by an exception (Ctrl-C, SIGTERM), and a
@@ -19,12 +22,10 @@ is killed by a :class:`twin.workers.Reaper`.
 from __future__ import annotations
 
 import os
-from concurrent.futures import FIRST_COMPLETED, wait
-from concurrent.futures.process import BrokenProcessPool
-
 from twin.errors import TwinError
-from twin.sweep.worker import SweepJob, crash_record, run_sample
-from twin.workers import Reaper, process_pool
+from twin.errors import PluginError
+from twin.sweep.worker import SweepJob, assemble, crash_record, error_text, run_part
+from twin.workers import Reaper
 
 MAX_CRASHES = 2
 BACKENDS = ("local", "ray")
@@ -38,37 +39,56 @@ def default_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-def run_local(job: SweepJob, indices, workers: int, on_result) -> None:
-    """Run samples ``indices`` in ``workers`` spawned processes (one PyBullet client each per run)."""
-    queue = list(indices)
-    crashes: dict[int, int] = {}
-    suspects: list[int] = []  # samples held by a worker that died: rerun one at a time, to find the culprit
-    while queue or suspects:
-        alone = bool(suspects)
-        batch, width = ([suspects.pop(0)], 1) if alone else (queue, workers)
-        running: dict = {}
-        broken = False
-        with process_pool(width) as pool:  # its workers stopped at once if this raises (Ctrl-C, SIGTERM)
-            while (batch or running) and not broken:
-                while batch and len(running) < width:
-                    try:
-                        running[pool.submit(run_sample, job, batch[0])] = batch[0]
-                    except BrokenProcessPool:  # a worker died since the last wait: its future will say which
-                        break
-                    batch.pop(0)
-                finished, _ = wait(running, return_when=FIRST_COMPLETED)
-                for fut in finished:
-                    k = running.pop(fut)
-                    if not isinstance(fut.exception(), BrokenProcessPool):
-                        on_result(fut.result())
-                        continue
-                    broken = True
-                    crashes[k] = crashes.get(k, 0) + alone
-                    if crashes[k] >= MAX_CRASHES:
-                        on_result(crash_record(job, k, f"worker died {MAX_CRASHES} times running this sample"))
-                    else:
-                        suspects.append(k)
-            suspects += running.values()  # held by the dead pool: not yet known to be innocent
+def run_local(job: SweepJob, indices, workers: int, on_result, pool=None) -> None:
+    """Run samples ``indices`` in ``workers`` contained worker processes (:mod:`twin.containment`),
+    one controller's run of one sample at a time, each under the scenario's limits: a run that
+    overruns one is stopped from outside (its worker killed), and the sample's other
+    controllers run on. A sample's record goes to ``on_result`` when all its controllers are done.
+    ``pool``: the :class:`twin.containment.Workers` to use (None: one of ``workers``, ended here)."""
+    from twin.containment import Task, Workers
+    from twin.scenarios.contained import limits_of, names_of
+
+    scenario = job.scenario()
+    limits = limits_of(scenario)
+    kinds = tuple(job.controllers)
+    parts: dict[int, dict] = {}
+    tasks = [Task(run_part, (job, k, kind), limits=limits, names=names_of(scenario, kind), key=(k, kind))
+             for k in indices for kind in kinds]
+
+    def settle(outcome) -> None:
+        k, kind = outcome.task.key
+        if outcome.error is None:
+            part = outcome.value
+        elif outcome.died and not isinstance(outcome.error, PluginError):  # the twin's crash, or the OOM killer
+            part = {"error": f"worker died {MAX_CRASHES} times running this sample ({error_text(outcome.error)})"}
+        else:  # a limit overrun, or a plugin that ended its worker
+            part = {"error": error_text(outcome.error)}
+        got = parts.setdefault(k, {})
+        got[kind] = part
+        if len(got) == len(kinds):
+            del parts[k]
+            on_result(assemble(job, k, got))
+
+    if pool is not None:
+        pool.run(tasks, settle, retries=MAX_CRASHES - 1)
+        return
+    with Workers(workers) as own:  # its workers killed at once if this raises (Ctrl-C, SIGTERM)
+        own.run(tasks, settle, retries=MAX_CRASHES - 1)
+
+
+_RAY_POOL: list = []  # a Ray worker's own contained worker, kept for its next tasks
+
+
+def run_sample_contained(job: SweepJob, index: int) -> dict:
+    """Sample ``index``'s record, each controller's run in a contained worker of this process's
+    (what a Ray task runs: the limits and containment of a local sweep, on the cluster's node)."""
+    from twin.containment import Workers
+
+    if not _RAY_POOL:
+        _RAY_POOL.append(Workers(1))
+    got = []
+    run_local(job, [index], 1, got.append, pool=_RAY_POOL[0])
+    return got[0]
 
 
 def run_ray(job: SweepJob, indices, workers: int | None, on_result, address: str | None = None) -> None:
@@ -125,7 +145,7 @@ def _drive_ray(ray, job, indices, workers, on_result, address, started, reaper) 
     relays = _relay_signals(raised) if main_thread else {}
     try:
         cap = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
-        task = ray.remote(num_cpus=1, max_retries=MAX_CRASHES - 1)(run_sample)
+        task = ray.remote(num_cpus=1, max_retries=MAX_CRASHES - 1)(run_sample_contained)
         job_ref = ray.put(job)
         queue = list(indices)
         while queue or running:

@@ -100,10 +100,23 @@ def sweep_controllers(scenario: Scenario, controllers=None, reference: str | Non
     return kinds, reference
 
 
-def preflight(scenario: Scenario, kinds, duration: float = 0.05) -> None:
-    """Build every controller and the estimator and run the plugins among them for ``duration``
-    s here, before anything is written: a plugin that cannot be loaded, lacks its methods
-    or breaks its contract at once is a one-line error rather than N failed samples."""
+def sweep_plan(scenario: Scenario, kinds) -> dict:
+    """Every controller and the estimator built once, before anything runs or is written (a
+    plugin that cannot be built is one line): :func:`twin.scenarios.contained.plan_summary`, in a
+    worker process if a user's plugin is involved (:mod:`twin.containment`), else here."""
+    from twin.containment import Task, run_contained
+    from twin.scenarios.contained import Recipe, involves_plugins, limits_of, plan_summary, plugin_roles
+
+    if not involves_plugins(scenario, kinds):
+        return plan_summary(scenario, kinds)
+    return run_contained(Task(plan_summary, (Recipe.of(scenario), tuple(kinds)), limits=limits_of(scenario),
+                              plugins=plugin_roles(scenario, kinds), what="plan"))
+
+
+def preflight(scenario: Scenario, kinds, duration: float = 0.05, design=None) -> None:
+    """Run the plugins among ``kinds`` (and a plugin estimator) for ``duration`` s in a worker
+    process, before anything is written: a plugin that breaks its contract at once is a
+    one-line error rather than N failed samples."""
     from twin.registry import is_import_path
     from twin.scenarios.runner import run_scenario
 
@@ -115,12 +128,14 @@ def preflight(scenario: Scenario, kinds, duration: float = 0.05) -> None:
     d = scenario.data
     short = Scenario({**d, "duration": max(duration, 1.0 / d["rates"]["control"])}, scenario.source,
                      scenario.overrides)
-    run_scenario(short.adopt_design(scenario.design()) if any(uses_design(k) for k in plugins) else short, plugins)
+    if design is not None:
+        short.adopt_design(design)
+    run_scenario(short, plugins, contained=True)
 
 
 def run_sweep(scenario: Scenario, draws: int, out: Path, scenario_arg: str | None = None, workers: int | None = None,
               backend: str = "local", address: str | None = None, progress=None, controllers=None,
-              reference: str | None = None, log_sensors=()) -> SweepResult:
+              reference: str | None = None, log_sensors=(), summary: dict | None = None) -> SweepResult:
     """Run ``draws`` samples at each level of ``scenario``'s ``[sweep]`` (every controller on each),
     resuming any finished samples found in ``out``, then write the report.
 
@@ -129,7 +144,8 @@ def run_sweep(scenario: Scenario, draws: int, out: Path, scenario_arg: str | Non
     ``progress(done, total)``: called as samples finish; ``controllers``: the kinds compared
     on identical samples (None: the scenario's ``controller.kinds``); ``reference``: the one
     the paired statistics compare each other with (default: the last); ``log_sensors``: sample
-    numbers whose runs are also written as sensor logs (:func:`write_sample_logs`).
+    numbers whose runs are also written as sensor logs (:func:`write_sample_logs`); ``summary``:
+    :func:`sweep_plan`'s, if the caller made it already (planned here if None).
     """
     from twin.registry import plugin_dirs
     if not (isinstance(draws, int) and 1 <= draws <= MAX_DRAWS):
@@ -140,9 +156,13 @@ def run_sweep(scenario: Scenario, draws: int, out: Path, scenario_arg: str | Non
         raise TwinError(f"--workers must be an integer from 1 to 1024, got {workers!r}")
     kinds, reference = sweep_controllers(scenario, controllers, reference)
     log_sensors = check_log_samples(scenario, log_sensors, draws * len(scenario.sweep["levels"]))
-    preflight(scenario, kinds)
+    if summary is None:
+        summary = sweep_plan(scenario, kinds)
+    design = summary["design"]
+    if design is None and any(uses_design(k) for k in kinds):
+        design = scenario.design()
+    preflight(scenario, kinds, design=design)
     from twin.outputs import rundir
-    from twin.registry import provenance
     from twin.sweep.sampling import SAMPLES_VERSION
 
     levels = scenario.sweep["levels"]
@@ -151,12 +171,10 @@ def run_sweep(scenario: Scenario, draws: int, out: Path, scenario_arg: str | Non
                 "overrides": [o for o in scenario.overrides if not o.startswith("seed=")],
                 "root_seed": scenario.seed, "controllers": list(kinds),
                 # the plugins' code, which no version number covers (part of the configuration hash)
-                "plugins": {f"{p['role']} {p['kind']}": p["sha256"]
-                            for p in (provenance(role, k) for role, k in roles) if p is not None},
+                "plugins": {f"{p['role']} {p['kind']}": p["sha256"] for p in summary["plugins"]},
                 "sampling": SAMPLES_VERSION, "draws": draws}
-    design = scenario.design() if any(uses_design(k) for k in kinds) else None
-    manifest["environment"] = environment_of(scenario, kinds, design)
-    paths = plugin_dirs(roles)
+    manifest["environment"] = environment_of(summary, kinds, design)
+    paths = summary["dirs"] or plugin_dirs(roles)
     with SweepStore(out, manifest) as store:
         job = SweepJob(sweep_data(scenario.data), scenario.source, scenario.overrides, scenario.seed, design, kinds,
                        paths, store.config)
@@ -258,7 +276,7 @@ def write_sample_logs(job: SweepJob, samples, records, out: Path) -> tuple[dict,
                 notes.append(f"sample {k}, {kind}: no sensor log (its run ended in an error: "
                              f"{(records[k].get('errors') or {}).get(kind, records[k]['error'])})")
                 continue
-            done = run_scenario(sample.scenario, (kind,))  # as the worker runs it (twin.sweep.worker)
+            done = run_scenario(sample.scenario, (kind,), contained=True)  # as the worker runs it (twin.sweep.worker)
             run, metrics = done.runs[0], done.metrics[kind]
             if json.dumps(metrics, sort_keys=True) != json.dumps(
                     {m: v for m, v in stored[kind].items() if m != "success"}, sort_keys=True):
@@ -295,22 +313,16 @@ def failure_of(rows) -> str | None:
     return None
 
 
-def environment_of(scenario: Scenario, kinds, design) -> dict:
+def environment_of(summary: dict, kinds, design) -> dict:
     """sweep.json's ``environment``: this process's, with the digest of each design the
-    controllers use (the LMI balance design when one of them asks for it, and each
-    controller's own ``design_digest()``). The controllers are built here for that, once:
-    every sample's controllers are designed on the same nominal model."""
+    controllers use (the LMI balance design ``design`` when one of them asks for it, and each
+    controller's own ``design_digest()``, from :func:`sweep_plan`'s ``summary``: every sample's
+    controllers are designed on the same nominal model)."""
     from twin.outputs.fingerprint import digests, record
+    from twin.scenarios.runner import _Digest
 
-    asked = []
-
-    def ask():
-        asked.append(True)
-        return scenario.design()
-
-    context = scenario.build_context(ask)
-    built = [(k, scenario.build_controller(k, context)) for k in kinds]
-    return record(digests(design if design is not None else scenario.design() if asked else None, built))
+    asked = summary["design"] is not None or design is not None
+    return record(digests(design if asked else None, [(k, _Digest(summary["digests"].get(k))) for k in kinds]))
 
 
 def write_report(out: Path, manifest: dict, records, scenario: Scenario, reference: str | None = None) -> SweepResult:

@@ -30,6 +30,7 @@ import os
 from pathlib import Path
 
 from twin.errors import TwinError, shown
+from twin.inputs import json_loads
 
 FORMAT = 2  # 1: before issue 26 (no configuration hash); read and upgraded
 ENV, RESUMED = "environment", "resumed_in"  # where the samples ran: recorded, not required to match
@@ -149,6 +150,24 @@ def write_atomically(path: Path, data: bytes) -> None:
     _fsync_dir(path.parent)
 
 
+def refuse_others(out: Path) -> None:
+    """One line if ``out`` is another command's output, or holds what no sweep wrote: a sweep
+    used to write its store and report over a run's folder (and delete its sensor logs)."""
+    from twin.outputs import rundir
+
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise TwinError(f"{out}: exists and is not a directory; give a sweep directory")
+    if not out.is_dir():
+        return
+    rundir.refuse_another_commands(out, LOCK_COMMAND)
+    foreign = rundir.foreign_entries(out, LOCK_COMMAND)
+    if foreign:
+        more = f" and {len(foreign) - 3} more" if len(foreign) > 3 else ""
+        raise TwinError(f"{out}: holds {', '.join(foreign[:3])}{more}, which no sweep wrote; a sweep writes only "
+                        f"into a new, empty or earlier sweep's directory: give another --out, or move them")
+
+
 class SweepStore:
     """Open (create or resume) the sweep in ``out`` described by ``manifest`` (the runner's,
     without the configuration hash), holding the directory until :meth:`close`."""
@@ -159,12 +178,18 @@ class SweepStore:
         self.out = Path(out)
         self._fd = None
         self._held = contextlib.ExitStack()
+        if self.out.is_dir():  # said before the lock creates anything
+            self._refuse_others()
         self._held.enter_context(rundir.lock(self.out, LOCK_COMMAND))  # refused in one line if in use
         try:
+            self._refuse_others()  # again, holding it
             self._open(manifest)
         except BaseException:
             self._held.close()
             raise
+
+    def _refuse_others(self) -> None:
+        refuse_others(self.out)
 
     def _open(self, manifest: dict) -> None:
         self.environment_changes: list[str] = []  # what this run's environment differs in from the first samples'
@@ -220,7 +245,7 @@ class SweepStore:
             return None
         again = f"use another --out, or delete {self.out} to start over"
         try:
-            old = json.loads(path.read_text(encoding="utf-8"))
+            old = json_loads(path.read_text(encoding="utf-8"))  # nesting bounded (twin.inputs)
         except (ValueError, UnicodeDecodeError) as exc:
             raise TwinError(f"{path}: not a sweep manifest ({' '.join(str(exc).split())[:80]}); {again}") from None
         if not isinstance(old, dict) or not all(k in old for k in ("scenario", "root_seed", "controllers")):
@@ -280,7 +305,7 @@ class SweepStore:
 
     def _check_line(self, n: int, line: bytes, levels, kinds, accept_unstamped: bool) -> dict:
         try:
-            rec = json.loads(line)
+            rec = json_loads(line)  # nesting bounded (twin.inputs): no RecursionError
         except (ValueError, UnicodeDecodeError) as exc:
             raise self._damaged(n, f"not JSON ({' '.join(str(exc).split())[:60]})") from None
         if not isinstance(rec, dict):

@@ -42,7 +42,7 @@ class SweepJob:
 
 
 def run_sample(job: SweepJob, index: int) -> dict:
-    """Run sample ``index`` of ``job`` with each controller; the record stored for it.
+    """Run sample ``index`` of ``job`` with each controller, in this process; the record stored for it.
 
     A run that falls or diverges is a result (its metrics say so). An exception inside a
     controller's run (a plugin that breaks its contract, say) is recorded against that
@@ -50,6 +50,15 @@ def run_sample(job: SweepJob, index: int) -> dict:
     stopped by one of the scenario's ``[limits]`` (:mod:`twin.limits`: too slow a step or
     run, too much memory) likewise, as ``LimitExceeded: ...``.
     """
+    return assemble(job, index, {kind: run_part(job, index, kind) for kind in job.controllers})
+
+
+def run_part(job: SweepJob, index: int, kind: str) -> dict:
+    """Controller ``kind``'s run of sample ``index``: ``{"sample": (index, draw, level, seed,
+    values), "metrics": ...}`` or ``{"sample": ..., "error": "<Name>: <message>"}``, and
+    ``wall_s``. What a local worker runs (:func:`twin.sweep.backends.run_local`): each
+    controller of a sample apart, so that a run a limit stops from outside (its worker killed)
+    costs the others nothing."""
     from twin.scenarios.runner import run_scenario
     from twin.sweep.sampling import sample_scenario, success
 
@@ -58,18 +67,49 @@ def run_sample(job: SweepJob, index: int) -> dict:
     t0 = time.perf_counter()
     scenario = job.scenario()
     sample = sample_scenario(scenario, job.root_seed, index)
+    out = {"sample": _head(sample)}
+    try:
+        metrics = run_scenario(sample.scenario, (kind,)).metrics[kind]
+        out["metrics"] = {**metrics, "success": success(metrics, scenario)}
+    except Exception as exc:  # noqa: BLE001 -- a run that errors is a result, kept with its message
+        out["error"] = error_text(exc)
+    out["wall_s"] = time.perf_counter() - t0
+    return out
+
+
+def _head(sample) -> tuple:
+    return (sample.index, sample.draw, sample.level, sample.seed, sample.values)
+
+
+def assemble(job: SweepJob, index: int, parts: dict) -> dict:
+    """The record of sample ``index`` from its controllers' parts (kind → :func:`run_part`'s
+    dict, or ``{"error": text}`` for a run stopped or lost from outside), in the controllers'
+    order, as :func:`run_sample` always wrote it."""
+    head = next((p["sample"] for p in parts.values() if "sample" in p), None)
     runs, errors = {}, {}
     for kind in job.controllers:
-        try:
-            metrics = run_scenario(sample.scenario, (kind,)).metrics[kind]
-            runs[kind] = {**metrics, "success": success(metrics, scenario)}
-        except Exception as exc:  # noqa: BLE001 -- a run that errors is a result, kept with its message
-            errors[kind] = error_text(exc)
+        part = parts[kind]
+        if "metrics" in part:
+            runs[kind] = part["metrics"]
+        else:
+            errors[kind] = part["error"]
     error = "; ".join(f"{k}: {m}" for k, m in errors.items())
-    record = _record(sample, runs, error, time.perf_counter() - t0, job.config)
+    wall = sum(p.get("wall_s", 0.0) for p in parts.values())
+    if head is None:
+        from twin.sweep.sampling import sample_scenario
+
+        head = _head(sample_scenario(job.scenario(), job.root_seed, index))
+    record = _record(_Head(*head), runs, error, wall, job.config)
     if errors:
         record["errors"] = errors
     return record
+
+
+class _Head:
+    """Who a sample is (what :func:`_record` reads of a :class:`twin.sweep.sampling.Sample`)."""
+
+    def __init__(self, index, draw, level, seed, values):
+        self.index, self.draw, self.level, self.seed, self.values = index, draw, level, seed, values
 
 
 LIMIT = "LimitExceeded"  # the error's name in a record when a [limits] guard stopped the run

@@ -141,7 +141,9 @@ def run_checks(scenarios, controllers=None, seeds: int = 1, workers: int = 1, pr
     compare each run with the one stored there (:mod:`twin.verify.golden`), with ``tolerances``
     (a :class:`twin.verify.tolerances.Tolerances`, the command line's) over each scenario's
     ``[expect.golden]``."""
+    from twin.containment import Task, run_contained
     from twin.registry import check_kinds, plugin_dirs, uses_design
+    from twin.scenarios.contained import Recipe, involves_plugins, limits_of, plan_summary, plugin_roles
     from twin.scenarios.runner import plan as runs_of
     from twin.verify.tolerances import Tolerances
 
@@ -154,12 +156,20 @@ def run_checks(scenarios, controllers=None, seeds: int = 1, workers: int = 1, pr
     for sc in scenarios:
         kinds = check_kinds("controller", controllers if controllers is not None else sc.controllers, "controllers")
         design = sc.design() if any(uses_design(k) for k in kinds) else None
-        paths = plugin_dirs([("controller", k) for k in kinds] + [("estimator", sc.estimator)])
         extra = []
-        # every plugin built once here: one that cannot be built is a user error, said before anything runs
-        for kind, spec in zip(kinds, runs_of(sc, kinds)):
-            _refuse_truth_reader(sc, spec)
-            extra += getattr(spec.controller.kind, "signals", ())
+        # every plugin built once here (a user's in a worker process: twin.containment): one that cannot
+        # be built is a user error, said before anything runs
+        if involves_plugins(sc, kinds):
+            summary = run_contained(Task(plan_summary, (Recipe.of(sc, design), kinds), limits=limits_of(sc),
+                                         plugins=plugin_roles(sc, kinds), what="plan"))
+            paths, reads = summary["dirs"], summary["reads_truth"]
+            signals = [summary["signals"][k] for k in kinds]
+        else:
+            paths, reads = plugin_dirs([("controller", k) for k in kinds] + [("estimator", sc.estimator)]), False
+            signals = [getattr(spec.controller.kind, "signals", ()) for spec in runs_of(sc, kinds)]
+        _refuse_truth_reader(sc, reads)
+        for kind, own in zip(kinds, signals):
+            extra += own
             plan.append((sc, kind, tuple(CheckTask(sc.data, sc.source, sc.overrides, design, kind, sc.seed + i,
                                                    paths, record is not None or golden is not None)
                                          for i in range(seeds))))
@@ -195,17 +205,15 @@ def run_checks(scenarios, controllers=None, seeds: int = 1, workers: int = 1, pr
     return result
 
 
-def _refuse_truth_reader(sc, spec) -> None:
-    """A check of an estimator plugin that reads the ground truth passes on information no
-    robot has: refused unless the scenario says it is a reference (``reference = true``).
-    The built-in ``ideal`` estimator and ``sensing = "ideal"`` say so by their names."""
+def _refuse_truth_reader(sc, reads_truth: bool) -> None:
+    """A check of an estimator plugin that reads the ground truth (``reads_truth``: it says so)
+    passes on information no robot has: refused unless the scenario says it is a reference
+    (``reference = true``). The built-in ``ideal`` estimator and ``sensing = "ideal"`` say so
+    by their names."""
     from twin.registry import is_import_path
 
-    kind = spec.estimator.kind
-    if sc.data.get("reference") or spec.sensing.ideal or isinstance(kind, str) and not is_import_path(kind):
-        return
-    estimator = spec.build_estimator() if isinstance(kind, str) else kind  # the attribute may be set per object
-    if not getattr(estimator, "reads_truth", False):
+    if not reads_truth or sc.data.get("reference") or sc.data["sensors"]["sensing"] == "ideal" \
+            or not is_import_path(sc.estimator):
         return
     raise TwinError(f"{sc.source}: estimator {sc.estimator!r} reads the ground truth (reads_truth = True), so its "
                     f"checks would pass on information no robot has; allowed: an estimator that does not, or "
@@ -294,33 +302,57 @@ def _run(tasks, workers: int, progress) -> list:
 
     if progress is not None:
         progress(0, len(tasks))
-    if workers == 1 or len(tasks) == 1:
+    plugin = [_involves_plugins(t) for t in tasks]
+    if not any(plugin) and (workers == 1 or len(tasks) == 1):
         for i, t in enumerate(tasks):
             done(i, run_task(t))
         return out
-    from concurrent.futures import FIRST_COMPLETED, wait
+    from twin.containment import Task, Workers
+    from twin.scenarios.contained import limits_of, names_of
+    from twin.scenarios.scenario import Scenario
 
-    from twin.workers import process_pool
+    def contained(i):
+        t = tasks[i]
+        sc = Scenario(t.data, t.source, t.overrides)
+        return Task(run_task, (t,), limits=limits_of(sc), names=names_of(sc, t.kind), key=i)
 
+    def settle(outcome):
+        if outcome.error is None:
+            done(outcome.task.key, outcome.value)
+        else:  # a limit overrun from outside, or a worker that died: that run's error
+            e = outcome.error
+            done(outcome.task.key, (None, f"{type(e).__name__}: {' '.join(str(e).split())}", None, None))
+
+    # this process runs tasks of built-in kinds too (beside K − 1 workers): it needs no start-up,
+    # which on a short check is much of the work (a worker takes about a second to import the twin);
+    # a user's plugin runs only in a worker (twin.containment), where what it does can be stopped
+    here = workers > 1 and not all(plugin)
+    width = workers - 1 if here else workers
     queue = list(range(len(tasks)))  # this process takes from the front, the workers from the back
-    pending: dict = {}
-    # workers that die with this process, and are stopped at once if this raises (Ctrl-C, SIGTERM):
-    # a plain pool would wait for their runs on the way out, a slow plugin's for minutes
-    with process_pool(workers - 1) as pool:
-        while queue or pending:
-            while queue and len(pending) < 2 * (workers - 1):  # one queued behind each running: never idle
-                i = queue.pop()
-                pending[pool.submit(run_task, tasks[i])] = i
-            for f in [f for f in pending if f.done()]:
-                done(pending.pop(f), f.result())
-            if queue:
-                i = queue.pop(0)
-                done(i, run_task(tasks[i]))
-            elif pending:
-                finished_now, _ = wait(pending, return_when=FIRST_COMPLETED)
-                for f in finished_now:
-                    done(pending.pop(f), f.result())
+    deaths: dict = {}
+    with Workers(width) as pool:
+        while queue or pool.busy:
+            while queue and len(pool.busy) < width:
+                pool.start(contained(queue.pop()))
+            mine = next((i for i in queue if not plugin[i]), None) if here else None
+            for outcome in pool.wait(0.0 if mine is not None else None):
+                if outcome.died and deaths.get(outcome.task.key, 0) < 1:  # tried once more: a crash may be another's
+                    deaths[outcome.task.key] = 1
+                    queue.append(outcome.task.key)
+                    continue
+                settle(outcome)
+            if mine is not None:
+                queue.remove(mine)
+                done(mine, run_task(tasks[mine]))
     return out
+
+
+def _involves_plugins(task: CheckTask) -> bool:
+    """True if ``task``'s run runs a user's plugin (its controller or estimator is an import path)."""
+    from twin.registry import is_import_path
+
+    s = task.data["sensors"]
+    return is_import_path(task.kind) or (s["sensing"] != "ideal" and is_import_path(s["estimator"]))
 
 
 def format_table(result: CheckResult) -> str:

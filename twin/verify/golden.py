@@ -180,6 +180,7 @@ def load(path: Path) -> tuple[Trajectory, dict]:
         from twin.outputs import rundir
 
         root = path.parents[2]
+        rundir.finish_batch(root)  # a record killed while it committed: carried through first
         doc = rundir.read_manifest(root, (rundir.RECORD_COMMAND,), "golden directory", RECORD_AGAIN)
         rundir.check_listed(root, doc, path.relative_to(root).as_posix(), raw)
     return Trajectory(names, units, data, str(meta["status"])), meta
