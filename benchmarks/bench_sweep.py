@@ -81,7 +81,8 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         t0 = pc()
         write_report(Path(tmp), {"source": sc.source, "draws": n // len(sc.data["sweep"]["levels"]),
-                                 "root_seed": sc.seed, "overrides": [], "scenario_arg": sc.name},
+                                 "root_seed": sc.seed, "overrides": [], "scenario_arg": sc.name,
+                                 "controllers": list(job.controllers), "scenario": sc.data},
                      results["in-process (reference)"][1], sc)
         print(f"  the report of {n} samples (sweep.csv, summary, 3 figures): {pc() - t0:.1f} s")
     return 0 if same and runs else 1
