@@ -357,9 +357,13 @@ def test_a_contained_run_is_the_run_made_in_this_process_byte_for_byte(tmp_path,
     from twin.scenarios import load_scenario
     from twin.scenarios.runner import run_scenario, write_trajectories_csv
 
+    from twin import registry
+
     example = Path(__file__).resolve().parents[1] / "examples" / "my_plugins.py"
     shutil.copy(example, tmp_path / "my_plugins.py")
     monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.delitem(sys.modules, "my_plugins", raising=False)  # another test's copy, imported in this process
+    registry._file_digest.cache_clear()
     kinds = ["my_plugins:StateFeedback", "it2"]
     sc = load_scenario("paper-exp3", ["duration=1.5", "sensors.estimator='my_plugins:TiltFilter'"])
     here = run_scenario(sc, kinds)
