@@ -744,7 +744,11 @@ def replay(logs, estimators, out):
     time. Reports the θ, ψ, α errors where the log has truth, NIS per degree of freedom and the
     innovations' whiteness where the estimator reports them, the EKF's NEES where the log has
     the state truth (the twin's logs do; over several logs also the Monte Carlo χ² tests),
-    rejected readings and the cost per step. Writes replay.json, estimates.csv and figure.png
+    rejected readings and the cost per step; per log, its format version (version 1: what it
+    leaves unsaid and what was assumed), what the estimators cannot use of it, how its truth
+    meets the control instants, and sign checks of the sensors against each other (gravity on
+    z, the gyro against the accelerometer's tilt and the encoders' heading, the wheels against
+    the commands; twin.logs.checks). Writes replay.json, estimates.csv and figure.png
     (the first log: θ, ψ, α against the truth, NIS with its χ² bounds).
 
     An estimator plugin (package.module:attribute) replays in a worker process this
@@ -756,7 +760,7 @@ def replay(logs, estimators, out):
       twin run paper-exp3 --log-sensors --no-video --out runs/exp3
       twin replay runs/exp3/sensor-logs/it2 --estimator ekf,complementary,kalman2
     """
-    from twin.logs.replay import figure_name, replay_logs_contained, write_estimates_csv, write_figure
+    from twin.logs.replay import figure_name, replay_logs_contained, summary_lines, write_estimates_csv, write_figure
     from twin.outputs import report, rundir
     from twin.registry import check_kinds
 
@@ -774,6 +778,8 @@ def replay(logs, estimators, out):
     for path, entry in doc["logs"].items():
         click.echo(f"{path}: {entry['instants']} instants, {entry['duration_s']:g} s at {entry['control_rate_hz']:g} Hz"
                    + ("" if entry["has_truth"] else " (no truth: errors not computed)"))
+        for line in summary_lines(entry):  # format, notes, truth, sign checks, other streams: one line each
+            click.echo(f"  {line}")
         w = max([16] + [len(k) + 2 for k in entry["estimators"]])  # a plugin's import path may be long
         click.echo(f"  {'estimator':{w}}{'θ RMSE rad':>12}{'θ max rad':>12}{'ψ RMSE rad':>12}{'α RMSE rad':>12}"
                    f"{'NIS/dof':>9}{'NEES':>8}{'ρ out':>8}{'rejected':>10}{'µs/step':>9}")

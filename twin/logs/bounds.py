@@ -22,6 +22,7 @@ MAX_DURATION_S = 86_400.0  # s: from a stream's first row to any later one (a da
 MAX_INSTANTS = 10_000_000  # control instants of a replay: (last command − first command) × control_rate + 1
 MAX_COUNT = 2 ** 53  # |encoder counts|: every count a float holds exactly
 MAX_MANIFEST_BYTES = 1 << 20  # log.toml, the scenario beside it, a check file: 1 MiB
+MAX_STREAMS = 32  # streams log.toml declares in [streams.NAME] (version 2), the format's own among them
 
 
 def bounds_text() -> str:
@@ -32,4 +33,4 @@ def bounds_text() -> str:
 
 
 __all__ = ["MAX_COUNT", "MAX_DURATION_S", "MAX_INSTANTS", "MAX_LINE_CHARS", "MAX_MANIFEST_BYTES", "MAX_ROWS",
-           "MAX_STREAM_BYTES", "MAX_TIME_S", "bounds_text"]
+           "MAX_STREAMS", "MAX_STREAM_BYTES", "MAX_TIME_S", "bounds_text"]

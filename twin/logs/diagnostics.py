@@ -252,7 +252,8 @@ class _StateTruthRows:
     @classmethod
     def of(cls, log, t: np.ndarray):
         """The log's truth rows at the instants ``t`` (as :func:`twin.logs.replay.state_truth`
-        finds them), or None unless it has the state truth at every instant."""
+        finds them; -1 at an instant without one: a truth at a lower rate), or None unless it has
+        the state truth at the first instant (the encoder zeros' reference)."""
         if log.truth is None or log.truth_state is None or log.truth_constants is None or not len(t):
             return None
         k = np.round((log.truth_t - t[0]) * log.control_rate)
@@ -261,14 +262,21 @@ class _StateTruthRows:
         on = inside & np.isclose(t[k], log.truth_t, atol=1e-9, rtol=0)
         rows = np.full(len(t), -1, dtype=np.int64)
         rows[k[on]] = np.flatnonzero(on)  # the last truth row at an instant, as for the readings
-        if (rows < 0).any():
+        if rows[0] < 0:
             return None
         return cls(log, rows)
 
     def states(self, f: np.ndarray) -> np.ndarray:
+        """The 12 true states (m, 12) of instants ``f``; NaN at an instant without a truth row."""
         from estimation.consistency import _truth_rows
 
         r = self.rows[f]
+        ok = r >= 0
+        if not ok.all():
+            out = np.full((len(f), _DIM), np.nan)
+            if ok.any():
+                out[ok] = self.states(f[ok])
+            return out
         tr, st = self.truth[r], self.state[r]
         return _truth_rows(self.constants, self.ref, tr[:, 0], tr[:, 1], st[:, 0], st[:, 1], tr[:, 2], tr[:, 3],
                            tr[:, 4], st[:, 3], st[:, 4])

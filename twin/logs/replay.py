@@ -12,6 +12,24 @@ on its way). The estimator gets ``start(m_0)``, then ``step(m_k, u_{k-1})`` with
 the instant before (the torques applied over the period that just ended), so a log the twin
 wrote replays to the very estimates of its run.
 
+The command of a period [t_k, t_{k+1}) (:func:`period_commands`): with ``semantics = "held"``
+(version 1 always) the row in force at t_k, the last at or before it; with ``"sampled"`` (each
+row the value at its instant, changing between rows) the mean over the period of the samples
+joined by straight lines (held constant before the first row and after the last). A
+sampled signal is best rebuilt between its samples by a straight line, and the estimators hold
+one torque over a period: the one with the same impulse as the signal is that mean. (The row
+in force at t_k would lag a ramp by half a row interval; the nearest sample would jump.)
+
+The log's truth (:func:`errors`, :func:`truth_usage`): a truth row at a control instant is
+compared with that instant's estimate; a row between two instants (a truth at another rate, or
+on another clock's grid) with the estimates interpolated linearly between them (the estimates
+come at the control rate, denser than a slower truth; interpolating the truth instead would
+smooth its own features away); rows outside the replay are left out and counted. The EKF's
+NEES needs the 12-state truth at the filter's own instants: it is computed at the instants
+that have a truth row (a truth at a lower rate on the control grid gives NEES at its own
+instants), and not at all, said in one line, where no truth row falls on a control instant or
+none on the first (the encoders' reference).
+
 A replay streams: :func:`schedule` puts every reading on its instant as a row number (checked
 in floating point first: no timestamp becomes an index unless it falls inside the replay), the
 Measurements are made :data:`CHUNK` instants at a time, and :func:`replay_logs` keeps the
@@ -137,8 +155,48 @@ def schedule(log: SensorLog) -> Schedule:
 CHUNK = 4096  # control instants whose Measurements are made at a time: a replay holds no list of them
 
 
-def _chunk(log: SensorLog, sched: Schedule, a: int, b: int) -> tuple[list, list, list]:
-    """(t, the Measurement of each instant, the command [ul, ur] N·m in force from each) of
+def command_integral(log: SensorLog):
+    """For ``semantics = "sampled"`` commands: (times (k,) s made non-decreasing, the integral
+    (k, 2) N·m·s of the commands joined by straight lines from the first row to each); None for
+    held commands."""
+    if log.command_semantics != "sampled":
+        return None
+    t = np.maximum.accumulate(log.commands_t)  # (a row up to the tolerance earlier counts as simultaneous)
+    u = log.commands
+    seg = 0.5 * (u[1:] + u[:-1]) * np.diff(t)[:, None]
+    return t, np.vstack([np.zeros((1, 2)), np.cumsum(seg, axis=0)])
+
+
+def _integral_at(log: SensorLog, integral, x: np.ndarray) -> np.ndarray:
+    """∫ u from the first command row to each time of ``x`` (n, 2): u the rows joined by straight
+    lines, held at the first row's value before it and the last's after it."""
+    t, cum = integral
+    u = log.commands
+    last = len(t) - 1
+    i = np.clip(np.searchsorted(t, x, side="right") - 1, 0, last)
+    j = np.minimum(i + 1, last)
+    width = t[j] - t[i]
+    dx = (x - t[i])[:, None]
+    slope = np.zeros((len(x), 2))
+    inner = (width > 0) & (x >= t[0])
+    slope[inner] = (u[j[inner]] - u[i[inner]]) / width[inner, None]
+    return cum[i] + dx * (u[i] + 0.5 * slope * dx)
+
+
+def period_commands(log: SensorLog, sched: Schedule, a: int, b: int, integral=None) -> np.ndarray:
+    """(b − a, 2) N·m: the command of each control period [t_k, t_{k+1}) of instants a … b−1 (see
+    the module docstring): held, the row in force at t_k; sampled (``integral`` from
+    :func:`command_integral`), the mean over the period of the samples joined by straight lines."""
+    if integral is None:
+        return log.commands[sched.command[a:b]]
+    t0, rate = float(sched.t[0]), log.control_rate
+    k = np.arange(a, b)
+    start, end = sched.t[a:b], t0 + (k + 1) / rate
+    return (_integral_at(log, integral, end) - _integral_at(log, integral, start)) / (end - start)[:, None]
+
+
+def _chunk(log: SensorLog, sched: Schedule, a: int, b: int, integral=None) -> tuple[list, list, list]:
+    """(t, the Measurement of each instant, the command [ul, ur] N·m of the period from each) of
     instants a … b−1, as plain floats (the readings' floats as the log holds them)."""
     res = 1.0 / (log.counts_per_rev / (2.0 * math.pi))  # rad per count, as the twin's encoders
     gi, ai, ei = sched.gyro[a:b], sched.accel[a:b], sched.encoders[a:b]
@@ -149,11 +207,11 @@ def _chunk(log: SensorLog, sched: Schedule, a: int, b: int) -> tuple[list, list,
     ts = sched.t[a:b].tolist()
     ms = [Measurement(ts[j], tuple(g[j]) if hg[j] else None, tuple(acc[j]) if ha[j] else None,
                       (e[j][0] * res, e[j][1] * res) if he[j] else None) for j in range(b - a)]
-    return ts, ms, log.commands[sched.command[a:b]].tolist()
+    return ts, ms, period_commands(log, sched, a, b, integral).tolist()
 
 
 def instants(log: SensorLog) -> tuple[np.ndarray, list, np.ndarray]:
-    """(t (N,) s, the Measurement of each instant, the command (N, 2) N·m in force from each).
+    """(t (N,) s, the Measurement of each instant, the command (N, 2) N·m of the period from each).
 
     A list of N Measurements: for a look at a log's instants; :func:`replay` makes them
     :data:`CHUNK` at a time instead (:func:`schedule`)."""
@@ -161,7 +219,7 @@ def instants(log: SensorLog) -> tuple[np.ndarray, list, np.ndarray]:
     ms = []
     for a in range(0, len(sched.t), CHUNK):
         ms += _chunk(log, sched, a, min(len(sched.t), a + CHUNK))[1]
-    return sched.t, ms, log.commands[sched.command]
+    return sched.t, ms, period_commands(log, sched, 0, len(sched.t), command_integral(log))
 
 
 def replay(log: SensorLog, estimator, name: str = "", diagnostics: bool = False) -> Replay:
@@ -188,8 +246,9 @@ def _replay(log: SensorLog, estimator, name: str, diag) -> Replay:
         diag = DiagnosticsLog(who, log, sched.t)
     out = np.empty((n, 6))
     wall, prev = 0.0, None
+    integral = command_integral(log)
     for a in range(0, n, CHUNK):
-        ts, ms, cmds = _chunk(log, sched, a, min(n, a + CHUNK))
+        ts, ms, cmds = _chunk(log, sched, a, min(n, a + CHUNK), integral)
         t_start = time.perf_counter()  # the estimator's time only: making the chunk is the replay's
         try:
             j0 = 0
@@ -246,15 +305,34 @@ def build_for(log: SensorLog, kind: str, params: dict | None = None):
     return build_estimator(kind, params, log.context())
 
 
+def _truth_rows(log: SensorLog, t: np.ndarray):
+    """(k (j,) the instant of each truth row, on (j,) the rows at a control instant, between (j,)
+    the rows between two instants of the replay ``t``)."""
+    tt = log.truth_t
+    k = np.round((tt - t[0]) * log.control_rate).astype(np.int64)
+    on = (k >= 0) & (k < len(t)) & np.isclose(t[np.clip(k, 0, len(t) - 1)], tt, atol=1e-9, rtol=0)
+    between = ~on & (tt > t[0]) & (tt < t[-1])
+    return k, on, between
+
+
 def errors(log: SensorLog, r: Replay) -> dict | None:
-    """θ, ψ, α errors against the log's truth (at the instants the truth has a row for): RMSE and
-    max |error| in rad, and the error over time; None without truth."""
+    """θ, ψ, α errors against the log's truth: RMSE and max |error| in rad over the truth's rows
+    in the replay, ``rows`` of them; a row at a control instant against that instant's estimate,
+    a row between two (``interpolated_rows``) against the estimates interpolated linearly between
+    them (see the module docstring); ``outside_rows`` the rows before the first instant or after
+    the last. None without truth."""
     if log.truth is None:
         return None
-    k = np.round((log.truth_t - r.t[0]) * log.control_rate).astype(np.int64)
-    on = (k >= 0) & (k < len(r.t)) & np.isclose(r.t[np.clip(k, 0, len(r.t) - 1)], log.truth_t, atol=1e-9, rtol=0)
+    k, on, between = _truth_rows(log, r.t)
     truth, est = log.truth[on], r.estimates[k[on]]
-    out = {"rows": int(on.sum())}
+    if between.any():  # a truth off the control instants: the estimates interpolated to its rows
+        tt = log.truth_t[between]
+        i = np.clip(np.searchsorted(r.t, tt, side="right") - 1, 0, len(r.t) - 2)
+        w = ((tt - r.t[i]) / (r.t[i + 1] - r.t[i]))[:, None]
+        truth = np.vstack([truth, log.truth[between]])
+        est = np.vstack([est, (1.0 - w) * r.estimates[i] + w * r.estimates[i + 1]])
+    out = {"rows": int(on.sum() + between.sum()), "interpolated_rows": int(between.sum()),
+           "outside_rows": int((~on & ~between).sum())}
     for name, j in (("theta", 0), ("psi", 2), ("alpha", 4)):
         e = est[:, j] - truth[:, j]
         out[f"{name}_rmse_rad"] = float(np.sqrt(np.mean(e * e))) if e.size else None
@@ -263,8 +341,10 @@ def errors(log: SensorLog, r: Replay) -> dict | None:
 
 
 __all__ = ["CHUNK", "INSTANT_TOLERANCE", "NEES_START", "Replay", "Schedule", "WHITENESS_LAGS", "build_for",
-           "consistency", "errors", "filter_record", "instants", "monte_carlo", "normalised_innovations", "replay",
-           "replay_logs", "schedule", "state_truth", "whiteness", "write_estimates_csv", "write_figure"]
+           "command_integral", "consistency", "errors", "estimator_notes", "filter_record", "format_entry",
+           "instants", "monte_carlo", "normalised_innovations", "period_commands", "replay", "replay_logs",
+           "schedule", "state_truth", "streams_entry", "summary_lines", "truth_usage", "whiteness",
+           "write_estimates_csv", "write_figure"]
 
 
 def consistency(r: Replay, log: SensorLog | None = None, start: float = NEES_START) -> dict:
@@ -348,9 +428,10 @@ def whiteness(r: Replay, lags: int = WHITENESS_LAGS) -> dict | None:
 
 
 def state_truth(log: SensorLog, t: np.ndarray):
-    """The :class:`estimation.consistency.StateTruth` of ``log`` at the instants ``t`` (s), or
-    None unless the log has the state truth (the extra truth columns and the ``[truth]`` table)
-    with a truth row at every instant."""
+    """The :class:`estimation.consistency.StateTruth` of ``log`` at the instants ``t`` (s), NaN at
+    the instants without a truth row (a truth at a lower rate: no NEES there), or None unless the
+    log has the state truth (the extra truth columns and the ``[truth]`` table) with a truth row
+    at the first instant."""
     if log.truth is None or log.truth_state is None or log.truth_constants is None:
         return None
     from estimation.consistency import StateTruth
@@ -359,9 +440,13 @@ def state_truth(log: SensorLog, t: np.ndarray):
     on = (k >= 0) & (k < len(t)) & np.isclose(t[np.clip(k, 0, len(t) - 1)], log.truth_t, atol=1e-9, rtol=0)
     rows = np.full(len(t), -1, dtype=np.int64)
     rows[k[on]] = np.flatnonzero(on)  # the last truth row at an instant, as for the readings
-    if (rows < 0).any():
+    if rows[0] < 0:  # the encoder zeros' truth is relative to the first instant's wheel angles
         return None
     tr, st, c = log.truth[rows], log.truth_state[rows], log.truth_constants
+    if (rows < 0).any():  # a truth at a lower rate: NaN (no NEES) at the instants without a row
+        tr, st = tr.copy(), st.copy()
+        tr[rows < 0] = np.nan
+        st[rows < 0] = np.nan
     model, sensors = log.model, log.sensors
     return StateTruth(theta=tr[:, 0], theta_dot=tr[:, 1], psi_l=st[:, 0], psi_r=st[:, 1], psi=tr[:, 2],
                       psi_dot=tr[:, 3], alpha=tr[:, 4], gyro_bias=st[:, 2:5], gyro_scale=c["gyro_scale"],
@@ -419,11 +504,14 @@ def replay_logs(paths, kinds) -> dict:
     {"monte_carlo": :func:`monte_carlo` over the logs with the state truth, or None}}} and the replays."""
     from twin.logs.format import read_log
 
+    from twin.logs.checks import sign_checks
+
     doc, replays, records = {"logs": {}}, {}, {k: [] for k in kinds}
     for p in paths:
         log = read_log(p)
         entry = {"duration_s": log.duration, "control_rate_hz": log.control_rate, "has_truth": log.truth is not None,
-                 "estimators": {}}
+                 "format": format_entry(log), "notes": estimator_notes(log, kinds), "checks": sign_checks(log),
+                 "streams": streams_entry(log), "estimators": {}}
         for kind in kinds:
             est = build_for(log, kind)
             # the diagnostics as arrays (twin.logs.diagnostics): a long log's replay in memory that grows by
@@ -436,9 +524,117 @@ def replay_logs(paths, kinds) -> dict:
                 "errors": errors(log, r), "consistency": consistency(r, log),
                 "rejected_total": int(r.stats.get("rejected_total", 0)), "step_us": r.step_s * 1e6,
                 "events": list(r.stats.get("events", []))}
+        entry["truth"] = truth_usage(log, r.t) if kinds else None
         doc["logs"][str(p)] = entry
     doc["estimators"] = {k: {"monte_carlo": monte_carlo(records[k])} for k in kinds}
     return doc, replays
+
+
+def format_entry(log: SensorLog) -> dict:
+    """replay.json's ``format`` of a log: its version, what the reader assumed where the log is
+    silent (version 1: everything version 2 states, from its scenario), one line ``text``, and
+    ``applied``: what the replay does with what the log says (beyond handing the rows over)."""
+    applied = []
+    if log.imu_rotation is not None:
+        applied.append("the IMU's readings turned into the body's axes (imu.orientation) before the estimators")
+    if log.command_unit == "V":
+        applied.append("commands in volts: duty = V / motor.supply_voltage, torque = duty × motor.stall_torque")
+    if log.command_semantics == "sampled":
+        applied.append("sampled commands: each control period gets the mean of the samples joined by straight lines")
+    enc = log.sensors.encoders
+    if log.version == 2 and (log.manifest.get("encoders") or {}).get("on") == "motor":
+        applied.append(f"encoders on the motor: {enc.counts_per_rev} counts per wheel revolution")
+    info = dict(log.format_info)
+    info["applied"] = applied
+    return info
+
+
+def estimator_notes(log: SensorLog, kinds) -> list:
+    """What the log says that an estimator of ``kinds`` cannot use (yet), one line each (with the
+    reader's own notes, e.g. a latency rounded to whole control periods)."""
+    notes = list(log.notes)
+    imu = log.sensors.imu
+    for kind in kinds:
+        if kind == "ekf":
+            if log.sampling == "point":
+                notes.append("ekf: imu.sampling = \"point\", but the EKF's strapdown step takes each IMU row as the "
+                             "mean over its interval (estimation/ekf.py): it uses the point samples as if they were "
+                             "means")
+            if log.imu_rotation is not None:
+                notes.append("ekf: its clipping test holds the IMU's full scales against the body's axes, not the "
+                             "IMU's own, once the readings are turned into body axes")
+            if imu.gyro.bias_correlation_time is not None:
+                notes.append("ekf: models the gyro's bias as a random walk of imu.gyro.bias_random_walk; "
+                             "imu.gyro.bias_correlation_time is not used")
+        elif kind in ("complementary", "kalman2"):
+            notes.append(f"{kind}: uses none of the log's noise figures, ranges or latencies (its own tuning; each "
+                         f"reading as of its row's instant)")
+    if log.command_semantics == "sampled" and log.duty is not None:
+        notes.append("duty.csv is held over each period as the format says, whatever commands.semantics")
+    return notes
+
+
+def streams_entry(log: SensorLog) -> dict:
+    """replay.json's ``streams``: each stream log.toml declares beyond the format's, as read."""
+    out = {}
+    for name, st in log.streams.items():
+        n = len(st.t)
+        out[name] = {"file": st.file, "rows": n, "columns": dict(zip(st.columns, st.units)),
+                     "t_first_s": float(st.t[0]) if n else None, "t_last_s": float(st.t[-1]) if n else None,
+                     "latency_s": st.latency, "used_by": [],
+                     "text": f"stream {name} ({st.file}): {n} rows, "
+                             + ", ".join(f"{c} [{u}]" for c, u in zip(st.columns, st.units))
+                             + ": read and checked; no estimator uses it"}
+    return out
+
+
+def truth_usage(log: SensorLog, t: np.ndarray) -> dict | None:
+    """How the log's truth meets the replay's instants ``t`` (see the module docstring): its rows
+    at control instants, between them (errors against interpolated estimates), outside the
+    replay; its rate; where the EKF's NEES is computed, or why not; one line ``text``."""
+    if log.truth is None:
+        return None
+    k, on, between = _truth_rows(log, t)
+    tt = log.truth_t
+    at = np.unique(k[on])
+    span = float(tt[-1] - tt[0]) if len(tt) > 1 else 0.0
+    rate = (len(tt) - 1) / span if span > 0 else None
+    if log.truth_state is None or log.truth_constants is None:
+        nees = "no state truth (truth.csv's psi_l … gyro_bias_z and the [truth] table): no NEES"
+    elif not at.size:
+        nees = ("not computed: no truth row lies on a control instant; the NEES needs the state truth at the "
+                "filter's own instants")
+    elif at[0] != 0:
+        nees = (f"not computed: no truth row at the first control instant (t = {float(t[0]):g} s), the encoders' "
+                f"reference")
+    elif at.size == len(t):
+        nees = "at every control instant"
+    else:
+        nees = f"at the {at.size} control instants with a truth row (of {len(t)})"
+    outside = int((~on & ~between).sum())
+    parts = [f"{int(on.sum())} at control instants"]
+    if between.any():
+        parts.append(f"{int(between.sum())} between them (errors against the estimates interpolated to them)")
+    if outside:
+        parts.append(f"{outside} outside the replay (left out)")
+    text = (f"truth: {len(tt)} rows" + (f" (about {rate:.4g} Hz)" if rate else "") + f": {', '.join(parts)}; "
+            f"NEES {nees}")
+    return {"rows": int(len(tt)), "rate_hz": rate, "at_instants": int(on.sum()), "between_instants": int(between.sum()),
+            "outside": outside, "instants_with_truth": int(at.size), "nees": nees, "text": text}
+
+
+def summary_lines(entry: dict) -> list:
+    """The lines ``twin replay`` prints about one log beyond its table: the format (version 1:
+    what it leaves unsaid and what was assumed), the notes, the truth's use, the sign checks and
+    the other streams."""
+    out = [entry["format"]["text"]]
+    out += [f"applied: {a}" for a in entry["format"].get("applied", [])]
+    out += [f"note: {n}" for n in entry.get("notes", [])]
+    if entry.get("truth"):
+        out.append(entry["truth"]["text"])
+    out += [f"check {c['text']}" for c in entry.get("checks", {}).values()]
+    out += [s["text"] for s in entry.get("streams", {}).values()]
+    return out
 
 
 def replay_logs_contained(paths, kinds) -> dict:
