@@ -14,7 +14,10 @@ Examples (the conventions every page follows):
   :data:`MAX_SKIPPED` in all), and the README's ``<!-- main-command -->`` and
   ``<!-- test-command -->`` blocks (they install into a fresh virtual environment; CI runs the
   test command itself) count among them;
-* ```toml, ```text, ```json and other blocks without a file marker are not run.
+* ```toml, ```text, ```json and other blocks without a file marker are not run;
+* a file a page offers for download (MyST's ``{download}`text <path>``` role, the path relative
+  to the page) is copied into the page's directory under its own name before its blocks run,
+  as a reader saves it beside their work.
 
 Each page runs in one fresh temporary directory, its blocks in order (a later block may use the
 files an earlier one wrote), with ``examples/`` on PYTHONPATH, MPLBACKEND=Agg, the session's
@@ -30,6 +33,7 @@ from __future__ import annotations
 import importlib.util
 import os
 import re
+import shutil
 import subprocess
 import sys
 import time
@@ -189,6 +193,18 @@ def _rel(p: Path) -> str:
 
 PAGES = pages()
 BLOCKS = {_rel(p): extract(p.read_text(encoding="utf-8"), _rel(p)) for p in PAGES}
+_DOWNLOAD = re.compile(r"\{download\}`[^`<]*<([^>`]+)>`|\{download\}`([^`<]+)`")
+
+
+def downloads(page: Path) -> list[Path]:
+    """The files ``page`` offers with the ``{download}`` role (each must exist)."""
+    found = []
+    for m in _DOWNLOAD.finditer(page.read_text(encoding="utf-8")):
+        path = (page.parent / (m.group(1) or m.group(2)).strip()).resolve()
+        if not path.is_file():
+            raise AssertionError(f"{_rel(page)}: the download {path.name!r} is not a file beside the page")
+        found.append(path)
+    return found
 
 
 # ---- the extraction itself ----------------------------------------------------------------------
@@ -306,6 +322,8 @@ def jobs(tmp_path_factory):
         for i, page in enumerate(RUNNABLE):
             cwd = base / f"page{i}"
             cwd.mkdir()
+            for f in downloads(ROOT / page):
+                shutil.copyfile(f, cwd / f.name)
             futures[page] = pool.submit(run_page, page, BLOCKS[page], cwd)
         yield futures, base
         for f in futures.values():

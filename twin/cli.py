@@ -735,9 +735,15 @@ def _title(sc) -> str:
 @click.argument("logs", nargs=-1, required=True, type=click.Path(path_type=Path), metavar="LOG...")
 @click.option("--estimator", "estimators", default="ekf", show_default=True, metavar="KINDS",
               help="Estimators to replay, comma-separated: ekf, complementary, kalman2 or package.module:attribute.")
+@click.option("--noise", type=click.Choice(["log", "given", "measured", "datasheet"]), default="log",
+              show_default=True,
+              help="The IMU noise figures the estimators take: log (the log's, or the noise measured from its "
+                   "readings where it gives none or the readings contradict them), given (the log's, whatever the "
+                   "readings say), measured (from the readings), datasheet (the IMU part's). replay.json's noise "
+                   "says which was used and why.")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=Path("runs/replay"),
               show_default=True, help="Output directory: replay.json, estimates.csv, manifest.json.")
-def replay(logs, estimators, out):
+def replay(logs, estimators, noise, out):
     """Replay estimators on sensor logs (a robot's, or the twin's from 'twin run --log-sensors').
 
     No physics: each log's readings and commands go to each estimator one control instant at a
@@ -751,6 +757,10 @@ def replay(logs, estimators, out):
     the commands; twin.logs.checks). Writes replay.json, estimates.csv and figure.png
     (the first log: θ, ψ, α against the truth, NIS with its χ² bounds).
 
+    The IMU's noise is measured from each log's readings (differences of order 3, robust to
+    the robot's motion; twin.logs.noise) and, by default, used where the log gives no noise
+    figures or its readings contradict them (beyond a factor of 2); --noise chooses.
+
     An estimator plugin (package.module:attribute) replays in a worker process this
     command kills: its sys.exit, os._exit or crash, its threads and its child processes end
     with the replay, which ends with one line naming it (see docs/howto/limits.md).
@@ -759,6 +769,7 @@ def replay(logs, estimators, out):
     Examples:
       twin run paper-exp3 --log-sensors --no-video --out runs/exp3
       twin replay runs/exp3/sensor-logs/it2 --estimator ekf,complementary,kalman2
+      twin replay robot-log --estimator ekf,kalman2 --noise measured
     """
     from twin.logs.replay import figure_name, replay_logs_contained, summary_lines, write_estimates_csv, write_figure
     from twin.outputs import report, rundir
@@ -769,7 +780,7 @@ def replay(logs, estimators, out):
         raise TwinError("--estimator: 'ideal' reads the truth, which a log's readings are not; allowed: ekf, "
                         "complementary, kalman2 or package.module:attribute")
     with rundir.written_whole(out, "twin replay") as path:
-        doc, replays = replay_logs_contained(logs, kinds)  # a plugin estimator in a worker process
+        doc, replays = replay_logs_contained(logs, kinds, noise)  # a plugin estimator in a worker process
         report.write_json(doc, path / "replay.json")
         write_estimates_csv(replays, path / "estimates.csv")
         figures = [figure_name(k) for k in range(len(doc["logs"]))]

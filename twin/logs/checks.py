@@ -11,7 +11,8 @@ little of the motion to tell), with the figures it was judged on and one line of
     :data:`STILL_RATE`, at most the first 0.1 s; a log that starts in motion: its first quiet
     stretch, below): its mean must be g within :data:`G_TOLERANCE` and lie in the body's x–z
     plane (a body on its wheels does not roll): ``|f_y| <= G_TOLERANCE · g``. A y component
-    is a roll or yaw of the IMU that log.toml's ``[imu] orientation`` does not say.
+    is a roll or yaw of the IMU that log.toml's ``[imu] orientation`` does not say. Both
+    tolerances widen by 3 σ/√n for the accelerometer's white noise σ in the n rows averaged.
 ``gyro_pitch_vs_accel_tilt``
     The gyro's pitch rate (y) integrated from the start at rest to each quiet stretch within
     :data:`HORIZON` s, against the accelerometer's tilt change from the start to it; the
@@ -65,10 +66,14 @@ def _check(status: str, text: str, **figures) -> dict:
     return {"status": status, "text": text, "figures": figures}
 
 
-def sign_checks(log) -> dict:
+def sign_checks(log, accel_sigma: float | None = None) -> dict:
     """The checks of the module docstring on ``log`` (a :class:`twin.logs.format.SensorLog`):
     ``{name: {"status": "pass" | "warn" | "skip", "text": one line, "figures": {...}}}``, in SI
-    units (rad, rad/s, m/s²; ratios and correlations dimensionless)."""
+    units (rad, rad/s, m/s²; ratios and correlations dimensionless).
+
+    ``accel_sigma`` (m/s²): the accelerometer's white noise in one sample, which widens the
+    gravity check's tolerance by 3 σ/√n over n rows (a log of one noisy row at rest is not a
+    tilted IMU); default the log's own figure (``log.sensors``)."""
     both = np.flatnonzero(np.isfinite(log.gyro).all(axis=1) & np.isfinite(log.accel).all(axis=1))
     g = float(log.model.g)
     out = {}
@@ -88,7 +93,9 @@ def sign_checks(log) -> dict:
     dt0 = 1.0 / log.sensors.imu.rate
     integral = _integral(t, w, log.sampling, dt0)
     quiet = _Quiet(log, t, w, a, integral, rest, g)
-    out["gravity_on_z"] = _gravity(a[:rest], g, rest, quiet)
+    if accel_sigma is None:
+        accel_sigma = log.sensors.imu.accel.white_sigma(1.0 / log.sensors.imu.rate)
+    out["gravity_on_z"] = _gravity(a[:rest], g, rest, quiet, float(accel_sigma))
     out["gyro_pitch_vs_accel_tilt"] = _pitch(log, t, w, a, integral, rest, quiet)
     bias = float(w[:rest, 2].mean()) if rest else 0.0
     z = _integral(t_all, log.gyro[both, 2:3], log.sampling, dt0)[:, 0]
@@ -139,6 +146,7 @@ class _Quiet:
             self.q = np.empty(0, dtype=np.int64)
             return
         self.f, count = _means(idx, n, a)
+        self.count = count
         self.i, _ = _means(idx, n, integral)
         self.t = _means(idx, n, t[:, None])[0][:, 0]
         rate = _means(idx, n, np.abs(w[:, 1:2] - self.bias[1]))[0][:, 0]
@@ -154,21 +162,26 @@ class _Quiet:
         self.q = np.flatnonzero(quiet)
 
 
-def _gravity(a: np.ndarray, g: float, rest: int, quiet: _Quiet) -> dict:
+def _gravity(a: np.ndarray, g: float, rest: int, quiet: _Quiet, sigma: float) -> dict:
     if rest:
-        f, where = a.mean(axis=0), f"at rest ({rest} rows)"
+        f, where, n = a.mean(axis=0), f"at rest ({rest} rows)", rest
     elif quiet.q.size:  # a log that starts in motion: its first quiet stretch
         f, where = quiet.f[quiet.q[0]], f"over the first quiet {WINDOW:g} s (at {quiet.t[quiet.q[0]]:.3g} s)"
+        n = max(1, int(quiet.count[quiet.q[0]]))
     else:
         return _check("skip", "gravity_on_z: skipped: the log starts in motion and holds no quiet stretch")
     norm = float(np.linalg.norm(f))
     figs = {"specific_force_m_s2": [float(v) for v in f], "norm_m_s2": norm,
             "tilt_rad": float(math.atan2(-f[0], f[2])), "y_share": float(f[1] / norm) if norm else None,
             "rest_rows": rest}
-    if abs(norm - g) > G_TOLERANCE * g:
+    # the mean of n rows still carries the noise's σ/√n: a tolerance below 3 of those would
+    # call noise a tilted mounting
+    tol = G_TOLERANCE * g + 3.0 * sigma / math.sqrt(n)
+    figs["tolerance_m_s2"] = tol
+    if abs(norm - g) > tol:
         return _check("warn", f"gravity_on_z: warn: the accelerometer reads {norm:.3g} m/s² {where}, "
                               f"{abs(norm - g) / g:.1%} off g (a scale or a unit?)", **figs)
-    if abs(f[1]) > G_TOLERANCE * g:
+    if abs(f[1]) > tol:
         return _check("warn", f"gravity_on_z: warn: gravity has {f[1]:+.3g} m/s² on y {where} "
                               f"({math.degrees(math.asin(max(-1.0, min(1.0, f[1] / norm)))):+.1f}°): a roll or yaw "
                               f"of the IMU that [imu] orientation does not say?", **figs)
@@ -294,9 +307,9 @@ def _encoders_vs_commands(log) -> dict:
     said = f"each wheel's speed against its command over {SPAN:g} s steps: correlation left {rho[0]:+.2f}, " \
            f"right {rho[1]:+.2f}"
     if min(rho) < -MIN_CORRELATION:
-        which = "both wheels" if max(rho) < -MIN_CORRELATION else ("the left wheel" if rho[0] < rho[1] else
-                                                                   "the right wheel")
-        return _check("warn", f"{name}: warn: {said}: {which} turn against the command (an encoder's or a "
+        which = "both wheels turn" if max(rho) < -MIN_CORRELATION else ("the left wheel turns" if rho[0] < rho[1]
+                                                                        else "the right wheel turns")
+        return _check("warn", f"{name}: warn: {said}: {which} against the command (an encoder's or a "
                               f"command's sign, or left and right swapped?)", **figs)
     if min(rho) > MIN_CORRELATION:
         return _check("pass", f"{name}: pass: {said}", **figs)

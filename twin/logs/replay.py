@@ -36,6 +36,15 @@ Measurements are made :data:`CHUNK` instants at a time, and :func:`replay_logs` 
 estimators' diagnostics as arrays (:mod:`twin.logs.diagnostics`): a few hundred bytes an instant
 in all, no object per instant.
 
+The noise figures (:func:`replay_logs`' ``noise``, ``twin replay --noise``): every IMU axis's noise
+is measured from the log's readings (:mod:`twin.logs.noise`: differences of order 3 with a robust
+scale, the Allan deviation where the log is long enough) and compared with the figures the log
+gives; by default ("log") the estimators are built with the log's figures unless it gives none or
+the readings contradict them, then with the measured ones ("given", "measured", "datasheet"
+choose). With the log's figures the estimators get the log's own SensorConfig, so a twin's log
+replays bit for bit; replay.json's ``noise`` holds the given, datasheet and measured figures,
+which was used and why.
+
 Consistency (:func:`consistency`), from the estimator's ``diagnostics()`` (the optional keys
 :class:`twin.protocols.Estimator` documents):
 
@@ -498,25 +507,37 @@ def monte_carlo(records, start: float = NEES_START) -> dict | None:
             "nis_inside": m["nis_inside"], "nis_per_dof": m["nis_per_dof"]}
 
 
-def replay_logs(paths, kinds) -> dict:
+def replay_logs(paths, kinds, noise: str = "log") -> dict:
     """Every estimator kind of ``kinds`` on every log of ``paths``: {"logs": {path: {"duration_s", "instants",
-    "estimators": {kind: {"errors", "consistency", "rejected_total", "step_us", ...}}}}, "estimators": {kind:
-    {"monte_carlo": :func:`monte_carlo` over the logs with the state truth, or None}}} and the replays."""
-    from twin.logs.format import read_log
+    "noise", "estimators": {kind: {"errors", "consistency", "rejected_total", "step_us", ...}}}}, "estimators":
+    {kind: {"monte_carlo": :func:`monte_carlo` over the logs with the state truth, or None}}} and the replays.
+
+    ``noise``: which noise figures the estimators are built with (:func:`twin.logs.noise.choose`): "log" (the
+    log's, or the measured ones where it gives none or its readings contradict them), "given", "measured" or
+    "datasheet"; ``noise`` of each log's entry says which, per triad, and why."""
+    from dataclasses import replace
 
     from twin.logs.checks import sign_checks
+    from twin.logs.format import read_log
+    from twin.logs.noise import choose
 
     doc, replays, records = {"logs": {}}, {}, {k: [] for k in kinds}
     for p in paths:
         log = read_log(p)
+        noise_entry, sensors, tuned = choose(log, noise)
+        # the log as the estimators get it: its own SensorConfig (the very object) unless other noise
+        # figures are in use, so a twin's log with its figures replays bit for bit
+        run_log = log if sensors is log.sensors else replace(log, sensors=sensors)
         entry = {"duration_s": log.duration, "control_rate_hz": log.control_rate, "has_truth": log.truth is not None,
-                 "format": format_entry(log), "notes": estimator_notes(log, kinds), "checks": sign_checks(log),
-                 "streams": streams_entry(log), "estimators": {}}
+                 "format": format_entry(log), "notes": estimator_notes(log, kinds, bool(tuned)),
+                 "noise": noise_entry,
+                 # the gravity check's tolerance widens with the accelerometer's noise in use
+                 "checks": sign_checks(log, accel_sigma=noise_entry["triads"]["accel"]["sigma"]), "streams": streams_entry(log), "estimators": {}}
         for kind in kinds:
-            est = build_for(log, kind)
+            est = build_for(run_log, kind, _tuned_params(run_log, kind, tuned))
             # the diagnostics as arrays (twin.logs.diagnostics): a long log's replay in memory that grows by
             # a few numbers an instant, not by the EKF's 12 × 12 covariance
-            r = _replay(log, est, kind, "arrays" if callable(getattr(est, "diagnostics", None)) else None)
+            r = _replay(run_log, est, kind, "arrays" if callable(getattr(est, "diagnostics", None)) else None)
             replays[(str(p), kind)] = r
             entry["instants"] = len(r.t)
             records[kind].append(r.diagnostics.record(r.t) if r.diagnostics is not None else None)
@@ -528,6 +549,20 @@ def replay_logs(paths, kinds) -> dict:
         doc["logs"][str(p)] = entry
     doc["estimators"] = {k: {"monte_carlo": monte_carlo(records[k])} for k in kinds}
     return doc, replays
+
+
+def _tuned_params(log: SensorLog, kind: str, tuned: dict) -> dict | None:
+    """The parameters ``kind`` is built with for ``log``: None (:func:`build_for`'s own: the log's
+    scenario's, or the published tuning) unless ``kind`` is kalman2 and measured noise figures are
+    in use (``tuned``, from :func:`twin.logs.noise.choose`), which then replace its Q_angle and
+    R_measure."""
+    if kind != "kalman2" or not tuned:
+        return None
+    sc = log.scenario
+    base = {}
+    if sc is not None and sc.data["sensors"]["estimator"] == kind:
+        base = dict(sc.data["sensors"]["estimator_params"] or {})
+    return base | tuned
 
 
 def format_entry(log: SensorLog) -> dict:
@@ -549,9 +584,10 @@ def format_entry(log: SensorLog) -> dict:
     return info
 
 
-def estimator_notes(log: SensorLog, kinds) -> list:
+def estimator_notes(log: SensorLog, kinds, tuned: bool = False) -> list:
     """What the log says that an estimator of ``kinds`` cannot use (yet), one line each (with the
-    reader's own notes, e.g. a latency rounded to whole control periods)."""
+    reader's own notes, e.g. a latency rounded to whole control periods). ``tuned``: kalman2 is
+    tuned from measured noise figures (:func:`twin.logs.noise.choose`)."""
     notes = list(log.notes)
     imu = log.sensors.imu
     for kind in kinds:
@@ -566,6 +602,10 @@ def estimator_notes(log: SensorLog, kinds) -> list:
             if imu.gyro.bias_correlation_time is not None:
                 notes.append("ekf: models the gyro's bias as a random walk of imu.gyro.bias_random_walk; "
                              "imu.gyro.bias_correlation_time is not used")
+        elif kind == "kalman2" and tuned:
+            notes.append("kalman2: tuned from the measured noise (Q_angle = σ_g² Δt, R_measure = (σ_a / g)², "
+                         "replay.json's noise.kalman2) instead of its published tuning; uses none of the log's "
+                         "ranges or latencies (each reading as of its row's instant)")
         elif kind in ("complementary", "kalman2"):
             notes.append(f"{kind}: uses none of the log's noise figures, ranges or latencies (its own tuning; each "
                          f"reading as of its row's instant)")
@@ -625,11 +665,13 @@ def truth_usage(log: SensorLog, t: np.ndarray) -> dict | None:
 
 def summary_lines(entry: dict) -> list:
     """The lines ``twin replay`` prints about one log beyond its table: the format (version 1:
-    what it leaves unsaid and what was assumed), the notes, the truth's use, the sign checks and
-    the other streams."""
+    what it leaves unsaid and what was assumed), the notes, the noise figures in use and why, the
+    truth's use, the sign checks and the other streams."""
     out = [entry["format"]["text"]]
     out += [f"applied: {a}" for a in entry["format"].get("applied", [])]
     out += [f"note: {n}" for n in entry.get("notes", [])]
+    if entry.get("noise"):
+        out.append(entry["noise"]["text"])
     if entry.get("truth"):
         out.append(entry["truth"]["text"])
     out += [f"check {c['text']}" for c in entry.get("checks", {}).values()]
@@ -637,7 +679,7 @@ def summary_lines(entry: dict) -> list:
     return out
 
 
-def replay_logs_contained(paths, kinds) -> dict:
+def replay_logs_contained(paths, kinds, noise: str = "log") -> dict:
     """:func:`replay_logs`, in a worker process the command kills (:mod:`twin.containment`) if an
     estimator is a user's plugin (``package.module:attribute``): its exit, its crash, its threads
     and its processes end with the replay, which then ends with one line naming it. Built-in
@@ -647,8 +689,8 @@ def replay_logs_contained(paths, kinds) -> dict:
 
     plugins = tuple(("estimator", k) for k in kinds if is_import_path(k))
     if not plugins:
-        return replay_logs(paths, kinds)
-    return run_contained(Task(replay_logs, ([str(p) for p in paths], list(kinds)), plugins=plugins,
+        return replay_logs(paths, kinds, noise)
+    return run_contained(Task(replay_logs, ([str(p) for p in paths], list(kinds), noise), plugins=plugins,
                               what="replay"))
 
 
