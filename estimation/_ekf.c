@@ -11,7 +11,8 @@
      advance(core, imu, enc, last, T, command, may_reject, acc_test)
          one step driven by an IMU sample (steps without one, or with one rejected, coast
          in Python: EKFEstimator._coast).
-         imu = (ω_y, ω_z, f_x, f_z); enc, last = (e_l, e_r) or None; T the time since the
+         imu = (ω_y, ω_z, f_x, f_z), optionally followed by the variances (4,) the sample adds
+         (point samples rebuilt as interval means); enc, last = (e_l, e_r) or None; T the time since the
          encoder sample ``last`` (s); command = (ul, ur) N·m held over the step.
          acc_test = (gate, b_x, b_z, may): gate > 0 computes the accelerometer half's innovation
          e against the model's (f_x, f_z); with may != 0 the half is an outlier (replaced by the
@@ -581,10 +582,8 @@ static int imu_sample(const Core *c, const double *cmd, const double *acc, doubl
     int any = 0, sat[4], have_syn = 0;
     *acc_out = 0;
     e[0] = e[1] = NAN;
-    for (int j = 0; j < 4; j++) {
-        extra[j] = 0.0;
+    for (int j = 0; j < 4; j++) /* extra[] arrives with the sample's own extra variances (0: none) */
         any |= sat[j] = fabs(smp[j]) >= c->lim[j];
-    }
     if (acc[0] > 0.0 && !sat[2] && !sat[3]) {
         synthetic(c, c->x, cmd[0], cmd[1], syn, syn_extra);
         have_syn = 1;
@@ -622,9 +621,21 @@ static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs
             PyErr_SetString(PyExc_TypeError, "advance(core, imu, enc, last, T, command, may_reject, acc_test)");
         return NULL;
     }
-    double smp[4], extra[4], syn[4], syn_extra[4], enc[2], last[2], cmd[2], T = 0.0;
+    double smp[4], extra[4] = {0.0, 0.0, 0.0, 0.0}, syn[4], syn_extra[4], enc[2], last[2], cmd[2], T = 0.0;
     int has_enc = args[2] != Py_None && args[3] != Py_None;
-    if (floats(args[1], smp, 4, "imu")) return NULL;
+    /* imu: (ω_y, ω_z, f_x, f_z), or those and the variances (4,) the sample's own rebuilding adds
+       (point samples turned into interval means: EKFEstimator.set_sampling) */
+    Py_ssize_t n_imu = PySequence_Check(args[1]) ? PySequence_Size(args[1]) : -1;
+    if (n_imu < 0) PyErr_Clear(); /* floats() below says what is wrong */
+    int has_extra = n_imu == 8;
+    if (has_extra) {
+        double both[8];
+        if (floats(args[1], both, 8, "imu")) return NULL;
+        for (int j = 0; j < 4; j++) {
+            smp[j] = both[j];
+            extra[j] = both[4 + j];
+        }
+    } else if (floats(args[1], smp, 4, "imu")) return NULL;
     if (has_enc && (floats(args[2], enc, 2, "enc") || floats(args[3], last, 2, "last"))) return NULL;
     T = PyFloat_AsDouble(args[4]);
     if (T == -1.0 && PyErr_Occurred()) return NULL;
@@ -641,7 +652,7 @@ static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs
     EncMeas em;
     em.dof = 0;
     int saturated = imu_sample(c, cmd, acc, smp, extra, syn, syn_extra, &acc_out, e);
-    propagate(c, c->x, smp, (saturated || acc_out) ? extra : NULL, x1, F, Q);
+    propagate(c, c->x, smp, (saturated || acc_out || has_extra) ? extra : NULL, x1, F, Q);
     cov_predict(F, c->P, Q, Pp);
     if (has_enc) {
         double eps = encoder_fit(c, enc, last, T, x1, smp, Pp, 1, &em);

@@ -116,6 +116,19 @@ regressed on, and the zeros sit in a direction (ψ + c, α + h r/b) no sensor se
 the strapdown's unmodelled errors accumulate. In paper-exp2 the gyro and accelerometer
 scale states reached +0.17 to +0.25 in 900 s (true 0.2–0.9 %) at σ 0.004–0.009, θ̇ was read
 17 % low, and the robot rocked into a 0.35 rad limit cycle (docs/explanation/sensors-ekf.md, "Long runs").
+The accelerometer's two scale factors are held from the first step (:data:`UNTAUGHT`): a
+balancing robot leans into its accelerations, so its forward specific force is noise but in
+catches and pushes, which cannot teach a sensitivity either; learned, they drifted by errors in
+variables (on an independent simulator's logs, +0.9 % on average in quiet balance, e²/P 2.7).
+
+The accelerometer's constant bias b (the specification's ``turn_on_bias``) is no state: on level
+ground it is a tilt (b + g δθ = 0), so the filter estimates θ − b/g and the encoder zero
+c − b/g exactly, and the covariance it reports (:meth:`EKFEstimator.covariance12`, the
+diagnostics, the NEES) adds (σ_b/g)² on that block, as a Schmidt consider parameter would
+(zero for the twin's IMU presets, which leave no turn-on bias to the accelerometer).
+
+Point-sampled IMU rows and commands sampled from a faster loop (a log's ``[imu] sampling =
+"point"``, ``[commands] semantics = "sampled"``): :meth:`EKFEstimator.set_sampling`.
 
 Latency: the filter runs L = max(gyro, accelerometer, encoder latency) periods behind,
 where every sample it uses has arrived; the estimate handed to the controllers is its state
@@ -202,6 +215,15 @@ GROUPS = ("gyro", "accel", "encoders")
 # own errors: kept in P (their uncertainty is accounted for) but never corrected (Schmidt);
 # see the module docstring, "Consider states"
 CONSIDER = ("encoder_zero", "encoder_heading_zero", "gyro_scale_y", "gyro_scale_z", "accel_scale_x", "accel_scale_z")
+# consider states from the first step on, not only after learn_time (those of them in ``consider``):
+# nothing a balancing robot does teaches the accelerometer's scale factors. It leans into every
+# acceleration, so the forward specific force stays within a few noise σ of zero but in catches
+# and pushes, where the model's own errors are largest; and the vertical one is g throughout. Their
+# Jacobians are the measured specific force, whose noise is also in the error they are regressed
+# on (errors in variables): on an independent simulator's logs (20 × 20 s) the forward one drifted
+# by +0.9 % on average in quiet balance alone (0.07 % in catches, 0.04 % in drives), its e²/P 2.7
+# and the vertical one's 2.2; held, 0.8 each, at 0.02 mrad more θ RMSE
+UNTAUGHT = ("accel_scale_x", "accel_scale_z")
 MAX_RIM_SPEED = 20.0  # m/s: encoder counts implying a faster wheel (relative to the body) are a fault
 # a reading this many white-noise σ from the end of its range is censored, not a measurement:
 # its noise is cut by the rail (see EKFEstimator._railed)
@@ -263,7 +285,8 @@ class EKFEstimator:
         State names (:data:`STATE_NAMES`) that become consider states after ``learn_time``:
         measurements no longer correct their estimates (a Schmidt–Kalman filter: their
         uncertainty stays in P). Default :data:`CONSIDER`; ``()`` estimates every state for
-        ever (the filter before issue 16, which drifts in long runs).
+        ever (a filter that drifts in long runs). Those of them in :data:`UNTAUGHT` (the
+        accelerometer's scale factors) are held from the first step on.
     learn_time : float
         s; how long the consider states are estimated like the others (the initial
         alignment, through the robot's first recovery).
@@ -293,6 +316,9 @@ class EKFEstimator:
         self._consider = ConsiderStates(consider, STATE_NAMES, 0.0)
         self.consider = self._consider.names
         self._consider_mask = self._consider.mask
+        self._untaught = self._consider_mask & np.array([n in UNTAUGHT for n in STATE_NAMES])
+        self._held = None  # the mask of the states held now (None: none)
+        self.imu_sampling, self.command_semantics = "mean", "held"  # see set_sampling
         if isinstance(learn_time, bool) or not isinstance(learn_time, (int, float)) or \
                 not (0.0 <= learn_time < math.inf):
             raise TwinError(f"learn_time must be a finite time >= 0 in s, got {learn_time!r}")
@@ -329,6 +355,14 @@ class EKFEstimator:
         self._a_var = imu.accel.white_sigma(self.dt) ** 2 + imu.accel.lsb ** 2 / 12.0
         self._g_sf, self._a_sf = imu.gyro.scale_factor_error ** 2, imu.accel.scale_factor_error ** 2
         self._bias_q = imu.gyro.bias_random_walk ** 2 * self.dt
+        # the accelerometer's constant forward bias b (turn_on_bias, σ_b m/s²) has no state: while
+        # the robot moves on level ground it is one with a tilt (the strapdown's horizontal
+        # acceleration is f_x cos θ + f_z sin θ, and b + g δθ = 0 for δθ = −b/g), so the filter
+        # estimates θ − b/g and, through the encoders' ψ − θ + c, c − b/g, exactly: no update
+        # sees b and no gain needs it. The reported covariance adds it as a Schmidt consider
+        # parameter would, (σ_b/g)² on the θ, c block (:meth:`covariance12`); zero where the
+        # specification has no turn-on bias (the twin's presets), so nothing changes there
+        self._tilt_var = (imu.accel.turn_on_bias / model.g) ** 2
         self.delta = model.encoders.resolution
         # per wheel (left, right): e_i = ψ − θ + c ∓ ((b/r)(α − α_0) + h)
         self.H = np.zeros((2, N))
@@ -380,12 +414,27 @@ class EKFEstimator:
         self.core = core = make_core(self._compiled, _kernel if self._core_args is not None else None,
                                      self._core_args)
         self.kf = core.kf  # its state (x, P, consider)
+        if self._tilt_var > 0.0:  # the per-step reader of x and P gets the reported covariance too
+            into, tv, i, j = core.state_into, self._tilt_var, N + TH * N, N + C0 * N
+
+            def state_into(out, row, into=into):
+                into(out, row)
+                o = out[row]
+                o[i + TH] += tv
+                o[i + C0] += tv
+                o[j + TH] += tv
+                o[j + C0] += tv
+            core.state_into = state_into
         # the IMU-driven step: fused in the core where it can (the kernel), else composed here
         self._imu_step = self._imu_step_fused if core.fuses_imu_step else self._imu_step_composed
         # what every step calls, bound once: the core's fused step and forward prediction
         self._core_advance = core.advance if core.fuses_imu_step else None
         self._forward = core.forwarder(self.state6, self.model.step6)
         self.holding = False  # the consider states are held (after learn_time)
+        self._held = None  # the states held now: UNTAUGHT's from start(), all consider states after learn_time
+        self._points = None  # point-sampled IMU: the last (gyro, accel, instant) taken (see _point_means)
+        self._pvar_g: dict[int, tuple] = {}  # the rebuilt means' own variances, by sample time (_point_means)
+        self._pvar_a: dict[int, tuple] = {}
         self.last_dof = 0
         self.k = -1
         self.m = 0
@@ -446,9 +495,21 @@ class EKFEstimator:
 
     @property
     def P(self) -> np.ndarray:
-        """Its covariance (12, 12)."""
+        """Its covariance (12, 12), as the filter's gains use it (:meth:`covariance12` reports it)."""
         self.core.pull()
         return self.kf.P
+
+    def covariance12(self) -> np.ndarray:
+        """The covariance (12, 12) of :attr:`x`'s error against the truth: :attr:`P` plus the
+        accelerometer's turn-on bias as a consider parameter, (σ_b/g)² on the θ and encoder-zero
+        block (see ``__init__``); :attr:`P` itself where the specification has no such bias."""
+        P = self.P
+        if self._tilt_var > 0.0:
+            P = P.copy()
+            for i in (TH, C0):
+                P[i, TH] += self._tilt_var
+                P[i, C0] += self._tilt_var
+        return P
 
     def rates(self, x=None, w=None, w_prev=None) -> tuple[float, float]:
         """(θ̇, α̇) in rad/s at the filter's time: the gyro's mean rates over the last two
@@ -480,7 +541,7 @@ class EKFEstimator:
             xp[j] += h
             xm[j] -= h
             J[:, j] = (self.state6(xp) - self.state6(xm)) / (2.0 * h)
-        C = mm3(J, self.kf.P, J.T)
+        C = mm3(J, self.covariance12(), J.T)
         th = x[TH]
         dz = -self.xi * math.sin(th) + self.zi * math.cos(th)
         q_y, q_z = 1.0 / (1.0 + x[SY]), 1.0 / ((1.0 + x[SZ]) * math.cos(th))
@@ -497,13 +558,13 @@ class EKFEstimator:
 
     def diagnostics(self) -> dict:
         """The :class:`twin.protocols.Estimator` hook, about the last start/step: the filter's
-        state ``x`` (12,) and covariance ``P`` (12, 12) at its own time t_{k − lag}, the
+        state ``x`` (12,) and covariance ``P`` (12, 12, :meth:`covariance12`) at its own time t_{k − lag}, the
         encoder update's ``nis`` (NaN where none was tried) with ``nis_dof`` (the number of
         wheels whose count changed; 0 where none was tried), and ``lag`` (control periods);
         where an update was tried, also its ``innovation`` y (nis_dof,) rad (the measured edge
         position less the predicted, one row per wheel whose count changed, left first) and
         ``innovation_cov`` S (nis_dof, nis_dof) rad², with nis = yᵀ S⁻¹ y."""
-        d = {"x": self.x.copy(), "P": self.P.copy(), "nis": self.last_nis, "nis_dof": self.last_dof,
+        d = {"x": self.x.copy(), "P": self.covariance12().copy(), "nis": self.last_nis, "nis_dof": self.last_dof,
              "lag": self.lag}
         if self.last_dof:
             inn = self._innov
@@ -563,7 +624,9 @@ class EKFEstimator:
         g = math.hypot(fx, fz)
         # tan θ reads tan θ (1 + s_x)/(1 + s_z): the scale errors tilt it by sc (s_x − s_z)
         sc = math.sin(theta0) * math.cos(theta0)
-        var_theta = (self._a_var + spec_a.turn_on_bias ** 2) / max(g, 1.0) ** 2 + 2.0 * sc * sc * self._a_sf
+        # (the accelerometer's turn-on bias is not θ's error: the filter's θ is the tilt less b/g,
+        # and the bias enters the reported covariance alone, see __init__)
+        var_theta = self._a_var / max(g, 1.0) ** 2 + 2.0 * sc * sc * self._a_sf
         x = np.zeros(N)
         x[TH] = x[C0] = theta0
         x[AL] = self.alpha0
@@ -587,6 +650,9 @@ class EKFEstimator:
         if finite_reading(meas.encoders):
             self._enc_seen_t = self._t0
             self._last_enc, self._last_enc_m = tuple(meas.encoders), -self.d_enc
+        if self._untaught.any():  # held from the first step: nothing in a run teaches them (see UNTAUGHT)
+            self._held = self._untaught
+            self.core.hold(self._untaught)
         self.core.keep_good()
         self._last_estimate = tuple(self.state6())
         return Estimate(*self._last_estimate)
@@ -619,6 +685,9 @@ class EKFEstimator:
                 self._gyro.pop(j, None)
                 self._acc.pop(j, None)
                 self._enc.pop(j, None)
+                if self._pvar_g or self._pvar_a:
+                    self._pvar_g.pop(j, None)
+                    self._pvar_a.pop(j, None)
             self.m = m
         return self._estimate(k)
 
@@ -626,6 +695,7 @@ class EKFEstimator:
     def _hold(self) -> None:
         """From now on the consider states are held: no update corrects them."""
         self.holding = True
+        self._held = self._consider_mask
         self.core.hold(self._consider_mask)
 
     def _store(self, meas, k: int) -> None:
@@ -658,12 +728,19 @@ class EKFEstimator:
                     self.events.append((meas.t, "IMU sample repeats the previous one: stale, treated as missing"))
                 self._stale_in_row += 1
             else:
+                pvar = None
+                if self.imu_sampling == "point":  # the interval's mean from its two ends (see set_sampling)
+                    gyro, accel, pvar = self._point_means(k, gyro if g_ok else None, accel if a_ok else None)
                 # a sample for a time the filter has already passed (just after the assumed
                 # latency grew) can no longer be used
                 if g_ok and k - self.d_gyro > self.m:
                     self._gyro[k - self.d_gyro] = gyro
+                    if pvar is not None:
+                        self._pvar_g[k - self.d_gyro] = pvar[0]
                 if a_ok and k - self.d_acc > self.m:
                     self._acc[k - self.d_acc] = accel
+                    if pvar is not None:
+                        self._pvar_a[k - self.d_acc] = pvar[1]
                 self._stale_in_row = 0
             self._last_imu = (g_new if g_ok else last_g, a_new if a_ok else last_a)
         watch = self._watch
@@ -682,6 +759,58 @@ class EKFEstimator:
             else:
                 self.events.append((meas.t, f"encoder reading {tuple(enc)} ignored: beyond a 32-bit "
                                             f"counter's range (±{self._enc_range:.4g} rad)"))
+
+    def set_sampling(self, imu: str = "mean", commands: str = "held") -> None:
+        """How a log's rows were sampled (its ``[imu] sampling`` and ``[commands] semantics``).
+        Call before :meth:`start`.
+
+        ``imu``: ``"mean"`` (the default, the twin's IMU: each row the mean over the interval
+        since the previous one, what the strapdown step integrates) or ``"point"`` (each the
+        value at its instant). Point samples become the means the step takes by the trapezoid:
+        the mean over [t_{k−1}, t_k] as the average of the samples at its two ends, exact for a
+        rate that changes linearly over the interval (at the start, or after a gap: the sample
+        itself). The noise figures stay the sample's: the average halves one mean's white noise
+        but correlates neighbouring means, and what the strapdown integrates over many samples
+        has the variance of one sample's noise per interval, as for means. A clipped end keeps
+        its sample (the clipping test sees the rail).
+
+        ``commands``: ``"held"`` (the default: a controller at the control rate, its output held
+        over the period) or ``"sampled"`` (a faster loop's output, sampled at the rows). With
+        sampled commands the latency watch is off: it looks for the gyro's response to the
+        commands' steps, and a loop faster than the rows has already reacted to the rates
+        within the row it commands in (the feedback, not the latency, sets the correlation; on
+        logs of 33 Hz rows from a 1 kHz loop it reported 30–60 ms changes that were not there)."""
+        if imu not in ("mean", "point"):
+            raise TwinError(f"imu sampling must be \"mean\" or \"point\", got {imu!r}")
+        if commands not in ("held", "sampled"):
+            raise TwinError(f"command semantics must be \"held\" or \"sampled\", got {commands!r}")
+        self.imu_sampling, self.command_semantics = imu, commands
+        if commands == "sampled":
+            self._watches = False
+            self._watch = None
+
+    def _point_means(self, k: int, gyro, accel):
+        """(gyro, accel, variances) of sample instant ``k`` as interval means from point samples
+        (see :meth:`set_sampling`), remembering this instant's for the next. ``variances``:
+        ((ω_y, ω_z), (f_x, f_z)) the mean's own uncertainty about the trapezoid, as for ψ's
+        (:data:`TRAPEZOID_VAR`): with the signal monotonic between its two samples a and b, the
+        interval's mean lies anywhere between them, taken uniform: (b − a)² / 12. The
+        trapezoid is exact for a linear change; a catch's rate, which rises within a few ms
+        and then levels off, is not, and a 30 ms row holds it all (on 33 Hz rows of a robot
+        standing up from 0.5 rad: 0.035 rad of θ in one row)."""
+        prev = self._points
+        out, var = [], []
+        for j, v in enumerate((gyro, accel)):
+            p = prev[j] if prev is not None and prev[2] == k - self.every else None
+            if v is None or p is None:
+                out.append(v)
+                var.append((0.0, 0.0))
+                continue
+            rail = self._rails[2 * j]
+            out.append(tuple(a if abs(a) >= rail else (b if abs(b) >= rail else 0.5 * (a + b)) for a, b in zip(v, p)))
+            var.append(tuple((v[i] - p[i]) ** 2 * TRAPEZOID_VAR for i in ((1, 2) if j == 0 else (0, 2))))
+        self._points = (gyro, accel, k)
+        return out[0], out[1], var
 
     def _watch_latency(self, t: float, k: int, gyro, a_ok: bool, stale: bool = False) -> None:
         """Feed the latency watch (:class:`~estimation.ekf_policies.LatencyWatch`); on a change
@@ -742,6 +871,10 @@ class EKFEstimator:
         """Predict from the filter's time to t_m and update with the encoders there."""
         g, a = self._gyro.get(m), self._acc.get(m)
         imu = None if g is None or a is None else (g, a)
+        if imu is not None and self.imu_sampling == "point":
+            gv, av = self._pvar_g.get(m, (0.0, 0.0)), self._pvar_a.get(m, (0.0, 0.0))
+            if gv[0] or gv[1] or av[0] or av[1]:
+                imu = (g, a, (*gv, *av))
         if imu is None and (g is not None or a is not None):
             self.events.append((t, "an IMU sample without its gyro or accelerometer half was dropped"))
         command = self._commands.get(m - self.every, (0.0, 0.0))
@@ -863,7 +996,8 @@ class EKFEstimator:
         ``saturated`` is False on the filter's own path; the kernel keeps the same guard.) With
         ``acc_test`` the accelerometer half is tested against the model's first
         (:meth:`_acc_test`) and, an outlier, replaced by it: the gyro half is kept."""
-        sample = ((imu[0][1], imu[0][2], imu[1][0], imu[1][2]), None)
+        own = imu[2] if len(imu) > 2 else None  # the variances a rebuilt point sample adds (_point_means)
+        sample = ((imu[0][1], imu[0][2], imu[1][0], imu[1][2]), None if own is None else np.array(own))
         sat = [abs(v) >= lim for v, lim in zip(sample[0], self._limits)]
         syn, acc_out = None, False
         self._acc_e = None
@@ -883,8 +1017,9 @@ class EKFEstimator:
         if syn is None:
             syn = self._synthetic(x, command)
         rep = [sat[0], sat[1], sat[2] or acc_out, sat[3] or acc_out]
+        own = (0.0,) * 4 if own is None else own
         return (tuple(sv if k else v for v, sv, k in zip(sample[0], syn[0], rep)),
-                tuple(e if k else 0.0 for e, k in zip(syn[1], rep))), syn, any(sat), acc_out
+                tuple(e if k else o for e, k, o in zip(syn[1], rep, own))), syn, any(sat), acc_out
 
     def _accel_innovation(self, x, sample, syn):
         """((e_x, e_z), S_x, S_z): the accelerometer half (f_x, f_z) of ``sample`` less the specific
@@ -952,7 +1087,8 @@ class EKFEstimator:
         """:meth:`_imu_step_composed` fused in the core (the compiled kernel), the counts and
         events kept here from its decisions; returns the encoders' NIS with the sample if it is
         an outlier (the state then unchanged), else None."""
-        sample = (imu[0][1], imu[0][2], imu[1][0], imu[1][2])
+        sample = (imu[0][1], imu[0][2], imu[1][0], imu[1][2]) if len(imu) == 2 else \
+            (imu[0][1], imu[0][2], imu[1][0], imu[1][2], *imu[2])
         T = (m - self._last_enc_m) * self.model.dt
         # (EncoderGate.may_reject and AccelOutlierTest.params inline: every step)
         code_i, sat, code_e, nis, dof, ok, acc_out, ex, ez, inside = self._core_advance(
@@ -1087,8 +1223,8 @@ class EKFEstimator:
             PHt = mm(Pa, Ha.T)
             S = mm(Ha, PHt) + R
             Kg = solve(S, PHt.T).T
-            if self.holding:
-                Kg[:N][self._consider_mask] = 0.0  # Schmidt, as TwinEKF.update
+            if self._held is not None:
+                Kg[:N][self._held] = 0.0  # Schmidt, as TwinEKF.update
             za = za + mv(Kg, zm_ - (mv(H, kf.x) + off))
             IKH = np.eye(na) - mm(Kg, Ha)
             Pa = mm3(IKH, Pa, IKH.T) + mm3(Kg, R, Kg.T)

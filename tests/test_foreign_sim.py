@@ -330,3 +330,51 @@ def test_without_scale_factors_every_true_scale_factor_is_zero(tmp_path):
     assert res.constants["gyro_scale"] == [0.0] * 3 and res.constants["accel_scale"] == [0.0] * 3
     res = rs.generate(tmp_path / "s", "A", 2, duration=1.0)
     assert min(abs(v) for v in res.constants["gyro_scale"] + res.constants["accel_scale"]) > 0.0
+
+
+# ---- version 2 of the log format ------------------------------------------------------------------
+def test_version_2_says_what_version_1_cannot_and_the_rows_are_the_same(tmp_path):
+    """Version 2 states profile B as it is (point samples decimated to the rows, an IMU pitched
+    0.07 rad, volts sampled at each row, the row's true noise), the twin's reader applies it (the
+    readings in body axes feel gravity on z at rest), and the rows are version 1's but for the
+    commands' unit; without noise figures the reader falls back on the preset's datasheet noise."""
+    from twin.logs.format import read_log
+
+    v1, v2, v2q = tmp_path / "v1", tmp_path / "v2", tmp_path / "v2q"
+    res = rs.generate(v1, "B", 2, duration=3.0)
+    rs.write_log(res, v2, version=2)
+    rs.write_log(res, v2q, version=2, noise_figures=False)
+    assert (v1 / "imu.csv").read_bytes() == (v2 / "imu.csv").read_bytes()
+    a, b = read_log(v1), read_log(v2)
+    assert (a.version, b.version) == (1, 2)
+    assert (b.sampling, b.command_unit, b.command_semantics) == ("point", "V", "sampled")
+    assert b.imu_rotation is not None and b.imu_rotation[0][2] == pytest.approx(math.sin(0.07), abs=1e-12)
+    sg, sa = rs._row_sigma(res.spec.imu, b.control_rate)
+    rate = b.sensors.imu.rate
+    assert b.sensors.imu.gyro.noise_density * math.sqrt(rate) == pytest.approx(sg, rel=1e-12)
+    assert b.sensors.imu.accel.noise_density * math.sqrt(rate) == pytest.approx(sa, rel=1e-12)
+    assert sg > 0.04 and sa > 0.5  # the vibration, not the datasheet's 0.0087 rad/s / 0.12 m/s² at 1 kHz
+    q = read_log(v2q)
+    assert "noise_density" in " ".join(q.format_info["assumed"].get("imu.gyro", []))
+    assert q.sensors.imu.gyro.noise_density == pytest.approx(rs.ImuModel().gyro_density, rel=1e-12)
+    # the first row is of the robot lying still at θ_0: in body axes the specific force is g (−sin θ, 0, cos θ)
+    th = res.spec.initial[0]
+    first = b.accel[0]
+    assert first[0] == pytest.approx(-9.81 * math.sin(th), abs=2.5)  # 4 σ of the row's 0.6 m/s² vibration
+    assert first[2] == pytest.approx(9.81 * math.cos(th), abs=2.5)
+    raw = a.accel[0]  # version 1 cannot turn the IMU's axes: 0.07 rad off
+    assert abs(math.atan2(-raw[0], raw[2]) - math.atan2(-first[0], first[2]) - 0.07) < 1e-9
+    # the commands: volts in version 2, the duty V / supply in version 1, the same torques
+    assert np.allclose(a.commands, b.commands, rtol=0, atol=1e-12)
+
+
+def test_version_2_of_profile_a_is_a_complete_manifest(tmp_path):
+    from twin.logs.format import read_log
+
+    rs.generate(tmp_path / "a", "A", 1, duration=1.0, version=2)
+    log = read_log(tmp_path / "a")
+    assert log.version == 2 and log.format_info["assumed"] == {}
+    assert log.sensors.imu.latency == 0.005 and log.sampling == "mean" and log.imu_rotation is None
+    assert log.sensors.imu.gyro.noise_density == rs.ImuModel().gyro_density
+    with pytest.raises(ValueError):
+        rs.write_log(rs.simulate(rs.profile_a(1, duration=0.1)), tmp_path / "x", version=3)

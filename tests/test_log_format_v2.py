@@ -290,16 +290,20 @@ def test_a_truth_off_the_control_instants_is_interpolated_and_the_nees_refused_i
     assert "\n" not in moved["truth"]["text"]
 
 
-def test_what_the_ekf_cannot_use_is_a_note_and_a_latency_is_whole_periods(twin_logs, tmp_path):
+def test_the_ekf_takes_point_samples_and_a_latency_is_whole_periods(twin_logs, tmp_path):
     _, _, v2 = twin_logs
     d = _copy(v2, tmp_path / "point")
     _edit(d, 'sampling = "mean"', 'sampling = "point"')
     _edit(d, "latency = 0.005", "latency = 0.0033")
     log = read_log(d)
     assert log.sensors.imu.latency == 0.005 and log.sampling == "point"
-    doc, _ = replay_logs([d], ["ekf", "kalman2"])
+    doc, replays = replay_logs([d], ["ekf", "kalman2"])
     notes = doc["logs"][str(d)]["notes"]
-    assert any(n.startswith('ekf: imu.sampling = "point", but the EKF\'s strapdown step') for n in notes)
+    assert any(n.startswith('ekf: imu.sampling = "point": its strapdown step takes each interval\'s mean as the '
+                            'trapezoid') for n in notes)
+    # the EKF was told: the same rows read as interval means give other estimates
+    _, as_means = replay_logs([v2], ["ekf"])
+    assert not np.array_equal(replays[(str(d), "ekf")].estimates, as_means[(str(v2), "ekf")].estimates)
     assert any(n.startswith("imu.latency = 0.0033 s is not a whole number of control periods") for n in notes)
     assert any(n.startswith("kalman2: uses none of the log's noise figures") for n in notes)
 

@@ -88,7 +88,7 @@ def test_consider_states_are_held_after_the_learning_window_on_both_paths():
 
     e = Experiment("hold", "balance from 0.3 rad", theta0=0.3, duration=4.0)
     ctrl = build_cascade("it2", design_balance_gains(), e.targets)
-    held = [STATE_NAMES.index(n) for n in ("encoder_zero", "gyro_scale_y", "accel_scale_x")]
+    held = [STATE_NAMES.index(n) for n in ("encoder_zero", "gyro_scale_y", "gyro_scale_z")]
     for compiled in ((False, True) if _kernel is not None else (False,)):
         est = build_estimator("ekf", SensorConfig(), 200.0, DEFAULT_MOTOR, NOMINAL, compiled=compiled,
                               learn_time=2.0)

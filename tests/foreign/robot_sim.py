@@ -55,9 +55,10 @@ Profiles (:func:`profile_a`, :func:`profile_b`; issue 40's two kinds of outside 
   (jittered), the commanded voltage *sampled* at the logged instant, an IMU pitched
   0.07 rad, ±2 g, vibration noise, starting from lying at about 0.5 rad and caught.
 
-:func:`write_log` writes version 1 of the sensor-log format with its own CSV writer, the
-state truth included; what version 1 cannot say (sampling, mounting angle, sampled voltage
-commands, vibration noise, the true plant) goes into the sidecar ``robot_sim.json``.
+:func:`write_log` writes version 1 of the sensor-log format (the default) or version 2 with its
+own CSV writer, the state truth included; what version 1 cannot say (sampling, mounting angle,
+sampled voltage commands, vibration noise) version 2 says in log.toml, and the sidecar
+``robot_sim.json`` holds the rest (the true plant, the drawn constants).
 Everything is determined by the seed (one ``numpy.random.default_rng(seed)``, split into
 independent streams).
 """
@@ -74,7 +75,7 @@ from scipy.linalg import solve_continuous_are
 GRAVITY = 9.81  # m/s², the g of the plant (g_b = m_b g l)
 DEG = math.pi / 180.0
 G0 = 9.80665  # m/s², the datasheet's "g" (accelerometer ranges and µg densities)
-FORMAT_VERSION = 1  # the sensor-log format version written (what the twin's reader accepts today)
+FORMAT_VERSION = 1  # the sensor-log format version written by default (write_log(version=2) writes version 2)
 GENERATOR = "tests/foreign/robot_sim.py"
 
 
@@ -746,10 +747,20 @@ def truth_instants(result: SimResult) -> np.ndarray:
     return np.arange(first, last + 1, every)
 
 
-def write_log(result: SimResult, out) -> Path:
-    """Write ``result`` as a sensor log (format version 1) in directory ``out``: log.toml, imu.csv,
-    encoders.csv, commands.csv, truth.csv (with the state-truth columns) and the sidecar
-    robot_sim.json. Returns the directory."""
+def write_log(result: SimResult, out, version: int = FORMAT_VERSION, noise_figures: bool = True) -> Path:
+    """Write ``result`` as a sensor log in directory ``out``: log.toml, imu.csv, encoders.csv,
+    commands.csv, truth.csv (with the state-truth columns) and the sidecar robot_sim.json.
+    ``version`` 1 (what version 1 cannot say goes into the sidecar only) or 2 (the IMU's sampling,
+    rate, latency, mounting orientation, ranges and constants' figures, the encoders, the commands'
+    unit and semantics, the motors, all in log.toml: a profile-B log is then written as it is, volts
+    sampled at each row, an IMU pitched by its mounting angle). ``noise_figures`` (version 2): write
+    the true white noise of one row (``[imu.gyro]``/``[imu.accel]`` ``noise_density``, or ``sigma``
+    where vibration adds to it); False leaves them out, as a log whose owner does not know them
+    (a reader then takes a preset's datasheet figures). Returns the directory."""
+    if version not in (1, 2):
+        raise ValueError(f"version must be 1 or 2, got {version!r}")
+    if version == 2:
+        return _write_log_v2(result, Path(out), noise_figures)
     spec = result.spec
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -812,6 +823,114 @@ def write_log(result: SimResult, out) -> Path:
     (out / "log.toml").write_text("\n".join(lines), encoding="utf-8")
     (out / "robot_sim.json").write_text(json.dumps(sidecar(result), indent=1, sort_keys=True) + "\n",
                                         encoding="utf-8")
+    return out
+
+
+def _truth_rows(result: SimResult, bias: list) -> list:
+    """truth.csv's rows at the replay's control instants: the exact states, the wheels' absolute
+    angles and the gyro's (constant) bias ``bias`` rad/s."""
+    spec = result.spec
+    st = result.states
+    bor = spec.plant.b / spec.plant.r
+    a0 = spec.initial[4]
+    rows = []
+    for n in truth_instants(result):
+        th, thd, ps, psd, al, ald = st[n]
+        rows.append((float(n) / spec.physics_rate, th, thd, ps, psd, al, ald, ps - bor * (al - a0),
+                     ps + bor * (al - a0), *bias))
+    return rows
+
+
+def _encoder_phase(result: SimResult) -> list:
+    """φ_j in counts = floor((q_j − q_j(t_0)) counts/rad + φ_j), t_0 the replay's first control
+    instant (the log format's definition; the encoders count from power-up, which may be earlier)."""
+    spec = result.spec
+    st = result.states
+    bor = spec.plant.b / spec.plant.r
+    a0 = spec.initial[4]
+    c = spec.encoder_counts / (2.0 * math.pi)
+    x0, s0 = st[0], st[truth_instants(result)[0]]
+    q_pu = (x0[2] - x0[0], x0[2] - x0[0])
+    q_t0 = (s0[2] - bor * (s0[4] - a0) - s0[0], s0[2] + bor * (s0[4] - a0) - s0[0])
+    ph = result.constants["encoder_phase_at_power_up"]
+    return [ph[j] + (q_t0[j] - q_pu[j]) * c for j in range(2)]
+
+
+def _row_sigma(imu: ImuModel, row_rate: float) -> tuple[float, float]:
+    """One row's white-noise σ (gyro rad/s, accel m/s²). A mean sample at the IMU's rate has
+    density × √rate; a point sample decimated to fewer rows is still one sample of the IMU's
+    rate (its noise is not averaged down by the decimation), plus the vibration."""
+    sg, sa = imu.white_sigma()
+    if imu.sampling == "mean" and abs(row_rate - imu.rate) > 1e-9 * imu.rate:
+        raise ValueError("mean samples are logged at the IMU's own rate only")
+    return math.hypot(sg, imu.vibration_gyro), math.hypot(sa, imu.vibration_accel)
+
+
+def _write_log_v2(result: SimResult, out: Path, noise_figures: bool) -> Path:
+    """:func:`write_log`'s version 2 (docs/reference/sensor-log.md)."""
+    spec = result.spec
+    out.mkdir(parents=True, exist_ok=True)
+    imu = spec.imu
+    nom = spec.nominal
+    rate = spec.log_rate or spec.controller.rate
+    voltage = spec.motor is not None
+    # rows decimated from a faster loop (profile B): one IMU row per logged row, the IMU's "rate" is the rows'
+    imu_rate = rate if spec.log_periods_ms else imu.rate
+    _csv(out / "imu.csv", ("t", "gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z"),
+         ((t, *g, *a) for t, g, a in result.imu_rows))
+    _csv(out / "encoders.csv", ("t", "left", "right"), result.encoder_rows)
+    _csv(out / "commands.csv", ("t", "ul", "ur"), result.command_rows)  # N·m (ideal) or V (sampled), as applied
+    # the state truth in the body's axes, as the replay's estimators see the readings (v_body = R_y(β) v_imu);
+    # the scale factors are per IMU axis (exact for y, the pitch axis; x and z are 0.07 rad from the body's)
+    rot = _imu_rotation(imu.mount_pitch).T
+    bias_body = (rot @ np.asarray(result.constants["gyro_bias"])).tolist()
+    _csv(out / "truth.csv", ("t", "theta", "theta_dot", "psi", "psi_dot", "alpha", "alpha_dot", "psi_l", "psi_r",
+                             "gyro_bias_x", "gyro_bias_y", "gyro_bias_z"), _truth_rows(result, bias_body))
+    sg, sa = _row_sigma(imu, imu_rate)
+    robot = {k: float(getattr(nom, k)) for k in ("m_w", "m_b", "n_wa", "n_wd", "n_yb", "n_zb", "l", "d_b", "d_w",
+                                                   "g")}
+    robot["n_xb"] = float(nom.roll_inertia)
+    lines = ['format = "mtwip-sensor-log"', "version = 2", f"control_rate = {_num(rate)}",
+             f"wheel_radius = {_num(nom.r)}", f"track = {_num(2.0 * nom.b)}",
+             f"initial_heading = {_num(spec.initial[4])}",
+             f'source = "{GENERATOR}: profile {spec.profile} ({spec.variant}), seed {spec.seed}; see robot_sim.json"',
+             "", "[imu]", f'sampling = "{imu.sampling}"', f"rate = {_num(imu_rate)}",
+             f"latency = {_num(imu.latency)}", f"position = {_toml_value(list(imu.position))}",
+             f"orientation = {_toml_value([0.0, float(imu.mount_pitch), 0.0])}", 'preset = "mpu6050"', ""]
+    vib = imu.vibration_gyro > 0 or imu.vibration_accel > 0
+    for name, density, sigma, bias, full in (("gyro", imu.gyro_density, sg, imu.gyro_bias_sigma, imu.gyro_range),
+                                             ("accel", imu.accel_density, sa, imu.accel_bias_sigma, imu.accel_range)):
+        lines.append(f"[imu.{name}]")
+        if noise_figures:
+            # with vibration (or decimated point samples) a density does not describe a row: its σ does
+            lines.append(f"sigma = {_num(sigma)}" if vib or imu_rate != imu.rate else
+                         f"noise_density = {_num(density)}")
+        lines += ["bias_random_walk = 0.0", f"turn_on_bias = {_num(bias)}",  # constant biases, drawn once
+                  f"scale_factor_error = {_num(imu.scale_sigma)}", f"full_scale = {_num(full)}",
+                  f"bits = {int(imu.bits)}", ""]
+    lines += ["[encoders]", f"counts_per_rev = {int(spec.encoder_counts)}", 'on = "wheel"', "latency = 0.0", ""]
+    if voltage:
+        m = spec.motor_nominal or spec.motor
+        lines += ["[commands]", 'unit = "V"', 'semantics = "sampled"', "", "[motor]", 'kind = "dc"',
+                  f"supply_voltage = {_num(m.supply)}", f"stall_torque = {_num(m.stall_torque)}",
+                  f"no_load_speed = {_num(m.no_load_speed)}", f"pwm_bits = {int(spec.controller.pwm_bits)}",
+                  "dead_band = 0.0", "inductance = 0.0", "back_emf_compensation = false", ""]
+    else:
+        lines += ["[commands]", 'unit = "N·m"', 'semantics = "held"', "", "[motor]", 'kind = "ideal"', ""]
+    lines += ["[robot]", *(f"{k} = {_num(v)}" for k, v in robot.items()), ""]
+    lines += ["[truth]", f"gyro_scale = {_toml_value(result.constants['gyro_scale'])}",
+              f"accel_scale = {_toml_value(result.constants['accel_scale'])}",
+              f"encoder_phase = {_toml_value(_encoder_phase(result))}", f"wheel_radius = {_num(spec.plant.r)}", ""]
+    (out / "log.toml").write_text("\n".join(lines), encoding="utf-8")
+    side = sidecar(result)
+    side["format_version_written"] = 2
+    side["noise_figures_written"] = bool(noise_figures)
+    side["row_white_sigma"] = {"gyro_rad_s": sg, "accel_m_s2": sa}
+    side["commands"]["note"] = ("commands.csv holds the motor voltage (V) sampled at the row's instant "
+                                "(log.toml: unit = \"V\", semantics = \"sampled\")" if voltage else
+                                side["commands"]["note"])
+    side["log"]["truth"] += "; version 2: gyro_bias_* in the body's axes (R_y(mount_pitch) applied)"
+    (out / "robot_sim.json").write_text(json.dumps(side, indent=1, sort_keys=True) + "\n", encoding="utf-8")
     return out
 
 
@@ -911,14 +1030,16 @@ A_SCALE = {"m_b": 1.15, "l": 0.9, "d_b": 1.5, "d_w": 1.5}  # profile A's true pl
 
 
 def profile_a(seed: int = 0, duration: float = 20.0, variant: str = "default", scale_sigma: float = 0.01,
-              plant_scale: dict | None = None, theta0: float | None = None, **imu_overrides) -> SimSpec:
+              plant_scale: dict | None = None, theta0: float | None = None, log_start: float = 0.0,
+              **imu_overrides) -> SimSpec:
     """Issue 40's "independent simulator" (see the module docstring). ``variant``: "default",
     "clip" (a sharper catch from 0.35–0.45 rad: stiffer gains, clipping gyro and accelerometer) or
     "push" (pushes of 10–12 N); ``scale_sigma`` the scale factors' σ (0: every true scale factor
     zero); ``plant_scale`` the true plant's factors of Table III (default m_b × 1.15, l × 0.9,
     d_b and d_w × 1.5); ``theta0`` rad the tilt it is released from at rest at t = 0 (default
-    drawn: within ±0.05 rad, or ±(0.35–0.45) rad for "clip"); ``imu_overrides`` any
-    :class:`ImuModel` field."""
+    drawn: within ±0.05 rad, or ±(0.35–0.45) rad for "clip"); ``log_start`` s when the logging
+    starts (later than 0: a log that begins mid-motion, e.g. in the catch); ``imu_overrides``
+    any :class:`ImuModel` field."""
     if variant not in ("default", "clip", "push"):
         raise ValueError(f"variant must be default, clip or push, got {variant!r}")
     rng = np.random.default_rng([seed, 40])  # the scenario's draws (the simulation's own streams use the seed)
@@ -934,7 +1055,7 @@ def profile_a(seed: int = 0, duration: float = 20.0, variant: str = "default", s
     imu = replace(ImuModel(), scale_sigma=scale_sigma, **imu_overrides)
     plant = TABLE_III.scaled(**(A_SCALE if plant_scale is None else plant_scale))
     return SimSpec("A", seed, duration, plant, TABLE_III, imu, ctrl, (theta0, 0.0, 0.0, 0.0, 0.0, 0.0), targets,
-                   pushes, variant=variant)
+                   pushes, variant=variant, log_start=float(log_start))
 
 
 B_PLANT = PlantParams(m_w=0.045, m_b=0.71, n_wa=2.2e-5, n_wd=1.3e-5, n_yb=1.9e-3, n_zb=1.3e-3, r=0.030, b=0.08,
@@ -970,10 +1091,13 @@ def profile_b(seed: int = 0, duration: float | None = None, theta0: float | None
 
 def generate(out, profile: str = "A", seed: int = 0, **options) -> SimResult:
     """Simulate a profile (``"A"`` or ``"B"``, with :func:`profile_a` / :func:`profile_b`'s
-    ``options``) and write its log into directory ``out``; returns the :class:`SimResult`."""
+    ``options``) and write its log into directory ``out``; returns the :class:`SimResult`. Two
+    options are :func:`write_log`'s: ``version`` (1, the default, or 2) and ``noise_figures``."""
+    version = options.pop("version", FORMAT_VERSION)
+    noise_figures = options.pop("noise_figures", True)
     spec = {"A": profile_a, "B": profile_b}[profile.upper()](seed=seed, **options)
     result = simulate(spec)
-    write_log(result, out)
+    write_log(result, out, version=version, noise_figures=noise_figures)
     return result
 
 
@@ -987,8 +1111,11 @@ def main(argv=None) -> int:
     ap.add_argument("--duration", type=float)
     ap.add_argument("--variant", default="default", choices=("default", "clip", "push"))
     ap.add_argument("--scale-sigma", type=float, default=0.01)
+    ap.add_argument("--format-version", type=int, default=FORMAT_VERSION, choices=(1, 2))
+    ap.add_argument("--no-noise-figures", action="store_true", help="version 2: leave the white noise out")
     args = ap.parse_args(argv)
     opts = {} if args.duration is None else {"duration": args.duration}
+    opts |= {"version": args.format_version, "noise_figures": not args.no_noise_figures}
     if args.profile == "A":
         opts |= {"variant": args.variant, "scale_sigma": args.scale_sigma}
     generate(args.out, args.profile, args.seed, **opts)

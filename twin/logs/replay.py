@@ -311,7 +311,14 @@ def build_for(log: SensorLog, kind: str, params: dict | None = None):
     sc = log.scenario
     if params is None and sc is not None and sc.data["sensors"]["estimator"] == kind:
         params = sc.data["sensors"]["estimator_params"] or None
-    return build_estimator(kind, params, log.context())
+    est = build_estimator(kind, params, log.context())
+    # an estimator that can take the rows' sampling is told it (the EKF: point IMU samples become
+    # interval means by the trapezoid; sampled commands turn its latency watch off); the twin's
+    # own logs ("mean", "held") leave it as in the closed loop
+    tell = getattr(est, "set_sampling", None)
+    if callable(tell) and (log.sampling, log.command_semantics) != ("mean", "held"):
+        tell(log.sampling, log.command_semantics)
+    return est
 
 
 def _truth_rows(log: SensorLog, t: np.ndarray):
@@ -593,9 +600,11 @@ def estimator_notes(log: SensorLog, kinds, tuned: bool = False) -> list:
     for kind in kinds:
         if kind == "ekf":
             if log.sampling == "point":
-                notes.append("ekf: imu.sampling = \"point\", but the EKF's strapdown step takes each IMU row as the "
-                             "mean over its interval (estimation/ekf.py): it uses the point samples as if they were "
-                             "means")
+                notes.append("ekf: imu.sampling = \"point\": its strapdown step takes each interval's mean as the "
+                             "trapezoid of the samples at its ends")
+            if log.command_semantics == "sampled":
+                notes.append("ekf: commands sampled from a faster loop: its latency watch is off (that loop reacts "
+                             "to the rates within a row, which the watch would take for a changed latency)")
             if log.imu_rotation is not None:
                 notes.append("ekf: its clipping test holds the IMU's full scales against the body's axes, not the "
                              "IMU's own, once the readings are turned into body axes")
