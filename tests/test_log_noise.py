@@ -248,15 +248,11 @@ def test_bad_noise_input_through_the_command_line_is_one_line_and_exit_status_2(
 
 # ---- the independent simulator's real-robot-shaped logs ---------------------------------------------------
 def _profile_b(out: Path, seed: int) -> tuple[Path, dict]:
-    """A profile-B log (33 Hz rows decimated from a 1 kHz loop, vibration, an IMU pitched 0.07 rad), as
-    version 2 without noise figures where the simulator writes version 2, else version 1 (whose scenario's
-    MPU-6050 figures the data contradict): either way the noise must come from the data."""
+    """A profile-B log (33 Hz rows decimated from a 1 kHz loop, vibration, an IMU pitched 0.07 rad) in
+    version 2 without noise figures: the noise must come from the data."""
     from foreign import robot_sim
 
-    try:
-        robot_sim.generate(out, "B", seed, version=2, noise_figures=False)
-    except TypeError:  # a simulator that writes version 1 only
-        robot_sim.generate(out, "B", seed)
+    robot_sim.generate(out, "B", seed, version=2, noise_figures=False)
     return out, json.loads((out / "robot_sim.json").read_text())
 
 
