@@ -22,7 +22,9 @@
             normal gate with the model's sample): nothing changed, nis is the encoders' NIS
             with it, and the Python side coasts instead
             enc_code 0 no sample, 1 unchanged counts, 2 used, 3 rejected, 4 used although
-            failing the gate (may_reject false); healthy 0 if the state had to be restored;
+            failing the gate (may_reject false); healthy 0 if the state had to be restored
+            (non-finite), -1 if it left the physical range (in_range: the Python side
+            re-initialises it, EKFEstimator._lost);
             inside the truncated updates that brought a wheel back into its unchanged count
      forward(core, commands) -> ([θ, θ̇, ψ, ψ̇, α, α̇] predicted over the commands, finite)
      state6(core) -> the filter's own [θ, θ̇, ψ, ψ̇, α, α̇]
@@ -51,6 +53,8 @@ typedef struct {
     double inside_half;
     /* σ beyond that interval at which an unchanged count is implausible (EKFEstimator._keep_inside) */
     double stuck_sigmas;
+    /* RK4 steps of the model per control period (EstimatorModel.substeps) */
+    double msub;
     /* 1.0 for a consider state (Schmidt): kept in P, never corrected by a measurement */
     double consider[NX];
     /* state */
@@ -61,7 +65,7 @@ typedef struct {
     int inn_dof;
 } Core;
 
-#define NCONST 53 /* doubles before x */
+#define NCONST 54 /* doubles before x */
 
 static void core_free(PyObject *cap) { PyMem_Free(PyCapsule_GetPointer(cap, "ekf_core")); }
 
@@ -121,8 +125,9 @@ static void rhs(const Core *c, const double *s, double ul, double ur, double *d)
 }
 
 static void model_step(const Core *c, double *s, double tl, double tr, int periods) {
-    double k1[6], k2[6], k3[6], k4[6], y[6], dt = c->mdt;
-    for (int p = 0; p < periods; p++) {
+    double k1[6], k2[6], k3[6], k4[6], y[6], dt = c->mdt / c->msub;
+    int n = periods * (int)c->msub;
+    for (int p = 0; p < n; p++) {
         rhs(c, s, tl, tr, k1);
         for (int i = 0; i < 6; i++) y[i] = s[i] + 0.5 * dt * k1[i];
         rhs(c, y, tl, tr, k2);
@@ -504,6 +509,29 @@ static int healthy(const Core *c) {
     return 1;
 }
 
+/* every pivot of P's LDLᵀ elimination (no pivoting) positive and finite, the operations in the
+   order of estimation/detlinalg.py positive_definite (elementwise numpy): the same verdict */
+static int positive_definite(const double *P) {
+    double W[NX * NX];
+    memcpy(W, P, sizeof W);
+    for (int k = 0; k < NX; k++) {
+        double d = W[k * NX + k];
+        if (!(d > 0.0 && d < INFINITY)) return 0;
+        for (int i = k + 1; i < NX; i++) {
+            double f = W[i * NX + k] / d;
+            for (int j = k + 1; j < NX; j++) W[i * NX + j] -= f * W[k * NX + j];
+        }
+    }
+    return 1;
+}
+
+/* the state within its physical range (EKFEstimator._in_range): |θ| < π/2, θ's variance below
+   that of a tilt known only to lie in (−π/2, π/2), P positive definite */
+static int in_range(const Core *c) {
+    double lim = 0.5 * M_PI, vmax = M_PI * M_PI / 12.0;
+    return fabs(c->x[TH]) < lim && c->P[TH * NX + TH] < vmax && positive_definite(c->P);
+}
+
 static void restore(Core *c) {
     memcpy(c->x, c->xg, sizeof c->x);
     for (int i = 0; i < NX * NX; i++) c->P[i] = 4.0 * c->Pg[i];
@@ -704,9 +732,12 @@ static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs
             double s = 0.5 * (c->P[i * NX + j] + c->P[j * NX + i]);
             c->P[i * NX + j] = c->P[j * NX + i] = s;
         }
-    if (ok && healthy(c))
-        keep_good(c);
-    else {
+    if (ok && healthy(c)) {
+        if (in_range(c))
+            keep_good(c);
+        else
+            ok = -1; /* finite but out of range: the Python side re-initialises (EKFEstimator._lost) */
+    } else {
         restore(c);
         ok = 0;
     }

@@ -39,6 +39,8 @@ C, in a fixed order, built without FMA contraction.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -217,4 +219,27 @@ def quad_inv_rows(P, e) -> np.ndarray:
     return out
 
 
-__all__ = ["affine", "dot", "inv", "mm", "mm3", "mv", "quad_inv", "quad_inv_rows", "rowsums", "solve", "vm"]
+def positive_definite(P) -> bool:
+    """True if the symmetric P (n, n) is positive definite: every pivot of its LDLᵀ elimination
+    (without pivoting, as :func:`quad_inv_rows`) is positive and finite.
+
+    A covariance can lose definiteness to rounding alone once its condition number nears
+    1/ε ≈ 1e16 (a diverging filter's reaches 1e29), though every update is in Joseph form and
+    symmetrised; the diagonal can stay positive meanwhile, so checking it is not enough. The
+    eliminations are elementwise IEEE operations in the order of the compiled kernel's
+    ``positive_definite`` (estimation/_ekf.c): the same verdict, bit for bit, on either core."""
+    W = np.array(P, dtype=float)
+    n = W.shape[0]
+    with np.errstate(all="ignore"):
+        for k in range(n):
+            d = W[k, k]
+            if not (d > 0.0 and d < math.inf):
+                return False
+            if k + 1 < n:
+                f = W[k + 1:, k] / d
+                W[k + 1:, k + 1:] -= f[:, None] * W[k, None, k + 1:]
+    return True
+
+
+__all__ = ["affine", "dot", "inv", "mm", "mm3", "mv", "positive_definite", "quad_inv", "quad_inv_rows", "rowsums",
+           "solve", "vm"]

@@ -164,7 +164,11 @@ median 1.5 mrad; gyro and accelerometer 5 → 20 ms 0.25–0.65 s, 10/10, 1.6 mr
 the old latency, so the error in that window is as before.
 
 No NaN or infinity leaves: a non-finite state or covariance restores the last good
-estimate with its covariance inflated, and the reason is logged in ``events``.
+estimate with its covariance inflated, and the reason is logged in ``events``. Nor does an
+estimate out of its physical range stay: |θ| ≥ π/2, θ's variance beyond a tilt's whole range
+(π²/12), or a P no longer positive definite (an LDLᵀ pivot ≤ 0, the same verdict on either
+core; its diagonal can stay positive meanwhile) re-initialises the filter from the
+accelerometer for a robot that may be moving (:meth:`EKFEstimator._lost`, an event).
 
 Two implementations of one algorithm: the reference runs on filterpy's
 ExtendedKalmanFilter in Python (:class:`~estimation.twin_ekf.TwinEKF`); the compiled kernel
@@ -199,7 +203,7 @@ from statistics import NormalDist
 
 import numpy as np
 
-from estimation.detlinalg import affine, mm, mm3, mv, quad_inv, solve
+from estimation.detlinalg import affine, mm, mm3, mv, positive_definite, quad_inv, solve
 from estimation.ekf_core import (AL, BY, BZ, C0, H0, PS, SAX, SAZ, STATE_NAMES, STATE_UNITS, SY, SZ, TH, V,  # noqa: F401
                                  KernelState, N, compiled_kernel_loaded, cov_predict, make_core)
 from estimation.ekf_core import _kernel  # noqa: F401 - golden.py and the tests read ekf._kernel
@@ -228,6 +232,16 @@ MAX_RIM_SPEED = 20.0  # m/s: encoder counts implying a faster wheel (relative to
 # a reading this many white-noise σ from the end of its range is censored, not a measurement:
 # its noise is cut by the rail (see EKFEstimator._railed)
 RAIL_SIGMAS = 3.0
+# The physical range of the state (EKFEstimator._in_range). A robot on its wheels cannot tilt
+# past lying flat, and the heading's kinematics (α̇ = ω_z / cos θ) are singular there: an
+# estimate beyond |θ| = π/2 (as a filter given noise figures 25–100× too small reached, then
+# its speed 680 m/s and θ 3880 rad, its covariance's condition number 1e29, beyond what
+# double precision keeps positive definite) is lost, not a state to go on from. θ's variance
+# beyond that of a tilt known only to lie in (−π/2, π/2), uniform there (π²/12), is no
+# knowledge either; nor is the heading's beyond a uniform angle's on the circle (π²/3)
+TILT_LIMIT = 0.5 * math.pi  # rad
+TILT_VAR_MAX = math.pi * math.pi / 12.0  # rad²
+HEADING_VAR_MAX = math.pi * math.pi / 3.0  # rad²
 ENCODERS_LOST_AFTER = 1.0  # s without an encoder sample after which the position is reported as degraded
 _NOT_IN_MODEL = frozenset((PS, AL, C0, H0))  # states the synthetic IMU sample does not depend on
 TRAPEZOID_VAR = 1.0 / 12.0  # variance of U(−½, ½): where ∫v lies in Δt [v, v⁺] about the trapezoid's midpoint
@@ -404,13 +418,15 @@ class EKFEstimator:
                 *self._limits, m.dt, m.m11, m.m12, m.m22, m.plant.n_bla, m.plant.d_b, m.plant.d_w, m.plant.g_b,
                 m.plant.yaw_damping, m.plant.m33, m.g, float(motor is not None), float(m.compensates),
                 m.tau_max, m.i_tau, m.sigma_tau, m.c_e, TORQUE_TOLERANCE, float(self.every), self._inside_half,
-                self._stuck_sigmas, *([0.0] * N))
+                self._stuck_sigmas, float(m.substeps), *([0.0] * N))
         self._new_run()
 
     def _new_run(self) -> None:
         """The state of one run, as before the first start(); start() calls it again when the
         filter is reused for another run, so that nothing of the previous one is kept."""
         # the filter core (estimation.ekf_core): filterpy's EKF, or the compiled kernel
+        self._model_rate = (False, False)  # the filter's ω (y, z) is the model's, not a reading (_coast)
+        self._at = 0  # the IMU instant of the step under way (_advance), for _lost
         self.core = core = make_core(self._compiled, _kernel if self._core_args is not None else None,
                                      self._core_args)
         self.kf = core.kf  # its state (x, P, consider)
@@ -618,29 +634,7 @@ class EKFEstimator:
         ok = finite_reading
         if not ok(meas.accel) or not ok(meas.gyro):
             raise TwinError("the estimator needs a gyro and an accelerometer reading at start")
-        spec_a, spec_g = self.model.imu.accel, self.model.imu.gyro
-        fx, _, fz = meas.accel
-        theta0 = math.atan2(-fx, fz)
-        g = math.hypot(fx, fz)
-        # tan θ reads tan θ (1 + s_x)/(1 + s_z): the scale errors tilt it by sc (s_x − s_z)
-        sc = math.sin(theta0) * math.cos(theta0)
-        # (the accelerometer's turn-on bias is not θ's error: the filter's θ is the tilt less b/g,
-        # and the bias enters the reported covariance alone, see __init__)
-        var_theta = self._a_var / max(g, 1.0) ** 2 + 2.0 * sc * sc * self._a_sf
-        x = np.zeros(N)
-        x[TH] = x[C0] = theta0
-        x[AL] = self.alpha0
-        bias_var = spec_g.turn_on_bias ** 2 + 1e-12
-        # where the encoders' first edges lie is unknown: a constant offset of variance
-        # Δ²/12 per wheel, Δ²/24 in the mean and in the half-difference
-        edge_var = self.delta ** 2 / 24.0
-        g_sf, a_sf = self._g_sf + 1e-12, self._a_sf + 1e-12
-        P = np.diag([var_theta, 1e-12, 1e-12, 1e-12, bias_var, bias_var, var_theta + edge_var,
-                     g_sf, edge_var, g_sf, a_sf, a_sf])
-        P[TH, C0] = P[C0, TH] = var_theta
-        for i in (TH, C0):
-            P[i, SAX] = P[SAX, i] = -sc * self._a_sf
-            P[i, SAZ] = P[SAZ, i] = sc * self._a_sf
+        x, P = self._prior(meas.accel)
         self.last_nis, self.last_dof = math.nan, 0
         w = (meas.gyro[1], meas.gyro[2])
         self.core.set_state(x, P, w, w)
@@ -656,6 +650,45 @@ class EKFEstimator:
         self.core.keep_good()
         self._last_estimate = tuple(self.state6())
         return Estimate(*self._last_estimate)
+
+    def _prior(self, accel, moving: bool = False):
+        """(x, P): the state of a robot at rest from the accelerometer reading ``accel``
+        (f_x, f_y, f_z) m/s² (see :meth:`start`). ``moving``: the robot may be moving (a
+        re-initialisation, :meth:`_lost`): the speed is then known only to lie within
+        ±:data:`MAX_RIM_SPEED` (its uniform variance), and θ's variance takes in the
+        specific force's departure from g, the least acceleration the reading shows; without
+        a reading, θ is known only to lie in (−π/2, π/2)."""
+        spec_g = self.model.imu.gyro
+        x = np.zeros(N)
+        if accel is None:
+            theta0, var_theta, sc = 0.0, TILT_VAR_MAX, 0.0
+        else:
+            fx, _, fz = accel
+            theta0 = math.atan2(-fx, fz)
+            g = math.hypot(fx, fz)
+            # tan θ reads tan θ (1 + s_x)/(1 + s_z): the scale errors tilt it by sc (s_x − s_z)
+            sc = math.sin(theta0) * math.cos(theta0)
+            # (the accelerometer's turn-on bias is not θ's error: the filter's θ is the tilt less b/g,
+            # and the bias enters the reported covariance alone, see __init__)
+            var_theta = self._a_var / max(g, 1.0) ** 2 + 2.0 * sc * sc * self._a_sf
+            if moving:
+                dev = (g - self.model.g) / self.model.g
+                var_theta = min(var_theta + dev * dev, TILT_VAR_MAX)
+        x[TH] = x[C0] = theta0
+        x[AL] = self.alpha0
+        bias_var = spec_g.turn_on_bias ** 2 + 1e-12
+        # where the encoders' first edges lie is unknown: a constant offset of variance
+        # Δ²/12 per wheel, Δ²/24 in the mean and in the half-difference
+        edge_var = self.delta ** 2 / 24.0
+        g_sf, a_sf = self._g_sf + 1e-12, self._a_sf + 1e-12
+        v_var = MAX_RIM_SPEED ** 2 / 3.0 if moving else 1e-12
+        P = np.diag([var_theta, 1e-12, v_var, 1e-12, bias_var, bias_var, var_theta + edge_var,
+                     g_sf, edge_var, g_sf, a_sf, a_sf])
+        P[TH, C0] = P[C0, TH] = var_theta
+        for i in (TH, C0):
+            P[i, SAX] = P[SAX, i] = -sc * self._a_sf
+            P[i, SAZ] = P[SAZ, i] = sc * self._a_sf
+        return x, P
 
     def step(self, meas, command) -> Estimate:
         """Advance to the next control instant.
@@ -869,6 +902,7 @@ class EKFEstimator:
 
     def _advance(self, m: int, t: float) -> None:
         """Predict from the filter's time to t_m and update with the encoders there."""
+        self._at = m
         g, a = self._gyro.get(m), self._acc.get(m)
         imu = None if g is None or a is None else (g, a)
         if imu is not None and self.imu_sampling == "point":
@@ -1122,7 +1156,12 @@ class EKFEstimator:
                 self.in_row = 0
                 self.accepted["encoders"] += 1
                 self._last_enc, self._last_enc_m = tuple(enc), m
-        if not ok:
+        if ok < 0:  # finite but out of its physical range: re-initialised here
+            self.core.pull()
+            self._lost(t)
+            self.core.push()
+            self.core.keep_good()
+        elif not ok:
             self.resets += 1
             self.events.append((t, "the state or covariance became non-finite or lost positivity, or the update "
                                    "failed numerically; restored the last good estimate"))
@@ -1164,6 +1203,19 @@ class EKFEstimator:
             self._dp = np.zeros(K)
         x, w, wp = kf.x, self.core.w, self.core.w_prev
         rep = (True,) * 4 if rail is None else rail[1]
+        # θ̇ and α̇ are the last two readings' linear extrapolation, 1.5 ω − 0.5 ω₋₁, exact only
+        # for a rate linear over the two periods; where the model first stands in for a gyro axis
+        # (its readings were used up to now) that extrapolation starts the model. Its error is
+        # unknown but of the order of its own reach ½ (ω − ω₋₁): uniform within that, variance
+        # (ω − ω₋₁)²/12, carried by ω₋₁ (weight ½ in the rate). At the start of a catch from
+        # 0.35–0.45 rad (the torque stepping in, the gyro clipping in the next period) the
+        # extrapolation was 0.93 rad/s short at σ 0.003, the model's θ 0.13 rad off at σ 0.023,
+        # and the encoder zero kept ±10 mrad of it for good (mean NEES 29 over 10 logs; 18 with it)
+        for i in (0, 1):
+            if rep[i] and (self._aug is None or not self._model_rate[i]):
+                dw = self.core.w[i] - self.core.w_prev[i]
+                Pa[N + 2 + i, N + 2 + i] += dw * dw / 3.0
+        self._model_rate = rep[:2]
         s6 = self.state6(x, w, wp)
         raw = self.model.synthetic_imu(s6, command, self.every)
         syn = self._scaled(x, raw)
@@ -1325,10 +1377,54 @@ class EKFEstimator:
         kf = self.kf
         kf.P = 0.5 * (kf.P + kf.P.T)
         if np.isfinite(kf.x).all() and np.isfinite(kf.P).all() and (np.diag(kf.P) > 0).all():
+            if not self._in_range(kf.x, kf.P):
+                self._lost(t)
             self.core.keep_good()
         else:
             self._restore(t, "the state or covariance became non-finite or lost positivity; "
                              "restored the last good estimate")
+
+    @staticmethod
+    def _in_range(x, P) -> bool:
+        """The state within its physical range (as the compiled kernel's ``in_range``): |θ| below
+        :data:`TILT_LIMIT`, θ's variance below :data:`TILT_VAR_MAX`, P positive definite."""
+        return abs(x[TH]) < TILT_LIMIT and P[TH, TH] < TILT_VAR_MAX and positive_definite(P)
+
+    def _lost(self, t: float) -> None:
+        """The estimate left its physical range (:meth:`_in_range`): re-initialise it, logged.
+
+        Going on from such a state only diverges further (the heading's secant, then the
+        speed, run away) and restoring the last good state, just as close to the edge, repeats
+        the divergence with the covariance inflated each time. So the filter starts again as
+        :meth:`start` does, from the accelerometer's reading at the filter's time, but for a
+        robot that may be moving (:meth:`_prior` with ``moving``); ψ and α keep their
+        estimates (α's variance capped at :data:`HEADING_VAR_MAX`, a uniform angle's), the
+        encoder zeros are placed so that the last counts used are predicted, and the sensors'
+        constants start again from their priors (what they were fitted to while the filter
+        diverged teaches nothing)."""
+        kf = self.kf
+        x_old, P_old = kf.x, kf.P
+        acc = self._acc.get(self._at)
+        if acc is None and self._last_imu is not None:
+            acc = self._last_imu[1]
+        x, P = self._prior(acc, moving=True)
+        for i in (PS, AL):
+            if math.isfinite(x_old[i]):
+                x[i] = x_old[i]
+        pa = P_old[AL, AL]
+        P[AL, AL] = min(pa, HEADING_VAR_MAX) if pa > 0.0 else HEADING_VAR_MAX
+        enc = self._last_enc
+        if enc is not None:  # the counts ψ − θ + c ± (b/r (α − α0) + h) (self.H)
+            x[C0] = 0.5 * (enc[0] + enc[1]) - x[PS] + x[TH]
+            x[H0] = 0.5 * (enc[1] - enc[0]) - self.b_r * (x[AL] - self.alpha0)
+            P[H0, H0] += self.b_r * self.b_r * P[AL, AL]
+            P[H0, AL] = P[AL, H0] = -self.b_r * P[AL, AL]
+        kf.x, kf.P = x, P
+        self._aug = None
+        # (an event, not one of the ``resets``: those count restorations of the last good state)
+        self.events.append((t, "the estimate left its physical range (|θ| ≥ π/2, θ's variance beyond a tilt's "
+                               "whole range, or a covariance no longer positive definite): re-initialised from the "
+                               "accelerometer, the robot taken as possibly moving"))
 
     def _encoder_fit(self, enc, m: int, pred, P, test: bool = False):
         """(measurement, NIS) of encoder sample ``enc`` at t_m against the prior of
