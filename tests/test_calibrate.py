@@ -135,9 +135,13 @@ def test_a_validation_log_of_another_robot_is_one_line(logs, tmp_path):
     assert "another robot" in r.stderr and "wheel_radius" in r.stderr
 
 
-def test_two_logs_are_one_line(logs, tmp_path):
+def test_one_log_twice_and_the_twins_stepping_on_two_logs_are_one_line(logs, tmp_path):
+    # several logs of one robot are one fit (tests/test_calibrate_foreign.py); the same log twice is not
     r = _twin("calibrate", str(logs[0]), str(logs[0]), "--out", str(tmp_path / "c"))
-    assert r.returncode == 2 and "one log" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    assert r.returncode == 2 and "given twice" in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    r = _twin("calibrate", str(logs[0]), str(logs[1]), "--model", "twin", "--out", str(tmp_path / "c"))
+    assert r.returncode == 2 and "fits one log" in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert not (tmp_path / "c").exists()
 
 
 def test_motor_figures_need_motors_and_the_dead_band_is_refused(logs):

@@ -1063,24 +1063,32 @@ def check(targets, controller, seeds, workers, overrides, junit, record, golden,
                    "readings (repeatable).")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
               help="Seed of the bootstrap over windows.")
+@click.option("--model", "model_kind", type=click.Choice(["auto", "physical", "twin"]), default="auto",
+              show_default=True,
+              help="physical: the robot's continuous equations (its physical parameters; several logs); twin: the "
+                   "PyBullet twin's stepping (one log); auto: twin for one log the twin wrote, else physical.")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=Path("runs/calibration"),
               show_default=True, help="Output directory: report.json, calibration.toml, figure.png, manifest.json.")
 @click.option("--list", "list_", is_flag=True, help="List the parameters that can be fitted, with their units.")
-def calibrate(logs, parameters, held_out, seed, out, list_):
-    """Calibrate the twin from a robot's sensor log: fit the plant's and the IMU's parameters.
+def calibrate(logs, parameters, held_out, seed, model_kind, out, list_):
+    """Calibrate the robot from its sensor logs: its physical parameters, and the twin that runs it.
 
-    LOG is a sensor log (a robot's, or the twin's from 'twin run --log-sensors'). Each 0.1 s
-    window of it is simulated from its own fitted start state with the log's drive, and the
-    parameters that make the simulated IMU and encoder readings match the log's are found by
-    least squares (scipy), with 95 % intervals, correlations and a warning for each parameter the
-    log does not excite. --validate compares the nominal and the calibrated twin on held-out
-    logs. Writes report.json, calibration.toml (for 'twin run SCENARIO --plant
-    calibration.toml') and figure.png into --out.
+    LOG is a sensor log (a robot's, or the twin's from 'twin run --log-sensors'); several LOGs of
+    one robot are fitted together (shared physical parameters, each log's own IMU constants). Each
+    0.1 s window is simulated from its own fitted start state with the log's drive, by the
+    robot's continuous equations (RK4 at 1 kHz or more, with its motors), and the parameters that
+    make the simulated IMU and encoder readings match the logs' are found by least squares, with
+    95 % intervals, correlations and a warning for each parameter the logs do not excite. The
+    twin's parameters that reproduce that robot (its stepping differs) go to calibration.toml.
+    --validate compares the nominal and the calibrated robot on held-out logs and says whether
+    their parameters are the calibrated robot's. Writes report.json, calibration.toml (for 'twin
+    run SCENARIO --plant calibration.toml') and figure.png into --out.
 
     \b
     Examples:
       twin run paper-exp3 --log-sensors --no-video --out runs/exp3
       twin calibrate runs/exp3/sensor-logs/it2 --out runs/calibration
+      twin calibrate robot/log1 robot/log2 --validate robot/log3 --out runs/calibration
       twin calibrate runs/exp3/sensor-logs/it2 --parameters m_b,l,n_yb,d_b,d_w --validate runs/exp3b/sensor-logs/it2
       twin run paper-exp3 --plant runs/calibration/calibration.toml
     """
@@ -1091,7 +1099,8 @@ def calibrate(logs, parameters, held_out, seed, out, list_):
             click.echo(f"  {name:15} {p.unit:10} {p.group:6} {p.doc}")
         return
     from twin.calibrate import identify, output
-    from twin.calibrate.run import TURN_RATE, calibrate as fit_logs
+    from twin.calibrate.robot import same_geometry, to_twin, validate_physical
+    from twin.calibrate.run import TURN_RATE, calibrate as fit_logs, model_for
     from twin.calibrate.validate import same_robot, validate
     from twin.logs.format import read_log
     from twin.outputs import report, rundir
@@ -1100,21 +1109,34 @@ def calibrate(logs, parameters, held_out, seed, out, list_):
     if not logs:
         raise TwinError("twin calibrate needs a LOG (a sensor log's directory); 'twin calibrate --list' names the "
                         "parameters")
-    if len(logs) > 1:
-        raise TwinError(f"twin calibrate takes one log ({len(logs)} given): the IMU's biases change at every "
-                        f"power-up, and one fit per log keeps them apart; give the others to --validate")
-    log = read_log(logs[0])
+    seen = {}
+    for p in logs:  # one log twice would count its information twice
+        key = Path(p).resolve()
+        if key in seen:
+            raise TwinError(f"twin calibrate: the log {p} is given twice (as {seen[key]}); give each log once")
+        seen[key] = p
+    read = [read_log(p) for p in logs]
+    log = read[0]
+    for other in read[1:]:
+        same_geometry(log, other)
+    kind = model_for(read, model_kind)
     held = [read_log(p) for p in held_out]
     for h in held:
-        same_robot(log, h)
+        same_robot(log, h) if kind == "twin" else same_geometry(log, h)
     with rundir.written_whole(out, "twin calibrate") as path:
-        click.echo(f"{log.path}: {log.duration:g} s at {log.control_rate:g} Hz")
-        cal = fit_logs([log], names, seed=seed, progress=lambda m: click.echo(f"  {m}"))
+        for lg in read:
+            click.echo(f"{lg.path}: {lg.duration:g} s at {lg.control_rate:g} Hz")
+        cal = fit_logs(read, names, seed=seed, progress=lambda m: click.echo(f"  {m}"), model=kind)
         params, warnings, corr = identify.assess(cal, TURN_RATE)
-        val = validate(cal, held) if held else None
-        doc = output.report_doc(cal, params, warnings, corr, output.strip_private(val), seed)
+        twin = None
+        if kind == "physical":
+            twin = to_twin(cal, params)
+            val = validate_physical(cal, held, progress=lambda m: click.echo(f"  {m}")) if held else None
+        else:
+            val = validate(cal, held) if held else None
+        doc = output.report_doc(cal, params, warnings, corr, output.strip_private(val), seed, twin)
         report.write_json(doc, path / "report.json")
-        (path / "calibration.toml").write_text(output.calibration_toml(cal, params), encoding="utf-8")
+        (path / "calibration.toml").write_text(output.calibration_toml(cal, params, twin), encoding="utf-8")
         output.write_figure(cal, params, val, path / "figure.png")
     click.echo(f"  {'parameter':15}{'value':>13}{'95 % interval':>28}  unit")
     for n, e in params.items():
@@ -1126,6 +1148,19 @@ def calibrate(logs, parameters, held_out, seed, out, list_):
                    f"{v['nominal']['rms_sigma']:.3g} σ, calibrated {v['calibrated']['rms_sigma']:.3g} σ (1 σ: the "
                    f"readings' noise); the model's own error {v['ratio']:.2f}× smaller calibrated ({v['windows']} "
                    f"windows)")
+        if "same_robot" in v:
+            sr = v["same_robot"]
+            zs = ", ".join(f"{n} z {e['z']:+.1f}" for n, e in sr["parameters"].items())
+            click.echo(f"  {v['log']} calibrated alone: {'the same robot' if sr['consistent'] else 'NOT the same robot'}"
+                       f" by its parameters ({zs}; |z| < {sr['z_limit']:g})")
+    if twin is not None and twin["values"] is None:
+        click.echo(f"  warning: no twin reproduces this robot: {twin['why']}")
+    elif twin is not None:
+        tw = twin["values"]
+        click.echo(f"  in the twin ({twin['control_rate_hz']:g} Hz control, {twin['physics_rate_hz']:g} Hz physics): "
+                   + ", ".join(f"{n} {_sig(tw[n])}" for n in ("m_b", "l", "n_yb", "n_zb", "n_wa"))
+                   + f" (trajectory misfit {twin['rms_misfit']['mapped']:.3g}, the robot's own parameters "
+                     f"{twin['rms_misfit']['unmapped']:.3g})")
     for line in warnings:
         click.echo(f"  warning: {line}")
     click.echo(f"  {doc['method']['windows']} windows fitted ({len(cal.dropped)} left out), residual σ "

@@ -32,7 +32,7 @@ from twin.calibrate.parameters import PARAMETERS
 RELATIVE_HALF_WIDTH = 0.5
 SENSOR_HALF_WIDTH = {"gyro_bias_x": 0.005, "gyro_bias_y": 0.005, "gyro_bias_z": 0.005,  # rad/s
                      "accel_bias_x": 0.05,  # m/s²
-                     "gyro_scale_y": 0.01, "gyro_scale_z": 0.01, "accel_scale_x": 0.01, "accel_scale_z": 0.01}
+                     "gyro_scale_x": 0.01, "gyro_scale_y": 0.01, "gyro_scale_z": 0.01, "accel_scale_x": 0.01, "accel_scale_z": 0.01}
 # sensor constants that also take up a model error, so that their interval does not bound the
 # sensor's own value: the forward accelerometer's scale absorbs the forward-acceleration model's
 # error (the contact's effective rolling radius); on the twenty test robots its interval missed
@@ -58,6 +58,7 @@ def assess(cal, turn_rate: float) -> tuple[dict, list, dict]:
     params, warnings, spread = {}, [], {}
     for j, n in enumerate(plant.names):
         v = f.values[n]
+        bn = n.split("@", 1)[0]  # a sensor constant of the k-th log is named NAME@k
         # a physical parameter is fitted as ln(factor): its errors are relative, sd(value) = value × sd(ln)
         unit_scale = v if plant.scaled(n) else 1.0
         sources = {"jacobian": math.sqrt(max(cal.C_jacobian[j, j], 0.0)) * unit_scale,
@@ -72,22 +73,22 @@ def assess(cal, turn_rate: float) -> tuple[dict, list, dict]:
             if (ci[1] - ci[0]) / 2.0 > RELATIVE_HALF_WIDTH * v:
                 why = (f"its 95 % interval is {ci[0] / v:.2g}× to {ci[1] / v:.2g}× the value (allowed: a half-width "
                        f"of {RELATIVE_HALF_WIDTH:.0%})")
-            if n == "n_zb" and cal.max_turn_rate < turn_rate:
+            if bn == "n_zb" and cal.max_turn_rate < turn_rate:
                 why = (f"the log never turns (|α̇| at most {cal.max_turn_rate:.3g} rad/s, below {turn_rate:g}): "
                        f"nothing excites the yaw inertia")
         else:
             hw = tq * se
             ci = [v - hw, v + hw]
-            if hw > SENSOR_HALF_WIDTH[n]:
-                unit = "" if PARAMETERS[n].unit == "1" else f" {PARAMETERS[n].unit}"
-                why = f"its 95 % interval is ±{hw:.3g}{unit} (allowed: ±{SENSOR_HALF_WIDTH[n]:g}{unit})"
-            elif n in ABSORBS_MODEL_ERROR:
-                why = ABSORBS_MODEL_ERROR[n]
+            if hw > SENSOR_HALF_WIDTH[bn]:
+                unit = "" if PARAMETERS[bn].unit == "1" else f" {PARAMETERS[bn].unit}"
+                why = f"its 95 % interval is ±{hw:.3g}{unit} (allowed: ±{SENSOR_HALF_WIDTH[bn]:g}{unit})"
+            elif bn in ABSORBS_MODEL_ERROR:
+                why = ABSORBS_MODEL_ERROR[bn]
         if sources["jacobian"] > 0 and sources["bootstrap"] > BOOTSTRAP_RATIO * sources["jacobian"]:
             spread[n] = sources["bootstrap"] / sources["jacobian"]
-        params[n] = {"value": v, "ci95": ci, "unit": PARAMETERS[n].unit, "identifiable": why is None,
+        params[n] = {"value": v, "ci95": ci, "unit": PARAMETERS[bn].unit, "identifiable": why is None,
                      "standard_error": se, "standard_error_sources": sources, "nominal": plant.base(n),
-                     "doc": PARAMETERS[n].doc}
+                     "doc": PARAMETERS[bn].doc + (f" (log {n.split('@')[1]})" if bn != n else "")}
         if why:
             params[n]["why"] = why
             warnings.append(f"{n} is not identified by this log: {why}")
@@ -96,9 +97,15 @@ def assess(cal, turn_rate: float) -> tuple[dict, list, dict]:
                            f"{max(spread.values()):.1f}× the Jacobian's error for {', '.join(spread)}: a few stretches "
                            f"(a catch, a push) carry most of the information; those intervals are the bootstrap's")
     if "imu_latency" in cal.names:
-        params["imu_latency"] = latency_entry(cal)
-        if not params["imu_latency"]["identifiable"]:
-            warnings.append(f"imu_latency is not identified by this log: {params['imu_latency']['why']}")
+        per_log = getattr(cal, "latency_profiles", None) or [cal.latency_costs]
+        lats = getattr(cal, "latencies", None) or [cal.imu_latency]
+        rates = [float(s.control_rate) for s in cal.streams] if len(cal.streams) == len(lats) else \
+            [cal.fit.plant.control_rate] * len(lats)
+        for i, (costs, d, rate) in enumerate(zip(per_log, lats, rates)):
+            name = "imu_latency" if i == 0 else f"imu_latency@{i + 1}"
+            params[name] = latency_entry(cal, costs, d, rate)
+            if not params[name]["identifiable"]:
+                warnings.append(f"{name} is not identified by this log: {params[name]['why']}")
     C = correlation(cal.C_jacobian)
     names = list(plant.names)
     for a in range(k):
@@ -110,12 +117,13 @@ def assess(cal, turn_rate: float) -> tuple[dict, list, dict]:
     return params, warnings, {"names": names, "matrix": [[float(x) for x in row] for row in C]}
 
 
-def latency_entry(cal) -> dict:
+def latency_entry(cal, costs=None, best=None, control_rate=None) -> dict:
     """The IMU latency: the whole number of periods with the lowest cost, and as its interval the
-    latencies whose cost is within the χ²(1) 95 % point (3.84 × s², in Σ r²) of it."""
-    T = 1.0 / cal.fit.plant.control_rate
-    costs = cal.latency_costs
-    best = cal.imu_latency
+    latencies whose cost is within the χ²(1) 95 % point (3.84 × s², in Σ r²) of it (one log's:
+    ``costs`` by latency in periods, ``best``, ``control_rate`` Hz; default the first log's)."""
+    T = 1.0 / (cal.fit.plant.control_rate if control_rate is None else control_rate)
+    costs = cal.latency_costs if costs is None else costs
+    best = cal.imu_latency if best is None else best
     if not costs:
         return {"value": best * T, "ci95": [best * T, best * T], "unit": "s", "identifiable": False,
                 "why": "not profiled", "standard_error": None}

@@ -7,9 +7,11 @@
 
 ``calibration.toml``: the twin's true plant and sensors as a scenario takes them —
 ``[plant] scale`` (factors of Table III, :data:`twin.params.NOMINAL`, for the identified
-physical parameters) and ``[sensors] imu_latency`` — for ``twin run SCENARIO --plant
-calibration.toml`` or ``--set``; the fitted sensor constants, the motor figures and the
-provenance are in ``[calibration]`` (read by nothing but people).
+physical parameters; for a calibration of the robot, the twin's values that reproduce it,
+:func:`twin.calibrate.robot.to_twin`, with the wheels' compensation) and ``[sensors]
+imu_latency`` — for ``twin run SCENARIO --plant calibration.toml`` or ``--set``; the robot's
+own physical values, the fitted sensor constants, the motor figures and the provenance are in
+``[calibration]`` (read by nothing but people).
 """
 from __future__ import annotations
 
@@ -24,18 +26,20 @@ from twin.errors import TwinError
 SCALE_RANGE = (0.2, 5.0)  # plant.scale's allowed factors (twin/scenarios/schema.py)
 
 
-def report_doc(cal, params: dict, warnings: list, corr: dict, validation, seed: int) -> dict:
+def _base(n: str) -> str:
+    return n.split("@", 1)[0]
+
+
+def report_doc(cal, params: dict, warnings: list, corr: dict, validation, seed: int, twin=None) -> dict:
     f = cal.fit
     st = f.windows.streams
+    if getattr(cal, "model_kind", "twin") == "physical":
+        return _physical_doc(cal, params, warnings, corr, validation, seed, twin)
     return {
-        "format": 1,
-        "command": "twin calibrate",
-        "logs": cal.logs,
-        "parameters": params,
-        "correlation": corr,
-        "warnings": warnings,
+        **_head(cal, params, corr, warnings),
         "method": {
-            "model": "the PyBullet twin's stepping of equation (1) (twin.calibrate.model.step_windows)",
+            "model": "the PyBullet twin's stepping of equation (1) (twin.calibrate.model.step_windows): the log is "
+                     "the twin's own, and that stepping is its robot's dynamics exactly",
             "physics_rate_hz": f.plant.physics_rate, "control_rate_hz": f.plant.control_rate,
             "window_s": f.windows.periods / f.plant.control_rate, "windows": f.windows.count,
             "windows_in_log": cal.windows_total, "windows_left_out_at_s": cal.dropped,
@@ -48,8 +52,56 @@ def report_doc(cal, params: dict, warnings: list, corr: dict, validation, seed: 
     }
 
 
-def calibration_toml(cal, params: dict) -> str:
-    """The text of calibration.toml (see the module docstring)."""
+def _head(cal, params, corr, warnings) -> dict:
+    """report.json's first keys, whichever model was fitted."""
+    return {"format": 1, "command": "twin calibrate", "logs": cal.logs, "parameters": params, "correlation": corr,
+            "warnings": warnings}
+
+
+def _physical_doc(cal, params, warnings, corr, validation, seed, twin) -> dict:
+    from twin.calibrate.physical import substeps
+
+    f = cal.robot_fit
+    groups = f.groups
+    return {
+        **_head(cal, params, corr, warnings),
+        "twin": twin,
+        "method": {
+            "model": "the robot's continuous equations: equation (1) with the yaw coupling, by RK4 at "
+                     "the integration rate, the motors (torque = duty × stall torque − c_e × the wheel's speed "
+                     "relative to the body, or ideal torque sources), the commands held or sampled as the log "
+                     "says (twin.calibrate.physical)",
+            "physical": True,
+            "per_log": [{"log": str(g.log.path), "control_rate_hz": g.rate,
+                         "integration_rate_hz": substeps(g.rate) * g.rate, "window_s": g.periods / g.rate,
+                         "window_periods": g.periods, "windows": g.count,
+                         "commands": "sampled" if g.sampled else "held",
+                         "drive": "duty" if g.motor is not None else "torque",
+                         "imu_sampling": "point" if g.point else "mean",
+                         "twin_log": bool(_lags(g.log))} for g in groups],
+            "control_rate_hz": groups[0].rate, "physics_rate_hz": substeps(groups[0].rate) * groups[0].rate,
+            "window_s": groups[0].periods / groups[0].rate, "windows": sum(g.count for g in groups),
+            "windows_in_log": cal.windows_total, "windows_left_out_at_s": cal.dropped,
+            "residual_sigma": math.sqrt(cal.info.s2), "degrees_of_freedom": cal.info.dof,
+            "solver": "Levenberg–Marquardt, window states eliminated per window (Schur complement), "
+                      "forward-difference Jacobian in one batch (twin.calibrate.robot)",
+            "iterations": f.iterations,
+            "bootstrap_replicates": int(len(cal.boot)), "seed": seed, "wall_s": cal.wall_s,
+        },
+        "validation": validation,
+    }
+
+
+def _lags(log):
+    from twin.calibrate.robot import twin_lags
+
+    return twin_lags(log)
+
+
+def calibration_toml(cal, params: dict, twin=None) -> str:
+    """The text of calibration.toml (see the module docstring). ``twin``: for a calibration of the
+    robot (the physical model), :func:`twin.calibrate.robot.to_twin`'s mapping, whose values
+    become [plant] scale (the robot brought into the twin's stepping)."""
     from twin.params import NOMINAL
 
     lines = ["# Written by 'twin calibrate'. 'twin run SCENARIO --plant calibration.toml' runs this robot:",
@@ -58,17 +110,40 @@ def calibration_toml(cal, params: dict) -> str:
               f"fitted = {json.dumps(list(params))}"]
     not_id = [n for n, e in params.items() if not e["identifiable"]]
     lines.append(f"not_identified = {json.dumps(not_id)}  # left at the nominal value in [plant]")
-    sensor = {n: e["value"] for n, e in params.items() if PARAMETERS[n].group == "imu" and n != "imu_latency"}
+    sensor = {n.replace("@", "_log"): e["value"] for n, e in params.items()
+              if PARAMETERS[_base(n)].group == "imu" and _base(n) != "imu_latency"}
     if sensor:
         lines.append("# the IMU's constants of the calibration log (the twin draws its own per run)")
         lines.append("imu = { " + ", ".join(f"{n} = {_num(v)}" for n, v in sensor.items()) + " }")
-    motor = {n: e["value"] for n, e in params.items() if PARAMETERS[n].group == "motor" and e["identifiable"]}
+    motor = {n: e["value"] for n, e in params.items() if PARAMETERS[_base(n)].group == "motor" and e["identifiable"]}
     if motor:
         lines.append("motor = { " + ", ".join(f"{n} = {_num(v)}" for n, v in motor.items()) + " }")
+    if twin is not None and twin.get("values") is None:  # no rigid-body twin reproduces it
+        lines.append(f"# the twin cannot be given this robot ({twin.get('why')}): [plant] holds its physical values")
+        twin = None
+    if twin is not None:
+        phys = {n: e["value"] for n, e in params.items() if PARAMETERS[_base(n)].group == "plant"}
+        lines.append("# the robot's physical parameters (SI), as fitted; [plant] holds the twin's that reproduce them")
+        lines.append("physical = { " + ", ".join(f"{n} = {_num(v)}" for n, v in phys.items()) + " }")
+        lines.append(f"# the twin's stepping at {twin['control_rate_hz']:g} Hz control, {twin['physics_rate_hz']:g} Hz "
+                     f"physics (twin.calibrate.robot.to_twin)")
+        lines.append(f"twin_rates = [{_num(twin['control_rate_hz'])}, {_num(twin['physics_rate_hz'])}]")
     lines.append("")
     scale = {}
-    for n, e in params.items():
-        if PARAMETERS[n].group == "plant" and e["identifiable"]:
+    entries = dict(params)
+    if twin is not None:  # the twin's values for the identified parameters, and its wheels' compensation
+        entries = {n: dict(e, value=twin["values"][n]) for n, e in params.items() if n in twin["values"]}
+        for n in ("n_wa", "n_wd"):  # the wheels: the twin's compensation (not fitted)
+            factor = twin["values"][n] / getattr(NOMINAL, n)
+            if abs(factor - 1.0) <= 1e-9:
+                continue
+            if not SCALE_RANGE[0] <= factor <= SCALE_RANGE[1]:  # a robot whose wheels are far from Table III's
+                lines.append(f"# the twin's {n} = {_num(twin['values'][n])} kg·m² is {factor:.3g} × Table III's, "
+                             f"outside plant.scale's range: left out of [plant]")
+                continue
+            entries[n] = {"value": twin["values"][n], "identifiable": True, "unit": "kg·m²"}
+    for n, e in entries.items():
+        if n in PARAMETERS and PARAMETERS[n].group == "plant" and e["identifiable"] or n in ("n_wa", "n_wd"):
             factor = e["value"] / getattr(NOMINAL, n)
             if not SCALE_RANGE[0] <= factor <= SCALE_RANGE[1]:
                 raise TwinError(f"the fitted {n} = {e['value']:.4g} {e['unit']} is {factor:.3g} × Table III's, outside "
@@ -155,7 +230,7 @@ def write_figure(cal, params: dict, validation, path) -> None:
     b.set_ylabel("residual / σ")
     # (c) intervals of the physical parameters as factors of the log's model
     c = ax[1, 0]
-    phys = [n for n in f.plant.names if PARAMETERS[n].group in ("plant", "motor")]
+    phys = [n for n in f.plant.names if PARAMETERS[_base(n)].group in ("plant", "motor")]
     for k, n in enumerate(phys):
         e = params[n]
         base = e["nominal"]

@@ -44,6 +44,8 @@ _ALL = (
     Parameter("gyro_bias_y", "rad/s", "imu", "gyro bias, pitch axis", None),
     Parameter("gyro_bias_z", "rad/s", "imu", "gyro bias, yaw axis", None),
     Parameter("accel_bias_x", "m/s²", "imu", "accelerometer bias, forward axis", None),
+    Parameter("gyro_scale_x", "1", "imu", "gyro scale-factor error, roll axis (the continuous model only: the roll "
+              "gyro reads −α̇ sin θ while the robot turns leaning)", None),
     Parameter("gyro_scale_y", "1", "imu", "gyro scale-factor error, pitch axis (reading = (1 + s) × rate)", None),
     Parameter("gyro_scale_z", "1", "imu", "gyro scale-factor error, yaw axis", None),
     Parameter("accel_scale_x", "1", "imu", "accelerometer scale-factor error, forward axis", None),

@@ -1,4 +1,8 @@
-"""``twin calibrate``'s procedure: a log in, fitted parameters with their intervals out.
+"""``twin calibrate``'s procedure: logs in, fitted parameters with their intervals out.
+
+By default (:func:`model_for`) the robot's continuous equations fit its physical parameters
+(:mod:`twin.calibrate.robot`); a log the twin wrote itself is fitted by the twin's own stepping,
+the procedure below (one log):
 
 1. The log on its control instants, the EKF replayed on it for the windows' first start states
    (:mod:`twin.calibrate.windows`).
@@ -69,6 +73,7 @@ class Calibration:
     logs: list
     streams: list = field(repr=False, default_factory=list)
     max_turn_rate: float = 0.0
+    model_kind: str = "twin"
 
 
 def check_names(names, logs, log_objs):
@@ -87,14 +92,42 @@ def check_names(names, logs, log_objs):
     return turns
 
 
+MODELS = ("auto", "physical", "twin")
+
+
+def model_for(log_objs, model: str = "auto") -> str:
+    """Which model fits ``log_objs``: ``"physical"`` (the robot's continuous equations,
+    :mod:`twin.calibrate.robot`) or ``"twin"`` (the PyBullet twin's stepping, one log). ``"auto"``:
+    the twin's stepping for one log the twin wrote itself (that stepping *is* its robot's dynamics,
+    exactly), the physical model for anything else."""
+    from twin.calibrate.robot import twin_lags
+
+    if model not in MODELS:
+        raise TwinError(f"--model must be one of {', '.join(MODELS)}, got {model!r}")
+    if model == "auto":
+        return "twin" if len(log_objs) == 1 and twin_lags(log_objs[0]) is not None else "physical"
+    if model == "twin" and len(log_objs) != 1:
+        raise TwinError(f"--model twin fits one log ({len(log_objs)} given): the twin's stepping is fitted to one "
+                        f"log at a time; several logs of one robot are fitted by --model physical")
+    return model
+
+
 def calibrate(log_objs, names=None, physics_rate: float | None = None, seed: int = 0,
-              periods: int = WINDOW_PERIODS, bootstrap: int = BOOTSTRAP, progress=None) -> Calibration:
-    """Fit ``names`` (default :func:`default_names`) to the logs (:class:`~twin.logs.format.SensorLog`)."""
+              periods: int | None = None, bootstrap: int = BOOTSTRAP, progress=None, model: str = "auto"):
+    """Fit ``names`` (default :func:`default_names`) to the logs (:class:`~twin.logs.format.SensorLog`):
+    by the robot's continuous equations (:func:`twin.calibrate.robot.calibrate_robot`, several logs
+    of one robot) or by the twin's stepping (one log; :func:`model_for` chooses for ``"auto"``)."""
+    if model_for(log_objs, model) == "physical":
+        from twin.calibrate.robot import calibrate_robot
+
+        return calibrate_robot(log_objs, names, seed=seed, bootstrap=bootstrap, progress=progress)
     say = progress or (lambda msg: None)
     t_start = time.perf_counter()
-    if len(log_objs) != 1:
-        raise TwinError("calibrate one log at a time for now (the IMU's biases differ per power-up)")
     log = log_objs[0]
+    if periods is None:  # windows sized in seconds (WINDOW_PERIODS at 200 Hz)
+        from twin.calibrate.robot import window_periods
+
+        periods = window_periods(log.control_rate)
     if physics_rate is None:
         physics_rate = float(log.scenario.data["rates"]["physics"]) if log.scenario is not None else 1000.0
     st = streams(log)
@@ -166,4 +199,4 @@ def calibrate(log_objs, names=None, physics_rate: float | None = None, seed: int
                        time.perf_counter() - t_start, [str(log.path)], [st], max_turn)
 
 
-__all__ = ["BOOTSTRAP", "Calibration", "LATENCIES", "MIN_WINDOWS", "calibrate", "default_names"]
+__all__ = ["BOOTSTRAP", "Calibration", "LATENCIES", "MIN_WINDOWS", "MODELS", "calibrate", "default_names", "model_for"]

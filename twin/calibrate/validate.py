@@ -33,7 +33,8 @@ FIT_PERIODS = 10  # periods whose readings set the start state (0.05 s at 200 Hz
 HORIZON_PERIODS = 20  # periods predicted (0.1 s at 200 Hz)
 STRIDE_PERIODS = 10  # a window starts every 0.05 s: overlapping, so that no stretch of the log goes unpredicted
 # the manifest's figures two logs of one robot share
-SAME_ROBOT = ("control_rate", "wheel_radius", "track", "encoder_counts", "imu_position", "robot", "motor")
+# (not the logging rate: one robot may be logged at 30 Hz one day and at 1 kHz the next)
+SAME_ROBOT = ("wheel_radius", "track", "encoder_counts", "imu_position", "robot", "motor")
 
 
 def same_robot(reference, log) -> None:
@@ -78,24 +79,30 @@ def validate(cal, logs) -> list[dict]:
         st = streams(log)
         a = prediction_errors(plant, nominal, log, cal.imu_latency, st)
         b = prediction_errors(plant, cal.fit.values, log, cal.imu_latency, st)
-        ok = a["ok"] | b["ok"]  # out only where neither twin can start (a push), not where one fails
-        entry = {"log": str(log.path), "windows": int(ok.sum()), "left_out": int((~ok).sum()),
-                 "fit_s": FIT_PERIODS / log.control_rate, "horizon_s": HORIZON_PERIODS / log.control_rate}
-        for name, e in (("nominal", a), ("calibrated", b)):
-            imu, enc = e["imu"][ok], e["enc"][ok]
-            norm = np.concatenate([(imu / e["sigma"]).ravel(), (enc / e["enc_sigma"]).ravel()])
-            entry[name] = {"rms_sigma": float(math.sqrt(np.mean(norm ** 2))),
-                           "rms": {ch: float(math.sqrt(np.mean(imu[..., i] ** 2))) for i, ch in enumerate(IMU_CHANNELS)}
-                           | {"encoders": float(math.sqrt(np.mean(enc ** 2)))},
-                           "units": {ch: ("rad/s" if ch.startswith("gyro") else "m/s²") for ch in IMU_CHANNELS}
-                           | {"encoders": "rad"}}
-            entry[name]["_horizon"] = _by_step(imu, enc, e)
-        for name in ("nominal", "calibrated"):
-            entry[name]["model_error_sigma"] = math.sqrt(max(entry[name]["rms_sigma"] ** 2 - 1.0, 0.0))
-        # the calibrated twin at the noise floor: the ratio is bounded by the floor's 1 % (not infinite)
-        entry["ratio"] = entry["nominal"]["model_error_sigma"] / max(entry["calibrated"]["model_error_sigma"], 0.01)
-        out.append(entry)
+        out.append(aggregate(log, a, b, FIT_PERIODS / log.control_rate, HORIZON_PERIODS / log.control_rate))
     return out
+
+
+def aggregate(log, a: dict, b: dict, fit_s: float, horizon_s: float) -> dict:
+    """One held-out log's entry from the nominal (``a``) and the calibrated (``b``) twin's prediction
+    errors (``imu`` (W, H, 5), ``enc`` (W, H, 2), ``ok`` (W,), ``sigma``, ``enc_sigma``)."""
+    ok = a["ok"] | b["ok"]  # out only where neither twin can start (a push), not where one fails
+    entry = {"log": str(log.path), "windows": int(ok.sum()), "left_out": int((~ok).sum()),
+             "fit_s": fit_s, "horizon_s": horizon_s}
+    for name, e in (("nominal", a), ("calibrated", b)):
+        imu, enc = e["imu"][ok], e["enc"][ok]
+        norm = np.concatenate([(imu / e["sigma"]).ravel(), (enc / e["enc_sigma"]).ravel()])
+        entry[name] = {"rms_sigma": float(math.sqrt(np.mean(norm ** 2))),
+                       "rms": {ch: float(math.sqrt(np.mean(imu[..., i] ** 2))) for i, ch in enumerate(IMU_CHANNELS)}
+                       | {"encoders": float(math.sqrt(np.mean(enc ** 2)))},
+                       "units": {ch: ("rad/s" if ch.startswith("gyro") else "m/s²") for ch in IMU_CHANNELS}
+                       | {"encoders": "rad"}}
+        entry[name]["_horizon"] = _by_step(imu, enc, e)
+    for name in ("nominal", "calibrated"):
+        entry[name]["model_error_sigma"] = math.sqrt(max(entry[name]["rms_sigma"] ** 2 - 1.0, 0.0))
+    # the calibrated twin at the noise floor: the ratio is bounded by the floor's 1 % (not infinite)
+    entry["ratio"] = entry["nominal"]["model_error_sigma"] / max(entry["calibrated"]["model_error_sigma"], 0.01)
+    return entry
 
 
 def _by_step(imu, enc, e) -> list:
@@ -106,4 +113,4 @@ def _by_step(imu, enc, e) -> list:
             for j in range(imu.shape[1])]
 
 
-__all__ = ["FIT_PERIODS", "HORIZON_PERIODS", "SAME_ROBOT", "prediction_errors", "same_robot", "validate"]
+__all__ = ["FIT_PERIODS", "HORIZON_PERIODS", "SAME_ROBOT", "aggregate", "prediction_errors", "same_robot", "validate"]
