@@ -1136,7 +1136,8 @@ def calibrate(logs, parameters, held_out, seed, model_kind, out, list_):
             val = validate(cal, held) if held else None
         doc = output.report_doc(cal, params, warnings, corr, output.strip_private(val), seed, twin)
         report.write_json(doc, path / "report.json")
-        (path / "calibration.toml").write_text(output.calibration_toml(cal, params, twin), encoding="utf-8")
+        toml_text = output.calibration_toml(cal, params, twin)
+        (path / "calibration.toml").write_text(toml_text, encoding="utf-8")
         output.write_figure(cal, params, val, path / "figure.png")
     click.echo(f"  {'parameter':15}{'value':>13}{'95 % interval':>28}  unit")
     for n, e in params.items():
@@ -1153,6 +1154,12 @@ def calibrate(logs, parameters, held_out, seed, model_kind, out, list_):
             zs = ", ".join(f"{n} z {e['z']:+.1f}" for n, e in sr["parameters"].items())
             click.echo(f"  {v['log']} calibrated alone: {'the same robot' if sr['consistent'] else 'NOT the same robot'}"
                        f" by its parameters ({zs}; |z| < {sr['z_limit']:g})")
+    import tomllib
+
+    limit = tomllib.loads(toml_text)["calibration"].get("twin_why")
+    if limit:
+        click.echo(f"  warning: the twin cannot run this robot: {limit}; calibration.toml records it, without "
+                   f"[plant]")
     if twin is not None and twin["values"] is None:
         click.echo(f"  warning: no twin reproduces this robot: {twin['why']}")
     elif twin is not None:

@@ -142,13 +142,21 @@ def calibration_toml(cal, params: dict, twin=None) -> str:
                              f"outside plant.scale's range: left out of [plant]")
                 continue
             entries[n] = {"value": twin["values"][n], "identifiable": True, "unit": "kg·m²"}
+    outside = []
     for n, e in entries.items():
         if n in PARAMETERS and PARAMETERS[n].group == "plant" and e["identifiable"] or n in ("n_wa", "n_wd"):
             factor = e["value"] / getattr(NOMINAL, n)
             if not SCALE_RANGE[0] <= factor <= SCALE_RANGE[1]:
-                raise TwinError(f"the fitted {n} = {e['value']:.4g} {e['unit']} is {factor:.3g} × Table III's, outside "
-                                f"the twin's plant.scale range [{SCALE_RANGE[0]:g}, {SCALE_RANGE[1]:g}]")
+                outside.append(f"{n} = {e['value']:.4g} {e['unit']} is {factor:.3g} × Table III's")
             scale[n] = factor
+    if outside:
+        # the calibration stands (report.json, [calibration] above); only the twin, Table III scaled,
+        # cannot run this robot: said here, and by 'twin run --plant' in one line
+        why = (f"{'; '.join(outside)}, outside the twin's plant.scale range [{SCALE_RANGE[0]:g}, "
+               f"{SCALE_RANGE[1]:g}] (the twin is Table III's robot scaled)")
+        lines.insert(lines.index("[calibration]") + 1, f"twin_runnable = false  # {why}")
+        lines.insert(lines.index("[calibration]") + 2, f"twin_why = {json.dumps(why, ensure_ascii=False)}")
+        return "\n".join(lines + [""])
     lines += ["[plant]", "# factors of Table III (twin.params.NOMINAL)",
               "scale = { " + ", ".join(f"{n} = {_num(v)}" for n, v in scale.items()) + " }", ""]
     if "imu_latency" in params and params["imu_latency"]["identifiable"]:
@@ -173,6 +181,9 @@ def plant_overrides(path) -> list[str]:
         raise TwinError(f"--plant {p}: no such file") from None
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise TwinError(f"--plant {p}: not a calibration.toml ({' '.join(str(exc).split())})") from None
+    if (doc.get("calibration") or {}).get("twin_runnable") is False:
+        raise TwinError(f"--plant {p}: the twin cannot run this calibrated robot: "
+                        f"{doc['calibration'].get('twin_why', 'outside the twin’s plant.scale range')}")
     if "plant" not in doc or "calibration" not in doc:
         raise TwinError(f"--plant {p}: not a calibration.toml (it needs the [calibration] and [plant] tables "
                         f"'twin calibrate' writes)")
