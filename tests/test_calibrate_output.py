@@ -1,4 +1,4 @@
-"""calibration.toml for a robot the twin cannot run (a parameter outside plant.scale's range of
+"""calibration.toml for a robot the twin cannot run (other wheels or track, or a parameter outside plant.scale's range of
 Table III): the calibration is kept and says so, and 'twin run --plant' refuses it in one line."""
 from __future__ import annotations
 
@@ -36,3 +36,12 @@ def test_a_robot_outside_the_range_is_kept_and_refused_in_one_line(tmp_path):
         output.plant_overrides(tmp_path / "c.toml")
     msg = str(exc.value)
     assert "\n" not in msg and "cannot run this calibrated robot" in msg and "n_zb" in msg
+
+
+def test_a_robot_with_other_wheels_or_track_is_not_given_to_the_twin():
+    same = tomllib.loads(output.calibration_toml(SimpleNamespace(logs=["a"]), _params(1.5),
+                                                 geometry=(NOMINAL.r, NOMINAL.b)))
+    assert "plant" in same and "twin_runnable" not in same["calibration"]
+    other = tomllib.loads(output.calibration_toml(SimpleNamespace(logs=["a"]), _params(1.5), geometry=(0.03, 0.08)))
+    assert "plant" not in other and other["calibration"]["twin_runnable"] is False
+    assert "wheel radius 0.03 m and track 0.16 m" in other["calibration"]["twin_why"]

@@ -1136,7 +1136,7 @@ def calibrate(logs, parameters, held_out, seed, model_kind, out, list_):
             val = validate(cal, held) if held else None
         doc = output.report_doc(cal, params, warnings, corr, output.strip_private(val), seed, twin)
         report.write_json(doc, path / "report.json")
-        toml_text = output.calibration_toml(cal, params, twin)
+        toml_text = output.calibration_toml(cal, params, twin, geometry=(read[0].model.r, read[0].model.b))
         (path / "calibration.toml").write_text(toml_text, encoding="utf-8")
         output.write_figure(cal, params, val, path / "figure.png")
     click.echo(f"  {'parameter':15}{'value':>13}{'95 % interval':>28}  unit")

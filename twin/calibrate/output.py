@@ -98,10 +98,12 @@ def _lags(log):
     return twin_lags(log)
 
 
-def calibration_toml(cal, params: dict, twin=None) -> str:
+def calibration_toml(cal, params: dict, twin=None, geometry: tuple | None = None) -> str:
     """The text of calibration.toml (see the module docstring). ``twin``: for a calibration of the
     robot (the physical model), :func:`twin.calibrate.robot.to_twin`'s mapping, whose values
-    become [plant] scale (the robot brought into the twin's stepping)."""
+    become [plant] scale (the robot brought into the twin's stepping). ``geometry``: the logs'
+    (wheel radius m, half track m); the twin's wheels and track are Table III's, so a robot with
+    others cannot be run by it (the file then says why, and has no [plant])."""
     from twin.params import NOMINAL
 
     lines = ["# Written by 'twin calibrate'. 'twin run SCENARIO --plant calibration.toml' runs this robot:",
@@ -130,30 +132,32 @@ def calibration_toml(cal, params: dict, twin=None) -> str:
         lines.append(f"twin_rates = [{_num(twin['control_rate_hz'])}, {_num(twin['physics_rate_hz'])}]")
     lines.append("")
     scale = {}
-    entries = dict(params)
+    entries = dict(params)  # a wheel inertia out of plant.scale's range: the twin cannot run the robot (below)
     if twin is not None:  # the twin's values for the identified parameters, and its wheels' compensation
         entries = {n: dict(e, value=twin["values"][n]) for n, e in params.items() if n in twin["values"]}
         for n in ("n_wa", "n_wd"):  # the wheels: the twin's compensation (not fitted)
             factor = twin["values"][n] / getattr(NOMINAL, n)
             if abs(factor - 1.0) <= 1e-9:
                 continue
-            if not SCALE_RANGE[0] <= factor <= SCALE_RANGE[1]:  # a robot whose wheels are far from Table III's
-                lines.append(f"# the twin's {n} = {_num(twin['values'][n])} kg·m² is {factor:.3g} × Table III's, "
-                             f"outside plant.scale's range: left out of [plant]")
-                continue
             entries[n] = {"value": twin["values"][n], "identifiable": True, "unit": "kg·m²"}
     outside = []
+    if geometry is not None:
+        r, b = geometry
+        if not (math.isclose(r, NOMINAL.r, rel_tol=1e-6) and math.isclose(b, NOMINAL.b, rel_tol=1e-6)):
+            outside.append(f"its wheel radius {r:.4g} m and track {2 * b:.4g} m are not the twin's "
+                           f"({NOMINAL.r:.4g} m, {2 * NOMINAL.b:.4g} m)")
     for n, e in entries.items():
         if n in PARAMETERS and PARAMETERS[n].group == "plant" and e["identifiable"] or n in ("n_wa", "n_wd"):
             factor = e["value"] / getattr(NOMINAL, n)
             if not SCALE_RANGE[0] <= factor <= SCALE_RANGE[1]:
                 outside.append(f"{n} = {e['value']:.4g} {e['unit']} is {factor:.3g} × Table III's")
+                continue
             scale[n] = factor
     if outside:
         # the calibration stands (report.json, [calibration] above); only the twin, Table III scaled,
         # cannot run this robot: said here, and by 'twin run --plant' in one line
-        why = (f"{'; '.join(outside)}, outside the twin's plant.scale range [{SCALE_RANGE[0]:g}, "
-               f"{SCALE_RANGE[1]:g}] (the twin is Table III's robot scaled)")
+        why = (f"{'; '.join(outside)}: the twin is Table III's robot, its wheels and track as they are and "
+               f"its masses and inertias scaled within plant.scale's [{SCALE_RANGE[0]:g}, {SCALE_RANGE[1]:g}]")
         lines.insert(lines.index("[calibration]") + 1, f"twin_runnable = false  # {why}")
         lines.insert(lines.index("[calibration]") + 2, f"twin_why = {json.dumps(why, ensure_ascii=False)}")
         return "\n".join(lines + [""])
