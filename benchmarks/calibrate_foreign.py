@@ -19,10 +19,16 @@ the twin's code), written in format version 2 through its public API
   vibration noise, a start from lying), each in a subprocess of its own, side by side with
   ``twin replay LOG`` (the closed-loop replay of the same log's EKF).
 
+* **A jittered logger** (``--jittered``, :func:`jittered`): five profile-B logs of one robot
+  together (with and without noise figures) and the robot-logs how-to's two hobby recordings:
+  per physical parameter the error, whether the truth is inside the 95 % interval, whether it is
+  identified; the fit's cost per residual and the wall time.
+
 Run from the repository root::
 
     python benchmarks/calibrate_foreign.py OUT_DIR --markdown docs/_generated/calibration-foreign.md
     python benchmarks/calibrate_foreign.py OUT_DIR --robots 4 --duration 20   # a quick look
+    python benchmarks/calibrate_foreign.py OUT_DIR --jittered   # the jittered logger's logs only
 
 ``tests/test_calibrate_foreign.py`` checks the same properties on two short robots. The table's
 first line says the command, the machine, the date and the commit (``benchmarks/published.py``).
@@ -235,6 +241,95 @@ def markdown(rows: list, summ: dict, speeds: list, duration: float) -> str:
     return "\n".join(lines) + "\n"
 
 
+JITTERED_SEEDS = (0, 1, 2, 3, 4)  # profile-B logs of one robot (B_PLANT), each its own run
+JITTERED_WITHIN = 0.10  # the bound on m_b, l, n_yb and d_w for a jittered logger's logs
+
+
+def jittered(out: Path, bootstrap: int = 100) -> list:
+    """Real-robot-shaped logs (profile B: a row every 30–33 ms of a 1 kHz loop, uniformly jittered,
+    point IMU samples with vibration noise, sampled voltages, an IMU pitched 0.07 rad), of one robot:
+    the five of :data:`JITTERED_SEEDS` calibrated together, with the true noise figures in log.toml
+    and without (the noise then measured from the readings), and the robot-logs how-to's two hobby
+    recordings (seeds 3 and 4, tests/foreign/hobby_recording.py) converted as the how-to does.
+    Per case: each physical parameter's value, interval and identifiability against the truth, the
+    fit's cost per residual and the wall time. Each case ~1–3 min on one core."""
+    from foreign import robot_sim as rs
+    from twin.calibrate.identify import assess
+    from twin.calibrate.robot import TURN_RATE, calibrate_robot
+    from twin.logs.format import read_log
+
+    truth = {n: float(getattr(rs.B_PLANT, n)) for n in PHYSICAL}
+    cases = {}
+    for figures in (True, False):
+        paths = []
+        for seed in JITTERED_SEEDS:
+            p = out / f"b-{seed}-{'figures' if figures else 'no-figures'}"
+            if not (p / "log.toml").exists():
+                rs.write_log(rs.simulate(rs.profile_b(seed)), p, version=2, noise_figures=figures)
+            paths.append(p)
+        cases[f"5 profile-B logs, {'with' if figures else 'without'} noise figures"] = paths
+    hobby = _hobby_logs(out / "hobby")
+    if hobby:
+        cases["the how-to's two hobby recordings"] = hobby
+    rows = []
+    for name, paths in cases.items():
+        t0 = time.perf_counter()
+        cal = calibrate_robot([read_log(p) for p in paths], bootstrap=bootstrap)
+        wall = time.perf_counter() - t0
+        params, _, _ = assess(cal, TURN_RATE)
+        f = cal.robot_fit
+        res = {n: {"value": params[n]["value"], "ci95": params[n]["ci95"], "identifiable": params[n]["identifiable"],
+                   "truth": truth[n], "error": params[n]["value"] / truth[n] - 1.0} for n in PHYSICAL if n in params}
+        rows.append({"case": name, "params": res, "wall_s": wall, "windows": sum(g.count for g in f.groups),
+                     "cost_per_residual": 2.0 * f.cost / sum(r.size for r in f.residuals)})
+    return rows
+
+
+def _hobby_logs(out: Path) -> list:
+    """The how-to's hobby recordings as logs (docs/howto/real-robot.md's to_log.py), or [] if the
+    how-to's script cannot be found."""
+    doc = ROOT / "docs" / "howto" / "real-robot.md"
+    if not doc.exists():
+        return []
+    text = doc.read_text(encoding="utf-8")
+    mark = text.find("<!-- file: to_log.py -->")
+    start = text.find("```python", mark)
+    if mark < 0 or start < 0:
+        return []
+    body = text[text.find("\n", start) + 1:text.find("\n```", start)]
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "to_log.py").write_text(body + "\n", encoding="utf-8")
+    paths = []
+    for n in (1, 2):
+        csv = ROOT / "docs" / "howto" / "hobby-robot" / f"balance-{n}.csv"
+        dest = out / f"balance-{n}"
+        if not (dest / "log.toml").exists():
+            subprocess.run([sys.executable, "to_log.py", str(csv), str(dest)], cwd=out, check=True,
+                           capture_output=True)
+        paths.append(dest)
+    return paths
+
+
+def jittered_markdown(rows: list) -> str:
+    lines = ["| logs | cost / residual | windows | wall | " + " | ".join(n for n in PHYSICAL) + " |",
+             "|---|---|---|---|" + "---|" * len(PHYSICAL)]
+    for r in rows:
+        cells = []
+        for n in PHYSICAL:
+            e = r["params"].get(n)
+            if e is None:
+                cells.append("—")
+                continue
+            inside = e["ci95"][0] <= e["truth"] <= e["ci95"][1]
+            cells.append(f"{_pct(e['error'])}{'' if inside else ' (out)'}{'' if e['identifiable'] else ', n.i.'}")
+        lines.append(f"| {r['case']} | {r['cost_per_residual']:.2f} | {r['windows']} | {r['wall_s']:.0f} s | "
+                     + " | ".join(cells) + " |")
+    lines.append("")
+    lines.append("Error of each physical parameter against the truth; (out): the truth outside the reported 95 % "
+                 "interval; n.i.: reported not identified.")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     import argparse
 
@@ -246,8 +341,17 @@ def main(argv=None) -> int:
     ap.add_argument("--no-speed", action="store_true", help="leave out the speed measurements")
     ap.add_argument("--reuse", action="store_true", help="take the robots' results from OUT_DIR's last run")
     ap.add_argument("--markdown", type=Path, help="write the tables there (docs/_generated/calibration-foreign.md)")
+    ap.add_argument("--jittered", action="store_true",
+                    help="only the jittered logger's logs (profile B and the how-to's hobby recordings)")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
+    if args.jittered:
+        args.out.mkdir(parents=True, exist_ok=True)
+        rows = jittered(args.out)
+        print(jittered_markdown(rows))
+        (args.out / "calibrate_jittered.json").write_text(json.dumps({"rows": rows}, indent=1, default=float) + "\n")
+        print(f"{time.perf_counter() - t0:.0f} s", file=sys.stderr)
+        return 0
     saved = args.out / "calibrate_foreign.json"
     if args.reuse and saved.exists():  # the robots of an earlier run (the speed measured again)
         rows = json.loads(saved.read_text())["rows"]

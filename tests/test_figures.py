@@ -237,7 +237,11 @@ def test_the_delivered_torque_does_not_drop_to_zero_at_the_last_sample(exp1, exp
     it2 = exp1[0]
     for name in ("torque_l", "torque_r", "duty_l", "duty_r"):
         sig = it2.signal(name)
-        assert sig[-1] == sig[-2] and sig[-1] != 0.0, (name, sig[-3:])
+        assert sig[-1] == sig[-2], (name, sig[-3:])
+    # the delivered torque is never exactly 0 while the wheels turn (the motors' back-EMF); the duty
+    # may be, where the commanded torque is below half a PWM step (the robot balanced at the end)
+    for name in ("torque_l", "torque_r"):
+        assert it2.signal(name)[-1] != 0.0, name
     t, y = _line(_panel(exp1_figure, "torque per wheel"), "IT2 left").get_data()
     assert y[-1] == y[-2] != 0.0
 

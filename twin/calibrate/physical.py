@@ -22,6 +22,14 @@ instants, joined by straight lines (RK4's stages take them at their own times).
 Readings: ``mean`` IMU samples are the means over the period (:func:`mean_readings`); ``point`` samples are the values at the instant (:func:`point_readings`: the
 body rates, and the specific force at the IMU's point from the accelerations).
 
+A log whose rows are off its control instants (a hobby firmware logging one row every 30–33 ms
+of a 1 kHz loop: the rows' offsets from a regular grid wander as a random walk, ~20 ms after 400
+rows) is taken at its rows' own times: :func:`simulate_nodes` keeps every RK4 node with its
+derivative, the drive given at every half step from the rows' true times, and :func:`at_times`
+interpolates the state at any time between the nodes (cubic Hermite); a point sample is then
+:func:`point_at` at its row's time, a mean sample :func:`mean_between` over its own interval
+(from the IMU row before it), an encoder angle the state at its row's time.
+
 Elementwise numpy throughout (no BLAS). SI units: rad, rad/s, N·m, kg, m, s, Hz.
 """
 from __future__ import annotations
@@ -139,6 +147,84 @@ def simulate(S0, drive, c: dict, motor, control_rate: float, sampled: bool = Fal
     return out
 
 
+def simulate_nodes(S0, fine, c: dict, motor, h: float):
+    """States and their derivatives (each (B, M + 1, 6)) at the RK4 nodes 0, h, …, M h of B windows
+    from ``S0`` (B, 6), for logs whose rows are not on the control instants (a logger's jitter):
+    the readings are then taken at their rows' own times, between the nodes (:func:`at_times`).
+
+    ``fine`` (B, 2 M + 1, 2): the drive at every half step (j h / 2), as the log's rows make it at
+    those times (sampled: straight lines between the rows' true times; held: from each row's time),
+    each RK4 stage taking its own time's value; ``c``, ``motor`` as :func:`simulate`."""
+    S0 = np.asarray(S0, dtype=float)
+    fine = np.asarray(fine, dtype=float)
+    M = (fine.shape[1] - 1) // 2
+    c = {n: (np.asarray(x, dtype=float) if np.ndim(x) else float(x)) for n, x in c.items()}
+    if motor is not None:
+        motor = tuple(np.asarray(m, dtype=float) if np.ndim(m) else float(m) for m in motor)
+    X = np.empty((S0.shape[0], M + 1, 6))
+    D = np.empty_like(X)
+    X[:, 0] = S = S0
+    for i in range(M):
+        u0, um, u1 = fine[:, 2 * i], fine[:, 2 * i + 1], fine[:, 2 * i + 2]
+        k1 = _deriv(S, u0[:, 0], u0[:, 1], c, motor)
+        k2 = _deriv(S + (0.5 * h) * k1, um[:, 0], um[:, 1], c, motor)
+        k3 = _deriv(S + (0.5 * h) * k2, um[:, 0], um[:, 1], c, motor)
+        k4 = _deriv(S + h * k3, u1[:, 0], u1[:, 1], c, motor)
+        D[:, i] = k1
+        S = S + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        X[:, i + 1] = S
+    D[:, M] = _deriv(S, fine[:, 2 * M, 0], fine[:, 2 * M, 1], c, motor)
+    return X, D
+
+
+def at_times(X, D, h: float, tau):
+    """(B, J, 6) states at times ``tau`` (B, J) s from the first node, by cubic Hermite interpolation
+    between the RK4 nodes ``X`` with derivatives ``D`` (:func:`simulate_nodes`): its error, of order
+    h⁴ times the fourth derivative, is far below the readings' noise at h = 1 ms."""
+    M = X.shape[1] - 1
+    x = np.clip(np.asarray(tau, dtype=float) / h, 0.0, float(M))
+    i = np.clip(np.floor(x).astype(np.int64), 0, max(M - 1, 0))
+    s = (x - i)[..., None]
+    s2, s3 = s * s, s * s * s
+    take = lambda A, j: np.take_along_axis(A, j[..., None], axis=1)
+    j1 = np.minimum(i + 1, M)
+    return ((2.0 * s3 - 3.0 * s2 + 1.0) * take(X, i) + ((s3 - 2.0 * s2 + s) * h) * take(D, i)
+            + (3.0 * s2 - 2.0 * s3) * take(X, j1) + ((s3 - s2) * h) * take(D, j1))
+
+
+def point_at(S, ul, ur, c: dict, motor, position, r: float, g: float):
+    """(B, J, 5) true point values [gyro x, y, z, accel x, z] at states S (B, J, 6) with the drive
+    (ul, ur) (B, J) acting at those instants (see :func:`point_readings`)."""
+    cc = {n: (x[:, None] if np.ndim(x) else x) for n, x in c.items()}
+    mm = None if motor is None else tuple(m[:, None] if np.ndim(m) else m for m in motor)
+    tl, tr = _torques(S, ul, ur, cc, mm)
+    thdd, psdd, aldd = accelerations(S, tl, tr, cc)
+    return _specific(S, thdd, psdd, aldd, position, r, g)
+
+
+def mean_between(Xa, Xb, T, position, r: float, g: float):
+    """(B, J, 5) true means [gyro x, y, z, accel x, z] over intervals of lengths ``T`` (B, J) s from
+    states Xa to Xb (B, J, 6) at their ends: :func:`mean_readings` for intervals of their own
+    lengths (a jittered logger's), resolved at each interval's middle."""
+    tha, thb, ala, alb = Xa[..., 0], Xb[..., 0], Xa[..., 4], Xb[..., 4]
+    d_th = (thb - tha) / T
+    d_al = (alb - ala) / T
+    mid = 0.5 * (tha + thb)
+    sm, cm = np.sin(mid), np.cos(mid)
+    xp, zp = float(position[0]), float(position[2])
+
+    def uw(X):
+        sn, cs = np.sin(X[..., 0]), np.cos(X[..., 0])
+        dx, dz = xp * cs + zp * sn, -xp * sn + zp * cs
+        return r * X[..., 3] + X[..., 1] * dz, -X[..., 1] * dx, dx
+
+    ua, wa, dxa = uw(Xa)
+    ub, wb, dxb = uw(Xb)
+    fx = (ub - ua) / T - d_al * d_al * 0.5 * (dxa + dxb)
+    fz = (wb - wa) / T + g
+    return np.stack([-d_al * sm, d_th, d_al * cm, fx * cm - fz * sm, fx * sm + fz * cm], axis=-1)
+
+
 def point_readings(X, drive, c: dict, motor, position, r: float, g: float, sampled: bool):
     """(B, N, 5) [gyro x, y, z (rad/s), accel x, z (m/s²)] true point values at the instants
     1 … N of states X (B, N + 1, 6): the body rates ω = (−α̇ sin θ, θ̇, α̇ cos θ) and the specific
@@ -154,6 +240,10 @@ def point_readings(X, drive, c: dict, motor, position, r: float, g: float, sampl
     mm = None if motor is None else tuple(m[:, None] if np.ndim(m) else m for m in motor)
     tl, tr = _torques(S, ul, ur, cc, mm)
     thdd, psdd, aldd = accelerations(S, tl, tr, cc)
+    return _specific(S, thdd, psdd, aldd, position, r, g)
+
+
+def _specific(S, thdd, psdd, aldd, position, r: float, g: float):
     th, thd, psd, ald = S[..., 0], S[..., 1], S[..., 3], S[..., 5]
     sn, cs = np.sin(th), np.cos(th)
     wx, wy, wz = -ald * sn, thd, ald * cs
@@ -209,4 +299,5 @@ def twin_parameters(values: dict, robot, control_rate: float, physics_rate: floa
     return out
 
 
-__all__ = ["MIN_RATE", "accelerations", "constants", "mean_readings", "point_readings", "simulate", "substeps", "twin_parameters"]
+__all__ = ["MIN_RATE", "accelerations", "at_times", "constants", "mean_between", "mean_readings", "point_at",
+           "point_readings", "simulate", "simulate_nodes", "substeps", "twin_parameters"]

@@ -8,6 +8,15 @@ more, with the motors, the commands held or sampled as the log says), so the num
 robot's, not those of a discretisation; :func:`twin.calibrate.physical.twin_parameters` maps
 them to the PyBullet twin.
 
+A log whose rows are off its control instants (a hobby firmware's, one row every 30–33 ms: put on
+the regular grid, its rows land up to a period off their times, and the true robot misfits its
+windows by 3.6–7 σ² per residual, the pitch gyro at ~3 σ) has each reading taken at its row's own
+time (:func:`row_timing`, :func:`twin.calibrate.physical.simulate_nodes`): a point sample at the
+row's time, a mean sample over its own interval, commands sampled as straight lines between their
+rows' times or held from each row's time. The readings are weighed by the noise a replay uses
+(:func:`imu_sigma`: the log's figures, or the noise measured from its readings where it gives
+none or they contradict it).
+
 Windows are :data:`WINDOW_S` seconds long (at least :data:`MIN_PERIODS` control periods), so a
 log at 30 Hz and one at 1 kHz both give windows over which an open-loop error grows a few times
 at most (the unstable pole of a balancing robot is 10–20/s).
@@ -38,7 +47,7 @@ from twin.calibrate import physical as P
 from twin.calibrate.parameters import PARAMETERS
 from twin.calibrate.readings import encoder_angles
 from twin.calibrate.run import Calibration
-from twin.calibrate.windows import Windows, cut, streams
+from twin.calibrate.windows import Windows, cut, on_rows, streams
 from twin.errors import TwinError
 
 WINDOW_S = 0.1  # s: a window's length (at least MIN_PERIODS control periods)
@@ -124,6 +133,9 @@ class Group:
     motor: tuple | None  # (stall torque N·m, no-load speed rad/s) of the log, or None: ideal sources
     sigma: np.ndarray  # (5,) white-noise σ of the IMU channels
     enc_sigma: float
+    # a log whose rows are off its control instants (jittered): each reading at its row's own time
+    # (:func:`row_timing`); None: every row on its instant (the readings at the periods' ends)
+    timing: dict | None = None
 
     @property
     def count(self) -> int:
@@ -143,7 +155,24 @@ class Group:
 
     def subset(self, keep) -> "Group":
         keep = np.asarray(keep)
-        return replace(self, w=self.w.subset(keep), drive=self.drive[keep])
+        timing = None
+        if self.timing is not None:
+            timing = {k: (v[keep] if isinstance(v, np.ndarray) else v) for k, v in self.timing.items()}
+        return replace(self, w=self.w.subset(keep), drive=self.drive[keep], timing=timing)
+
+    def head(self, periods: int) -> "Group":
+        """The group's windows cut to their first ``periods`` periods."""
+        w = self.w
+        head_w = Windows(w.starts, w.S0, w.drive[:, :periods], w.imu[:, :periods], w.angles[:, :periods + 1],
+                         w.imu_latency, w.streams)
+        timing = None
+        if self.timing is not None:
+            timing = dict(self.timing)
+            for k in ("imu_a", "imu_b", "imu_drive"):
+                timing[k] = timing[k][:, :periods]
+            timing["enc"] = timing["enc"][:, :periods + 1]
+        return replace(self, w=head_w, drive=self.drive[:, :periods + 1 if self.sampled else periods],
+                       timing=timing)
 
 
 def log_streams(log):
@@ -151,6 +180,7 @@ def log_streams(log):
     (n, 2): the drive at each instant as the model takes it (wheel torques in N·m for ideal
     sources, else the duty), and whether it is ``sampled`` (joined by straight lines) or held."""
     st = streams(log)
+    st.imu_sigma = imu_sigma(log, st.imu_sigma)
     sampled = getattr(log, "command_semantics", "held") == "sampled"
     unit = getattr(log, "command_unit", "N·m")
     if log.duty is None and log.motor is not None and unit in ("duty", "V"):
@@ -165,7 +195,67 @@ def log_streams(log):
         st.drive, st.drive_is_duty = np.clip(at, -1.0, 1.0), True
     elif sampled and log.motor is None:
         st.drive = np.column_stack([np.interp(st.t, log.commands_t, log.commands[:, j]) for j in range(2)])
+    st.drive_at = _drive_at(log, st, sampled)
+    rows = on_rows(st, log, st.drive_at)
+    if rows is not None:  # a jittered logger's rows: the windows made of its rows, each at its time
+        rows.drive_at = st.drive_at
+        rows.on_rows = True  # its "instants" are the rows' times: off any regular grid
+        st = rows
     return st, sampled
+
+
+def _drive_at(log, st, sampled: bool):
+    """The drive as the model takes it (as :func:`log_streams`' ``drive``) at any times (s): from the
+    rows' own times, straight lines between them (sampled) or each held from its row's time, for a
+    log whose rows are jittered off the control instants. Where the drive is reconstructed at the
+    instants (N·m commands through a driver, from the estimated speeds) it is that, held."""
+    def rows(t_rows, values, lo=-np.inf, hi=np.inf):
+        t_rows = np.maximum.accumulate(np.asarray(t_rows, dtype=float))
+
+        def at(x):
+            x = np.asarray(x, dtype=float)
+            if sampled:
+                out = np.stack([np.interp(x, t_rows, values[:, j]) for j in range(2)], axis=-1)
+            else:
+                i = np.clip(np.searchsorted(t_rows, x + 1e-9, side="right") - 1, 0, len(t_rows) - 1)
+                out = values[i]
+            return np.clip(out, lo, hi)
+        return at
+
+    unit = getattr(log, "command_unit", "N·m")
+    if log.duty is not None:
+        return lambda x: _held(log.duty_t, log.duty, x)
+    if log.motor is not None and unit in ("duty", "V"):
+        return rows(log.commands_t, log.commands / log.motor.stall_torque, -1.0, 1.0)
+    if log.motor is None:
+        return rows(log.commands_t, np.asarray(log.commands, dtype=float))
+    return lambda x: _held(st.t, st.drive, x)
+
+
+def _held(t_rows, values, x):
+    t_rows = np.maximum.accumulate(np.asarray(t_rows, dtype=float))
+    i = np.clip(np.searchsorted(t_rows, np.asarray(x, dtype=float) + 1e-9, side="right") - 1, 0, len(t_rows) - 1)
+    return np.asarray(values, dtype=float)[i]
+
+
+def imu_sigma(log, given):
+    """(5,) the white-noise σ per row of the IMU channels the fit weighs the readings by: the
+    figures a replay uses (:func:`twin.logs.noise.choose`, mode ``log``): the log's own, except where
+    it gives none or its readings contradict them, then the noise measured from the readings. A
+    hobby robot's rows (point samples of a 1 kHz loop, the motors shaking the board) carry 25–100×
+    the datasheet's density at the row rate: weighed by the datasheet's figure, the fit's cost was
+    ~3000 per residual and the vibration drove the parameters. ``given`` the log's figures' σ."""
+    from twin.logs.noise import choose
+
+    try:
+        _, sens, _ = choose(log)
+    except TwinError:  # figures the IMU cannot hold: the log's own
+        return given
+    if sens is log.sensors:
+        return given
+    dt = 1.0 / sens.imu.rate
+    g, a = sens.imu.gyro.white_sigma(dt), sens.imu.accel.white_sigma(dt)
+    return np.array([g, g, g, a, a])
 
 
 def make_group(log, st, sampled: bool, index: int, imu_latency: int, periods: int, stride=None) -> Group:
@@ -181,8 +271,56 @@ def make_group(log, st, sampled: bool, index: int, imu_latency: int, periods: in
         motor = (float(log.motor.stall_torque), float(log.motor.no_load_speed))
     elif st.drive_is_duty:
         raise TwinError(f"{log.path}: a duty drive needs the log's motors")
-    return Group(log, index, w, drive, sampled, getattr(log, "sampling", "mean") == "point", motor,
-                 np.asarray(st.imu_sigma, dtype=float), float(st.encoder_sigma))
+    point = getattr(log, "sampling", "mean") == "point"
+    return Group(log, index, w, drive, sampled, point, motor, np.asarray(st.imu_sigma, dtype=float),
+                 float(st.encoder_sigma), row_timing(st, w, point))
+
+
+JITTER_S = 1e-6  # s: a row further than this from its control instant is taken at its own time
+
+
+def row_timing(st, w: Windows, point: bool) -> dict | None:
+    """Where a log's rows are off its control instants (a logger's jitter), the times each window's
+    readings are of, for the model to take them there: None where every row used is on its instant.
+
+    A window then starts at the earliest of its readings' times (``start``, s; at most a period
+    before its first instant) and is integrated over ``M`` RK4 steps of ``h`` s (the log's
+    :func:`~twin.calibrate.physical.substeps`); ``enc`` (W, N + 1) s from the start: the encoder
+    rows' times; ``imu_b`` (W, N) the IMU rows' (a point sample's instant, a mean sample's
+    interval's end) and ``imu_a`` (W, N) the interval's start (the IMU row before it); a latency of
+    whole periods d puts a reading d periods before its row's time. ``fine`` (W, 2 M + 1, 2) the
+    drive at every half step and ``imu_drive`` (W, N, 2) at the IMU rows' times (a point sample's
+    acceleration), from the log's rows at their own times (:func:`_drive_at`)."""
+    if st.imu_time is None or st.encoder_time is None or w.count == 0 or not hasattr(st, "drive_at"):
+        return None
+    rate = float(st.control_rate)
+    N = w.periods
+    d, de = w.imu_latency, st.encoder_latency
+    j = w.starts[:, None] + np.arange(N)[None, :]
+    jb = j + 1 + d
+    je = w.starts[:, None] + np.arange(N + 1)[None, :] + de
+    tb = st.imu_time[jb] - d / rate
+    ta = st.imu_prev_time[jb] - d / rate
+    te = st.encoder_time[je] - de / rate
+    grid_b, grid_e = st.t[j + 1], st.t[je - de]
+    if not point and not np.all(np.isfinite(ta)):
+        return None
+    off = max(float(np.nanmax(np.abs(tb - grid_b))), float(np.nanmax(np.abs(te - grid_e))))
+    if not point:
+        off = max(off, float(np.nanmax(np.abs(ta - st.t[j]))))
+    if not off > JITTER_S and not getattr(st, "on_rows", False):
+        return None
+    start = np.minimum(np.minimum(te[:, 0], tb[:, 0]), st.t[w.starts])
+    if not point:
+        start = np.minimum(start, ta[:, 0])
+    k = P.substeps(rate)
+    h = 1.0 / (rate * k)
+    rel_e, rel_b, rel_a = te - start[:, None], tb - start[:, None], ta - start[:, None]
+    span = float(np.max(rel_e[:, -1]) if N == 0 else max(np.max(rel_e), np.max(rel_b)))
+    M = max(1, int(math.ceil(span / h - 1e-9)))
+    fine_t = start[:, None] + (0.5 * h) * np.arange(2 * M + 1)[None, :]
+    return {"start": start, "M": M, "h": h, "enc": rel_e, "imu_b": rel_b,
+            "imu_a": rel_a if not point else rel_b, "fine": st.drive_at(fine_t), "imu_drive": st.drive_at(tb)}
 
 
 # ---- the model of a set of logs --------------------------------------------------------------------
@@ -276,6 +414,20 @@ class RobotModel:
         if hold:  # the twin's own log: its stepping's lagging dampings as inertia (twin_lags)
             rows["hold"] = (hold[0], hold[1], 0.0 if motor is None else motor[1])
         c = P.constants(rows, robot)
+        if g.timing is not None:  # rows off the instants: each reading at its row's own time
+            tm = g.timing
+            rep = lambda a: np.tile(a, (m,) + (1,) * (a.ndim - 1))
+            Xn, Dn = P.simulate_nodes(S, rep(tm["fine"]), c, motor, tm["h"])
+            Xe = P.at_times(Xn, Dn, tm["h"], rep(tm["enc"]))
+            Xb = P.at_times(Xn, Dn, tm["h"], rep(tm["imu_b"]))
+            pos = g.log.sensors.imu.position
+            if g.point:
+                ud = rep(tm["imu_drive"])
+                y = P.point_at(Xb, ud[..., 0], ud[..., 1], c, motor, pos, robot.r, robot.g)
+            else:
+                Xa = P.at_times(Xn, Dn, tm["h"], rep(tm["imu_a"]))
+                y = P.mean_between(Xa, Xb, rep(tm["imu_b"] - tm["imu_a"]), pos, robot.r, robot.g)
+            return y, Xe
         drive = np.tile(g.drive, (m, 1, 1))
         X = P.simulate(S, drive, c, motor, g.rate, sampled=g.sampled)
         if g.point:
@@ -1037,8 +1189,7 @@ def validate_physical(cal, logs, check_parameters: bool = True, progress=None) -
         if full.count == 0:
             raise TwinError(f"--validate {log.path}: no {(K + H) / rate:g} s stretch with every reading")
         w = full.w
-        head = replace(full, w=Windows(w.starts, w.S0, w.drive[:, :K], w.imu[:, :K], w.angles[:, :K + 1],
-                                       w.imu_latency, w.streams), drive=full.drive[:, :K + 1 if sampled else K])
+        head = full.head(K)
         res = {}
         b_r = log.model.b / log.model.r
         for name, phys in (("nominal", phys_nom), ("calibrated", phys_cal)):

@@ -11,8 +11,11 @@ which correlates the commands with the noise, acts only through the recorded com
 
 :func:`streams` puts a log's readings on its control instants (the slotting of
 :func:`twin.logs.replay.instants`), with the drive of each period and the EKF's replayed
-estimate of the state at each instant (the windows' first guess); :func:`cut` makes the
-windows for an IMU latency of whole periods. SI units: s, rad, rad/s, m/s².
+estimate of the state at each instant (the windows' first guess), and keeps each reading's
+row's own time (``imu_time``, ``encoder_time``): a jittered logger's rows lie up to a period
+before the instant they are slotted at, and the physical model takes them there
+(:func:`twin.calibrate.robot.row_timing`); :func:`cut` makes the windows for an IMU latency of
+whole periods. SI units: s, rad, rad/s, m/s².
 """
 from __future__ import annotations
 
@@ -53,6 +56,12 @@ class Streams:
     encoder_sigma: float
     encoder_latency: int  # control periods
     control_rate: float
+    # s: the true time of the row whose reading arrives at each instant (NaN: none): a logger's rows
+    # may be jittered off the instants (a hobby firmware's every 30–33 ms); ``imu_prev_time`` the
+    # time of the IMU row before it (where a mean sample's interval begins)
+    imu_time: np.ndarray | None = None
+    imu_prev_time: np.ndarray | None = None
+    encoder_time: np.ndarray | None = None
 
 
 @dataclass
@@ -138,13 +147,55 @@ def streams(log, estimates=None) -> Streams:
         drive = np.column_stack([driver_duty(drive[:, 0], ps_d - b_r * al_d - th_d, log.motor),
                                  driver_duty(drive[:, 1], ps_d + b_r * al_d - th_d, log.motor)])
         is_duty = True
+    imu_time = np.full(n, np.nan)
+    imu_prev = np.full(n, np.nan)
+    enc_time = np.full(n, np.nan)
+    on = sched.gyro >= 0
+    imu_time[on] = log.imu_t[sched.gyro[on]]
+    prev = sched.gyro[on] - 1
+    imu_prev[on] = np.where(prev >= 0, log.imu_t[np.maximum(prev, 0)], np.nan)
+    on = sched.encoders >= 0
+    enc_time[on] = log.encoders_t[sched.encoders[on]]
     g_sig = sens.imu.gyro.white_sigma(dt)
     a_sig = sens.imu.accel.white_sigma(dt)
     res = 2.0 * math.pi / log.counts_per_rev
     rate = log.control_rate
     return Streams(t, gyro, accel, angles, np.asarray(drive, dtype=float), is_duty, estimates,
                    np.array([g_sig, g_sig, g_sig, a_sig, a_sig]), res / math.sqrt(12.0),
-                   int(round(sens.encoders.latency * rate)), rate)
+                   int(round(sens.encoders.latency * rate)), rate, imu_time, imu_prev, enc_time)
+
+
+def on_rows(s: Streams, log, drive_at) -> Streams | None:
+    """The log on its own rows instead of its control instants, where its IMU, encoder and command
+    rows share their times and those are off the instants (a jittered logger's): slotted on a
+    regular grid, such rows collide (two in one period, the earlier lost) and leave periods empty
+    (a window with a reading missing is left out: a fifth of a profile-B log's windows). Row k is
+    then "instant" k: its readings, ``drive_at`` (a function of times, s) at its time, the EKF's
+    estimate interpolated to it; ``t`` the rows' times (s), and each reading's time its row's.
+    None where the rows are on the instants or the streams' rows differ."""
+    t = np.asarray(log.imu_t, dtype=float)
+    if (len(t) < 2 or len(log.encoders_t) != len(t) or len(log.commands_t) != len(t)
+            or not np.array_equal(t, log.encoders_t) or not np.array_equal(t, log.commands_t)
+            or not np.all(np.diff(t) > 0.0)):
+        return None
+    rate = float(s.control_rate)
+    k = np.round((t - s.t[0]) * rate)
+    if not np.max(np.abs(t - (s.t[0] + k / rate))) > 1e-6:
+        return None  # on the instants: the slotting is exact
+    keep = (t >= s.t[0] - 1e-9) & (t <= s.t[-1] + 1e-9)
+    rows = np.flatnonzero(keep)
+    t = t[rows]
+    gyro, accel = np.array(log.gyro[rows], dtype=float), np.array(log.accel[rows], dtype=float)
+    sens = log.sensors
+    dt = 1.0 / sens.imu.rate
+    for arr, spec in ((gyro, sens.imu.gyro), (accel, sens.imu.accel)):
+        rail = spec.full_scale - CLIP_SIGMAS * spec.white_sigma(dt)
+        arr[np.abs(arr) >= rail] = np.nan
+    angles = np.where(log.has_counts[rows, None], log.counts[rows] * (2.0 * math.pi / log.counts_per_rev), np.nan)
+    est = np.column_stack([np.interp(t, s.t, s.estimates[:, j]) for j in range(6)])
+    prev = np.concatenate([[np.nan], t[:-1]])
+    return Streams(t, gyro, accel, angles, np.asarray(drive_at(t), dtype=float), s.drive_is_duty, est,
+                   s.imu_sigma, s.encoder_sigma, s.encoder_latency, rate, t.copy(), prev, t.copy())
 
 
 def cut(s: Streams, imu_latency: int, periods: int = WINDOW_PERIODS, stride: int | None = None) -> Windows:
@@ -175,4 +226,4 @@ def cut(s: Streams, imu_latency: int, periods: int = WINDOW_PERIODS, stride: int
     return Windows(starts[keep], s.estimates[starts[keep]].copy(), drive[keep], imu[keep], angles[keep], d, s)
 
 
-__all__ = ["CLIP_SIGMAS", "IMU_CHANNELS", "WINDOW_PERIODS", "Streams", "Windows", "cut", "streams"]
+__all__ = ["CLIP_SIGMAS", "IMU_CHANNELS", "WINDOW_PERIODS", "Streams", "Windows", "cut", "on_rows", "streams"]

@@ -217,7 +217,7 @@ def _pitch(log, t, w, a, integral, rest: int, quiet: _Quiet) -> dict:
                               f"(at least {MIN_TILT:g} rad tells the sign)", **figs)
     # least squares through zero over every quiet stretch: one whose specific force holds an
     # acceleration as well as gravity weighs no more than the others
-    slope = float(d_acc @ d_gyro / (d_acc @ d_acc))
+    slope = math.fsum(d_acc * d_gyro) / math.fsum(d_acc * d_acc)  # exactly rounded: the same bits on every CPU
     figs["slope"] = slope
     spec = log.sensors.imu.gyro
     between = (t > t0) & (t <= tm[q[-1]])
@@ -266,7 +266,7 @@ def _yaw(log, t, z) -> dict:
     if turn < MIN_TURN:
         return _check("skip", f"{name}: skipped: the encoders turn by {turn:.3g} rad in all (at least {MIN_TURN:g} rad "
                               f"tells the sign)", **figs)
-    slope = float(da[m] @ dg[m] / (da[m] @ da[m]))
+    slope = math.fsum(da[m] * dg[m]) / math.fsum(da[m] * da[m])
     figs["slope"] = slope
     said = f"gyro_z against the encoders' heading over {turn:.3g} rad of turning: slope {slope:.3g}"
     if slope < 0:

@@ -317,6 +317,13 @@ class SensorLog:
 
 
 # ---- reading ---------------------------------------------------------------------------------------
+
+def rows_times(v: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """``v @ m`` for (n, 3) rows and a 3 × 3 ``m``, as three elementwise products summed in a fixed
+    order: a matrix product goes to the BLAS, whose kernels (and threads) round differently on
+    different CPUs, and a replay must give the same bits on every machine."""
+    return np.column_stack([v[:, 0] * m[0, j] + v[:, 1] * m[1, j] + v[:, 2] * m[2, j] for j in range(3)])
+
 def read_log(path) -> SensorLog:
     """The log in directory ``path``, checked (see the module docstring; version 2:
     docs/reference/sensor-log.md)."""
@@ -358,7 +365,7 @@ def read_log(path) -> SensorLog:
     t_imu, gyro, accel = imu[:, 0], imu[:, 1:4], imu[:, 4:7]
     if h.rotation is not None:  # the IMU's axes into the body's: v_body = C v_imu (row vectors: V C^T)
         c_t = np.array(h.rotation, dtype=float).T
-        gyro, accel = gyro @ c_t, accel @ c_t
+        gyro, accel = rows_times(gyro, c_t), rows_times(accel, c_t)
     imu_path = root / (h.files.get("imu") or "imu.csv")
     _check_gravity(imu_path, accel, t_imu, "" if h.version == 1 else " after [imu] orientation")
     ecount = enc[:, 1:3]

@@ -92,6 +92,7 @@ from statistics import NormalDist
 import numpy as np
 
 from twin.errors import TwinError
+from twin.logs.format import rows_times
 
 ORDER = 3  # the differences' order k: motion to order f^(k) Δt^k is removed (see the module docstring)
 MAD_SCALE = 1.482602218505602  # 1/Φ⁻¹(3/4): the MAD of N(0, σ²) is σ / 1.4826
@@ -265,7 +266,7 @@ def _imu_axes(log) -> tuple[np.ndarray, np.ndarray]:
     g, a = log.gyro, log.accel
     if log.imu_rotation is not None:  # v_body = C v_imu, rows: V_imu = V_body C
         c = np.array(log.imu_rotation, dtype=float)
-        g, a = g @ c, a @ c
+        g, a = rows_times(g, c), rows_times(a, c)  # elementwise: the same bits on every CPU
     return g, a
 
 
