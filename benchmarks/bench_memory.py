@@ -30,7 +30,6 @@ import os
 import shutil
 import subprocess
 import sys
-import tarfile
 import tempfile
 import time
 from pathlib import Path
@@ -58,21 +57,15 @@ def peak_run(code: Path, out: Path, duration: float, extra=()) -> dict:
 
 def export_before(rev: str, into: Path) -> Path | None:
     """The code of ``rev`` in ``into`` with this checkout's compiled extensions, or None without git."""
+    from published import export_code
+
     if shutil.which("git") is None:
         return None
-    archive = into / "before.tar"
-    r = subprocess.run(["git", "-C", str(ROOT), "archive", "-o", str(archive), rev], capture_output=True, text=True)
-    if r.returncode != 0:
-        print(f"(no 'before' reference: git archive {rev}: {r.stderr.strip()})")
+    try:
+        return export_code(rev, into, "before")
+    except RuntimeError as exc:
+        print(f"(no 'before' reference: {exc})")
         return None
-    code = into / "before"
-    with tarfile.open(archive) as tar:
-        tar.extractall(code, filter="data")
-    for so in ROOT.glob("**/*.so"):
-        rel = so.relative_to(ROOT)
-        if rel.parts[0] != ".venv" and (code / rel.parent).is_dir():
-            shutil.copy2(so, code / rel)
-    return code
 
 
 def main(argv=None) -> int:

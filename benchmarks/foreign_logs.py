@@ -92,20 +92,12 @@ PHYSICAL = ("m_b", "l", "n_yb", "n_zb", "d_b", "d_w")
 # ---- running the code measured --------------------------------------------------------------------------
 def export(rev: str, into: Path) -> Path:
     """The code of commit ``rev`` (git archive) in ``into``, with this checkout's compiled extensions."""
-    import tarfile
+    from published import export_code
 
-    archive = into / "code.tar"
-    r = subprocess.run(["git", "-C", str(ROOT), "archive", "-o", str(archive), rev], capture_output=True, text=True)
-    if r.returncode != 0:
-        raise SystemExit(f"git archive {rev}: {r.stderr.strip()}")
-    code = into / "code"
-    with tarfile.open(archive) as tar:
-        tar.extractall(code, filter="data")
-    for so in ROOT.glob("**/*.so"):
-        rel = so.relative_to(ROOT)
-        if rel.parts[0] != ".venv" and (code / rel.parent).is_dir():
-            shutil.copy2(so, code / rel)
-    return code
+    try:
+        return export_code(rev, into)
+    except RuntimeError as exc:
+        raise SystemExit(str(exc)) from None
 
 
 def twin(code: Path, args: list, cwd: Path, log: Path) -> float:

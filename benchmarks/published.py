@@ -58,6 +58,27 @@ def provenance(argv: list[str] | None = None) -> str:
             f"Python {platform.python_version()}, {platform.system()}), {date}, commit {git_commit()}.*")
 
 
+def export_code(rev: str, into: Path, name: str = "code") -> Path:
+    """The code of commit ``rev`` (``git archive``) unpacked in ``into / name``, with this checkout's
+    compiled extensions copied in (the code measured, built as this one); a one-line RuntimeError
+    where git cannot give it."""
+    import shutil
+    import tarfile
+
+    archive = into / f"{name}.tar"
+    r = subprocess.run(["git", "-C", str(ROOT), "archive", "-o", str(archive), rev], capture_output=True, text=True)
+    if r.returncode != 0:
+        raise RuntimeError(f"git archive {rev}: {r.stderr.strip()}")
+    code = into / name
+    with tarfile.open(archive) as tar:
+        tar.extractall(code, filter="data")
+    for so in ROOT.glob("**/*.so"):
+        rel = so.relative_to(ROOT)
+        if rel.parts[0] != ".venv" and (code / rel.parent).is_dir():
+            shutil.copy2(so, code / rel)
+    return code
+
+
 def write_markdown(path: str | os.PathLike, body: str, argv: list[str] | None = None) -> Path:
     """Write ``body`` (Markdown) to ``path`` under the provenance line; returns the path."""
     path = Path(path)

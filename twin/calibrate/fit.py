@@ -379,3 +379,27 @@ def correlation(C: np.ndarray) -> np.ndarray:
 __all__ = ["CLUSTER_S", "Fit", "Information", "MOTOR_NAMES", "PLANT_NAMES", "Plant", "SENSOR_NAMES", "bootstrap",
            "correlation", "covariance", "fit", "information", "residuals", "t_quantile"]
 
+
+@dataclass
+class Calibration:
+    """The outcome: ``fit`` (the final :class:`Fit`), ``info``, covariances
+    ``C_jacobian`` and ``C_sandwich`` of the fitted vector, ``boot`` (B, k) the bootstrap's
+    vectors, ``clusters``, ``imu_latency`` (periods) and its ``latency_costs``, ``dropped`` the
+    start times (s) of the windows left out as outliers, ``wall_s``, ``logs`` the paths."""
+
+    names: tuple
+    fit: Fit
+    info: Information
+    C_jacobian: np.ndarray
+    C_sandwich: np.ndarray
+    boot: np.ndarray
+    clusters: int
+    imu_latency: int
+    latency_costs: dict
+    dropped: list
+    windows_total: int
+    wall_s: float
+    logs: list
+    streams: list = field(repr=False, default_factory=list)
+    max_turn_rate: float = 0.0
+    model_kind: str = "twin"

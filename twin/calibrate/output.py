@@ -21,6 +21,8 @@ import math
 import numpy as np
 
 from twin.calibrate.parameters import PARAMETERS
+from twin.calibrate.physical import substeps
+from twin.calibrate.robot import twin_lags
 from twin.errors import TwinError
 
 SCALE_RANGE = (0.2, 5.0)  # plant.scale's allowed factors (twin/scenarios/schema.py)
@@ -59,8 +61,6 @@ def _head(cal, params, corr, warnings) -> dict:
 
 
 def _physical_doc(cal, params, warnings, corr, validation, seed, twin) -> dict:
-    from twin.calibrate.physical import substeps
-
     f = cal.robot_fit
     groups = f.groups
     return {
@@ -93,8 +93,6 @@ def _physical_doc(cal, params, warnings, corr, validation, seed, twin) -> dict:
 
 
 def _lags(log):
-    from twin.calibrate.robot import twin_lags
-
     return twin_lags(log)
 
 

@@ -43,12 +43,16 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from twin.calibrate import fit as F
+from twin.calibrate.fit import Calibration
+from twin.calibrate.identify import assess
 from twin.calibrate import physical as P
+from twin.calibrate.model import step_windows
 from twin.calibrate.parameters import PARAMETERS
 from twin.calibrate.readings import encoder_angles
-from twin.calibrate.run import Calibration
+from twin.calibrate.validate import aggregate
 from twin.calibrate.windows import Windows, cut, on_rows, streams
 from twin.errors import TwinError
+from twin.logs.noise import choose
 
 WINDOW_S = 0.1  # s: a window's length (at least MIN_PERIODS control periods)
 MIN_PERIODS = 3  # control periods a window has at least
@@ -245,7 +249,6 @@ def imu_sigma(log, given):
     hobby robot's rows (point samples of a 1 kHz loop, the motors shaking the board) carry 25–100×
     the datasheet's density at the row rate: weighed by the datasheet's figure, the fit's cost was
     ~3000 per residual and the vibration drove the parameters. ``given`` the log's figures' σ."""
-    from twin.logs.noise import choose
 
     try:
         _, sens, _ = choose(log)
@@ -989,7 +992,6 @@ def consistency(cal_a, cal_b) -> dict:
     """Whether two calibrations are of one robot, by their physical parameters: per parameter both
     fitted, z = (ln a − ln b) / √(s_a² + s_b²) with s the relative standard errors (the intervals'
     sources), and ``consistent`` when every |z| is below :data:`CONSISTENT_Z`."""
-    from twin.calibrate.identify import assess
 
     pa, _, _ = assess(cal_a, TURN_RATE)
     pb, _, _ = assess(cal_b, TURN_RATE)
@@ -1041,7 +1043,6 @@ def to_twin(cal, params: dict | None = None, control_rate: float = TWIN_RATES[0]
     log's nominal value."""
     from scipy.optimize import least_squares
 
-    from twin.calibrate.model import step_windows
 
     f = cal.robot_fit
     g = f.groups[0]
@@ -1170,7 +1171,6 @@ def validate_physical(cal, logs, check_parameters: bool = True, progress=None) -
     drive, by the continuous model), and with ``check_parameters`` whether the log is of the robot
     calibrated, by its parameters: the log calibrated alone, each physical parameter both
     calibrations identify compared (:func:`consistency`)."""
-    from twin.calibrate.validate import aggregate
 
     say = progress or (lambda msg: None)
     f = cal.robot_fit

@@ -22,12 +22,13 @@ the procedure below (one log):
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from twin.calibrate import fit as F
+from twin.calibrate.fit import Calibration  # noqa: F401  (twin.calibrate.run.Calibration, as before)
 from twin.calibrate.parameters import PARAMETERS
+from twin.calibrate.robot import calibrate_robot, twin_lags, window_periods
 from twin.calibrate.windows import WINDOW_PERIODS, cut, streams
 from twin.errors import TwinError
 
@@ -51,29 +52,6 @@ def default_names(logs) -> tuple[str, ...]:
     return plant + F.SENSOR_NAMES + ("imu_latency",)
 
 
-@dataclass
-class Calibration:
-    """The outcome: ``fit`` (the final :class:`~twin.calibrate.fit.Fit`), ``info``, covariances
-    ``C_jacobian`` and ``C_sandwich`` of the fitted vector, ``boot`` (B, k) the bootstrap's
-    vectors, ``clusters``, ``imu_latency`` (periods) and its ``latency_costs``, ``dropped`` the
-    start times (s) of the windows left out as outliers, ``wall_s``, ``logs`` the paths."""
-
-    names: tuple
-    fit: F.Fit
-    info: F.Information
-    C_jacobian: np.ndarray
-    C_sandwich: np.ndarray
-    boot: np.ndarray
-    clusters: int
-    imu_latency: int
-    latency_costs: dict
-    dropped: list
-    windows_total: int
-    wall_s: float
-    logs: list
-    streams: list = field(repr=False, default_factory=list)
-    max_turn_rate: float = 0.0
-    model_kind: str = "twin"
 
 
 def check_names(names, logs, log_objs):
@@ -100,8 +78,6 @@ def model_for(log_objs, model: str = "auto") -> str:
     :mod:`twin.calibrate.robot`) or ``"twin"`` (the PyBullet twin's stepping, one log). ``"auto"``:
     the twin's stepping for one log the twin wrote itself (that stepping *is* its robot's dynamics,
     exactly), the physical model for anything else."""
-    from twin.calibrate.robot import twin_lags
-
     if model not in MODELS:
         raise TwinError(f"--model must be one of {', '.join(MODELS)}, got {model!r}")
     if model == "auto":
@@ -118,15 +94,11 @@ def calibrate(log_objs, names=None, physics_rate: float | None = None, seed: int
     by the robot's continuous equations (:func:`twin.calibrate.robot.calibrate_robot`, several logs
     of one robot) or by the twin's stepping (one log; :func:`model_for` chooses for ``"auto"``)."""
     if model_for(log_objs, model) == "physical":
-        from twin.calibrate.robot import calibrate_robot
-
         return calibrate_robot(log_objs, names, seed=seed, bootstrap=bootstrap, progress=progress)
     say = progress or (lambda msg: None)
     t_start = time.perf_counter()
     log = log_objs[0]
     if periods is None:  # windows sized in seconds (WINDOW_PERIODS at 200 Hz)
-        from twin.calibrate.robot import window_periods
-
         periods = window_periods(log.control_rate)
     if physics_rate is None:
         physics_rate = float(log.scenario.data["rates"]["physics"]) if log.scenario is not None else 1000.0

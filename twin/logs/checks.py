@@ -62,6 +62,12 @@ MIN_CORRELATION = 0.3  # the correlation of a wheel's speed and command that pas
 RATIO = (0.8, 1.25)  # a ratio or slope that passes
 
 
+def _correlation(x: np.ndarray, y: np.ndarray) -> float:
+    """Pearson's correlation of x and y, its sums exactly rounded (the same bits on every CPU)."""
+    dx, dy = x - math.fsum(x) / len(x), y - math.fsum(y) / len(y)
+    return math.fsum(dx * dy) / math.sqrt(math.fsum(dx * dx) * math.fsum(dy * dy))
+
+
 def _check(status: str, text: str, **figures) -> dict:
     return {"status": status, "text": text, "figures": figures}
 
@@ -299,7 +305,7 @@ def _encoders_vs_commands(log) -> dict:
     rho = []
     for j, side in enumerate(("left", "right")):
         if moving[j] and mean_u[:, j].std() > 0:
-            c = float(np.corrcoef(speed[:, j], mean_u[:, j])[0, 1])
+            c = _correlation(speed[:, j], mean_u[:, j])
             figs[f"correlation_{side}"] = c
             rho.append(c)
     if len(rho) < 2:

@@ -55,12 +55,31 @@ def normalised_innovation(who: str, t: float, y, S) -> float | None:
     if S.shape != (y.size, y.size) or not np.isfinite(y).all() or not np.isfinite(S).all():
         raise PluginError(f"estimator {who}: diagnostics() at t = {t:.3f} s: innovation {y.shape} and "
                           f"innovation_cov {S.shape}; allowed: finite (m,) and (m, m) (see twin.protocols.Estimator)")
-    try:
-        w = np.linalg.solve(np.linalg.cholesky(S), y)
-    except np.linalg.LinAlgError:
+    w = _whitened(S, y)
+    if w is None:
         raise PluginError(f"estimator {who}: diagnostics() at t = {t:.3f} s: innovation_cov is not positive "
-                          f"definite; allowed: a covariance (symmetric, positive definite)") from None
-    return float(w.sum()) / math.sqrt(y.size)
+                          f"definite; allowed: a covariance (symmetric, positive definite)")
+    return math.fsum(w) / math.sqrt(y.size)
+
+
+def _whitened(S: np.ndarray, y: np.ndarray) -> list | None:
+    """L⁻¹ y with S = L Lᵀ (Cholesky, lower triangle of S), or None if S is not positive definite.
+    Written out in one fixed order of operations, not LAPACK's: the NIS whiteness in replay.json
+    is then the same bits on every CPU (an innovation has a handful of components)."""
+    m = len(y)
+    L = [[0.0] * m for _ in range(m)]
+    w = [0.0] * m
+    for i in range(m):
+        for j in range(i + 1):
+            acc = float(S[i, j]) - math.fsum(L[i][k] * L[j][k] for k in range(j))
+            if i == j:
+                if not acc > 0.0:
+                    return None
+                L[i][i] = math.sqrt(acc)
+            else:
+                L[i][j] = acc / L[j][j]
+        w[i] = (float(y[i]) - math.fsum(L[i][k] * w[k] for k in range(i))) / L[i][i]
+    return w
 
 
 class DiagnosticsLog(Sequence):

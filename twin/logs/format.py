@@ -992,22 +992,7 @@ def _scenario_v2(root: Path, m: dict, where: str):
         if "set" in m:
             raise TwinError(f"{where}: set: given without scenario; allowed: set with a scenario only")
         return None
-    from twin.scenarios import load_scenario
-
-    name, items = m["scenario"], m.get("set", [])
-    beside = "a built-in name or the name of a .toml file beside log.toml (no directory: the log's own file)"
-    if not isinstance(name, str) or not name:
-        raise TwinError(f"{where}: scenario: {shown(name)}; allowed: {beside}")
-    if not (isinstance(items, list) and all(isinstance(s, str) for s in items)):
-        raise TwinError(f"{where}: set: {shown(items)}; allowed: a list of \"KEY=VALUE\" strings (as --set takes)")
-    if name.endswith(".toml"):
-        if Path(name).name != name or "\\" in name or not name.isprintable():
-            raise TwinError(f"{where}: scenario: {shown(name)} is not beside log.toml; allowed: {beside}")
-        name = str(root / name)
-    try:
-        return load_scenario(name, items, within=root)
-    except TwinError as exc:
-        raise TwinError(f"{where}: scenario: {exc}") from None
+    return _load_named(root, where, m["scenario"], m.get("set", []))
 
 
 def _extra_stream(root: Path, where: str, name: str, decl: dict) -> Stream:
@@ -1106,10 +1091,16 @@ def _number(m: dict, key: str, where: str, lo: float, hi: float, unit: str, lo_o
 def _scenario(root: Path, m: dict, where: str, counts: int, pos):
     """The scenario the manifest names (default: the defaults), with its ``set`` items and the
     manifest's encoder counts and IMU position."""
+    extra = [f"sensors.encoder_counts={counts}", f"sensors.imu_position=[{', '.join(map(repr, pos))}]",
+             "sensors.sensing=\"estimated\""]
+    return _load_named(root, where, m.get("scenario", "paper-exp1"), m.get("set", []), extra)
+
+
+def _load_named(root: Path, where: str, name, items, extra=()):
+    """Scenario ``name`` (a built-in, or a .toml file beside log.toml) with ``items`` and then
+    ``extra`` as --set items, or a one-line :class:`TwinError` naming log.toml's key."""
     from twin.scenarios import load_scenario
 
-    name = m.get("scenario", "paper-exp1")
-    items = m.get("set", [])
     beside = "a built-in name or the name of a .toml file beside log.toml (no directory: the log's own file)"
     if not isinstance(name, str) or not name:
         raise TwinError(f"{where}: scenario: {shown(name)}; allowed: {beside}")
@@ -1121,10 +1112,8 @@ def _scenario(root: Path, m: dict, where: str, counts: int, pos):
         if Path(name).name != name or "\\" in name or not name.isprintable():
             raise TwinError(f"{where}: scenario: {shown(name)} is not beside log.toml; allowed: {beside}")
         name = str(root / name)
-    items = [*items, f"sensors.encoder_counts={counts}", f"sensors.imu_position=[{', '.join(map(repr, pos))}]",
-             "sensors.sensing=\"estimated\""]
     try:
-        return load_scenario(name, items, within=root)
+        return load_scenario(name, [*items, *extra], within=root)
     except TwinError as exc:
         raise TwinError(f"{where}: scenario: {exc}") from None
 

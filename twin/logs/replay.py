@@ -245,7 +245,6 @@ def replay(log: SensorLog, estimator, name: str = "", diagnostics: bool = False)
 def _replay(log: SensorLog, estimator, name: str, diag) -> Replay:
     """:func:`replay`, the diagnostics appended to ``diag`` (a list, or a DiagnosticsLog made
     here for ``diag = "arrays"``; None: not asked for)."""
-    from twin.logs.diagnostics import DiagnosticsLog, normalised_innovation
     from twin.protocols import describe_object
 
     sched = schedule(log)
@@ -434,13 +433,15 @@ def whiteness(r: Replay, lags: int = WHITENESS_LAGS) -> dict | None:
     n = len(s)
     if n < 2 * lags:
         return None
-    c = s - s.mean()
-    den = float(c @ c)
-    rho = [float(c[:-l] @ c[l:]) / den if den > 0 else 0.0 for l in range(1, lags + 1)]
+    # sums exactly rounded (math.fsum), not by the BLAS or SIMD reductions: the same bits on every CPU
+    mean = math.fsum(s) / n
+    c = s - mean
+    den = math.fsum(c * c)
+    rho = [math.fsum(c[:-l] * c[l:]) / den if den > 0 else 0.0 for l in range(1, lags + 1)]
     band = WHITENESS_Z / math.sqrt(n)
     return {"updates": n, "lags": lags, "band": band, "autocorrelation": rho,
-            "outside_fraction": float(np.mean(np.abs(rho) > band)), "mean": float(s.mean()),
-            "variance": float(s.var())}
+            "outside_fraction": float(np.mean(np.abs(rho) > band)), "mean": mean,
+            "variance": den / n}
 
 
 def state_truth(log: SensorLog, t: np.ndarray):
