@@ -216,6 +216,7 @@ def write_figure(cal, params: dict, validation, path) -> None:
     f = cal.fit
     w = f.windows
     T = 1.0 / f.plant.control_rate
+    model = "robot model" if getattr(cal, "model_kind", "twin") == "physical" else "twin"
     imu, _ = f.plant.predict(w, f.values, f.S, f.offsets)
     fig, ax = plt.subplots(2, 2, figsize=(12, 8), constrained_layout=True)
     # (a) gyro pitch rate: readings and the fitted windows, over the first 3 s of fitted windows
@@ -224,7 +225,7 @@ def write_figure(cal, params: dict, validation, path) -> None:
     for i in np.flatnonzero(show):
         t = w.t0[i] + T * (np.arange(w.periods) + 1)
         a.plot(t, w.imu[i, :, 1], ".", color="0.55", ms=3, label="gyro y reading" if i == 0 else None)
-        a.plot(t, imu[i, :, 1], "-", color="C0", lw=1.2, label="fitted twin (each window)" if i == 0 else None)
+        a.plot(t, imu[i, :, 1], "-", color="C0", lw=1.2, label=f"fitted {model} (each window)" if i == 0 else None)
     a.set_title("Fit: pitch rate, first 1.5 s of fitted windows", fontsize=10)
     a.set_xlabel("t [s]")
     a.set_ylabel("gyro y [rad/s]")
@@ -244,16 +245,26 @@ def write_figure(cal, params: dict, validation, path) -> None:
     # (c) intervals of the physical parameters as factors of the log's model
     c = ax[1, 0]
     phys = [n for n in f.plant.names if PARAMETERS[_base(n)].group in ("plant", "motor")]
+    # a logarithmic axis over factors 1/10 … 10: an interval reaching past it (a parameter the log
+    # does not identify can span decades) is drawn to the edge with an arrow, so that it does not
+    # squeeze every other interval into a dot
+    edge = (0.1, 10.0)
     for k, n in enumerate(phys):
         e = params[n]
         base = e["nominal"]
         lo, hi = e["ci95"][0] / base, e["ci95"][1] / base
         col = "C0" if e["identifiable"] else "C3"
-        c.plot([lo, hi], [k, k], "-", color=col, lw=3)
-        c.plot([e["value"] / base], [k], "o", color=col)
+        c.plot([min(max(lo, edge[0]), edge[1]), min(max(hi, edge[0]), edge[1])], [k, k], "-", color=col, lw=3)
+        c.plot([min(max(e["value"] / base, edge[0]), edge[1])], [k], "o", color=col)
+        if lo < edge[0]:
+            c.plot([edge[0]], [k], "<", color=col, ms=8)
+        if hi > edge[1]:
+            c.plot([edge[1]], [k], ">", color=col, ms=8)
+    c.set_xscale("log")
+    c.set_xlim(edge[0] / 1.15, edge[1] * 1.15)
     c.axvline(1.0, color="0.4", lw=0.8, ls=":")
     c.set_yticks(range(len(phys)), [n + ("" if params[n]["identifiable"] else " (not identified)") for n in phys])
-    c.set_xlabel("fitted value / the log's model (95 % interval)")
+    c.set_xlabel("fitted value / the log's model (95 % interval; arrows: beyond ×10 or ÷10)")
     c.set_title("Physical parameters (red: not identified)", fontsize=10)
     # (d) validation or the latency profile
     d = ax[1, 1]
@@ -278,6 +289,9 @@ def write_figure(cal, params: dict, validation, path) -> None:
             d.set_title("IMU latency profile (no --validate log)", fontsize=10)
         else:
             d.axis("off")
+            d.text(0.5, 0.5, "no held-out log: give one with --validate LOG\nto see how well the calibrated model "
+                             "predicts it", ha="center", va="center", fontsize=10, color="0.35",
+                   transform=d.transAxes)
     fig.savefig(path, dpi=100)
     plt.close(fig)
 
