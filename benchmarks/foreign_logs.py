@@ -22,10 +22,9 @@ its own IMU and encoders, none of the twin's code; see its docstring):
   lying at about 0.5 rad. Replayed with the datasheet noise (version 2: the log leaves its white
   noise out; version 1: what the log's scenario says), and the EKF once more told the real noise
   (version 2: the log's ``sigma``; version 1: sensors.gyro/accel.noise_density set so that the
-  per-sample σ is the sidecar's): NIS/dof, whiteness, rejected readings, θ's error 0.5 s after
-  the start. With version 2, also the EKF told the log's IMU sampling and command semantics
-  (``EKFEstimator.set_sampling``, through the Python API), on those logs and on the same begun
-  15 ms into the stand-up.
+  per-sample σ is the sidecar's), and with ``--noise datasheet``: NIS/dof, whiteness, rejected
+  readings, θ's error 0.5 s after the start. With version 2, also the EKF per log with its
+  diagnostics (NEES, where it lies), on those logs and on the same begun 15 ms into the stand-up.
 
 The logs are written in format version 2 (``--format-version 1``: version 1, whose reader
 assumes the sensors from a scenario: no accelerometer bias, held commands, mean samples).
@@ -132,10 +131,7 @@ def _per_state_main(out: str, logs: list) -> int:
     doc = {}
     for p in logs:
         log = read_log(p)
-        est = build_for(log, "ekf")
-        told = getattr(est, "set_sampling", None)  # (code before it: every row taken as a held mean)
-        if told is not None:
-            told(log.sampling, log.command_semantics)
+        est = build_for(log, "ekf")  # (told the log's sampling and, on jittered rows, its periods, as twin replay)
         r = replay(log, est, "ekf", diagnostics=True)
         rec = filter_record(log, r)
         x, P = rec.filter_log["x"], rec.filter_log["P"]
@@ -143,8 +139,9 @@ def _per_state_main(out: str, logs: list) -> int:
         keep = (rec.t >= NEES_START - 1e-9) & np.isfinite(truth).all(axis=1)
         e = x[keep] - truth[keep]
         var = np.diagonal(P[keep], axis1=1, axis2=2)
-        k = np.round((log.truth_t - r.t[0]) * log.control_rate).astype(int)
-        from twin.logs.replay import consistency
+        from twin.logs.replay import consistency, instants_of
+
+        k = instants_of(log, r.t, log.truth_t)
 
         c = consistency(r, log)
         ok = (k >= 0) & (k < len(r.estimates))
@@ -202,9 +199,9 @@ def _range(vals, scale=1.0, digits=3) -> str:
     return f"{_fmt(float(np.mean(vals)), digits)} ({_fmt(min(vals), digits)}–{_fmt(max(vals), digits)})"
 
 
-def replay_group(code: Path, logs: list, kinds: str, tmp: Path, name: str) -> tuple[dict, float, Path]:
+def replay_group(code: Path, logs: list, kinds: str, tmp: Path, name: str, *extra) -> tuple[dict, float, Path]:
     out = tmp / f"replay-{name}"
-    wall = twin(code, ["replay", *logs, "--estimator", kinds, "--out", out], tmp, tmp / f"replay-{name}.txt")
+    wall = twin(code, ["replay", *logs, "--estimator", kinds, *extra, "--out", out], tmp, tmp / f"replay-{name}.txt")
     return json.loads((out / "replay.json").read_text()), wall, out
 
 
@@ -395,27 +392,26 @@ def main(argv=None) -> int:
             row()
 
         # ---- B -------------------------------------------------------------------------------------------------
-        if FORMAT_VERSION == 2:  # the datasheet's noise: the log leaves its white noise out; the real one: it says it
+        if FORMAT_VERSION == 2:  # without noise figures (the replay measures them), and with the true ones
             b_logs = make_logs(logs, "B", range(n_b), noise_figures=False)
             told = make_logs(logs, "B", range(n_b))
         else:
             b_logs = make_logs(logs, "B", range(n_b))
             told = [told_real_noise(p, p.with_name(p.name + "-told")) for p in b_logs]
         bdoc, wall, bdir = replay_group(code, b_logs, "ekf,complementary,kalman2", tmp, "b")
+        ddoc, wall_d, ddir = replay_group(code, b_logs, "ekf,kalman2", tmp, "b-datasheet", "--noise", "datasheet")
         tdoc, wall_t, tdir = replay_group(code, told, "ekf,kalman2", tmp, "b-told")
         durations = [json.loads((p / "robot_sim.json").read_text())["duration_s"] for p in b_logs]
+        measured = "measured from the log" if FORMAT_VERSION == 2 else "the log's scenario's (datasheet)"
         row(f"**Profile B**, {n_b} logs of {min(durations):.1f}–{max(durations):.1f} s (seeds 0–{n_b - 1}): "
-            f"`twin replay` on logs without noise figures (version 1: the datasheet noise its scenario implies; "
-            f"{wall:.0f} s), and the EKF and kalman2 once more on logs that give the real per-sample noise "
-            f"({wall_t:.0f} s):")
+            f"`twin replay` on logs without noise figures ({measured}; {wall:.0f} s), the same with "
+            f"`--noise datasheet` ({wall_d:.0f} s), and on logs that give the real per-sample noise ({wall_t:.0f} s):")
         row()
         row("| estimator | noise | NIS/dof, mean (range) | whiteness lags outside | rejected readings of IMU rows, "
             "per log | θ RMSE [rad] | θ's error 0.5 s after the start, absolute [rad] |")
         row("|---|---|---|---|---|---|---|")
-        # version 2 without noise figures: what the replay then takes (the preset's datasheet noise, or the noise
-        # it measures from the log where it does) is the replay's to say, in replay.json
-        for d, rdir, noise, kinds in ((bdoc, bdir, "datasheet" if FORMAT_VERSION == 1 else "not in the log",
-                                       ("ekf", "complementary", "kalman2")),
+        for d, rdir, noise, kinds in ((bdoc, bdir, measured, ("ekf", "complementary", "kalman2")),
+                                      (ddoc, ddir, "datasheet", ("ekf", "kalman2")),
                                       (tdoc, tdir, "real (told)", ("ekf", "kalman2"))):
             for kind in kinds:
                 ents = {k: e["estimators"][kind] for k, e in d["logs"].items()}
@@ -433,23 +429,27 @@ def main(argv=None) -> int:
             f"a filter that trusts the accelerometer's tilt is off by about that much.")
         row()
         if FORMAT_VERSION == 2:
-            # the EKF told the log's IMU sampling and command semantics (EKFEstimator.set_sampling): through the
-            # Python API, as `twin replay` does not hand them over yet
+            # the EKF per log, with its diagnostics (the NEES: the logs carry the state truth at their rows)
             m_logs = make_logs(logs, "B", range(n_b), log_start=0.015)
-            row(f"**Profile B, the EKF told the log's sampling** (`EKFEstimator.set_sampling(log.sampling, "
-                f"log.command_semantics)` through the Python API: point samples rebuilt as interval means, the latency "
+            row(f"**Profile B, the EKF per log** (as `twin replay` builds it: point samples rebuilt as interval means, "
+                f"their shared noise carried, the rows the instants with each step over its own period, the latency "
                 f"watch off for sampled commands), the real noise, the same {n_b} logs and the same begun 15 ms into "
-                f"the stand-up (θ̇ about −4 rad/s at the first row):")
+                f"the stand-up (θ̇ about −4 rad/s at the first row). The NEES from 0.5 s on, with the mean e²/P of ψ and "
+                f"the encoder zero (mean) where it lies:")
             row()
             row("| logs | NIS/dof, mean (range) | θ RMSE [rad] | θ's error 0.5 s after the start, absolute [rad], per "
-                "log | latency-change events | rejected readings (all logs) |")
-            row("|---|---|---|---|---|---|")
+                "log | NEES per log | e²/P of θ, ψ, encoder zero, mean | latency-change events | rejected readings "
+                "(all logs) |")
+            row("|---|---|---|---|---|---|---|---|")
             for name, group in (("from lying still", told), ("begun mid-motion", m_logs)):
                 ps_b = per_state(code, group, tmp / f"per-state-b-{len(name)}.json", tmp)
                 vals = list(ps_b.values())
                 after = ", ".join(f"{abs(v['theta_error_after_0_5_s']):.3f}" for v in vals)
+                nees = ", ".join(_fmt(v["nees_mean"]) for v in vals)
+                e2 = np.mean([v["e2_over_p"] for v in vals], axis=0)
                 row(f"| {name} | {_range([v['nis_per_dof'] for v in vals])} | "
-                    f"{_range([v['theta_rmse'] for v in vals])} | {after} | "
+                    f"{_range([v['theta_rmse'] for v in vals])} | {after} | {nees} | "
+                    f"{e2[0]:.2f}, {e2[1]:.2f}, {e2[6]:.2f} | "
                     f"{sum(v['latency_events'] for v in vals)} | {sum(v['rejected_total'] for v in vals)} |")
             row()
 

@@ -63,6 +63,10 @@ typedef struct {
     /* the last encoder update's innovation y (inn_dof,) and its covariance S: diagnostics only */
     double inn_y[2], inn_S[4];
     int inn_dof;
+    /* point-sampled IMU rows (EKFEstimator.set_sampling): the covariance of the state's error with
+       the last sample's noise n_k per axis (ω_y, ω_z, f_x, f_z), column-major by axis (NX per
+       axis); the next interval's mean (n_k + n_{k+1}) / 2 shares n_k. Zero: nothing carried */
+    double Cx[4 * NX];
 } Core;
 
 #define NCONST 54 /* doubles before x */
@@ -213,8 +217,8 @@ static void synthetic(const Core *c, const double *x, double ul, double ur, doub
 }
 
 /* one strapdown step: x1, F, Q from x and the sample (ω_y, ω_z, f_x, f_z) (see _propagate) */
-static void propagate(const Core *c, const double *x, const double *smp, const double *extra, double *x1,
-                      double *F, double *Q) {
+static void propagate(const Core *c, const double *x, const double *smp, const double *extra, const double *half,
+                      double *x1, double *F, double *Q, double *Cx_new) {
     double wy = smp[0], wz = smp[1], fx = smp[2], fz = smp[3];
     double dt = c->dt, r = c->r, xi = c->xi, zi = c->zi;
     double th = x[TH], v = x[V];
@@ -268,9 +272,10 @@ static void propagate(const Core *c, const double *x, const double *smp, const d
         L[2][j] = iv1[j];
         L[3][j] = (0.5 * dt * iv1[j] - dz1 * ith1[j]) / r;
     }
-    double var[4] = {c->g_var, c->g_var, c->a_var, c->a_var};
-    if (extra)
-        for (int j = 0; j < 4; j++) var[j] += extra[j];
+    double base[4] = {c->g_var, c->g_var, c->a_var, c->a_var}, var[4];
+    /* half[j]: the axis's mean is the trapezoid (n_{k-1} + n_k) / 2 of two point samples' noise:
+       its own variance σ²/2, and its n_{k-1} half is correlated with the state through Cx */
+    for (int j = 0; j < 4; j++) var[j] = (half && half[j] != 0.0 ? 0.5 : 1.0) * base[j] + (extra ? extra[j] : 0.0);
     static const int rows[4] = {TH, AL, V, PS};
     memset(Q, 0, NX * NX * sizeof(double));
     for (int a = 0; a < 4; a++)
@@ -279,6 +284,38 @@ static void propagate(const Core *c, const double *x, const double *smp, const d
             for (int j = 0; j < 4; j++) s += L[a][j] * var[j] * L[b][j];
             Q[rows[a] * NX + rows[b]] = s;
         }
+    if (half) {
+        /* δx⁺ = F δx + L e, e_j = (n_{k-1,j} + n_{k,j}) / 2: Cov(F δx, L e) = Σ_j ½ (F Cx_j) L_jᵀ */
+        for (int j = 0; j < 4; j++) {
+            if (half[j] == 0.0) continue;
+            const double *cj = c->Cx + j * NX;
+            double G[NX];
+            for (int i = 0; i < NX; i++) {
+                double s = cj[i];
+                if (i == TH || i == AL || i == V || i == PS) {
+                    s = 0.0;
+                    for (int k = 0; k < NX; k++) s += F[i * NX + k] * cj[k];
+                }
+                G[i] = s;
+            }
+            for (int a = 0; a < 4; a++) {
+                double l = 0.5 * L[a][j];
+                for (int i = 0; i < NX; i++) {
+                    double v = G[i] * l;
+                    Q[i * NX + rows[a]] += v;
+                    Q[rows[a] * NX + i] += v;
+                }
+            }
+        }
+    }
+    if (Cx_new) { /* Cov(δx⁺, n_k): the share (½ or all) of this sample's noise in the mean */
+        memset(Cx_new, 0, 4 * NX * sizeof(double));
+        for (int j = 0; j < 4; j++) {
+            if (half[4 + j] == 0.0) continue; /* (half[4..7]: the axis is the reading's, not the model's) */
+            double w = (half[j] != 0.0 ? 0.5 : 1.0) * base[j];
+            for (int a = 0; a < 4; a++) Cx_new[j * NX + rows[a]] = L[a][j] * w;
+        }
+    }
     Q[BY * NX + BY] += c->bias_q;
     Q[BZ * NX + BZ] += c->bias_q;
     /* the trapezoid's error in psi: U(-1/2, 1/2) of dt |v1 - v| / r (EKFEstimator._propagate) */
@@ -392,7 +429,7 @@ static double encoder_fit(const Core *c, const double *enc, const double *last, 
 }
 
 /* the Kalman update (Joseph form, as filterpy) of x, P with the encoder measurement */
-static int kalman_update(double *x, double *P, const EncMeas *em, const double *consider) {
+static int kalman_update(double *x, double *P, const EncMeas *em, const double *consider, double *Cx) {
     int m = em->dof;
     double PHt[NX][2], S[2][2], Si[2][2], K[NX][2], y[2];
     innovation(x, P, em, y, PHt, S);
@@ -435,6 +472,16 @@ static int kalman_update(double *x, double *P, const EncMeas *em, const double *
             for (int k = 0; k < NX; k++) s += A[i * NX + k] * IKH[j * NX + k];
             for (int a = 0; a < m; a++) s += K[i][a] * em->R[a] * K[j][a];
             P[i * NX + j] = s;
+        }
+    if (Cx) /* Cov(δx, n) after the update: (I − K H) Cov(δx, n) (the measurement's noise is not n) */
+        for (int j = 0; j < 4; j++) {
+            double col[NX];
+            for (int i = 0; i < NX; i++) {
+                double s = 0.0;
+                for (int k = 0; k < NX; k++) s += IKH[i * NX + k] * Cx[j * NX + k];
+                col[i] = s;
+            }
+            memcpy(Cx + j * NX, col, sizeof col);
         }
     return 0;
 }
@@ -495,7 +542,7 @@ static int keep_inside(Core *c, const double *enc, const double *last) {
         }
         if (!truncated_measurement(w, s2, lo, hi, c->stuck_sigmas, &em.z[0], &em.R[0]))
             continue;
-        if (kalman_update(c->x, c->P, &em, c->consider)) return -1;
+        if (kalman_update(c->x, c->P, &em, c->consider, c->Cx)) return -1;
         n++;
     }
     return n + 16 * implausible;
@@ -533,6 +580,7 @@ static int in_range(const Core *c) {
 }
 
 static void restore(Core *c) {
+    memset(c->Cx, 0, sizeof c->Cx);
     memcpy(c->x, c->xg, sizeof c->x);
     for (int i = 0; i < NX * NX; i++) c->P[i] = 4.0 * c->Pg[i];
     for (int i = 0; i < NX; i++) c->P[i * NX + i] += 1e-10;
@@ -569,6 +617,7 @@ static PyObject *set_state(PyObject *self, PyObject *const *args, Py_ssize_t nar
     if (floats(args[1], c->x, NX, "x") || floats(args[2], c->P, NX * NX, "P") || floats(args[3], c->w, 2, "w") ||
         floats(args[4], c->w_prev, 2, "w_prev"))
         return NULL;
+    memset(c->Cx, 0, sizeof c->Cx); /* a state set from outside carries no correlation with the samples */
     if (healthy(c)) keep_good(c); /* a broken state is never kept as the one to restore */
     Py_RETURN_NONE;
 }
@@ -580,6 +629,24 @@ static PyObject *set_consider(PyObject *self, PyObject *const *args, Py_ssize_t 
         return NULL;
     }
     if (floats(args[1], c->consider, NX, "mask")) return NULL;
+    Py_RETURN_NONE;
+}
+
+/* the period of the next steps (a log whose rows are its instants: EKFEstimator.set_sampling's
+   periods = "rows"): the filter's and the model's step dt (s), the model's RK4 steps over it and
+   the gyro bias's random-walk variance over it */
+static PyObject *set_period(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    Core *c;
+    double v[4];
+    if (nargs != 2 || !(c = get(args[0]))) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "set_period(core, (dt, mdt, msub, bias_q))");
+        return NULL;
+    }
+    if (floats(args[1], v, 4, "period")) return NULL;
+    c->dt = v[0];
+    c->mdt = v[1];
+    c->msub = v[2];
+    c->bias_q = v[3];
     Py_RETURN_NONE;
 }
 
@@ -652,16 +719,20 @@ static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs
     double smp[4], extra[4] = {0.0, 0.0, 0.0, 0.0}, syn[4], syn_extra[4], enc[2], last[2], cmd[2], T = 0.0;
     int has_enc = args[2] != Py_None && args[3] != Py_None;
     /* imu: (ω_y, ω_z, f_x, f_z), or those and the variances (4,) the sample's own rebuilding adds
-       (point samples turned into interval means: EKFEstimator.set_sampling) */
+       (point samples turned into interval means: EKFEstimator.set_sampling), or those and (4,)
+       1.0 where the axis's mean is the trapezoid of two point samples (their noise shared with the
+       previous interval's mean: Core.Cx) */
     Py_ssize_t n_imu = PySequence_Check(args[1]) ? PySequence_Size(args[1]) : -1;
     if (n_imu < 0) PyErr_Clear(); /* floats() below says what is wrong */
-    int has_extra = n_imu == 8;
+    int has_extra = n_imu == 8 || n_imu == 12, points = n_imu == 12;
+    double half[8] = {0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0};
     if (has_extra) {
-        double both[8];
-        if (floats(args[1], both, 8, "imu")) return NULL;
+        double all[12];
+        if (floats(args[1], all, n_imu, "imu")) return NULL;
         for (int j = 0; j < 4; j++) {
-            smp[j] = both[j];
-            extra[j] = both[4 + j];
+            smp[j] = all[j];
+            extra[j] = all[4 + j];
+            if (points) half[j] = all[8 + j];
         }
     } else if (floats(args[1], smp, 4, "imu")) return NULL;
     if (has_enc && (floats(args[2], enc, 2, "enc") || floats(args[3], last, 2, "last"))) return NULL;
@@ -679,23 +750,37 @@ static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs
     double nis = NAN;
     EncMeas em;
     em.dof = 0;
+    double smp0[4];
+    memcpy(smp0, smp, sizeof smp0);
     int saturated = imu_sample(c, cmd, acc, smp, extra, syn, syn_extra, &acc_out, e);
-    propagate(c, c->x, smp, (saturated || acc_out || has_extra) ? extra : NULL, x1, F, Q);
+    if (points)
+        for (int j = 0; j < 4; j++)
+            if (smp[j] != smp0[j] || (saturated && fabs(smp0[j]) >= c->lim[j]) || (j >= 2 && acc_out))
+                half[j] = half[4 + j] = 0.0; /* the model's value stands in: the reading's noise is not in it */
+    double Cx_new[4 * NX];
+    propagate(c, c->x, smp, (saturated || acc_out || has_extra) ? extra : NULL, points ? half : NULL, x1, F, Q,
+              points ? Cx_new : NULL);
     cov_predict(F, c->P, Q, Pp);
     if (has_enc) {
         double eps = encoder_fit(c, enc, last, T, x1, smp, Pp, 1, &em);
         if (!(eps <= c->imu_gate[em.dof])) {
             double ax1[NX], aF[NX * NX], aQ[NX * NX], aPp[NX * NX];
             if (!saturated && !acc_out) synthetic(c, c->x, cmd[0], cmd[1], syn, syn_extra);
-            propagate(c, c->x, syn, syn_extra, ax1, aF, aQ);
+            propagate(c, c->x, syn, syn_extra, NULL, ax1, aF, aQ, NULL);
             cov_predict(aF, c->P, aQ, aPp);
-            if (encoder_fit(c, enc, last, T, ax1, syn, aPp, 1, &em) <= c->gate[em.dof])
+            if (encoder_fit(c, enc, last, T, ax1, syn, aPp, 1, &em) <= c->gate[em.dof]) {
+                memset(c->Cx, 0, sizeof c->Cx); /* the sample is not used: its noise is in nothing */
                 return Py_BuildValue("(iiidiiiddi)", 2, 0, 0, eps, 0, 1, acc_out, e[0], e[1], 0);
+            }
         }
         em.dof = 0;
     }
     memcpy(c->x, x1, sizeof x1);
     memcpy(c->P, Pp, sizeof Pp);
+    if (points)
+        memcpy(c->Cx, Cx_new, sizeof Cx_new);
+    else
+        memset(c->Cx, 0, sizeof c->Cx);
     c->w_prev[0] = c->w[0];
     c->w_prev[1] = c->w[1];
     c->w[0] = smp[0];
@@ -717,7 +802,7 @@ static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs
             enc_code = 3;
         else {
             enc_code = (nis <= c->gate[dof]) ? 2 : 4;
-            if (kalman_update(c->x, c->P, &em, c->consider)) ok = 0;
+            if (kalman_update(c->x, c->P, &em, c->consider, points ? c->Cx : NULL)) ok = 0;
         }
         if (ok && enc_code != 3) {
             inside = keep_inside(c, enc, last);
@@ -810,6 +895,7 @@ static PyMethodDef methods[] = {
     {"state", get_state, METH_O, "(x, P, w, w_prev) as tuples."},
     {"state_into", (PyCFunction)(void (*)(void))state_into, METH_FASTCALL, "x, P into a row of a buffer."},
     {"set_consider", (PyCFunction)(void (*)(void))set_consider, METH_FASTCALL, "Set the consider-state mask."},
+    {"set_period", (PyCFunction)(void (*)(void))set_period, METH_FASTCALL, "Set the period of the next steps."},
     {"state6", py_state6, METH_O, "The filter's [θ, θ̇, ψ, ψ̇, α, α̇]."},
     {"advance", (PyCFunction)(void (*)(void))advance, METH_FASTCALL, "One filter step with an IMU sample."},
     {"forward", (PyCFunction)(void (*)(void))forward, METH_FASTCALL, "Predict the state over commands."},

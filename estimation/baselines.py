@@ -48,6 +48,19 @@ class _TiltBaseline:
         self._enc = (0.0, 0.0)
         self._psi_hist: list[float] = []
         self.rejected_total = 0  # no gating: nothing is ever rejected
+        self.periods = "constant"  # see set_sampling
+        self._nominal_dt = self.dt
+        self._t_hist: list[float] = []  # periods = "rows": the instants' times (s) of _psi_hist
+
+    def set_sampling(self, imu: str = "mean", commands: str = "held", periods: str = "constant") -> None:
+        """How a log's rows were sampled (:meth:`twin.protocols.Estimator` optional hook). These
+        filters take every IMU row as the rate at its instant and need no command, so ``imu`` and
+        ``commands`` change nothing; ``periods = "rows"`` (a log whose instants are its rows, not
+        on a regular grid): each step integrates over the time since the previous measurement's
+        ``t`` instead of 1 / control rate."""
+        if periods not in ("constant", "rows"):
+            raise TwinError(f"periods must be \"constant\" or \"rows\", got {periods!r}")
+        self.periods = periods
 
     def stats(self) -> dict:
         return {"rejected_total": 0}
@@ -63,6 +76,8 @@ class _TiltBaseline:
         self._gyro = (0.0, 0.0, 0.0)
         self._enc = (0.0, 0.0)
         self._psi_hist = []
+        self._t_hist = []
+        self.dt = self._nominal_dt
 
     def start(self, meas) -> Estimate:
         if self.k >= 0:  # a second run with the same filter: forget the first
@@ -72,6 +87,7 @@ class _TiltBaseline:
         self.theta0 = self.accel_angle(meas.accel)
         self._init_angle(self.theta0)
         self.k = 0
+        self._t = float(meas.t)
         if meas.gyro is not None:
             self._gyro = meas.gyro
         return self._output(meas)
@@ -80,6 +96,11 @@ class _TiltBaseline:
         if self.k < 0:
             raise TwinError("call start() with the first measurement before step()")
         self.k += 1
+        if self.periods == "rows":  # this step spans the time since the last instant
+            t = float(meas.t)
+            if not t > self._t:
+                raise TwinError(f"instants must be strictly increasing in time; got t = {t!r} s after {self._t!r} s")
+            self.dt, self._t = t - self._t, t
         ok = finite_reading
         if ok(meas.gyro):
             self._gyro = meas.gyro  # a missing sample: the last one is used again
@@ -96,7 +117,14 @@ class _TiltBaseline:
         hist.append(psi)
         if len(hist) > _SPEED_WINDOW + 1:
             del hist[0]
-        psi_dot = (hist[-1] - hist[0]) / ((len(hist) - 1) * self.dt) if len(hist) > 1 else 0.0
+        if self.periods == "rows":
+            th = self._t_hist
+            th.append(float(meas.t))
+            if len(th) > _SPEED_WINDOW + 1:
+                del th[0]
+            psi_dot = (hist[-1] - hist[0]) / (th[-1] - th[0]) if len(hist) > 1 else 0.0
+        else:
+            psi_dot = (hist[-1] - hist[0]) / ((len(hist) - 1) * self.dt) if len(hist) > 1 else 0.0
         alpha = self.alpha0 + self.r_b * 0.5 * (er - el)
         c = math.cos(theta)
         alpha_dot = self._gyro[2] / c if abs(c) > 0.1 else 0.0

@@ -198,6 +198,7 @@ the two.
 """
 from __future__ import annotations
 
+import copy
 import math
 from statistics import NormalDist
 
@@ -333,6 +334,7 @@ class EKFEstimator:
         self._untaught = self._consider_mask & np.array([n in UNTAUGHT for n in STATE_NAMES])
         self._held = None  # the mask of the states held now (None: none)
         self.imu_sampling, self.command_semantics = "mean", "held"  # see set_sampling
+        self.periods = "constant"  # see set_sampling: "rows", each step's period from the instants' times
         if isinstance(learn_time, bool) or not isinstance(learn_time, (int, float)) or \
                 not (0.0 <= learn_time < math.inf):
             raise TwinError(f"learn_time must be a finite time >= 0 in s, got {learn_time!r}")
@@ -458,6 +460,11 @@ class EKFEstimator:
         self._gyro: dict[int, tuple] = {}  # by sample time (control step), each half on its own latency
         self._acc: dict[int, tuple] = {}
         self._enc: dict[int, tuple] = {}
+        # periods = "rows": each instant's time (s), kept back to the last encoder sample used, and
+        # the period the core steps over now (None: the constant one it was built with)
+        self._times: dict[int, float] = {}
+        self._times_from = 0
+        self._period_now = None
         self.d_gyro = self.d_acc = self.d_imu  # the latencies assumed now (periods); the watch may change them
         self.lag = max(self.d_imu, self.d_enc)
         self.latency_changes = 0
@@ -482,6 +489,9 @@ class EKFEstimator:
         self._stale_in_row = 0
         self.stale = 0
         self._aug = None  # the coasting covariance of (x, ω, ω₋₁, δp), see _coast
+        # point samples, the reference path: Cov(δx, n) with the last sample's noise (see _propagate;
+        # None: nothing carried), the next step's, and the axes the model stands in for (_imu_sample)
+        self._Cx = self._Cx_next = self._rep = None
         self._dp = None  # the model parameters' relative errors while coasting (model_uncertainty's order)
         self._implausible = 0
         self._still = 0  # unchanged counts in a row with the estimate implausibly far outside them
@@ -600,7 +610,7 @@ class EKFEstimator:
         out = []
         if self.k < 0:
             return out
-        now = self._t0 + self.k * self.model.dt
+        now = self._now()
         if self.stuck_since is not None:
             out.append(f"position: encoders stuck since t = {self.stuck_since:.3f} s (counts unchanged while the IMU "
                        "shows the wheels turning); position and speed from the IMU alone")
@@ -612,7 +622,7 @@ class EKFEstimator:
     def stats(self) -> dict:
         stuck = self.stuck_total
         if self.stuck_since is not None and self.k >= 0:
-            stuck += self._t0 + self.k * self.model.dt - self.stuck_since
+            stuck += self._now() - self.stuck_since
         return {"accepted": dict(self.accepted), "rejected": dict(self.rejected),
                 "encoders_stuck_s": stuck, "degraded": self.degraded(), "encoder_resyncs": self.resyncs,
                 "rejected_total": self.rejected_total, "predict_only_steps": self.predict_only,
@@ -640,6 +650,8 @@ class EKFEstimator:
         self.core.set_state(x, P, w, w)
         self.k, self.m = 0, 0
         self._t0 = float(meas.t)
+        if self.periods == "rows":
+            self._times[0] = self._t0
         self._store(meas, 0)
         if finite_reading(meas.encoders):
             self._enc_seen_t = self._t0
@@ -701,11 +713,18 @@ class EKFEstimator:
         k = self.k = self.k + 1
         self.last_nis, self.last_dof = math.nan, 0  # diagnostics() reports this step's update alone
         self._commands[k - 1] = (float(command[0]), float(command[1]))
+        timed = self.periods == "rows"
+        if timed:
+            self._times[k] = float(meas.t)
         self._store(meas, k)
         last = k - self.lag
         # one filter step per due IMU instant; after the assumed latency shrinks several are due
         for m in range(self.m + self.every, last + 1, self.every):
-            t = meas.t - (k - m) * self.model.dt
+            if timed:
+                t = self._times[m]
+                self._set_period(t - self._times[m - 1])
+            else:
+                t = meas.t - (k - m) * self.model.dt
             # (ConsiderStates.due, inline: every step)
             if not self.holding and self.consider and t >= self._consider.learn_time - 1e-9:
                 self._hold()
@@ -722,7 +741,49 @@ class EKFEstimator:
                     self._pvar_g.pop(j, None)
                     self._pvar_a.pop(j, None)
             self.m = m
+        if timed:  # the instants' times no step will need again (see _span)
+            keep = min(self.m - 1, self._last_enc_m if self._last_enc is not None else self.m - 1)
+            while self._times_from < keep:
+                self._times.pop(self._times_from, None)
+                self._times_from += 1
         return self._estimate(k)
+
+    def _set_period(self, dt: float) -> None:
+        """periods = "rows": the next step spans ``dt`` s (the filter's step, the model's with its
+        RK4 sub-steps, the gyro bias's random walk). The noise figures stay the rows' own: a point
+        sample's noise does not depend on the time since the last one, and a mean's changes by
+        the period's ratio to the nominal one (a few per cent on jittered rows)."""
+        if dt == self._period_now:
+            return
+        if not (dt > 0.0 and math.isfinite(dt)):
+            raise TwinError(f"instants must be strictly increasing in time; got a period of {dt!r} s")
+        self._period_now = dt
+        model = self.model
+        model.dt = dt
+        model.substeps = model._substeps()
+        for other in model.__dict__.get("_perturbed", {}).values():  # the sensitivities' models too
+            other.dt, other.substeps = dt, other._substeps()
+        self.dt = dt
+        self._bias_q = self.model.imu.gyro.bias_random_walk ** 2 * dt
+        self.core.set_period(dt, dt, model.substeps, self._bias_q)
+
+    def _now(self) -> float:
+        """s: the time of the present instant."""
+        if self.periods == "rows" and self.k in self._times:
+            return self._times[self.k]
+        return self._t0 + self.k * self.model.dt
+
+    def _span(self, a: int, b: int) -> float:
+        """s from instant ``a`` to instant ``b`` (periods = "rows": their times; before the first
+        instant, the nominal period)."""
+        if self.periods != "rows":
+            return (b - a) * self.model.dt
+        ta, tb = self._times.get(a), self._times.get(b)
+        if ta is None:
+            ta = self._t0 + a * self._nominal_dt
+        if tb is None:
+            tb = self._t0 + b * self._nominal_dt
+        return tb - ta
 
     # ---- internals ---------------------------------------------------------------------
     def _hold(self) -> None:
@@ -793,7 +854,7 @@ class EKFEstimator:
                 self.events.append((meas.t, f"encoder reading {tuple(enc)} ignored: beyond a 32-bit "
                                             f"counter's range (±{self._enc_range:.4g} rad)"))
 
-    def set_sampling(self, imu: str = "mean", commands: str = "held") -> None:
+    def set_sampling(self, imu: str = "mean", commands: str = "held", periods: str = "constant") -> None:
         """How a log's rows were sampled (its ``[imu] sampling`` and ``[commands] semantics``).
         Call before :meth:`start`.
 
@@ -812,20 +873,42 @@ class EKFEstimator:
         sampled commands the latency watch is off: it looks for the gyro's response to the
         commands' steps, and a loop faster than the rows has already reacted to the rates
         within the row it commands in (the feedback, not the latency, sets the correlation; on
-        logs of 33 Hz rows from a 1 kHz loop it reported 30–60 ms changes that were not there)."""
+        logs of 33 Hz rows from a 1 kHz loop it reported 30–60 ms changes that were not there).
+
+        ``periods``: ``"constant"`` (the default: every step spans 1 / control rate) or
+        ``"rows"`` (a log whose rows are not on a regular grid, its instants the rows: each step
+        spans the time from the previous measurement's ``t`` to this one's, the model and the
+        strapdown integrating over it). Rows 30–33 ms apart put on a 30 ms grid arrive up to a
+        period late, some instants get none and some two: on 33 Hz logs of a robot standing up
+        from 0.5 rad, θ's RMSE doubled (0.017 → 0.030 rad) and θ was 0.056 rad off 0.5 s after
+        the start. The latency watch is off (it counts in periods). Needs one IMU sample per
+        period (``imu_every`` 1)."""
         if imu not in ("mean", "point"):
             raise TwinError(f"imu sampling must be \"mean\" or \"point\", got {imu!r}")
         if commands not in ("held", "sampled"):
             raise TwinError(f"command semantics must be \"held\" or \"sampled\", got {commands!r}")
+        if periods not in ("constant", "rows"):
+            raise TwinError(f"periods must be \"constant\" or \"rows\", got {periods!r}")
+        if periods == "rows" and self.every != 1:
+            raise TwinError(f"periods = \"rows\" needs one IMU sample per period (imu_every = 1), got {self.every}")
         self.imu_sampling, self.command_semantics = imu, commands
-        if commands == "sampled":
+        if commands == "sampled" or periods == "rows":
             self._watches = False
             self._watch = None
+        if periods == "rows" and self.periods != "rows":
+            # the model's period changes from step to step: a model of this filter's own
+            self.model = copy.copy(self.model)
+            self.model.__dict__.pop("_perturbed", None)
+            self._forward = self.core.forwarder(self.state6, self.model.step6)
+            self._nominal_dt = self.dt
+        self.periods = periods
 
     def _point_means(self, k: int, gyro, accel):
         """(gyro, accel, variances) of sample instant ``k`` as interval means from point samples
         (see :meth:`set_sampling`), remembering this instant's for the next. ``variances``:
-        ((ω_y, ω_z), (f_x, f_z)) the mean's own uncertainty about the trapezoid, as for ψ's
+        ((ω_y, ω_z, h_y, h_z), (f_x, f_z, h_x, h_z)) the mean's own uncertainty about the
+        trapezoid, and h 1.0 where the mean is the average of two samples (its noise then half the
+        previous interval's: see :meth:`_propagate`), as for ψ's
         (:data:`TRAPEZOID_VAR`): with the signal monotonic between its two samples a and b, the
         interval's mean lies anywhere between them, taken uniform: (b − a)² / 12. The
         trapezoid is exact for a linear change; a catch's rate, which rises within a few ms
@@ -837,11 +920,13 @@ class EKFEstimator:
             p = prev[j] if prev is not None and prev[2] == k - self.every else None
             if v is None or p is None:
                 out.append(v)
-                var.append((0.0, 0.0))
+                var.append((0.0, 0.0, 0.0, 0.0))
                 continue
             rail = self._rails[2 * j]
             out.append(tuple(a if abs(a) >= rail else (b if abs(b) >= rail else 0.5 * (a + b)) for a, b in zip(v, p)))
-            var.append(tuple((v[i] - p[i]) ** 2 * TRAPEZOID_VAR for i in ((1, 2) if j == 0 else (0, 2))))
+            axes = (1, 2) if j == 0 else (0, 2)
+            var.append(tuple((v[i] - p[i]) ** 2 * TRAPEZOID_VAR for i in axes)
+                       + tuple(float(abs(v[i]) < rail and abs(p[i]) < rail) for i in axes))
         self._points = (gyro, accel, k)
         return out[0], out[1], var
 
@@ -906,9 +991,8 @@ class EKFEstimator:
         g, a = self._gyro.get(m), self._acc.get(m)
         imu = None if g is None or a is None else (g, a)
         if imu is not None and self.imu_sampling == "point":
-            gv, av = self._pvar_g.get(m, (0.0, 0.0)), self._pvar_a.get(m, (0.0, 0.0))
-            if gv[0] or gv[1] or av[0] or av[1]:
-                imu = (g, a, (*gv, *av))
+            gv, av = self._pvar_g.get(m, (0.0,) * 4), self._pvar_a.get(m, (0.0,) * 4)
+            imu = (g, a, (gv[0], gv[1], av[0], av[1]), (gv[2], gv[3], av[2], av[3]))
         if imu is None and (g is not None or a is not None):
             self.events.append((t, "an IMU sample without its gyro or accelerometer half was dropped"))
         command = self._commands.get(m - self.every, (0.0, 0.0))
@@ -965,7 +1049,7 @@ class EKFEstimator:
             self.events.append((t, f"encoder counts change again after {t - self.stuck_since:.3g} s stuck: used again"))
             self.stuck_since = None
             self._still = 0
-        T = (m - self._last_enc_m) * self.model.dt
+        T = self._span(self._last_enc_m, m)
         limit = self._max_wheel_rate * T + 2.0 * self.delta
         jump = max(abs(enc[0] - last[0]), abs(enc[1] - last[1]))
         if jump <= limit:
@@ -981,6 +1065,7 @@ class EKFEstimator:
         return None
 
     def _rebase_encoders(self, enc, m: int, t: float) -> None:
+        self._Cx = None
         self.core.pull()
         x, P = self.kf.x.copy(), self.kf.P.copy()
         off = np.array([self.b_r * self.alpha0, -self.b_r * self.alpha0])
@@ -1051,6 +1136,7 @@ class EKFEstimator:
         if syn is None:
             syn = self._synthetic(x, command)
         rep = [sat[0], sat[1], sat[2] or acc_out, sat[3] or acc_out]
+        self._rep = rep
         own = (0.0,) * 4 if own is None else own
         return (tuple(sv if k else v for v, sv, k in zip(sample[0], syn[0], rep)),
                 tuple(e if k else o for e, k, o in zip(syn[1], rep, own))), syn, any(sat), acc_out
@@ -1094,12 +1180,20 @@ class EKFEstimator:
         """The IMU-driven step composed here on the core's predict and update (the reference
         path): the accelerometer test, the IMU outlier test, then :meth:`_strapdown`; returns
         the encoders' NIS with the sample if it is an outlier (the state then unchanged), else None."""
+        self._rep = None
         sample, syn, sat, acc_out = self._imu_sample(self.kf.x, imu, command, self._acc_test())
-        pred = self._propagate(self.kf.x, sample)
+        half = None
+        if len(imu) > 3:  # point samples (see _propagate): which axes are trapezoids, which the reading's
+            rep = self._rep or (False,) * 4
+            half = [0.0 if r else float(h) for h, r in zip(imu[3], rep)] + [0.0 if r else 1.0 for r in rep]
+        pred = self._propagate(self.kf.x, sample, half=half)
         eps_imu = None if enc is None else self._imu_outlier(pred, syn, enc, m, command)
         if eps_imu is None:
             self.saturated += sat
+            self._Cx = self._Cx_next
             self._strapdown(m, t, pred, enc)
+        else:
+            self._Cx = None
         self._acc_out = acc_out
         return eps_imu
 
@@ -1112,6 +1206,14 @@ class EKFEstimator:
 
         def update(em):
             z, off, H, R = em
+            Cx = self._Cx
+            if Cx is not None:  # Cov(δx, n) after the update: (I − K H) Cov(δx, n), K with the prior P
+                P = core.kf.P
+                PHt = mm(P, H.T)
+                K = solve(mm(H, PHt) + R, PHt.T).T
+                if self._held is not None:
+                    K[self._held] = 0.0  # Schmidt, as the update
+                self._Cx = Cx - mm(K, mm(H, Cx))
             core.update(z, off, H, R)
 
         self._encoder_step(enc, m, t, True, update)
@@ -1122,8 +1224,8 @@ class EKFEstimator:
         events kept here from its decisions; returns the encoders' NIS with the sample if it is
         an outlier (the state then unchanged), else None."""
         sample = (imu[0][1], imu[0][2], imu[1][0], imu[1][2]) if len(imu) == 2 else \
-            (imu[0][1], imu[0][2], imu[1][0], imu[1][2], *imu[2])
-        T = (m - self._last_enc_m) * self.model.dt
+            (imu[0][1], imu[0][2], imu[1][0], imu[1][2], *imu[2], *imu[3])
+        T = self._span(self._last_enc_m, m)
         # (EncoderGate.may_reject and AccelOutlierTest.params inline: every step)
         code_i, sat, code_e, nis, dof, ok, acc_out, ex, ez, inside = self._core_advance(
             sample, enc, self._last_enc if enc is not None else None, T, command,
@@ -1187,6 +1289,7 @@ class EKFEstimator:
         Jacobian through it cancels its dependence on the scale factor and the bias: clipped
         samples teach the filter neither. The first real sample ends it (ω becomes a reading
         again). Always the Python path: coasting is rare, and one implementation serves both."""
+        self._Cx = None  # (the compiled core's is cleared by the push at the end)
         kf = self.kf
         self.core.take_over()
         if not had_imu:
@@ -1391,6 +1494,7 @@ class EKFEstimator:
         return abs(x[TH]) < TILT_LIMIT and P[TH, TH] < TILT_VAR_MAX and positive_definite(P)
 
     def _lost(self, t: float) -> None:
+        self._Cx = None
         """The estimate left its physical range (:meth:`_in_range`): re-initialise it, logged.
 
         Going on from such a state only diverges further (the heading's secant, then the
@@ -1454,7 +1558,7 @@ class EKFEstimator:
         else:
             x, F, Q, (wy, wz) = pred
             Pp = cov_predict(F, P, Q)
-        T = (m - self._last_enc_m) * self.model.dt
+        T = self._span(self._last_enc_m, m)
         dlt, b_r = self.delta, self.b_r
         th = x[TH]
         thd = (wy - x[BY]) / (1.0 + x[SY])
@@ -1514,7 +1618,7 @@ class EKFEstimator:
         return (((1.0 + x[SY]) * wy + x[BY], (1.0 + x[SZ]) * wz + x[BZ], (1.0 + x[SAX]) * fx, (1.0 + x[SAZ]) * fz),
                 (gv, gv, av, av))
 
-    def _propagate(self, x, sample, with_L: bool = False):
+    def _propagate(self, x, sample, with_L: bool = False, half=None):
         """(x⁺, F, Q, (ω_y, ω_z)): one strapdown step with IMU ``sample`` (and the noise
         map L (12, 4), the derivative of x⁺ by the sample, with ``with_L``).
 
@@ -1566,10 +1670,31 @@ class EKFEstimator:
         L[V] = iv1
         L[PS] = (0.5 * dt * iv1 - dz1 * ith1) / r
         # white noise and ADC steps; the scale factors are states
-        var = np.array([self._g_var, self._g_var, self._a_var, self._a_var])
+        base = np.array([self._g_var, self._g_var, self._a_var, self._a_var])
+        var = base.copy()
+        if half is not None:
+            # point samples (half: 1.0 where an axis's mean is the trapezoid (n_{k−1} + n_k)/2 of two
+            # samples' noise, then 1.0 where the axis is the reading's): the mean's own noise σ²/2, and
+            # its n_{k−1} half correlated with the state through Cx = Cov(δx, n_{k−1}) of the step before
+            # (the filter's white-noise step would take σ², twice the one step's, or σ²/2 and lose the
+            # correlation: half the drift of an integral over many steps)
+            for j in range(4):
+                if half[j]:
+                    var[j] *= 0.5
         if extra is not None:
             var += extra
         Q = mm(L * var, L.T)
+        self._Cx_next = None
+        if half is not None:
+            Cx = self._Cx
+            if Cx is not None:
+                for j in range(4):
+                    if half[j]:
+                        G = mv(F, Cx[:, j])
+                        cross = 0.5 * np.outer(G, L[:, j])
+                        Q = Q + cross + cross.T
+            self._Cx_next = L * np.array([(0.5 if half[j] else 1.0) * base[j] if half[4 + j] else 0.0
+                                          for j in range(4)])
         Q[BY, BY] += self._bias_q
         Q[BZ, BZ] += self._bias_q
         # ψ integrates v by the trapezoid, exact only if the acceleration is constant over the
@@ -1584,6 +1709,7 @@ class EKFEstimator:
         return x1, F, Q, (wy, wz)
 
     def _restore(self, t: float, why: str) -> None:
+        self._Cx = None
         self.core.restore()
         self._aug = None
         self.resets += 1

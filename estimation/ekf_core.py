@@ -132,6 +132,11 @@ class FilterCore(Protocol):
 
     def hold(self, mask) -> None: ...
 
+    def set_period(self, dt: float, mdt: float, msub: int, bias_q: float) -> None:
+        """The period of the next steps: the filter's step ``dt`` and the model's ``mdt`` (s), the
+        model's RK4 steps ``msub`` over it, the gyro bias's random-walk variance ``bias_q``
+        (rad/s)² over it (a log whose rows are its instants)."""
+
     def keep_good(self) -> None:
         """Remember the state as the last good one (:meth:`restore`)."""
 
@@ -238,6 +243,9 @@ class PythonCore(_Core):
     def hold(self, mask) -> None:
         self.kf.consider = np.array(mask, dtype=bool)
 
+    def set_period(self, dt: float, mdt: float, msub: int, bias_q: float) -> None:
+        pass  # the composed step reads the period from the estimator and its model
+
     def predict(self, x_next, F, Q, w) -> None:
         self.kf.predict(x_next=x_next, F=F, Q=Q)
         self.w_prev, self.w = self.w, w
@@ -307,6 +315,9 @@ class CompiledCore(_Core):
     def hold(self, mask) -> None:
         self.kf.consider = np.array(mask, dtype=bool)
         self._kernel.set_consider(self._core, [float(v) for v in mask])
+
+    def set_period(self, dt: float, mdt: float, msub: int, bias_q: float) -> None:
+        self._kernel.set_period(self._core, (float(dt), float(mdt), float(msub), float(bias_q)))
 
     def predict(self, x_next, F, Q, w) -> None:
         """On the mirror (``pull()`` before, ``push()`` after), as the kernel's step predicts."""

@@ -4,9 +4,11 @@ numpy and scipy bundle OpenBLAS built for many CPUs (DYNAMIC_ARCH); it picks a k
 load time, and OPENBLAS_CORETYPE overrides the pick. Kernels round differently (FMA or not,
 other blockings), which used to change the controller designs at 1e-5 and, through the
 wheels' stick and slip, whole trajectories. Here one child process per kernel (Prescott,
-SandyBridge, Haswell, Zen, SkylakeX: those this CPU supports), each with an empty design
-cache, solves the designs, runs paper-exp1, paper-exp3 and push-recovery with it2 and lqr
-and the refactor-hash cases, and checks golden trajectories recorded by the first kernel.
+Haswell and SkylakeX, those this CPU supports; SandyBridge and Zen too with
+TWIN_ALL_BLAS_KERNELS=1: they add a minute and no code path the three do not cover), each
+with an empty design cache, solves the designs, runs the refactor-hash cases (every built-in
+acceptance scenario with it2, t1 and lqr, and three variants), and checks golden trajectories
+recorded by the first kernel.
 One more child runs the first kernel with numpy's own SIMD dispatch narrowed to its
 baseline (NPY_DISABLE_CPU_FEATURES), as on an older CPU. Every child must give identical
 designs, identical trajectory.csv and metrics.json (its environment fingerprint aside,
@@ -39,6 +41,7 @@ CHILD = HERE / "kernels_child.py"
 KERNELS = {"Prescott": set(), "SandyBridge": {"avx"}, "Haswell": {"avx2", "fma"}, "Zen": {"avx2", "fma"},
            "SkylakeX": {"avx512f", "avx512bw", "avx512dq", "avx512vl"}}
 ALIASES = {"zen": "haswell"}
+GUIDE_KERNELS = ("Prescott", "Haswell", "SkylakeX")  # the kernels every change is checked under
 
 
 def supported_kernels() -> list[str]:
@@ -53,7 +56,8 @@ def supported_kernels() -> list[str]:
         if line.startswith("flags"):
             flags = set(line.split(":", 1)[1].split())
             break
-    return [k for k, need in KERNELS.items() if need <= flags]
+    every = os.environ.get("TWIN_ALL_BLAS_KERNELS") == "1"
+    return [k for k, need in KERNELS.items() if need <= flags and (every or k in GUIDE_KERNELS)]
 
 
 def _numpy_baseline_only() -> str:
@@ -107,8 +111,6 @@ def test_every_kernel_gives_the_same_designs_trajectories_metrics_and_golden_che
             assert "libm code paths sse2, the reference's fma" in res["golden_output"], res["golden_output"]
     for tag, res in results.items():
         assert res["designs"] == ref["designs"], f"{tag}: designs differ from {first}'s"
-        for name in ref["scenarios"]:
-            assert res["scenarios"][name] == ref["scenarios"][name], f"{tag}: {name} differs from {first}'s"
         assert res["refactor"] == ref["refactor"], f"{tag}: refactor-hash cases differ from {first}'s"
         if tag != first:
             assert res["golden_check"] == 0, f"{tag}: the golden trajectories recorded under {first} do not pass"

@@ -1,6 +1,8 @@
-"""Issue 30's acceptance: twenty seeded robots, each logged by the twin and calibrated from its log
-(benchmarks/calibration_plants.py says how they are drawn and what the truth is). About three
-minutes on two cores: two worker processes share the calibrations."""
+"""Issue 30's acceptance, in CI on the first eight of its seeded robots, each logged by the twin
+and calibrated from its log (benchmarks/calibration_plants.py says how they are drawn and what the
+truth is, and measures all twenty: docs/_generated/calibration-acceptance.md). The same floors at
+the same rate: at most one robot of eight (10 % of twenty is two) may miss each. About a minute on
+two cores: two worker processes share the calibrations."""
 from __future__ import annotations
 
 import importlib.util
@@ -10,8 +12,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-COUNT = 20
-NEED = 18  # of 20
+COUNT = 8  # the first 8 of the benchmark's 20 (draw() is one seeded sequence: the same robots)
+NEED = 7  # of 8
 
 
 def _plants_module():
@@ -65,6 +67,6 @@ def test_the_body_is_identified(study):
     "not the parameters'. Strict: this test fails once the validation meets issue 30's floor again"))
 def test_calibrated_twin_predicts_held_out_logs_twice_as_well(study):
     far = [r for r in study if r["validation"] is not None]
-    assert len(far) >= 5, "the draw has too few plants 15 % off in m_b or l to test the validation"
+    assert len(far) >= 3, "the draw has too few plants 15 % off in m_b or l to test the validation"
     worse = [(r["plant"], round(r["validation"], 2)) for r in far if r["validation"] < 2.0]
     assert not worse, f"calibrated twin not twice as good as the nominal on held-out logs: {worse}"

@@ -160,7 +160,9 @@ def test_a_jittered_log_is_read_at_its_rows_own_times(tmp_path, monkeypatch):
     truth = {n: getattr(B_PLANT, n) for n in ("m_b", "l", "n_yb", "n_zb", "d_b", "d_w")}
     truth.update(stall_torque=B_MOTOR.stall_torque, no_load_speed=B_MOTOR.no_load_speed)
     m = R.RobotModel([log], (), R.SENSORS, fixed=truth)
-    monkeypatch.setattr(R, "on_rows", lambda *args: None)  # the rows slotted on the instants
+    # the rows slotted on a regular grid of instants (the replay's schedule and the windows both)
+    monkeypatch.setattr(R, "on_rows", lambda *args: None)
+    monkeypatch.setattr("twin.logs.replay.rows_clock", lambda log: False)
     st_grid, _ = R.log_streams(log)
     grid = R.make_group(log, st_grid, sampled, 0, 0, R.window_periods(log.control_rate))
     assert grid.count < 0.9 * g.count

@@ -38,20 +38,20 @@ from foreign import robot_sim as rs  # noqa: E402
 
 from estimation.ekf_core import C0, SAX, SAZ, TH  # noqa: E402
 from twin.logs.format import read_log  # noqa: E402
-from twin.logs.replay import build_for, consistency, replay  # noqa: E402
+from twin.logs.replay import build_for, consistency, instants_of, replay  # noqa: E402
 
 
 def _replay(path: Path):
-    """(log, replay, estimator) of the EKF on the log at ``path``, told the log's sampling."""
+    """(log, replay, estimator) of the EKF on the log at ``path``, told the log's sampling (and,
+    on jittered rows, that its instants are the rows) as build_for tells it."""
     log = read_log(path)
     est = build_for(log, "ekf")
-    est.set_sampling(log.sampling, log.command_semantics)
     return log, replay(log, est, "ekf", diagnostics=True), est
 
 
 def _theta_errors(log, r) -> tuple[np.ndarray, np.ndarray]:
     """(t, θ̂ − θ) at the truth's rows inside the replay."""
-    k = np.round((log.truth_t - r.t[0]) * log.control_rate).astype(int)
+    k = instants_of(log, r.t, log.truth_t)
     ok = (k >= 0) & (k < len(r.estimates))
     return log.truth_t[ok], r.estimates[k[ok], 0] - log.truth[ok, 0]
 
@@ -121,13 +121,17 @@ def test_the_accelerometer_bias_is_a_consider_parameter_of_tilt_and_encoder_zero
     assert np.array_equal(est1.covariance12(), est1.P)
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_a_real_robot_shaped_log_that_begins_mid_motion(seed, tmp_path):
+@pytest.mark.parametrize("seed, start", [(0, 0.015), (1, 0.015), (2, 0.015), (0, 0.0)])
+def test_a_real_robot_shaped_log_that_begins_mid_motion(seed, start, tmp_path):
     """33 Hz rows of point samples and sampled voltages, the log starting 15 ms into the
-    stand-up from about 0.5 rad (θ̇ about −4 rad/s at the first row)."""
-    rs.generate(tmp_path / "b", "B", seed, version=2, log_start=0.015)
+    stand-up from about 0.5 rad (θ̇ about −4 rad/s at the first row), or (start 0) lying still
+    just before it. Seed 0 from lying was 0.056 rad off at 0.5 s with its 30–33 ms rows put on
+    a 30 ms grid; taking the trapezoid means of point samples as white noise of σ² made the NIS
+    per degree of freedom 0.41–0.64 once the rows were at their own times."""
+    rs.generate(tmp_path / "b", "B", seed, version=2, log_start=start)
     log, r, est = _replay(tmp_path / "b")
-    assert abs(log.truth[0, 1]) > 3.0  # it does begin in motion
+    assert est.periods == "rows"
+    assert abs(log.truth[0, 1]) > 3.0 or start == 0.0  # it does begin in motion
     c = consistency(r, log)
     assert 0.5 <= c["nis_per_dof"] <= 2.0, c["nis_per_dof"]
     t, e = _theta_errors(log, r)
@@ -167,7 +171,7 @@ def test_the_compiled_and_the_python_cores_agree_on_rebuilt_point_samples(tmp_pa
     out = []
     for compiled in (True, False):
         est = build_for(log, "ekf", {"compiled": compiled})
-        est.set_sampling(log.sampling, log.command_semantics)
+        assert est.periods == "rows"  # (jittered rows: each step spans its own period)
         assert est.compiled is compiled
         r = replay(log, est, "ekf")
         out.append(r.estimates)
@@ -284,3 +288,50 @@ def json_clipped(path: Path) -> list:
     import json
 
     return json.loads((path / "robot_sim.json").read_text())["clipped_samples"]["gyro"]
+
+
+def test_jittered_rows_are_the_instants_and_each_step_spans_its_own_period(tmp_path):
+    """A log whose command rows come 30–33 ms apart is replayed at those rows (every reading at
+    its own row, none lost to a collision on a grid), and an estimator told periods = "rows"
+    integrates over each row's own period; a twin-like log on its grid stays on the grid."""
+    from twin.logs.replay import rows_clock, schedule
+
+    rs.generate(tmp_path / "b", "B", 3, version=2, duration=3.0)
+    log = read_log(tmp_path / "b")
+    assert rows_clock(log)
+    sched = schedule(log)
+    assert sched.rows and np.array_equal(sched.t, log.commands_t[: len(sched.t)])
+    assert (sched.gyro >= 0).all() and np.array_equal(log.imu_t[sched.gyro], sched.t)
+    gaps = np.diff(sched.t)
+    assert gaps.min() >= 0.030 - 1e-9 and gaps.max() <= 0.033 + 1e-9 and gaps.max() > gaps.min()
+    for kind in ("ekf", "complementary", "kalman2"):
+        assert build_for(log, kind).periods == "rows"
+    # the complementary filter integrates the gyro over each row's period: a constant rate read
+    # at every row moves θ by rate × (t_N − t_0), not by rate × N / control_rate
+    est = build_for(log, "complementary")
+    from twin.sensors import Measurement
+
+    est.start(Measurement(float(sched.t[0]), (0.0, 0.5, 0.0), (0.0, 0.0, 9.81), (0.0, 0.0)))
+    for t in sched.t[1:]:
+        out = est.step(Measurement(float(t), (0.0, 0.5, 0.0), None, (0.0, 0.0)), (0.0, 0.0))
+    assert out[0] == pytest.approx(0.5 * (sched.t[-1] - sched.t[0]), rel=1e-9)
+    # on a regular grid (profile A) nothing changes: the grid's instants, constant periods
+    rs.generate(tmp_path / "a", "A", 0, duration=1.0, version=2)
+    log_a = read_log(tmp_path / "a")
+    assert not rows_clock(log_a) and not schedule(log_a).rows
+    assert build_for(log_a, "ekf").periods == "constant"
+
+
+def test_the_ekf_over_rows_on_a_regular_grid_is_the_ekf_over_constant_periods(logs_a):
+    """periods = "rows" on rows that are on the grid: the same estimates as constant periods up
+    to the rounding of t_k − t_{k−1} against 1 / control_rate."""
+    log = read_log(logs_a[0])
+    out = []
+    for periods in ("constant", "rows"):
+        est = build_for(log, "ekf")
+        est.set_sampling(log.sampling, log.command_semantics, periods=periods)
+        out.append(replay(log, est, "ekf").estimates)
+    assert np.allclose(out[0], out[1], rtol=0.0, atol=1e-9), float(np.max(np.abs(out[0] - out[1])))
+    with pytest.raises(Exception, match="periods"):
+        build_for(log, "ekf").set_sampling("mean", "held", periods="jittered")
+

@@ -115,12 +115,16 @@ class Estimator(Protocol):
     stats() -> dict
         Counts over the run so far, JSON-serialisable; ``"rejected_total"`` (int), if
         present, is reported as the run's ``rejected_measurements``.
-    set_sampling(imu: str, commands: str) -> None
+    set_sampling(imu: str, commands: str, periods: str = "constant") -> None
         Called by ``twin replay`` before ``start`` where a log's rows are not the twin's:
         ``imu`` is ``"mean"`` (each reading the mean over the interval since the previous
         sample) or ``"point"`` (the value at its instant), ``commands`` is ``"held"`` (from
         each row's t) or ``"sampled"`` (a faster loop's value at that instant; each period's
-        command is then the mean of the samples joined by straight lines).
+        command is then the mean of the samples joined by straight lines). ``periods`` (passed
+        by keyword, only to a hook that takes it) is ``"rows"`` for a log whose command rows
+        are off the regular grid: the instants are then those rows, and each step spans the
+        time from the previous measurement's ``t`` to this one's (s), not 1 / control rate;
+        a hook without it is replayed as if every period were the nominal one.
     diagnostics() -> dict
         What the last ``start``/``step`` did (for example the EKF's state, covariance and
         normalised innovation). Asked for after every step when a run logs them, and by

@@ -737,9 +737,13 @@ def _toml_value(v) -> str:
 
 
 def truth_instants(result: SimResult) -> np.ndarray:
-    """The physics steps (indices) of the replay's control instants: t_0 + k / log rate from the
-    first logged command (that is where the twin's replay compares the truth)."""
+    """The physics steps (indices) of the replay's control instants (where the twin's replay
+    compares the truth): t_0 + k / log rate from the first logged command, or, where the rows
+    come at irregular periods (``log_periods_ms``), the command rows' own instants (the replay's
+    instants are then its rows)."""
     spec = result.spec
+    if spec.log_periods_ms and min(spec.log_periods_ms) != max(spec.log_periods_ms):
+        return np.array([_whole(t * spec.physics_rate, "command × physics rate") for t, _, _ in result.command_rows])
     rate = spec.log_rate or spec.controller.rate
     every = _whole(spec.physics_rate / rate, "physics rate / log rate")
     first = _whole(result.command_rows[0][0] * spec.physics_rate, "first command × physics rate")

@@ -275,7 +275,9 @@ class _StateTruthRows:
         the state truth at the first instant (the encoder zeros' reference)."""
         if log.truth is None or log.truth_state is None or log.truth_constants is None or not len(t):
             return None
-        k = np.round((log.truth_t - t[0]) * log.control_rate)
+        from twin.logs.replay import instants_of
+
+        k = instants_of(log, t, log.truth_t)
         inside = (k >= 0) & (k < len(t))
         k = np.where(inside, k, 0).astype(np.int64)
         on = inside & np.isclose(t[k], log.truth_t, atol=1e-9, rtol=0)
@@ -313,6 +315,8 @@ def monte_carlo(runs, start: float = 0.0, confidence: float = 0.95) -> dict:
     E = np.array([r.nees[:n] for r in runs])[:, keep]
     rows = np.isfinite(E).all(axis=0)
     E = E[:, rows]
+    if not E.shape[1]:  # no instant with every run's NEES (truths at other times): no statement
+        return None
     N, dim = len(runs), runs[0].dim
     a = 0.5 * (1.0 - confidence)
     lo, hi = chi2.ppf([a, 1.0 - a], N * dim) / N

@@ -78,6 +78,7 @@ from twin.logs.format import SensorLog
 from twin.sensors import Measurement
 
 INSTANT_TOLERANCE = 1e-6  # of a control period: a reading this much after an instant counts as at it
+OFF_GRID = 0.01  # of a control period: command rows this far off t_0 + k / control_rate are instants of their own
 NEES_START = 0.5  # s after the first instant: the EKF's start-up transient of the encoder zeros is left out
 WHITENESS_LAGS = 20  # lags (in updates) of the innovations' autocorrelation: 0.1 s of 200 Hz updates at most
 WHITENESS_Z = 1.959963984540054  # the two-sided 95 % point of N(0, 1): the band is ±z/√N
@@ -114,6 +115,30 @@ class Schedule:
     accel: np.ndarray
     encoders: np.ndarray
     command: np.ndarray
+    rows: bool = False
+
+
+def rows_clock(log: SensorLog) -> bool:
+    """Whether ``log``'s instants are its command rows rather than the grid t_0 + k / control_rate:
+    some command row lies more than :data:`OFF_GRID` of a period off the grid (a logger whose
+    rows come 30–33 ms apart). The twin's logs, and any log on a regular clock, are on the grid."""
+    t = log.commands_t
+    if len(t) < 2:
+        return False
+    x = (t - t[0]) * log.control_rate
+    return bool(np.max(np.abs(x - np.round(x))) > OFF_GRID)
+
+
+def instants_of(log: SensorLog, t: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """(j,) int: the instant of ``t`` (the replay's) nearest each of ``times`` (s), by the grid's
+    arithmetic where the replay is on it (the same numbers as ever), else by search; may lie
+    outside 0 … len(t) − 1 on the grid (callers test it)."""
+    if not rows_clock(log):
+        return np.round((times - t[0]) * log.control_rate).astype(np.int64)
+    i = np.clip(np.searchsorted(t, times), 1, max(len(t) - 1, 1))
+    if len(t) < 2:
+        return np.zeros(len(times), dtype=np.int64)
+    return np.where(np.abs(times - t[i - 1]) <= np.abs(t[i] - times), i - 1, i).astype(np.int64)
 
 
 def schedule(log: SensorLog) -> Schedule:
@@ -140,14 +165,24 @@ def schedule(log: SensorLog) -> Schedule:
         raise TwinError(f"{log.path / 'commands.csv'}: the commands span {periods / rate:.6g} s at {rate:g} Hz, "
                         f"{periods:.6g} control periods; allowed: a replay of at most {MAX_INSTANTS:,} control "
                         f"instants (split a longer log)")
-    n = int(math.floor(periods)) + 1
-    t = t0 + np.arange(n) / rate  # t_0 + k / rate, each rounded once: as the closed loop's clock
+    on_rows = rows_clock(log)
+    if on_rows:  # the command rows are the instants (rows at one time: one instant, the last row in force)
+        ct = log.commands_t[first:]
+        last_of = np.append(np.diff(ct) > INSTANT_TOLERANCE / rate, True)
+        t = ct[last_of].astype(float)
+        n = len(t)
+    else:
+        n = int(math.floor(periods)) + 1
+        t = t0 + np.arange(n) / rate  # t_0 + k / rate, each rounded once: as the closed loop's clock
 
     def last_at(times: np.ndarray, ok: np.ndarray) -> np.ndarray:
         """For each instant, the index of the last ok row that arrives there (-1: none)."""
         idx = np.full(n, -1, dtype=np.int64)
         rows = np.flatnonzero(ok)
-        k = np.ceil((times[rows] - t0) * rate - INSTANT_TOLERANCE)  # the instant each arrives at, in floats
+        if on_rows:  # the first instant at or after each (up to the tolerance)
+            k = np.searchsorted(t, times[rows] - INSTANT_TOLERANCE / rate, side="left").astype(float)
+        else:
+            k = np.ceil((times[rows] - t0) * rate - INSTANT_TOLERANCE)  # the instant each arrives at, in floats
         keep = k < n  # (a reading after the last instant never arrives)
         k = np.maximum(k[keep], 0.0).astype(np.int64)  # a reading before t_0 belongs to t_0
         idx[k] = rows[keep]  # later rows overwrite earlier ones: the last one arrives
@@ -158,7 +193,7 @@ def schedule(log: SensorLog) -> Schedule:
     ei = last_at(log.encoders_t, log.has_counts)
     # the command in force at instant k: the last row at or before it
     ci = np.searchsorted(log.commands_t, t + INSTANT_TOLERANCE / rate, side="right") - 1
-    return Schedule(t, gi, ai, ei, np.clip(ci, 0, None))
+    return Schedule(t, gi, ai, ei, np.clip(ci, 0, None), on_rows)
 
 
 CHUNK = 4096  # control instants whose Measurements are made at a time: a replay holds no list of them
@@ -200,7 +235,11 @@ def period_commands(log: SensorLog, sched: Schedule, a: int, b: int, integral=No
         return log.commands[sched.command[a:b]]
     t0, rate = float(sched.t[0]), log.control_rate
     k = np.arange(a, b)
-    start, end = sched.t[a:b], t0 + (k + 1) / rate
+    if sched.rows:  # a period ends at the next instant (the last: one nominal period on)
+        start = sched.t[a:b]
+        end = np.append(sched.t[a + 1:b + 1], [] if b < len(sched.t) else [sched.t[-1] + 1.0 / rate])
+    else:
+        start, end = sched.t[a:b], t0 + (k + 1) / rate
     return (_integral_at(log, integral, end) - _integral_at(log, integral, start)) / (end - start)[:, None]
 
 
@@ -312,19 +351,38 @@ def build_for(log: SensorLog, kind: str, params: dict | None = None):
         params = sc.data["sensors"]["estimator_params"] or None
     est = build_estimator(kind, params, log.context())
     # an estimator that can take the rows' sampling is told it (the EKF: point IMU samples become
-    # interval means by the trapezoid; sampled commands turn its latency watch off); the twin's
-    # own logs ("mean", "held") leave it as in the closed loop
+    # interval means by the trapezoid; sampled commands turn its latency watch off), and, on a log
+    # whose instants are its rows (rows_clock), that each step spans the time since the last; the
+    # twin's own logs ("mean", "held", on the grid) leave it as in the closed loop
     tell = getattr(est, "set_sampling", None)
-    if callable(tell) and (log.sampling, log.command_semantics) != ("mean", "held"):
-        tell(log.sampling, log.command_semantics)
+    if callable(tell):
+        if rows_clock(log) and takes_periods(tell):
+            tell(log.sampling, log.command_semantics, periods="rows")
+        elif (log.sampling, log.command_semantics) != ("mean", "held"):
+            tell(log.sampling, log.command_semantics)
     return est
+
+
+def takes_periods(set_sampling) -> bool:
+    """Whether (None: no hook at all, False) an estimator's ``set_sampling`` takes ``periods`` (an older plugin's takes
+    ``imu`` and ``commands`` alone: it is then replayed as if every period were the nominal one,
+    and the replay says so)."""
+    import inspect
+
+    if not callable(set_sampling):
+        return False
+    try:
+        inspect.signature(set_sampling).bind("mean", "held", periods="rows")
+    except (TypeError, ValueError):
+        return False
+    return True
 
 
 def _truth_rows(log: SensorLog, t: np.ndarray):
     """(k (j,) the instant of each truth row, on (j,) the rows at a control instant, between (j,)
     the rows between two instants of the replay ``t``)."""
     tt = log.truth_t
-    k = np.round((tt - t[0]) * log.control_rate).astype(np.int64)
+    k = instants_of(log, t, tt)
     on = (k >= 0) & (k < len(t)) & np.isclose(t[np.clip(k, 0, len(t) - 1)], tt, atol=1e-9, rtol=0)
     between = ~on & (tt > t[0]) & (tt < t[-1])
     return k, on, between
@@ -358,7 +416,7 @@ def errors(log: SensorLog, r: Replay) -> dict | None:
 __all__ = ["CHUNK", "INSTANT_TOLERANCE", "NEES_START", "Replay", "Schedule", "WHITENESS_LAGS", "build_for",
            "command_integral", "consistency", "errors", "estimator_notes", "filter_record", "format_entry",
            "instants", "monte_carlo", "normalised_innovations", "period_commands", "replay", "replay_logs",
-           "schedule", "state_truth", "streams_entry", "summary_lines", "truth_usage", "whiteness",
+           "rows_clock", "schedule", "state_truth", "streams_entry", "summary_lines", "truth_usage", "whiteness",
            "write_estimates_csv", "write_figure"]
 
 
@@ -453,7 +511,7 @@ def state_truth(log: SensorLog, t: np.ndarray):
         return None
     from estimation.consistency import StateTruth
 
-    k = np.round((log.truth_t - t[0]) * log.control_rate).astype(np.int64)
+    k = instants_of(log, t, log.truth_t)
     on = (k >= 0) & (k < len(t)) & np.isclose(t[np.clip(k, 0, len(t) - 1)], log.truth_t, atol=1e-9, rtol=0)
     rows = np.full(len(t), -1, dtype=np.int64)
     rows[k[on]] = np.flatnonzero(on)  # the last truth row at an instant, as for the readings
@@ -498,7 +556,8 @@ def monte_carlo(records, start: float = NEES_START) -> dict | None:
     one estimator (each log an independent run; truncated to the shortest), in JSON: ``runs``,
     ``dim``, ``rows``, ``start_s``, ``nees_mean`` with its 95 % χ² ``nees_bounds`` and Student-t
     ``nees_mean_interval``, ``nees_inside`` (the fraction of instants whose average NEES lies in
-    the bounds), ``nis_inside`` and ``nis_per_dof``; None with fewer than 2 records with truth.
+    the bounds), ``nis_inside`` and ``nis_per_dof``; None with fewer than 2 records with truth, or
+    with no instant where every record has its NEES.
     The records may also be :class:`twin.logs.diagnostics.NeesRecord` s (what :func:`replay_logs`
     keeps: the NEES of each instant), all of one kind."""
     from estimation.consistency import monte_carlo as mc
@@ -509,6 +568,8 @@ def monte_carlo(records, start: float = NEES_START) -> dict | None:
     if len(recs) < 2:
         return None
     m = mc_arrays(recs, start=start) if isinstance(recs[0], NeesRecord) else mc(recs, start=start)
+    if m is None:
+        return None
     return {"runs": m["runs"], "dim": m["dim"], "rows": m["rows"], "start_s": float(start),
             "nees_mean": m["nees_mean"], "nees_bounds": list(m["nees_bounds"]),
             "nees_mean_interval": list(m["nees_mean_interval"]), "nees_inside": m["nees_inside"],
@@ -543,6 +604,9 @@ def replay_logs(paths, kinds, noise: str = "log") -> dict:
                  "checks": sign_checks(log, accel_sigma=noise_entry["triads"]["accel"]["sigma"]), "streams": streams_entry(log), "estimators": {}}
         for kind in kinds:
             est = build_for(run_log, kind, _tuned_params(run_log, kind, tuned))
+            if rows_clock(log) and not takes_periods(getattr(est, "set_sampling", None)):
+                entry["notes"].append(f"{kind}: takes no periods = \"rows\" (its set_sampling): it steps as if every "
+                                      f"row were 1 / control_rate apart")
             # the diagnostics as arrays (twin.logs.diagnostics): a long log's replay in memory that grows by
             # a few numbers an instant, not by the EKF's 12 × 12 covariance
             r = _replay(run_log, est, kind, "arrays" if callable(getattr(est, "diagnostics", None)) else None)
@@ -584,6 +648,11 @@ def format_entry(log: SensorLog) -> dict:
         applied.append("commands in volts: duty = V / motor.supply_voltage, torque = duty × motor.stall_torque")
     if log.command_semantics == "sampled":
         applied.append("sampled commands: each control period gets the mean of the samples joined by straight lines")
+    if rows_clock(log):
+        gaps = np.diff(log.commands_t)
+        gaps = gaps[gaps > INSTANT_TOLERANCE / log.control_rate]
+        applied.append(f"command rows off the regular grid ({1e3 * float(gaps.min()):.4g}–{1e3 * float(gaps.max()):.4g} ms "
+                       f"apart): the instants are the rows, each step over its own period")
     enc = log.sensors.encoders
     if log.version == 2 and (log.manifest.get("encoders") or {}).get("on") == "motor":
         applied.append(f"encoders on the motor: {enc.counts_per_rev} counts per wheel revolution")
