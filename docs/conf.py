@@ -51,6 +51,9 @@ numpydoc_validation_checks: set = set()
 numpydoc_xref_param_type = False
 
 nitpicky = False
+# commands in prose stay as typed: smart quotes would turn 'twin run --log-sensors' into curly
+# quotes and an en dash, and a copied command would fail
+smartquotes = False
 suppress_warnings: list[str] = []
 
 html_theme = "furo"

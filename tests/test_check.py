@@ -217,7 +217,7 @@ def test_a_directory_checks_the_files_with_expectations(tmp_path):
     (d / "b.toml").write_text('duration = 1.0\n', encoding="utf-8")
     status, out, err = twin("check", d, "--workers", "1")
     assert status == 0, out + err
-    assert f"skipped {d / 'b.toml'}: no [expect] table" in out and "1 checks (1 runs)" in out
+    assert f"skipped {d / 'b.toml'}: no [expect] table" in out and "1 check (1 run)" in out
 
 
 # ---- found in review -----------------------------------------------------------------------------

@@ -358,6 +358,8 @@ def test_the_site_builds_with_warnings_as_errors(jobs):
         assert (html / f"{page}.html").is_file(), page
     cli = (html / "reference" / "cli.html").read_text(encoding="utf-8")
     assert "twin run" in cli and "--set" in cli
+    # commands in prose as typed (no smart quotes): a copied command must run
+    assert "twin run --log-sensors" in cli and "–log-sensors" not in cli and "‘twin" not in cli
     # no development history in the user's documentation (the changelog page excepted)
     history = {}
     for f in html.rglob("*.html"):

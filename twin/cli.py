@@ -219,8 +219,30 @@ def _leave(status: int):
     os._exit(status)
 
 
+def _complete_scenario(ctx, param, incomplete: str):
+    """Shell completion of SCENARIO: the built-ins' names, then .toml files and folders."""
+    from click.shell_completion import CompletionItem
+
+    from twin.scenarios import builtin_scenarios
+
+    items = [CompletionItem(n, help=d) for n, d in builtin_scenarios().items() if n.startswith(incomplete)]
+    return items + [CompletionItem(incomplete, type="file")]
+
+
+def _complete_kinds(ctx, param, incomplete: str):
+    """Shell completion of --controller: the registry's kinds (and "both"), after any
+    comma-separated ones already typed."""
+    from click.shell_completion import CompletionItem
+
+    from twin.registry import CONTROLLERS
+
+    head, _, last = incomplete.rpartition(",")
+    prefix = head + "," if head else ""
+    return [CompletionItem(prefix + k) for k in (*CONTROLLERS, *(() if head else ("both",))) if k.startswith(last)]
+
+
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
-@click.version_option(package_name="mtwip-twin")
+@click.version_option(None, "-V", "--version", package_name="mtwip-twin")
 def main():
     """Digital twin of a mobile two-wheeled inverted pendulum under IT2 fuzzy control.
 
@@ -545,8 +567,8 @@ _gave_way("physics", lambda n: (
 
 
 @main.command()
-@click.argument("scenario", metavar="SCENARIO|FILE")
-@click.option("--controller", default=None, metavar="KINDS",
+@click.argument("scenario", metavar="SCENARIO|FILE", shell_complete=_complete_scenario)
+@click.option("--controller", default=None, metavar="KINDS", shell_complete=_complete_kinds,
               help="Controllers to run on identical conditions, comma-separated: it2, t1, lqr, both (= it2,t1) or "
                    "package.module:attribute (runs that module's code). Default: the scenario's controller.kinds.")
 @click.option("--seed", type=click.IntRange(min=0), default=None,
@@ -624,6 +646,8 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample, log
         out = rundir.child_of(Path("runs"), sc.name if sample is None else f"{sc.name}-sample{sample}",
                               "the scenario's name")
     target = rundir.StagedDirectory(out, "twin run")  # a directory the run may not replace: said before anything runs
+    # an earlier run there is replaced once this one is complete: said, before anything runs
+    earlier = target.existed and any(Path(out).iterdir())
     try:
         kinds = controllers_of(controller, sc)
         picked, root = None, sc.seed
@@ -645,6 +669,9 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample, log
                 click.echo(f"sample {picked.index} of a sweep (root seed {root}): level λ = {picked.level:g}, "
                            f"draw {picked.draw}, seed {picked.seed}")
             click.echo(_title(sc))
+            if earlier:
+                click.echo(f"  note: {out} holds an earlier run; this one replaces it when it is complete "
+                           f"(--out DIR writes elsewhere)")
             _echo_plugins(plugins)
             with _Progress() as bar:
                 result = run_scenario(sc, kinds, out=out, video=video, progress=bar.update, log_every=every,
@@ -678,7 +705,8 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample, log
     t = result.timings
     sim = sum(float(r.full_signal("t")[-1]) for r in result.runs)  # the last step simulated, logged or not
     wall = sum(v for k, v in t.items() if k.startswith("run_"))
-    click.echo(f"  simulated {sim:g} s in {wall:.2f} s (real-time factor {sim / max(wall, 1e-9):.0f})"
+    each = f"{sim / len(result.runs):g} s for each of {len(result.runs)} runs" if len(result.runs) > 1 else f"{sim:g} s"
+    click.echo(f"  simulated {each} in {wall:.2f} s (real-time factor {sim / max(wall, 1e-9):.0f})"
                + (f"; video {result.video.frames} frames in {t['video_s']:.1f} s ({result.video.codec}, "
                   f"{result.video.renderer})" if result.video is not None else ""))
     if every > 1:
@@ -728,7 +756,12 @@ def _title(sc) -> str:
     """The scenario's name and description, saying which tables --set changed (the
     description was written for the file as it is)."""
     changed = sc.changed_keys
-    return f"{sc.name}: {sc.description}" + (f" [changed by --set: {', '.join(changed)}]" if changed else "")
+    if sc.sets_nothing:  # an empty file: say what the defaults are rather than run them without a word
+        d = sc.data
+        return (f"{sc.name}: the file sets nothing, so the defaults run: a catch from θ0 = {d['initial']['theta']:g} rad "
+                f"for {d['duration']:g} s (twin scenarios NAME prints a built-in to start from)")
+    text = f"{sc.name}: {sc.description}" if sc.description else sc.name
+    return text + (f" [changed by --set: {', '.join(changed)}]" if changed else "")
 
 
 @main.command()
@@ -813,7 +846,7 @@ def replay(logs, estimators, noise, out):
 
 
 @main.command()
-@click.argument("scenario", metavar="SCENARIO|FILE")
+@click.argument("scenario", metavar="SCENARIO|FILE", shell_complete=_complete_scenario)
 @click.option("--samples", "draws", type=click.IntRange(1, 100_000), required=True, metavar="N",
               help="Samples per uncertainty level (sweep.levels); IT2 and type-1 run on each.")
 @click.option("--workers", type=click.IntRange(1, 1024), default=None, metavar="K",
@@ -829,7 +862,7 @@ def replay(logs, estimators, noise, out):
               help="Override a scenario key (repeatable), e.g. --set sweep.levels=[0,0.2,0.4].")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Sweep directory (default: runs/sweep-<scenario name>); rerun to resume.")
-@click.option("--controller", default=None, metavar="KINDS",
+@click.option("--controller", default=None, metavar="KINDS", shell_complete=_complete_kinds,
               help="Controllers compared on identical samples, comma-separated: it2, t1, lqr, both (= it2,t1) or "
                    "package.module:attribute. Default: the scenario's controller.kinds.")
 @click.option("--reference", default=None, metavar="KIND",
@@ -888,7 +921,7 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
     summary = sweep_plan(sc, kinds)
     click.echo(_title(sc))
     _echo_plugins(summary["plugins"])
-    click.echo(f"  {draws} samples × {len(levels)} levels λ = {', '.join(f'{v:g}' for v in levels)}, "
+    click.echo(f"  {counted(draws, 'sample')} × {counted(len(levels), 'level')} λ = {', '.join(f'{v:g}' for v in levels)}, "
                f"root seed {sc.seed}, backend {backend}" + (f", {workers} worker{'s' * (workers > 1)}" if workers else ""))
     bar = _SweepBar()
     try:
@@ -909,9 +942,9 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
         click.echo(f"  note: resumed in another environment than the first samples' ({'; '.join(result.environment_changes)}); "
                    "the samples run now may differ from the others in the last digits (sweep.json: resumed_in)")
     sims = len(kinds) * result.ran
-    click.echo(f"  ran {result.ran} samples ({sims} runs) in {result.wall_s:.1f} s"
+    click.echo(f"  ran {counted(result.ran, 'sample')} ({counted(sims, 'run')}) in {result.wall_s:.1f} s"
                + (f", {60 * result.ran / result.wall_s:.1f} samples/min" if result.ran and result.wall_s > 0 else "")
-               + (f"; {result.resumed} were already finished" if result.resumed else ""))
+               + (f"; {result.resumed} {'was' if result.resumed == 1 else 'were'} already finished" if result.resumed else ""))
     click.echo(_success_table(result.summary))
     if result.logs:
         logged = sorted({k for k, _ in result.logs})
@@ -945,8 +978,8 @@ def _sample_numbers(text: str | None) -> tuple[int, ...]:
 
 
 @main.command()
-@click.argument("targets", nargs=-1, metavar="SCENARIO|FILE|DIR...")
-@click.option("--controller", default=None, metavar="KINDS",
+@click.argument("targets", nargs=-1, metavar="SCENARIO|FILE|DIR...", shell_complete=_complete_scenario)
+@click.option("--controller", default=None, metavar="KINDS", shell_complete=_complete_kinds,
               help="Controllers to check, comma-separated (default: each scenario's controller.kinds).")
 @click.option("--seeds", type=click.IntRange(1, 10_000), default=1, show_default=True, metavar="N",
               help="Seeds per scenario and controller: the scenario's seed, seed + 1, ...")
@@ -1042,7 +1075,7 @@ def check(targets, controller, seeds, workers, overrides, junit, record, golden,
         result.wall_s += time.perf_counter() - t0
     click.echo(format_table(result))
     n_bad = sum(not c.passed for c in result.cases)
-    click.echo(f"  {len(result.cases)} checks ({result.runs} runs) in {result.wall_s:.1f} s: "
+    click.echo(f"  {counted(len(result.cases), 'check')} ({counted(result.runs, 'run')}) in {result.wall_s:.1f} s: "
                + ("all bounds hold" if not n_bad else f"{n_bad} failed"))
     if junit is not None:
         click.echo(f"wrote {write_junit(result, junit)}")
@@ -1242,6 +1275,20 @@ def _success_table(summary) -> str:
     return "\n".join(lines)
 
 
+def counted(n: int, noun: str, plural: str | None = None) -> str:
+    """"1 run", "2 runs": a count with its noun in the right number."""
+    return f"{n} {noun if n == 1 else (plural or noun + 's')}"
+
+
+def _terminal() -> bool:
+    """Whether stderr is a terminal: progress bars are drawn there, and left out of a file or a pipe
+    (where click would write each bar's label alone, "  runs", with nothing after it)."""
+    try:
+        return sys.stderr.isatty()
+    except (AttributeError, ValueError):
+        return False
+
+
 class _SweepBar:
     """Samples (or runs) finished out of those left to run, with the time left, on stderr."""
 
@@ -1251,6 +1298,8 @@ class _SweepBar:
         self.done = self.total = 0
 
     def update(self, done: int, total: int) -> None:
+        if not _terminal():  # a bar needs a terminal; a CI log would keep only its label
+            return
         if self._bar is None:  # the first call gives the samples already finished
             self.done, self.total = done, total
             label = f"  {self.what}" + (f" ({done} done before)" if done else "")
@@ -1289,6 +1338,8 @@ class _Progress:
             self._bar.__exit__(*exc)
 
     def update(self, stage: str, done: int, total: int) -> None:
+        if not _terminal():  # a bar needs a terminal; a CI log would keep only its label
+            return
         if stage != self._stage:
             if self._bar is not None:
                 self._bar.__exit__(None, None, None)
@@ -1297,6 +1348,16 @@ class _Progress:
             self._stage, self._done = stage, 0
         self._bar.update(done - self._done)
         self._done = done
+
+
+def copy_text(text: str) -> str:
+    """A built-in scenario's TOML as ``twin scenarios NAME`` prints it to copy: its ``name`` line
+    commented out, so that a copy takes its file's name (``my-exp2.toml`` runs as ``my-exp2``, into
+    ``runs/my-exp2``) instead of replacing the built-in's results in ``runs/NAME``."""
+    import re
+
+    return re.sub(r'^name\s*=\s*(.*)$', lambda m: f"# name = {m.group(1)}   (a copy takes its file's name: "
+                  f"my-copy.toml runs as my-copy, into runs/my-copy)", text, count=1, flags=re.M)
 
 
 @main.command()
@@ -1319,7 +1380,8 @@ def scenarios(name):
 
         if name not in builtin_names():
             raise TwinError(f"no built-in scenario {name!r}; built-ins: {', '.join(builtin_names())}")
-        click.echo(resources.files(BUILTIN_PACKAGE).joinpath(f"{name}.toml").read_text(encoding="utf-8"), nl=False)
+        text = resources.files(BUILTIN_PACKAGE).joinpath(f"{name}.toml").read_text(encoding="utf-8")
+        click.echo(copy_text(text), nl=False)
         return
     items = builtin_scenarios()
     width = max(map(len, items))

@@ -55,6 +55,12 @@ class Scenario:
         return self.data["description"]
 
     @property
+    def sets_nothing(self) -> bool:
+        """True for a scenario whose every key is the default (an empty file): what it runs is
+        then the schema's defaults, which a user may not expect."""
+        return self.data == validate({"name": self.name})
+
+    @property
     def duration(self) -> float:
         return self.data["duration"]
 

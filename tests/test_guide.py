@@ -1,0 +1,134 @@
+"""The guide's conventions and the command line's manners, as a new user meets them: a copied
+built-in names itself after its file, a run says when it replaces an earlier one, an empty file
+is said to run the defaults, output without a terminal holds no progress labels, counts agree
+with their nouns, ``python -m twin`` and ``-V``, shell completion of scenarios and controller
+kinds, ``docs/_build`` ignored, and the docs extra alone imports every documented module."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def twin(*args, cwd=None, env=None):
+    return subprocess.run([sys.executable, "-m", "twin.cli", *map(str, args)], cwd=cwd, capture_output=True,
+                          text=True, env={**os.environ, **(env or {})})
+
+
+def test_a_copied_built_in_takes_its_files_name(tmp_path):
+    r = twin("scenarios", "paper-exp2")
+    assert r.returncode == 0
+    assert not any(line.startswith("name") for line in r.stdout.splitlines())
+    (tmp_path / "my-exp2.toml").write_text(r.stdout)
+    from twin.scenarios import load_scenario
+
+    sc = load_scenario(str(tmp_path / "my-exp2.toml"))
+    assert sc.name == "my-exp2" and sc.data["duration"] == load_scenario("paper-exp2").data["duration"]
+
+
+def test_a_run_says_it_replaces_an_earlier_one_and_an_empty_file_says_the_defaults_run(tmp_path):
+    (tmp_path / "d.toml").write_text('description = ""\nduration = 0.05\n')
+    first = twin("run", "d.toml", "--controller", "it2", "--no-video", cwd=tmp_path)
+    assert first.returncode == 0, first.stderr
+    assert first.stdout.splitlines()[0] == "d"  # an empty description: the name alone, not "d: "
+    assert "earlier run" not in first.stdout
+    second = twin("run", "d.toml", "--controller", "it2", "--no-video", cwd=tmp_path)
+    assert second.returncode == 0 and "runs/d holds an earlier run; this one replaces it" in second.stdout
+    # without a terminal (here: a pipe) no progress bar's label is left behind
+    assert "  run" not in second.stderr and "  video" not in second.stderr
+    (tmp_path / "empty.toml").write_text("")
+    from twin.cli import _title
+    from twin.scenarios import load_scenario
+
+    text = _title(load_scenario(str(tmp_path / "empty.toml")))
+    assert "the file sets nothing, so the defaults run: a catch from θ0 = 0.48 rad for 15 s" in text
+    assert "sets nothing" not in _title(load_scenario(str(tmp_path / "d.toml")))
+
+
+def test_two_controllers_report_the_time_each_simulated(tmp_path):
+    r = twin("run", "paper-exp1", "--controller", "it2,lqr", "--duration", "0.05", "--no-video", "--out",
+             tmp_path / "o")
+    assert r.returncode == 0, r.stderr
+    assert "simulated 0.05 s for each of 2 runs in" in r.stdout
+
+
+def test_counts_agree_with_their_nouns():
+    from twin.cli import counted
+
+    assert counted(1, "check") == "1 check" and counted(2, "run") == "2 runs" and counted(0, "sample") == "0 samples"
+
+
+def test_python_m_twin_and_a_short_version_option():
+    for args in (["-m", "twin", "-V"], ["-m", "twin", "--version"]):
+        r = subprocess.run([sys.executable, *args], capture_output=True, text=True)
+        assert r.returncode == 0 and r.stdout.startswith("twin, version "), (args, r.stdout, r.stderr)
+    r = subprocess.run([sys.executable, "-m", "twin", "scenarios"], capture_output=True, text=True)
+    assert r.returncode == 0 and "paper-exp1" in r.stdout
+
+
+def test_the_shell_completes_scenario_names_and_controller_kinds():
+    env = {"_TWIN_COMPLETE": "bash_complete"}
+    r = subprocess.run([sys.executable, "-m", "twin"], capture_output=True, text=True,
+                       env={**os.environ, **env, "COMP_WORDS": "twin run paper-e", "COMP_CWORD": "2"})
+    names = {line.split(",", 1)[1] for line in r.stdout.splitlines() if line.startswith("plain,")}
+    assert names == {"paper-exp1", "paper-exp2", "paper-exp3"}, r.stdout
+    r = subprocess.run([sys.executable, "-m", "twin"], capture_output=True, text=True,
+                       env={**os.environ, **env, "COMP_WORDS": "twin check paper-exp1 --controller it2,l",
+                            "COMP_CWORD": "4"})
+    assert "plain,it2,lqr" in r.stdout.splitlines(), r.stdout
+
+
+def test_the_docs_build_folder_is_ignored(tmp_path):
+    r = subprocess.run(["git", "check-ignore", "-q", "docs/_build/html/index.html"], cwd=ROOT)
+    assert r.returncode == 0, "docs/_build/ is not in .gitignore"
+
+
+def test_the_docs_extra_alone_imports_every_documented_module():
+    """With only the base dependencies and the docs extra (every other extra's packages made
+    unimportable, as in a fresh `pip install '.[docs]'`), each module the site's autodoc pages
+    name imports: the site builds."""
+    import re
+    from importlib.metadata import packages_distributions
+
+    meta = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]
+
+    def names(reqs):
+        return {re.split(r"[<>=!~\[; ]", r, maxsplit=1)[0].lower().replace("_", "-") for r in reqs}
+
+    allowed = names(meta["dependencies"]) | names(meta["optional-dependencies"]["docs"])
+    others = set().union(*(names(v) for k, v in meta["optional-dependencies"].items() if k != "docs")) - allowed
+    blocked = sorted(mod for mod, dists in packages_distributions().items()
+                     if {d.lower().replace("_", "-") for d in dists} & others)
+    modules = sorted({m for page in (ROOT / "docs").rglob("*.md") if "_build" not in page.parts
+                      for m in re.findall(r"\.\. auto(?:module|class|function):: ([\w.]+)", page.read_text())})
+    assert "twin.envs" in modules
+    code = f"""
+import importlib, importlib.abc, sys
+BLOCKED = set({blocked!r})
+class Block(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path, target=None):
+        if name.split('.')[0] in BLOCKED:
+            raise ModuleNotFoundError(f"No module named {{name!r}} (not in the docs extra)")
+sys.meta_path.insert(0, Block())
+bad = []
+for m in {modules!r}:
+    try:  # as autodoc does: the module, or the object named in it, and each name its __all__ lists
+        try:
+            obj = importlib.import_module(m)
+        except ImportError:
+            mod, _, attr = m.rpartition('.')
+            obj = getattr(importlib.import_module(mod), attr)
+        for name in getattr(obj, '__all__', ()):
+            getattr(obj, name)
+    except ImportError as exc:
+        bad.append(f"{{m}}: {{exc}}")
+print(bad)
+"""
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.strip() == "[]", r.stdout
