@@ -53,13 +53,16 @@ class TiltFilter:
     """A complementary filter for θ and wheel odometry for ψ and α.
 
     θ ← a (θ + ω_y Δt) + (1 − a) atan2(−f_x, f_z); θ̇ the gyro's pitch rate; ψ the mean
-    encoder angle plus θ; α from the encoders' difference; rates by finite differences.
+    encoder angle plus θ; α from the encoders' difference; ψ̇ by the difference over the last
+    ``window`` periods (over one, the encoders' counts make it jump by a count per period: a
+    controller with a speed gain then chatters).
     ``context`` (given by the twin because the signature asks for it) supplies the
     control period, the wheel radius and half-track, and the initial heading.
     """
 
-    def __init__(self, context, a: float = 0.98):
+    def __init__(self, context, a: float = 0.98, window: int = 4):
         self.dt = 1.0 / context.control_rate
+        self.window = int(window)
         self.r_b = context.model.r / context.model.b
         self.alpha0 = context.alpha0
         self.a = float(a)
@@ -70,7 +73,7 @@ class TiltFilter:
         self.theta0 = self.theta
         self.rate = (m.gyro[1], m.gyro[2])
         self.enc = tuple(m.encoders) if m.encoders is not None else (0.0, 0.0)
-        self.psi_prev, self.alpha_prev = None, None
+        self.psi_hist = []
         return self._output()
 
     def step(self, m, command):
@@ -88,8 +91,11 @@ class TiltFilter:
         el, er = self.enc
         psi = 0.5 * (el + er) + self.theta - self.theta0
         alpha = self.alpha0 + self.r_b * 0.5 * (er - el)
-        psi_dot = 0.0 if self.psi_prev is None else (psi - self.psi_prev) / self.dt
-        self.psi_prev = psi
+        hist = self.psi_hist
+        hist.append(psi)
+        if len(hist) > self.window + 1:
+            del hist[0]
+        psi_dot = (hist[-1] - hist[0]) / ((len(hist) - 1) * self.dt) if len(hist) > 1 else 0.0
         return (self.theta, self.rate[0], psi, psi_dot, alpha, self.rate[1] / max(math.cos(self.theta), 0.1))
 
     def stats(self) -> dict:

@@ -20,7 +20,7 @@ Examples (the conventions every page follows):
   as a reader saves it beside their work.
 
 Each page runs in one fresh temporary directory, its blocks in order (a later block may use the
-files an earlier one wrote), with ``examples/`` on PYTHONPATH, MPLBACKEND=Agg, the session's
+files an earlier one wrote), with no PYTHONPATH (the files a page offers are what a reader has), MPLBACKEND=Agg, the session's
 design cache (TWIN_CACHE_DIR) and this interpreter's ``twin`` first on PATH. A failure names the
 page, the block's line and the tail of its stderr.
 
@@ -46,7 +46,6 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / "docs"
 README = ROOT / "README.md"
-EXAMPLES = ROOT / "examples"
 GENERATED = DOCS / "_generated"
 
 MAX_SKIPPED = 6            # blocks not run, over every page and the README
@@ -256,7 +255,7 @@ def test_few_examples_are_skipped_and_each_says_why():
 def _env() -> dict:
     env = dict(os.environ)  # TWIN_CACHE_DIR: the session's private design cache (conftest)
     env["MPLBACKEND"] = "Agg"
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(EXAMPLES), env.get("PYTHONPATH", "")) if p)
+    env.pop("PYTHONPATH", None)  # a user's environment: the installed package, and what the page gives to save
     env["PATH"] = os.pathsep.join([str(Path(sys.executable).parent), env.get("PATH", "")])
     env.pop("TWIN_REQUIRE_DOCS", None)
     return env

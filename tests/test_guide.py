@@ -132,3 +132,51 @@ print(bad)
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
     assert r.returncode == 0, r.stderr[-2000:]
     assert r.stdout.strip() == "[]", r.stdout
+
+
+def test_the_scenario_reference_lists_every_key_a_map_takes():
+    from twin.params import PARAMETER_DOCS
+    from twin.scenarios.schema import describe
+
+    row = next(r for r in describe() if r[0] == "plant.scale")
+    assert all(f" {n}," in row[1] + "," for n in PARAMETER_DOCS), row[1]  # n_xb and g among them
+
+
+def test_calibrate_list_offers_only_what_a_log_can_fit():
+    r = twin("calibrate", "--list")
+    assert r.returncode == 0
+    offered = [line.split()[0] for line in r.stdout.splitlines() if not line.strip().startswith("(")]
+    assert "dead_band" not in offered and "m_b" in offered
+    assert "(dead_band: not fitted" in r.stdout
+
+
+def test_a_plugin_beside_its_scenario_may_import_a_module_in_the_current_directory(tmp_path):
+    """The plugins how-to as written: my_plugins.py in the folder a user works in, a lab's
+    controller beside its scenario in lab/ importing it; `twin check` (a worker process) and a
+    run find both, with nothing on PYTHONPATH."""
+    (tmp_path / "helper_gains.py").write_text("GAINS = (-1.0, -0.08, -0.05, -0.03)\n")
+    (tmp_path / "lab").mkdir()
+    (tmp_path / "lab" / "lab_ctrl_x.py").write_text(
+        "from helper_gains import GAINS\n\n\nclass Ctrl:\n    def reset(self, targets):\n        pass\n\n"
+        "    def __call__(self, estimate, targets):\n        th, thd, ps, psd = estimate[:4]\n"
+        "        u = -(GAINS[0] * th + GAINS[1] * thd + GAINS[2] * ps + GAINS[3] * psd)\n"
+        "        return (0.5 * u, 0.5 * u)\n")
+    (tmp_path / "lab" / "s.toml").write_text('base = "paper-exp1"\nduration = 0.2\n[initial]\ntheta = 0.05\n'
+                                            '[controller]\nkinds = ["lab_ctrl_x:Ctrl"]\n[expect]\nfell = false\n')
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    # the console script, as a user runs it (python -m would put the current directory on sys.path itself)
+    r = subprocess.run([str(Path(sys.executable).parent / "twin"), "check", "lab/s.toml"], cwd=tmp_path,
+                       capture_output=True, text=True, env=env)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "1 check (1 run)" in r.stdout
+
+
+def test_the_changelog_has_a_release_of_the_packages_version():
+    import re
+
+    version = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]["version"]
+    text = (ROOT / "CHANGELOG.md").read_text(encoding="utf-8")
+    releases = re.findall(r"^## (\d+\.\d+\.\d+) \((\d{4}-\d{2}-\d{2})\)$", text, re.M)
+    assert releases and releases[0][0] == version, (releases[:3], version)
+    conf = (ROOT / "docs" / "conf.py").read_text(encoding="utf-8")
+    assert f'release = version = "{version}"' in conf

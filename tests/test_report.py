@@ -1,6 +1,7 @@
 """The run figure (twin.outputs.report.figure_runs): its panels, what is shaded and marked, and
 that every line has a legend entry; checked through the figure's axes."""
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -11,7 +12,8 @@ from twin.scenarios import load_scenario
 from twin.scenarios.runner import run_scenario
 
 TITLES = {"theta": "θ [rad]", "error": "estimator error θ̂ − θ [rad]",
-          "torque": "torque per wheel: delivered (lines), commanded (dots) [N·m]", "psi_dot": "dψ/dt [rad/s]",
+          "torque": "torque per wheel [N·m]: delivered left ─, right ╌; commanded ·; saturated ×",
+          "psi_dot": "dψ/dt [rad/s]",
           "distance": "distance p = rψ [m]", "alpha": "heading α [rad]", "path": "path seen from above (x, y) [m]"}
 ZOOMED = {"zoom_theta": "theta", "zoom_torque": "torque"}  # a zoom panel's lines are in its original's legend
 
@@ -49,8 +51,15 @@ def test_figure_has_its_panels_with_every_line_in_a_legend(push_runs):
     x, y = err.get_lines()[0].get_data()
     run = push_runs[0]
     np.testing.assert_allclose(y, run.signal("theta_est") - run.signal("theta"))
-    torque = set(_legend(p["torque"]))
-    assert {"IT2 left", "IT2 right", "type-1 left", "type-1 right"} <= torque
+    # the torque panel: one legend entry per run (the styles are in its title), drawn as the title says
+    assert [lab for lab in _legend(p["torque"]) if lab != "zoomed on the right"] == ["IT2", "type-1"]
+    styles = {(ln.get_linestyle(), ln.get_marker()) for ln in p["torque"].get_lines()}
+    assert ("-", "None") in styles and ("--", "None") in styles  # delivered: left solid, right dashed
+    assert ("None", ".") in styles  # commanded: dots
+    assert {ln.get_color() for ln in p["torque"].get_lines() if ln.get_label() in ("IT2", "_IT2")} == \
+        {p["theta"].get_lines()[0].get_color()}  # a run's one colour
+    # the zoom window's shading on the panels it zooms into is named in their legends
+    assert "zoomed on the right" in _legend(p["theta"]) and "zoomed on the right" in _legend(p["torque"])
 
 
 def test_pushes_are_shaded_on_every_panel_where_they_act(push_runs):
@@ -86,6 +95,29 @@ def test_fault_windows_shaded_settling_marked_and_saturation_marked():
     assert np.isfinite(ts)
     marks = [ln for ln in p["theta"].get_lines() if ln.get_label().startswith("IT2 settled")]
     assert len(marks) == 1 and marks[0].get_xdata()[0] == pytest.approx(ts)
-    sat = [ln for ln in p["torque"].get_lines() if ln.get_label() == "IT2 left saturated"]
+    sat = [ln for ln in p["torque"].get_lines() if ln.get_gid() == "IT2 left saturated"]
     assert len(sat) == 1 and len(sat[0].get_xdata()) == 10
-    assert not [ln for ln in p["torque"].get_lines() if ln.get_label() == "IT2 right saturated"]
+    assert not [ln for ln in p["torque"].get_lines() if ln.get_gid() == "IT2 right saturated"]
+
+
+def test_a_turning_experiments_path_shows_its_target_and_the_cascades_signals_say_what_they_are():
+    """paper-exp3-like targets (a distance and a heading): the path panel draws the target heading
+    at each run's end and names p_d along the path; the controller's signals panel says what θ_off is."""
+    from twin.outputs.figure import fill_figure, new_figure
+
+    data = {"runs": [{"name": "IT2", "colour": "tab:blue", "settling_time": float("nan"), "sensing": "ideal",
+                      "fell": False, "theta": (np.arange(3.0), np.zeros(3)), "error": None,
+                      "psi_dot": (np.arange(3.0), np.zeros(3)), "distance": (np.arange(3.0), np.array([0, .5, 1.0])),
+                      "alpha": (np.arange(3.0), np.array([0, .7, 1.5])), "path": (np.array([0, .4, .5]), np.array([0, .2, .8])),
+                      "torque_l": (np.arange(3.0), np.zeros(3)), "torque_r": (np.arange(3.0), np.zeros(3)),
+                      "cmd_l": None, "cmd_r": None, "saturated_l": None, "saturated_r": None,
+                      "signals": [("theta_off", "rad", (np.arange(3.0), np.zeros(3)))]}],
+            "p_d": 1.0, "alpha_d": 1.5, "spans": [], "zoom": None, "zoom_why_not": "short", "pushes": [],
+            "start": (0.0, 0.0, 0.0)}
+    fig, axes = new_figure()
+    fill_figure(fig, axes, data, "")
+    p = panels(fig)
+    assert "target: α_d = 1.5 rad (arrow),\np_d = 1 m along the path" in _legend(p["path"])
+    arrows = [c for c in p["path"].texts if getattr(c, "arrow_patch", None) is not None]
+    assert arrows and arrows[0].xy == pytest.approx((0.5 + 0.15 * 0.8 * math.cos(1.5), 0.8 + 0.15 * 0.8 * math.sin(1.5)))
+    assert "θ_off = tilt set by the position loop" in p["signals_1"].get_title()

@@ -1125,11 +1125,15 @@ def calibrate(logs, parameters, held_out, seed, model_kind, out, list_):
       twin calibrate runs/exp3/sensor-logs/it2 --parameters m_b,l,n_yb,d_b,d_w --validate runs/exp3b/sensor-logs/it2
       twin run paper-exp3 --plant runs/calibration/calibration.toml
     """
-    from twin.calibrate.parameters import PARAMETERS, parse_names
+    from twin.calibrate.parameters import NOT_FROM_A_LOG, PARAMETERS, parse_names
 
     if list_:
         for name, p in PARAMETERS.items():
+            if name in NOT_FROM_A_LOG:
+                continue
             click.echo(f"  {name:15} {p.unit:10} {p.group:6} {p.doc}")
+        for name, why in NOT_FROM_A_LOG.items():
+            click.echo(f"  ({name}: {why})")
         return
     from twin.calibrate import identify, output
     from twin.calibrate.robot import same_geometry, to_twin, validate_physical

@@ -290,19 +290,22 @@ def _import(module_name: str):
     try:
         return importlib.import_module(module_name)
     except ModuleNotFoundError as exc:
-        if exc.name != module_name.split(".")[0]:
-            raise
+        # the module, or one it imports (a lab's controller beside its scenario importing a helper
+        # module in the current directory), is looked for in these too, each added to what was added
+        # before: a module found in one may import from another
+        added, last = [], exc
         for d in [os.getcwd(), *_BESIDE]:
             if d in sys.path:
                 continue
             sys.path.append(d)
+            added.append(d)
             try:
                 return importlib.import_module(module_name)
             except ModuleNotFoundError as again:
-                sys.path.remove(d)
-                if again.name != exc.name:
-                    raise
-        raise
+                last = again
+        for d in added:
+            sys.path.remove(d)
+        raise last from None
 
 
 def _accepts_context(factory) -> bool:

@@ -54,6 +54,9 @@ _ALL = (
     Parameter("imu_latency", "s", "imu", "the IMU's latency (whole control periods)"),
 )
 PARAMETERS: dict[str, Parameter] = {p.name: p for p in _ALL}
+# parameters the model has but no log can show: `twin calibrate --list` leaves them out and says why
+NOT_FROM_A_LOG = {"dead_band": "not fitted: a log's duty.csv holds the duty after the dead band, so the log cannot "
+                               "show it; measure it on the bench (the smallest duty that turns the wheel)"}
 DEFAULT_PLANT = ("m_b", "l", "n_yb", "d_b", "d_w")
 
 

@@ -35,10 +35,15 @@ import textwrap
 
 import numpy as np
 
+# the torque panels' line styles, said in their titles (the legend then names only the runs: with
+# four styles per run it held 8–12 entries and covered the curves)
+TORQUE_STYLES = {"l": "-", "r": "--"}  # delivered: left solid, right dashed
+COMMANDED = dict(ls="none", marker=".", ms=1.6, alpha=0.6)  # commanded: dots
+TORQUE_TITLE = "torque per wheel [N·m]: delivered left ─, right ╌; commanded ·; saturated ×"
 # (key, title) of each panel, row by row; a title ending in ":" is completed by the data
 LAYOUT = (
     (("theta", "θ [rad]"), ("zoom_theta", "zoom:"), ("error", "estimator error θ̂ − θ [rad]")),
-    (("torque", "torque per wheel: delivered (lines), commanded (dots) [N·m]"), ("zoom_torque", "zoom:"),
+    (("torque", TORQUE_TITLE), ("zoom_torque", "zoom:"),
      ("psi_dot", "dψ/dt [rad/s]")),
     (("distance", "distance p = rψ [m]"), ("alpha", "heading α [rad]"), ("path", "path seen from above (x, y) [m]")),
     (("difference", "difference to the first run:"), ("signals_1", "controller's signals:"),
@@ -144,13 +149,15 @@ def fill_figure(fig, axes, data: dict, title: str = ""):
             p["theta"].axvline(ts, color=c, ls=":", lw=1.0, label=f"{name} settled, {ts:.2f} s")
         if r["error"] is not None:
             plot("error", r["error"], color=c, lw=1.0, label=f"{name} ({r['sensing']})")
-        for side, ls, cls, word in (("l", "-", ":", "left"), ("r", "--", "-.", "right")):
-            plot("torque", r[f"torque_{side}"], color=c, lw=1.0, ls=ls, label=f"{name} {word}")
+        for side, word in (("l", "left"), ("r", "right")):  # one legend entry per run (styles: the title)
+            plot("torque", r[f"torque_{side}"], color=c, lw=1.0, ls=TORQUE_STYLES[side],
+                 label=name if side == "l" else "_" + name, gid=f"{name} {word}")
             if r.get(f"cmd_{side}") is not None:
-                plot("torque", r[f"cmd_{side}"], color=c, lw=1.0, ls=cls, alpha=0.55, label=f"{name} {word} commanded")
+                plot("torque", r[f"cmd_{side}"], color=c, label="_" + name, gid=f"{name} {word} commanded", **COMMANDED)
             sat = r[f"saturated_{side}"]
             if sat is not None:
-                p["torque"].plot(*sat, ls="none", marker="x", ms=4, color=c, label=f"{name} {word} saturated")
+                p["torque"].plot(*sat, ls="none", marker="x", ms=4, color=c, label="_" + name,
+                                 gid=f"{name} {word} saturated")
         plot("psi_dot", r["psi_dot"], color=c, lw=1.2, label=name)
         plot("distance", r["distance"], color=c, lw=1.2, label=name)
         plot("alpha", r["alpha"], color=c, lw=1.2, label=name)
@@ -160,11 +167,12 @@ def fill_figure(fig, axes, data: dict, title: str = ""):
             plot("zoom_theta", z["theta"], color=c, lw=1.2, label=name)
             if math.isfinite(ts) and zoom[0] <= ts <= zoom[1]:
                 p["zoom_theta"].axvline(ts, color=c, ls=":", lw=1.0, label=f"{name} settled, {ts:.2f} s")
-            for side, ls, cls, word in (("l", "-", ":", "left"), ("r", "--", "-.", "right")):
-                plot("zoom_torque", z[f"torque_{side}"], color=c, lw=1.0, ls=ls, label=f"{name} {word}")
+            for side, word in (("l", "left"), ("r", "right")):
+                plot("zoom_torque", z[f"torque_{side}"], color=c, lw=1.0, ls=TORQUE_STYLES[side],
+                     label=name if side == "l" else "_" + name, gid=f"{name} {word}")
                 if z.get(f"cmd_{side}") is not None:
-                    plot("zoom_torque", z[f"cmd_{side}"], color=c, lw=1.0, ls=cls, alpha=0.55,
-                         label=f"{name} {word} commanded")
+                    plot("zoom_torque", z[f"cmd_{side}"], color=c, label="_" + name, gid=f"{name} {word} commanded",
+                         **COMMANDED)
     if data["p_d"] is not None:
         p["distance"].axhline(data["p_d"], color="k", ls="--", lw=0.8, label="target p_d")
         _extend(ranges, "distance", [data["p_d"]])
@@ -280,6 +288,20 @@ def _draw_path_marks(ax, data: dict, ranges: dict) -> None:
         _extend(ranges, "path", [tx])
         _extend(ranges, "path_y", [ty])
     span = max(np.ptp(ranges.get("path", [0.0, 0.0])), np.ptp(ranges.get("path_y", [0.0, 0.0])), 0.05)
+    if data["p_d"] is not None and data["alpha_d"] is not None:
+        # driving and turning: the target is a distance along the path and a heading, not a point;
+        # the heading is drawn where each run ended, the distance said beside it
+        for r in data.get("runs", ()):
+            if r.get("path") is None:
+                continue
+            ex, ey = float(r["path"][0][-1]), float(r["path"][1][-1])
+            dx, dy = 0.15 * span * math.cos(data["alpha_d"]), 0.15 * span * math.sin(data["alpha_d"])
+            ax.annotate("", xy=(ex + dx, ey + dy), xytext=(ex, ey), zorder=4,
+                        arrowprops=dict(arrowstyle="-|>", color="tab:green", lw=1.4, mutation_scale=10))
+            _extend(ranges, "path", [ex + dx])
+            _extend(ranges, "path_y", [ey + dy])
+        ax.plot([], [], color="tab:green", lw=1.4,
+                label=f"target: α_d = {data['alpha_d']:g} rad (arrow),\np_d = {data['p_d']:g} m along the path")
     for push in data.get("pushes", ()):
         fx, fy = push["force"][:2]
         norm = math.hypot(fx, fy)
@@ -314,7 +336,7 @@ def _draw_zoom_frame(p: dict, zoom, why_not: str = "") -> None:
     p["zoom_torque"].set_title(f"zoom: torque per wheel [N·m], {why}", fontsize=9, y=1.0)
     p["zoom_theta"].set_xlim(a, b)
     for key in ("theta", "torque"):  # where the zoom is, on the panels it zooms into
-        p[key].axvspan(a, b, color=ZOOM_COLOUR, alpha=0.07, lw=0, label="_zoomed")
+        p[key].axvspan(a, b, color=ZOOM_COLOUR, alpha=0.07, lw=0, label="zoomed on the right")
 
 
 def _draw_difference(ax, runs: list, ranges: dict) -> None:
@@ -361,7 +383,8 @@ def _draw_signals(p: dict, runs: list, ranges: dict) -> None:
             ax.set_title("controller's signals", fontsize=9, y=1.0)
             _note(ax, "the controller logs no signals" if not units else "the controller's signals have one unit")
             continue
-        ax.set_title(f"controller's signals [{unit}]", fontsize=9, y=1.0)
+        said = [f"{_pretty(n)} = {_MEANING[n]}" for n, u, _ in runs[0].get("signals", ()) if u == unit and n in _MEANING]
+        ax.set_title(f"controller's signals [{unit}]" + (": " + "; ".join(said) if said else ""), fontsize=9, y=1.0)
         for r in runs:
             names = [n for n, u, _ in r.get("signals", ()) if u == unit]
             for (name, u, xy) in r.get("signals", ()):
@@ -377,6 +400,9 @@ def _draw_signals(p: dict, runs: list, ranges: dict) -> None:
 
 
 _PRETTY = {"theta_off": "θ_off", "u_alpha": "u_α"}
+# what the fuzzy cascade's signals are, said in their panel's title (a plugin's are its own)
+_MEANING = {"theta_off": "tilt set by the position loop", "u": "balance torque",
+            "u_alpha": "heading torque"}
 
 
 def _pretty(name: str) -> str:

@@ -584,6 +584,8 @@ def describe() -> list[tuple[str, str, str, str]]:
                 continue
             kind = key.kind + (_range(key) if key.kind in ("float", "int", "vec3", "map", "floats", "range")
                                else _choices(key))
+            if key.kind == "map" and key.choices:  # its keys: every one the map takes
+                kind += f"; keys {', '.join(key.choices)}"
             if key.kind in ("kind", "kinds"):
                 kind = f"{key.role} kind" + ("s (list)" if key.kind == "kinds" else "")
             elif key.kind == "params":
