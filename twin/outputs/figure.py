@@ -284,7 +284,7 @@ def _draw_path_marks(ax, data: dict, ranges: dict) -> None:
     ax.plot([x0], [y0], ls="none", marker="o", ms=5, mfc="none", color="k", label="start")
     if data["p_d"] is not None and data["alpha_d"] is None:
         tx, ty = x0 + data["p_d"] * math.cos(a0), y0 + data["p_d"] * math.sin(a0)
-        ax.plot([tx], [ty], ls="none", marker="*", ms=9, color="tab:green", label="target p_d")
+        ax.plot([tx], [ty], ls="none", marker="*", ms=9, color="k", label="target p_d")
         _extend(ranges, "path", [tx])
         _extend(ranges, "path_y", [ty])
     span = max(np.ptp(ranges.get("path", [0.0, 0.0])), np.ptp(ranges.get("path_y", [0.0, 0.0])), 0.05)
@@ -297,10 +297,10 @@ def _draw_path_marks(ax, data: dict, ranges: dict) -> None:
             ex, ey = float(r["path"][0][-1]), float(r["path"][1][-1])
             dx, dy = 0.15 * span * math.cos(data["alpha_d"]), 0.15 * span * math.sin(data["alpha_d"])
             ax.annotate("", xy=(ex + dx, ey + dy), xytext=(ex, ey), zorder=4,
-                        arrowprops=dict(arrowstyle="-|>", color="tab:green", lw=1.4, mutation_scale=10))
+                        arrowprops=dict(arrowstyle="-|>", color="k", lw=1.4, mutation_scale=10))
             _extend(ranges, "path", [ex + dx])
             _extend(ranges, "path_y", [ey + dy])
-        ax.plot([], [], color="tab:green", lw=1.4,
+        ax.plot([], [], color="k", lw=1.4,
                 label=f"target: α_d = {data['alpha_d']:g} rad (arrow),\np_d = {data['p_d']:g} m along the path")
     for push in data.get("pushes", ()):
         fx, fy = push["force"][:2]
