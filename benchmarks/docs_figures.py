@@ -5,7 +5,10 @@
 * ``docs/paper-exp3-twin-lqr.png``: the same with ``--controller it2,t1,lqr`` (the paper-claim
   page, LQR beside the fuzzy cascades);
 * ``docs/paper-exp3-analytic.png``: ``twin run paper-exp3 --set plant.model=analytic --set
-  plant.scale={} --set sensors.sensing=ideal --no-video`` (equation (1) itself, the method page).
+  plant.scale={} --set sensors.sensing=ideal --no-video`` (equation (1) itself, the method page);
+* ``docs/reference/envs/_media/balance-v0.gif`` and ``track-v0.gif``: the Gymnasium environments'
+  pages' animations, the first seconds of an episode (``render_mode="rgb_array"``) driven by the
+  built-in IT2 cascade on the observation, as the Gymnasium how-to does.
 
 Run from the repository root after a change to the figure or to the runs::
 
@@ -31,7 +34,49 @@ FIGURES = {
 }
 
 
+ANIMATIONS = {"balance-v0.gif": "mtwip/Balance-v0", "track-v0.gif": "mtwip/Track-v0"}
+ANIMATION_S = 3.0  # s of the episode shown
+ANIMATION_FPS = 20  # pictures per simulated second (and per second of the GIF: real time)
+ANIMATION_SIZE = (320, 240)  # px
+
+
+def animation(env_id: str, path: Path) -> int:
+    """The first :data:`ANIMATION_S` s of an episode of ``env_id`` as a GIF at ``path``, the agent
+    the built-in IT2 cascade on the estimate; returns the number of pictures."""
+    import gymnasium
+    import numpy as np
+    from PIL import Image
+
+    import twin.envs  # noqa: F401 - registers the ids
+
+    env = gymnasium.make(env_id, render_mode="rgb_array", render_size=ANIMATION_SIZE,
+                         overrides=(f"duration={ANIMATION_S}",))
+    u = env.unwrapped
+    ctrl = u.scenario.build_controller("it2", u.scenario.build_context())
+    obs, _ = env.reset(seed=0)
+    ctrl.reset(u.experiment.targets)
+    every = max(1, round(u.scenario.data["rates"]["control"] / ANIMATION_FPS))
+    frames, k = [Image.fromarray(env.render())], 0
+    while True:
+        ul, ur, *_ = ctrl(obs[:6], u.experiment.targets)
+        obs, _, terminated, truncated, _ = env.step(np.array([ul, ur], dtype=np.float32))
+        k += 1
+        if k % every == 0:
+            frames.append(Image.fromarray(env.render()))
+        if terminated or truncated:
+            break
+    env.close()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    frames[0].save(path, save_all=True, append_images=frames[1:], duration=round(1000 / ANIMATION_FPS), loop=0,
+                   optimize=True)
+    return len(frames)
+
+
 def main() -> int:
+    for name, env_id in ANIMATIONS.items():
+        path = ROOT / "docs" / "reference" / "envs" / "_media" / name
+        n = animation(env_id, path)
+        print(f"{path.relative_to(ROOT)}: {env_id}, {n} pictures, {path.stat().st_size / 1e3:.0f} kB")
     with tempfile.TemporaryDirectory() as tmp:
         for name, args in FIGURES.items():
             out = Path(tmp) / name.removesuffix(".png")

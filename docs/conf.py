@@ -44,6 +44,7 @@ myst_heading_anchors = 4  # [text](page.md#a-heading) links resolve, and are che
 autodoc_member_order = "bysource"
 autodoc_inherit_docstrings = False  # a base class's docstring (gymnasium.Env.step) is not ours
 autodoc_typehints = "none"          # signatures show them; numpydoc's sections carry the rest
+autodoc_preserve_defaults = True    # a default as written (DEFAULT_RATES), not its nested repr (RunSpec's 20 lines)
 autodoc_default_options = {"members": True, "undoc-members": False, "show-inheritance": False}
 numpydoc_show_class_members = False
 numpydoc_class_members_toctree = False

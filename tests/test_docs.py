@@ -353,10 +353,19 @@ def test_the_site_builds_with_warnings_as_errors(jobs):
     status, stderr, seconds = futures["build"].result()
     assert status == 0, f"sphinx -W failed (status {status}) after {seconds:.0f} s:\n{_tail(stderr)}"
     html = base / "site" / "html"
-    for page in ("index", "reference/cli", "reference/scenario-schema", "reference/metrics", "reference/api"):
+    for page in ("index", "reference/cli", "reference/scenario-schema", "reference/metrics", "reference/api",
+                 "reference/api/running"):
         assert (html / f"{page}.html").is_file(), page
     cli = (html / "reference" / "cli.html").read_text(encoding="utf-8")
     assert "twin run" in cli and "--set" in cli
+    # a dataclass's signature with its long defaults shortened (RunSpec's ran to about 20 lines)
+    from html import unescape
+
+    running = unescape(re.sub(r"<[^>]+>", "", (html / "reference" / "api" / "running.html").read_text(encoding="utf-8")))
+    sig = re.search(r"class twin\.sim\.spec\.RunSpec\((.*?)\)¶", running, re.S)
+    assert sig and len(sig.group(1)) < 400 and "estimator=Plugin(…)" in sig.group(1), sig and sig.group(1)[:300]
+    for page in ("reference/envs/balance-v0", "reference/envs/track-v0"):
+        assert (html / f"{page}.html").is_file(), page
     # commands in prose as typed (no smart quotes): a copied command must run
     assert "twin run --log-sensors" in cli and "–log-sensors" not in cli and "‘twin" not in cli
     # no development history in the user's documentation (the changelog page excepted)

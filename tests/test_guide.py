@@ -180,3 +180,31 @@ def test_the_changelog_has_a_release_of_the_packages_version():
     assert releases and releases[0][0] == version, (releases[:3], version)
     conf = (ROOT / "docs" / "conf.py").read_text(encoding="utf-8")
     assert f'release = version = "{version}"' in conf
+
+
+def test_each_environment_has_a_page_in_gymnasiums_layout():
+    """docs/reference/envs/NAME.md per registered id: its header's spaces are the environment's
+    own, and its specification (the module's docstring, rendered there) has Gymnasium's sections."""
+    import importlib
+    import re
+
+    import pytest
+
+    gymnasium = pytest.importorskip("gymnasium")
+    import twin.envs  # noqa: F401
+
+    for env_id, module in (("mtwip/Balance-v0", "twin.envs.balance"), ("mtwip/Track-v0", "twin.envs.track")):
+        page = ROOT / "docs" / "reference" / "envs" / f"{env_id.split('/')[1].lower()}.md"
+        text = page.read_text(encoding="utf-8")
+        env = gymnasium.make(env_id)
+        assert f"`{env.action_space}`" in text, (page.name, str(env.action_space))
+        shape = re.search(r"Observation Space \| `Box` of shape `(\([0-9, ]+\))`", text).group(1)
+        assert shape == str(env.observation_space.shape), (page.name, shape, env.observation_space.shape)
+        env.close()
+        assert f".. automodule:: {module}" in text and (page.parent / "_media" / f"{page.stem}.gif").is_file()
+        doc = importlib.import_module(module).__doc__
+        heads = [line for line in doc.splitlines() if line and not line.startswith(" ")]
+        order = ["Action Space", "Observation Space", "Rewards", "Starting State", "Episode End", "Arguments",
+                 "Version History"]
+        found = [next(i for i, h in enumerate(heads) if h.startswith(o)) for o in order]
+        assert found == sorted(found), (module, heads)

@@ -207,7 +207,49 @@ def _builder_inited(app):
     generate()
 
 
+LONG_DEFAULT = 30  # characters: a default's repr beyond this is shown as its type, Name(…)
+
+
+def short_signature(signature: str) -> str:
+    """``signature`` ("(a, b=Plugin(kind='ekf', params=None), ...)") with every default whose repr
+    is longer than :data:`LONG_DEFAULT` shortened to ``Name(…)``: a dataclass's generated
+    signature spells out nested defaults in full (RunSpec's ran to about 20 lines)."""
+    if not signature or not signature.startswith("("):
+        return signature
+    body, tail = signature[1:], ""
+    depth, parts, cur = 0, [], ""
+    for i, ch in enumerate(body):
+        if ch in "([{":
+            depth += 1
+        elif ch in ")]}":
+            if depth == 0:  # the closing parenthesis of the signature
+                tail = body[i:]
+                break
+            depth -= 1
+        if ch == "," and depth == 0:
+            parts.append(cur)
+            cur = ""
+        else:
+            cur += ch
+    parts.append(cur)
+    out = []
+    for part in parts:
+        name, eq, default = part.partition("=")
+        if eq and len(default) > LONG_DEFAULT:
+            head = default.strip().split("(", 1)[0]
+            default = f"{head}(…)" if head and head.replace(".", "").isidentifier() else "…"
+        out.append(name + eq + default)
+    return "(" + ",".join(out) + tail
+
+
+def _process_signature(app, what, name, obj, options, signature, return_annotation):
+    if signature and len(signature) > 200:
+        return short_signature(signature), return_annotation
+    return None
+
+
 def setup(app):
     app.connect("builder-inited", _builder_inited)
+    app.connect("autodoc-process-signature", _process_signature)
     app.connect("autodoc-process-docstring", _process_docstring, priority=400)
     return {"version": "1", "parallel_read_safe": True, "parallel_write_safe": True}

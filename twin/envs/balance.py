@@ -13,15 +13,24 @@ model, 15 s). Any built-in or scenario file runs: its targets, if any, are ignor
                          overrides=("duration=5",), randomize={"level": 0.3})
     env = gymnasium.make("mtwip/Balance-v0", normalize_actions=True)  # action Box [-1, 1]
 
-Observation (Box, float32; ``obs=``)
+Action Space
+    (ul, ur), left and right wheel torque commands in N·m, positive driving forward,
+    each in [−τ_max, τ_max]: τ_max = 1.2 N·m, the default DC motor's stall torque (read
+    from the scenario's motor; ``max_torque=`` overrides). Clipped to the box.
+
+    With ``normalize_actions=True``: Box [−1, 1]², the torques as fractions of τ_max
+    (1 dimensionless): (a_l, a_r) commands (a_l τ_max, a_r τ_max) N·m, each a clipped to
+    [−1, 1] first. ``info["command"]`` and the reward are in N·m either way.
+
+Observation Space (Box, float32; ``obs=``)
     ==========  =====  ===========================================  =================
     ``obs``     index  quantity                                     bounds (clipped)
     ==========  =====  ===========================================  =================
     estimate    0      θ, body pitch from the vertical, + forward   ±π rad
                 1      θ̇                                            ±100 rad/s
-                2      ψ, mean wheel angle from the vertical         ±1e4 rad
-                3      ψ̇ (travel speed ṗ = r ψ̇, r = 0.04 m)          ±100 rad/s
-                4      α, heading (unwrapped), + turning left        ±1e4 rad
+                2      ψ, mean wheel angle from the vertical        ±1e4 rad
+                3      ψ̇ (travel speed ṗ = r ψ̇, r = 0.04 m)         ±100 rad/s
+                4      α, heading (unwrapped), + turning left       ±1e4 rad
                 5      α̇                                            ±100 rad/s
     truth       0–5    the same, from the ground truth              the same
     readings    0–2    gyro, body axes (x fwd, y left, z up)        ±full scale, rad/s
@@ -35,16 +44,7 @@ Observation (Box, float32; ``obs=``)
     missing reading holds its last value with its fresh flag at 0 (never NaN). The
     default IMU's full scales are 250 °/s (4.36 rad/s) and 2 g (19.6 m/s²).
 
-Action (Box, float32)
-    (ul, ur), left and right wheel torque commands in N·m, positive driving forward,
-    each in [−τ_max, τ_max]: τ_max = 1.2 N·m, the default DC motor's stall torque (read
-    from the scenario's motor; ``max_torque=`` overrides). Clipped to the box.
-
-    With ``normalize_actions=True``: Box [−1, 1]², the torques as fractions of τ_max
-    (1 dimensionless): (a_l, a_r) commands (a_l τ_max, a_r τ_max) N·m, each a clipped to
-    [−1, 1] first. ``info["command"]`` and the reward are in N·m either way.
-
-Reward (per step, from the ground truth at the end of the period)
+Rewards (per step, from the ground truth at the end of the period)
     ``alive − 0.5 c_theta − 0.1 c_theta_dot − 0.1 c_torque``, with
 
     =============  ===================================  ======
@@ -62,7 +62,14 @@ Reward (per step, from the ground truth at the end of the period)
     ``cost_torque``, ``truth`` (:class:`~twin.plant.bullet.GroundTruth`) and
     ``command`` (the clipped (ul, ur)) for a wrapper that wants its own reward.
 
-Episode end
+Starting State
+    The scenario's ``[initial]`` table: paper-exp1 starts at rest, tilted θ0 = 0.48 rad
+    forward, at the origin heading along x (ψ = α = 0). ``reset(seed=...)`` draws the
+    sensors' seed (noise, faults); with ``randomize`` the episode is a sample of the
+    scenario's Monte Carlo sweep instead (plant factors, initial tilt and pushes as its
+    ``[sweep]`` table says; :mod:`twin.envs.base`).
+
+Episode End
     ``terminated``: the robot fell (tilt past 1 rad, or the body touched the floor) or
     the physics diverged; ``truncated``: the scenario's duration elapsed (3000 steps
     for paper-exp1's 15 s at 200 Hz). The id is registered with
@@ -77,8 +84,17 @@ Rendering and video
     scenario's ``video.fps`` (30 frames per simulated second), rendering 451 pictures
     for a 15 s episode instead of 3001.
 
-Shared behaviour (seeding, ``randomize``, ``estimator=``, rendering, ``normalize_actions``):
-:mod:`twin.envs.base`.
+Arguments
+    ``gymnasium.make("mtwip/Balance-v0", ...)`` takes ``scenario`` (a built-in name or a
+    ``.toml`` file; default ``paper-exp1``), ``overrides`` (``"KEY=VALUE"`` strings, as
+    ``twin run --set``), ``obs`` (``"estimate"``, ``"truth"`` or ``"readings"``),
+    ``estimator`` (a kind), ``randomize`` (False, True or a dict of ``[sweep]`` keys),
+    ``render_mode`` (None or ``"rgb_array"``), ``render_size``, ``renderer``, ``hud``,
+    ``max_torque`` (N·m), ``reward_weights`` and ``normalize_actions``. The shared
+    behaviour (seeding, ``randomize``, ``estimator=``, rendering): :mod:`twin.envs.base`.
+
+Version History
+    v0: the first version (the twin's release 0.1.0).
 """
 from __future__ import annotations
 

@@ -14,16 +14,20 @@ Why one class per task over a shared base (:class:`twin.envs.base.TwinEnv`): the
 differ in their default scenario, two observation entries and the reward; the loop,
 sensing modes, seeding, randomisation and rendering are the same code.
 
-Observation (Box, float32)
+Action Space
+    (ul, ur) in N·m, Box [−τ_max, τ_max]², clipped: as ``mtwip/Balance-v0``; with
+    ``normalize_actions=True`` Box [−1, 1]², fractions of τ_max.
+
+Observation Space (Box, float32)
     The Balance observation of the chosen ``obs`` mode (6 entries, or 11 for
     ``"readings"``), then two task entries that make the task Markov:
 
     ==================  =====  ==============================================  ===========
     ``obs``             index  quantity                                        bounds
     ==================  =====  ==============================================  ===========
-    estimate            6      position error e_p = r ψ̂ − p_d (r the nominal  ±1e3 m
+    estimate            6      position error e_p = r ψ̂ − p_d (r the nominal   ±1e3 m
                                wheel radius the estimator assumes, 0.04 m)
-                        7      heading error e_α = α̂ − α_d (unwrapped)        ±1e4 rad
+                        7      heading error e_α = α̂ − α_d (unwrapped)         ±1e4 rad
     truth               6, 7   the same from the ground truth (p = r ψ with    the same
                                the true r)
     readings            11     the target p_d                                  ±1e3 m
@@ -35,15 +39,11 @@ Observation (Box, float32)
     observable, so the targets themselves are given (travel is measured from where
     the robot started, heading from the world x axis).
 
-Action
-    (ul, ur) in N·m, Box [−τ_max, τ_max]², clipped: as ``mtwip/Balance-v0``; with
-    ``normalize_actions=True`` Box [−1, 1]², fractions of τ_max.
-
-Reward (per step, from the ground truth at the end of the period)
+Rewards (per step, from the ground truth at the end of the period)
     ``alive − 0.3 c_theta − 0.05 c_theta_dot − 0.05 c_torque − 0.3 c_position − 0.2 c_heading``
 
     ===========  ========================================  ======
-    term         cost, capped at 1                          weight
+    term         cost, capped at 1                         weight
     ===========  ========================================  ======
     alive        1 while up, 0 on the step it falls        +1
     c_theta      (θ / 1 rad)²                              0.3
@@ -57,10 +57,22 @@ Reward (per step, from the ground truth at the end of the period)
     ``info`` holds ``alive`` and every ``cost_*``, ``truth`` and ``command``
     (``reward_weights=`` changes the weights).
 
-Episode end
+Starting State
+    The scenario's ``[initial]`` table: paper-exp3 starts at rest, tilted θ0 = 0.48 rad
+    forward, at the origin heading along x; the targets are fixed for the episode. Seeding
+    and ``randomize`` as ``mtwip/Balance-v0``.
+
+Episode End
     As ``mtwip/Balance-v0``: ``terminated`` on a fall or divergence, ``truncated`` at
     the scenario's duration; registered with ``max_episode_steps=3000`` (paper-exp3's
     15 s at 200 Hz).
+
+Arguments
+    Those of ``mtwip/Balance-v0`` (:mod:`twin.envs.balance`); default ``scenario``
+    ``paper-exp3``, and a scenario needs a ``[targets]`` table.
+
+Version History
+    v0: the first version (the twin's release 0.1.0).
 """
 from __future__ import annotations
 
