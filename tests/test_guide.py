@@ -208,3 +208,14 @@ def test_each_environment_has_a_page_in_gymnasiums_layout():
                  "Version History"]
         found = [next(i for i, h in enumerate(heads) if h.startswith(o)) for o in order]
         assert found == sorted(found), (module, heads)
+
+
+def test_the_video_names_a_run_as_the_figure_does():
+    from types import SimpleNamespace
+
+    from twin.render.video import _default_label
+
+    exp = SimpleNamespace(name="paper-exp1")
+    assert _default_label(SimpleNamespace(controller="t1", experiment=exp), 0) == "type-1  paper-exp1"
+    assert _default_label(SimpleNamespace(controller="it2", experiment=None), 0) == "IT2"
+    assert _default_label(SimpleNamespace(controller="my_plugins:StateFeedback", experiment=None), 0) == "StateFeedback"

@@ -440,7 +440,11 @@ class _Encoder:
 
 
 def _default_label(run, i: int) -> str:
-    label = run.controller.upper() if run.controller else f"run {i + 1}"
+    """The run's name as the figure and metrics.json give it (the registry's label: "IT2", "type-1",
+    "LQR", a plugin's attribute), then the experiment's."""
+    from twin.registry import label as kind_label
+
+    label = kind_label(run.controller) if run.controller else f"run {i + 1}"
     if run.experiment is not None and run.experiment.name:
         label += f"  {run.experiment.name}"
     return label
