@@ -289,7 +289,8 @@ def test_a_sweep_killed_at_a_point_is_never_mixed_and_a_rerun_finishes_it(comman
         assert stored == 2 * DRAWS
     r = sweep_cli(out, "--workers", "2")
     assert r.returncode == 0, r.stderr
-    assert f"ran {2 * DRAWS - stored} samples" in r.stdout, r.stdout
+    n = 2 * DRAWS - stored
+    assert f"ran {n} sample{'s' * (n != 1)}" in r.stdout, r.stdout
     assert (out / "sweep.csv").read_bytes() == (reference / "sweep.csv").read_bytes()
     assert json.loads((out / "manifest.json").read_text())["exit_status"] == 0
 

@@ -166,7 +166,9 @@ def test_a_killed_sweep_resumes_without_redoing_finished_samples(reference, tmp_
     assert 2 <= len(finished) < 4
     r = sweep_cli(out, "--workers", "2")
     assert r.returncode == 0, r.stderr
-    assert f"ran {4 - len(finished)} samples" in r.stdout and f"{len(finished)} were already finished" in r.stdout
+    n, done = 4 - len(finished), len(finished)
+    assert f"ran {n} sample{'s' * (n != 1)}" in r.stdout
+    assert f"{done} {'was' if done == 1 else 'were'} already finished" in r.stdout
     after = _lines(out)
     assert after[:len(finished)] == before[:len(finished)]  # finished samples kept as they were
     assert sorted(json.loads(line)["sample"] for line in after) == [0, 1, 2, 3]  # none ran twice

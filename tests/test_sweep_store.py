@@ -240,7 +240,7 @@ def test_a_torn_last_line_is_dropped_even_if_it_parses(reference, tmp_path):
     (out / "samples.jsonl").write_bytes(raw[:-1])
     r = sweep_cli(out, "--workers", "1")
     assert r.returncode == 0, r.stderr
-    assert "ran 1 samples" in r.stdout
+    assert "ran 1 sample (" in r.stdout
     assert (out / "sweep.csv").read_bytes() == (reference / "sweep.csv").read_bytes()
 
 
@@ -290,7 +290,7 @@ def test_a_store_of_format_1_is_upgraded_and_resumed(reference, tmp_path):
     (out / "samples.jsonl").write_text("".join(json.dumps(r, separators=(",", ":")) + "\n" for r in lines))
     r = sweep_cli(out, "--workers", "1")
     assert r.returncode == 0, r.stderr
-    assert "ran 1 samples" in r.stdout and "3 were already finished" in r.stdout
+    assert "ran 1 sample (" in r.stdout and "3 were already finished" in r.stdout
     assert (out / "sweep.csv").read_bytes() == (reference / "sweep.csv").read_bytes()
     new = json.loads((out / "sweep.json").read_text())
     assert new["format"] == 2 and new[CONFIG_KEY] == doc[CONFIG_KEY]

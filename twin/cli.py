@@ -1302,7 +1302,10 @@ class _SweepBar:
         self.done = self.total = 0
 
     def update(self, done: int, total: int) -> None:
-        if not _terminal():  # a bar needs a terminal; a CI log would keep only its label
+        if not _terminal():  # a bar needs a terminal (a CI log would keep only its label): counted, not drawn
+            if not self.total:
+                self.total = total
+            self.done = done
             return
         if self._bar is None:  # the first call gives the samples already finished
             self.done, self.total = done, total
