@@ -219,3 +219,41 @@ def test_the_video_names_a_run_as_the_figure_does():
     assert _default_label(SimpleNamespace(controller="t1", experiment=exp), 0) == "type-1  paper-exp1"
     assert _default_label(SimpleNamespace(controller="it2", experiment=None), 0) == "IT2"
     assert _default_label(SimpleNamespace(controller="my_plugins:StateFeedback", experiment=None), 0) == "StateFeedback"
+
+
+def test_the_follow_camera_sees_a_catch_from_the_side_then_turns_to_the_runs_bearing():
+    """paper-exp3 (a heading target of 1.5 rad): the follow camera's bearing halfway to it saw the
+    catch from 0.48 rad nearly end-on (68° round from the side); with the catch's end it starts
+    at the starting heading's side view and turns to the halfway bearing after the catch."""
+    import math
+
+    import pytest
+
+    from twin.render.scene import SWING_S, Camera, camera_mode
+
+    cam = camera_mode("follow", 0.0, None, 1.5, catch_end=1.5)
+    assert cam.yaw_at(0.0) == 25.0 and cam.yaw_at(1.5) == 25.0
+    assert cam.yaw_at(1.5 + SWING_S) == pytest.approx(25.0 + math.degrees(0.75))
+    mid = cam.yaw_at(1.5 + 0.5 * SWING_S)
+    assert 25.0 < mid < 25.0 + math.degrees(0.75)
+    assert camera_mode("follow", 0.0, None, 1.5).yaw == pytest.approx(25.0 + math.degrees(0.75))  # no catch: as before
+    assert camera_mode("follow", 0.0, None, None, catch_end=1.5).swing is None  # no turn to show
+    with pytest.raises(Exception, match="swing"):
+        Camera(swing=(2.0, 1.0, 30.0))
+
+
+def test_a_paper_exp3_video_shows_the_catch_side_on(tmp_path):
+    """The frames of the catch are taken with the starting heading's side view (the runner hands
+    the figure's catch window to the camera)."""
+    from twin.scenarios import load_scenario
+    from twin.scenarios.runner import _catch_end
+
+    from twin.sim.runs import Run  # noqa: F401 - the runner's runs
+    from twin.scenarios.runner import run_scenario
+
+    r = run_scenario(load_scenario("paper-exp3", ["duration=6"]), ("it2",), out=None, video=False)
+    end = _catch_end(r.runs)
+    assert end is not None and 1.0 <= end <= 2.0, end
+    r1 = run_scenario(load_scenario("paper-exp1", ["duration=6", "initial.theta=0.0"]), ("it2",), out=None,
+                      video=False)
+    assert _catch_end(r1.runs) is None

@@ -38,7 +38,7 @@ def panel_frames(scene: Scene, track, samples: dict, times: np.ndarray, hud: boo
             continue
         s = samples
         rgb = scene.render(s["theta"][k], s["alpha"][k], s["x"][k], s["y"][k], s["psi_l"][k], s["psi_r"][k],
-                           s["roll"][k])
+                           s["roll"][k], t=tk)
         panel = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
         draw_markers(panel, scene, track, s, k)
         if hud:

@@ -148,6 +148,10 @@ class Camera:
     aim : (x, y, z) m, optional
         A fixed world point to aim at instead of the robot (a camera that does not move);
         ``target_height`` is added to z.
+    swing : (t_start s, t_end s, yaw_end deg), optional
+        The bearing turns from ``yaw`` to ``yaw_end`` between the two times, smoothly (a
+        smoothstep): a side view of a catch from a tilted start that then turns to see the
+        run's travel and turning.
     """
 
     distance: float = 0.85
@@ -157,6 +161,7 @@ class Camera:
     target_height: float = 0.06
     follow_heading: bool = True
     aim: tuple | None = None
+    swing: tuple | None = None
 
     def __post_init__(self):
         for name, lo, hi in (("distance", 0.05, 100.0), ("yaw", -360.0, 360.0), ("pitch", -89.0, 89.0),
@@ -173,12 +178,34 @@ class Camera:
             if not ok:
                 raise TwinError(f"camera aim must be a world point (x, y, z) in m, or None, got {self.aim!r}")
             object.__setattr__(self, "aim", tuple(float(v) for v in self.aim))
+        if self.swing is not None:
+            ok = (isinstance(self.swing, (tuple, list)) and len(self.swing) == 3
+                  and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                          for v in self.swing) and 0.0 <= self.swing[0] < self.swing[1]
+                  and -360.0 <= self.swing[2] <= 360.0)
+            if not ok:
+                raise TwinError(f"camera swing must be (t_start s, t_end s, yaw_end deg) with 0 <= t_start < t_end "
+                                f"and yaw_end in [-360, 360], or None, got {self.swing!r}")
+            object.__setattr__(self, "swing", tuple(float(v) for v in self.swing))
+
+    def yaw_at(self, t: float | None = None) -> float:
+        """The bearing (deg) at time ``t`` s (None: the start's): ``yaw``, turning to the swing's
+        ``yaw_end`` between its two times."""
+        if self.swing is None or t is None:
+            return self.yaw
+        t0, t1, end = self.swing
+        u = min(max((t - t0) / (t1 - t0), 0.0), 1.0)
+        return self.yaw + (end - self.yaw) * u * u * (3.0 - 2.0 * u)
 
 
 CAMERA_MODES = ("follow", "turning", "fixed", "top")
 
 
-def camera_mode(mode: str, alpha0: float = 0.0, extent=None, alpha_d: float | None = None) -> Camera:
+SWING_S = 1.5  # s: how long the follow camera takes to turn from the catch's side view to the run's bearing
+
+
+def camera_mode(mode: str, alpha0: float = 0.0, extent=None, alpha_d: float | None = None,
+                catch_end: float | None = None) -> Camera:
     """The camera of ``video.camera`` = ``mode`` for a run starting at heading ``alpha0`` rad
     whose axle stays inside ``extent`` = (x_min, x_max, y_min, y_max) m (for "fixed"), with
     the heading target ``alpha_d`` rad (None: none).
@@ -187,7 +214,10 @@ def camera_mode(mode: str, alpha0: float = 0.0, extent=None, alpha_d: float | No
       starting heading, or with a heading target of the heading halfway to it, so that
       the start and the end are seen equally from the side and the target's arrow is not
       hidden behind the body), so that its turning shows as the robot turning and its
-      travel as the floor moving under it; the default.
+      travel as the floor moving under it; the default. With a heading target and a catch
+      from a tilted start that ends at ``catch_end`` s, the camera first sees the catch from
+      the side of the starting heading (halfway to a 1.5 rad target it saw the pitch nearly
+      end-on) and turns to the halfway bearing over :data:`SWING_S` s after it.
     * ``turning``: follows the robot and turns with its heading (a side view throughout).
     * ``fixed``: does not move: aims at the middle of ``extent`` from far enough back to
       see all of it, from the starting side, looking down 25°.
@@ -196,6 +226,9 @@ def camera_mode(mode: str, alpha0: float = 0.0, extent=None, alpha_d: float | No
     side = 25.0 + math.degrees(alpha0)  # the turning camera's bearing at the start
     if mode == "follow":
         middle = alpha0 if alpha_d is None else 0.5 * (alpha0 + alpha_d)
+        if catch_end is not None and alpha_d is not None:
+            return Camera(yaw=25.0 + math.degrees(alpha0), follow_heading=False,
+                          swing=(catch_end, catch_end + SWING_S, 25.0 + math.degrees(middle)))
         return Camera(yaw=25.0 + math.degrees(middle), follow_heading=False)
     if mode == "turning":
         return Camera()
@@ -398,19 +431,21 @@ class Scene:
         """Move the robot out of sight (far below the floor)."""
         self._require_open().resetBasePositionAndOrientation(self.robot, _FAR_AWAY, (0.0, 0.0, 0.0, 1.0))
 
-    def view_matrix(self, target, alpha: float = 0.0):
-        """The camera's view matrix aiming at ``target`` (m, world), the robot heading ``alpha`` rad."""
+    def view_matrix(self, target, alpha: float = 0.0, t: float | None = None):
+        """The camera's view matrix aiming at ``target`` (m, world), the robot heading ``alpha`` rad,
+        at time ``t`` s (a swinging camera's bearing; None: its start's)."""
         cam = self.camera
-        yaw = cam.yaw + (math.degrees(alpha) if cam.follow_heading else 0.0)
+        yaw = cam.yaw_at(t) + (math.degrees(alpha) if cam.follow_heading else 0.0)
         if cam.aim is not None:  # a camera that does not move
             target = cam.aim
         aim = (float(target[0]), float(target[1]), float(target[2]) + cam.target_height)
         return self._require_open().computeViewMatrixFromYawPitchRoll(aim, cam.distance, yaw, cam.pitch, 0.0, 2)
 
-    def picture(self, target, alpha: float = 0.0) -> np.ndarray:
-        """RGB picture (height, width, 3) uint8 of the scene as it stands, camera on ``target``."""
+    def picture(self, target, alpha: float = 0.0, t: float | None = None) -> np.ndarray:
+        """RGB picture (height, width, 3) uint8 of the scene as it stands, camera on ``target`` at time
+        ``t`` s (see :meth:`view_matrix`)."""
         c = self._require_open()
-        view = self.view_matrix(target, alpha)
+        view = self.view_matrix(target, alpha, t)
         self._last_view = view
         with quiet_native_output():  # the EGL plugin prints its GL vendor on the first pictures
             _, _, rgba, depth, _ = c.getCameraImage(self.width, self.height, view, self._proj, shadow=1,
@@ -459,15 +494,16 @@ class Scene:
         return out
 
     def render(self, theta: float, alpha: float, x: float, y: float, psi_l: float, psi_r: float,
-               roll: float = 0.0, show_robot: bool = True) -> np.ndarray:
-        """Pose the robot (see :meth:`pose`) and return its RGB picture (height, width, 3) uint8.
+               roll: float = 0.0, show_robot: bool = True, t: float | None = None) -> np.ndarray:
+        """Pose the robot (see :meth:`pose`) and return its RGB picture (height, width, 3) uint8,
+        at time ``t`` s (a swinging camera's bearing, see :class:`Camera`).
 
         ``show_robot=False`` takes the same picture with the robot out of sight.
         """
         axle = self.pose(theta, alpha, x, y, psi_l, psi_r, roll)
         if not show_robot:
             self.hide_robot()
-        return self.picture(axle, alpha)
+        return self.picture(axle, alpha, t)
 
     def _require_open(self):
         if self.client is None:

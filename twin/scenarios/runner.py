@@ -447,7 +447,7 @@ def _video(result, out: Path, progress, every: int, config) -> None:
     t0 = time.perf_counter()
     e = runs[0].experiment
     camera = camera_mode(v["camera"], float(runs[0].signal("alpha")[0]), _extent(runs),
-                         None if e is None else e.alpha_d)
+                         None if e is None else e.alpha_d, _catch_end(runs))
     result.video = render_video(runs, out / "video.mp4", fps=v["fps"], size=(v["width"], v["height"]), progress=cb,
                                 camera=camera)
     result.timings["video_s"] = time.perf_counter() - t0
@@ -520,6 +520,16 @@ def write_trajectories_csv(runs, path: Path) -> Path:
         finally:
             fh.close()  # closes the gzip stream (its trailer) and the file
     return path
+
+
+def _catch_end(runs) -> float | None:
+    """s: the end of the catch from a tilted start the figure zooms on (None: no such catch)."""
+    from twin.outputs.report import ZOOM_THETA0, _pushes, _zoom_window
+
+    if abs(float(runs[0].signal("theta")[0])) < ZOOM_THETA0:
+        return None
+    zoom = _zoom_window(runs, _pushes(runs[0]))
+    return None if zoom is None else float(zoom[1])
 
 
 def _extent(runs) -> tuple[float, float, float, float]:
