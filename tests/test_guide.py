@@ -257,3 +257,35 @@ def test_a_paper_exp3_video_shows_the_catch_side_on(tmp_path):
     r1 = run_scenario(load_scenario("paper-exp1", ["duration=6", "initial.theta=0.0"]), ("it2",), out=None,
                       video=False)
     assert _catch_end(r1.runs) is None
+
+
+def test_a_catch_plays_slowly_with_a_caption_then_in_real_time(tmp_path):
+    import numpy as np
+    import pytest
+
+    from twin.render.video import frame_times, render_video
+    from twin.scenarios import load_scenario
+    from twin.scenarios.runner import SLOW_CATCH, run_scenario
+
+    t = frame_times(3.0, 30, (1.5, SLOW_CATCH))
+    assert len(t) == 180 + 46 and np.allclose(np.diff(t[:180]), 1 / 120) and np.allclose(np.diff(t[180:]), 1 / 30)
+    assert t[-1] == 3.0 and np.array_equal(frame_times(3.0, 30), np.arange(91) / 30)
+    runs = run_scenario(load_scenario("paper-exp1", ["duration=0.2"]), ("it2",), out=None, video=False).runs
+    for bad in ((1.0, 40.0), (0.0, 4.0), "slow"):
+        with pytest.raises(Exception, match="slow must be"):
+            render_video(runs, tmp_path / "x.mp4", slow=bad)
+    info = render_video(runs, tmp_path / "v.mp4", fps=10, size=(160, 120), slow=(0.1, 4.0), renderer="tiny",
+                        parallel=False)
+    assert info.frames == 4 + 2  # 0, 0.025, 0.05, 0.075 s at a quarter speed; then 0.1, 0.2 s
+    import cv2
+
+    cap = cv2.VideoCapture(str(tmp_path / "v.mp4"))
+    frames = []
+    while True:
+        ok, f = cap.read()
+        if not ok:
+            break
+        frames.append(f)
+    assert len(frames) == 6
+    band = lambda f: float(f[100:118, 40:120].mean())  # noqa: E731 - the caption's band, bottom centre
+    assert band(frames[0]) < band(frames[5]) - 20  # darkened under the caption while slow, not after

@@ -10,6 +10,10 @@ Timing
     k = 0 … floor(T · fps), T the longest run's duration: ``floor(T · fps) + 1`` frames
     (61 for a 2 s run at 30 fps). Each run's log (control rate) is interpolated
     linearly at t_k; a run shorter than T (one that fell early) holds its last frame.
+    With ``slow = (until, factor)`` the first ``until`` s play ``factor`` times slower
+    (frames every 1 / (fps · factor) s of the run, captioned "slow motion"), then real
+    time: ``twin run`` slows a catch from a tilted start 4× (its 12 frames at real time
+    were the headline event).
 
 Layout
     One panel (``size``) per run, side by side from left to right in the order given,
@@ -122,9 +126,15 @@ def frame_count(duration: float, fps: float) -> int:
     return int(math.floor(duration * fps + 1e-9)) + 1
 
 
-def frame_times(duration: float, fps: float) -> np.ndarray:
-    """Times (s from the start) of the frames: k / fps for k = 0 … floor(duration · fps)."""
-    return np.arange(frame_count(duration, fps)) / float(fps)
+def frame_times(duration: float, fps: float, slow=None) -> np.ndarray:
+    """Times (s from the start) of the frames: k / fps for k = 0 … floor(duration · fps); with
+    ``slow = (until, factor)``, k / (fps · factor) below ``until`` s, then ``until`` + k / fps."""
+    if slow is None:
+        return np.arange(frame_count(duration, fps)) / float(fps)
+    until, factor = min(float(slow[0]), duration), float(slow[1])
+    rate = float(fps) * factor
+    first = np.arange(int(math.ceil(until * rate - 1e-9))) / rate  # below `until`
+    return np.concatenate([first, until + np.arange(frame_count(duration - until, fps)) / float(fps)])
 
 
 class _Track:
@@ -450,10 +460,23 @@ def _default_label(run, i: int) -> str:
     return label
 
 
+def _caption(frame: np.ndarray, text: str, w: int, panels: int) -> None:
+    """``text`` at the bottom centre of each of ``panels`` panels (w px wide) of ``frame``, white on
+    a dark band (in place)."""
+    import cv2
+
+    scale = max(0.4, frame.shape[0] / 900.0)
+    (tw, th), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)
+    for j in range(panels):
+        x, y = j * w + (w - tw) // 2, frame.shape[0] - 10
+        frame[y - th - 6:y + base + 2, x - 6:x + tw + 6] //= 3
+        cv2.putText(frame, text, (x, y), cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), 1, cv2.LINE_AA)
+
+
 def render_video(runs, path, fps: float = 30, size=(640, 480),
                  progress: Callable[[int, int], object] | None = None, *, renderer: str | None = None,
                  camera: Camera | None = None, labels: Sequence[str] | None = None, hud: bool = True,
-                 parallel: bool | None = None) -> VideoInfo:
+                 parallel: bool | None = None, slow=None) -> VideoInfo:
     """Render logged twin runs into an MP4 video, side by side, in real time.
 
     Parameters
@@ -488,6 +511,9 @@ def render_video(runs, path, fps: float = 30, size=(640, 480),
         Render each panel in a worker process of its own (:mod:`twin.render.panels`)
         while this one composes and encodes; default: when there are several runs and
         more than one CPU. The frames are the same either way.
+    slow : (until s, factor), optional
+        Play the first ``until`` s ``factor`` (1–16) times slower, captioned (see the module
+        docstring); None: real time throughout.
 
     Returns
     -------
@@ -518,6 +544,10 @@ def render_video(runs, path, fps: float = 30, size=(640, 480),
         raise TwinError(f"progress must be a callable progress(frames_done, frames_total) or None, got {progress!r}")
     if parallel is not None and not isinstance(parallel, bool):
         raise TwinError(f"parallel must be True, False or None (automatic), got {parallel!r}")
+    if slow is not None and not (isinstance(slow, (tuple, list)) and len(slow) == 2
+                                 and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                                         for v in slow) and slow[0] > 0.0 and 1.0 <= slow[1] <= 16.0):
+        raise TwinError(f"slow must be (until s > 0, factor in [1, 16]) or None, got {slow!r}")
     if camera is not None and not isinstance(camera, Camera):
         raise TwinError(f"camera must be a twin.render.Camera, got {camera!r}")
     renderer = resolve_renderer(renderer)
@@ -526,8 +556,10 @@ def render_video(runs, path, fps: float = 30, size=(640, 480),
     from twin.render.panels import RemotePanel, panel_frames
 
     tracks = [_Track(r, labels[i]) for i, r in enumerate(runs)]
-    times = frame_times(max(tr.duration for tr in tracks), fps)
+    times = frame_times(max(tr.duration for tr in tracks), fps, slow)
     n = len(times)
+    slow_frames = 0 if slow is None else int(np.sum(times < float(slow[0]) - 1e-12))
+    caption = None if slow is None else f"slow motion: 1/{float(slow[1]):g} speed"
     samples = [tr.sample(times) for tr in tracks]
     if parallel is None:
         parallel = len(runs) > 1 and (os.cpu_count() or 1) > 1
@@ -556,6 +588,8 @@ def render_video(runs, path, fps: float = 30, size=(640, 480),
                 frame = np.hstack(panels)
                 for j in range(1, len(panels)):
                     frame[:, j * w - 1:j * w + 1] = SEPARATOR
+            if k < slow_frames:  # the slowed frames say so, at the bottom of each panel
+                _caption(frame, caption, w, len(panels))
             t_render += time.perf_counter() - t0
             encoder.put(frame)
             if progress is not None:
