@@ -6,6 +6,8 @@
   page, LQR beside the fuzzy cascades);
 * ``docs/paper-exp3-analytic.png``: ``twin run paper-exp3 --set plant.model=analytic --set
   plant.scale={} --set sensors.sensing=ideal --no-video`` (equation (1) itself, the method page);
+* ``docs/paper-exp3-video-frame.png``: the frame at t = 5 s of ``twin run paper-exp3``'s video (the
+  README's picture);
 * ``docs/reference/envs/_media/balance-v0.gif`` and ``track-v0.gif``: the Gymnasium environments'
   pages' animations, the first seconds of an episode (``render_mode="rgb_array"``) driven by the
   built-in IT2 cascade on the observation, as the Gymnasium how-to does.
@@ -72,7 +74,39 @@ def animation(env_id: str, path: Path) -> int:
     return len(frames)
 
 
+VIDEO_FRAME_S = 5.0  # s: the README's video frame
+
+
+def video_frame(path: Path) -> float:
+    """The frame at :data:`VIDEO_FRAME_S` of ``twin run paper-exp3``'s video (its catch slowed:
+    the frame's index from the video's own frame times) as a PNG at ``path``; returns its time."""
+    import cv2
+
+    from twin.render.video import frame_times
+    from twin.scenarios import load_scenario
+    from twin.scenarios.runner import SLOW_CATCH, _catch_end, run_scenario
+
+    with tempfile.TemporaryDirectory() as tmp:
+        sc = load_scenario("paper-exp3")
+        result = run_scenario(sc, ("it2", "t1"), out=Path(tmp) / "run", video=True)
+        catch = _catch_end(result.runs)
+        v = sc.data["video"]
+        times = frame_times(max(float(r.t[-1] - r.t[0]) for r in result.runs), v["fps"],
+                            None if catch is None else (catch, SLOW_CATCH))
+        k = int(abs(times - VIDEO_FRAME_S).argmin())
+        cap = cv2.VideoCapture(str(Path(tmp) / "run" / "video.mp4"))
+        cap.set(cv2.CAP_PROP_POS_FRAMES, k)
+        ok, frame = cap.read()
+        cap.release()
+        if not ok:
+            raise SystemExit(f"could not read frame {k} of the video")
+        cv2.imwrite(str(path), frame)
+        return float(times[k])
+
+
 def main() -> int:
+    t = video_frame(ROOT / "docs" / "paper-exp3-video-frame.png")
+    print(f"docs/paper-exp3-video-frame.png: twin run paper-exp3, the video's frame at t = {t:g} s")
     for name, env_id in ANIMATIONS.items():
         path = ROOT / "docs" / "reference" / "envs" / "_media" / name
         n = animation(env_id, path)
