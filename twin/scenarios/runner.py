@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from twin.outputs import figure_worker, rundir
+from twin.outputs.report import ZOOM_THETA0, _pushes, _zoom_window  # the catch the figure zooms on
 from twin.errors import PluginError, TwinError
 from twin.limits import limit_of
 from twin.scenarios.scenario import Scenario
@@ -529,8 +530,6 @@ SLOW_CATCH = 4.0  # the video plays a catch from a tilted start this many times 
 
 def _catch_end(runs) -> float | None:
     """s: the end of the catch from a tilted start the figure zooms on (None: no such catch)."""
-    from twin.outputs.report import ZOOM_THETA0, _pushes, _zoom_window
-
     if abs(float(runs[0].signal("theta")[0])) < ZOOM_THETA0:
         return None
     zoom = _zoom_window(runs, _pushes(runs[0]))
