@@ -13,7 +13,8 @@ import time
 class Slow:
     """The state feedback of examples/my_plugins.py; it sleeps {sleep_s} s (or $SLOW_PLUGIN_SLEEP_S)
     in calls {first} to {last} (counted from 1 after each reset; None: every later call), and on
-    its first call leaves a file named by its process id in $SLOW_PLUGIN_MARKS, if that is set."""
+    its first call leaves a file named by its process id in $SLOW_PLUGIN_MARKS, if that is set,
+    holding its command line (a process may end before a poll of /proc sees it)."""
 
     first, last = {first}, {last}
 
@@ -28,7 +29,12 @@ class Slow:
         self.calls += 1
         marks = os.environ.get("SLOW_PLUGIN_MARKS")
         if self.calls == 1 and marks:
-            open(os.path.join(marks, str(os.getpid())), "w").close()
+            with open("/proc/self/cmdline", "rb") as f:
+                cmdline = f.read().replace(b"\\0", b" ").decode(errors="replace").strip()
+            mark = os.path.join(marks, str(os.getpid()))
+            with open(mark + ".part", "w") as f:  # whole when it appears under its name
+                f.write(cmdline)
+            os.replace(mark + ".part", mark)
         if self.sleep and self.first <= self.calls and (self.last is None or self.calls <= self.last):
             time.sleep(self.sleep)
         theta, theta_dot, psi, psi_dot = estimate[:4]
