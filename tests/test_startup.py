@@ -167,3 +167,75 @@ def test_a_bad_figure_worker_setting_is_one_line(monkeypatch):
     monkeypatch.setenv("TWIN_FIGURE_WORKER", "yes")
     with pytest.raises(TwinError, match="TWIN_FIGURE_WORKER must be 1 .* got 'yes'"):
         figure_worker.wanted()
+
+
+def test_the_figure_drawn_in_two_halves_is_the_whole_figure(ran, tmp_path):
+    """The worker's two processes (figure_worker._Half: forked, each drawing half of the rows into
+    shared memory) give the figure drawn at once, byte for byte."""
+    import pickle
+
+    from twin.outputs.figure import compose, fill_figure, new_figure, save_figure, save_pixels, show_half
+    from twin.outputs.report import figure_data
+
+    data = figure_data(ran["here"][0].runs)
+    payload = tmp_path / "payload.pickle"
+    payload.write_bytes(pickle.dumps(("unused", "a title\nof two lines", data)))
+    fig, axes = new_figure()
+    half = figure_worker._Half(fig, warm=True)  # the child warms up its half, as in the worker
+    half.start(str(payload))
+    fill_figure(fig, axes, data, "a title\nof two lines")
+    shown = show_half(fig, 0)
+    fig.canvas.draw()
+    mine = np.asarray(fig.canvas.buffer_rgba()).copy()
+    theirs = half.result()
+    assert theirs is not None  # drawn, no label clipped
+    assert not np.array_equal(mine, theirs)  # each drew its own half
+    whole = compose(mine, theirs)
+    assert whole is not None
+    show_half(fig, None, shown)
+    save_pixels(fig, whole, tmp_path / "halves.png")
+    once, axes_once = new_figure()
+    fill_figure(once, axes_once, data, "a title\nof two lines")
+    save_figure(once, tmp_path / "once.png")
+    assert (tmp_path / "halves.png").read_bytes() == (tmp_path / "once.png").read_bytes()
+
+
+def test_halves_that_touch_are_not_composed():
+    from twin.outputs.figure import compose
+
+    a = np.full((6, 4, 4), 255, np.uint8)
+    b = a.copy()
+    a[1, 2] = (0, 0, 0, 255)
+    b[4, 1] = (10, 20, 30, 255)
+    whole = compose(a, b)
+    assert whole is not None and (whole[1, 2] == a[1, 2]).all() and (whole[4, 1] == b[4, 1]).all()
+    b[1, 0] = (0, 0, 0, 255)  # a row both drew in
+    assert compose(a, b) is None
+
+
+def test_a_run_that_fails_before_its_runs_ends_the_early_figure_worker(tmp_path):
+    """twin run starts the figure's worker before it loads the scenario: a scenario that cannot
+    load is its one line, and no worker is left."""
+    import os
+    from pathlib import Path
+
+    mark = f"mtwip-test-{os.getpid()}-{id(tmp_path)}"
+    (tmp_path / "bad.toml").write_text("duration = -1\n")
+    env = {**os.environ, "TWIN_FIGURE_WORKER": "1", "MTWIP_TEST_MARK": mark}
+    r = subprocess.run([sys.executable, "-m", "twin", "run", "bad.toml", "--no-video"], cwd=tmp_path, env=env,
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "duration" in r.stderr
+
+    def marked():
+        found = []
+        for d in Path("/proc").iterdir():
+            try:
+                if d.name.isdigit() and mark.encode() in (d / "environ").read_bytes():
+                    found.append(int(d.name))
+            except OSError:
+                pass
+        return found
+
+    if sys.platform.startswith("linux"):
+        assert marked() == []

@@ -486,6 +486,57 @@ def _clipped(fig) -> bool:
     return False
 
 
+# the figure's rows in two halves, for two processes to draw side by side (:func:`show_half`,
+# :func:`compose`): rows interleaved, since the lower rows (path, differences, signals) cost more
+HALVES = ((0, 2), (1, 3))
+
+
+def show_half(fig, half: int | None, shown: list | None = None) -> list:
+    """Hide every panel but those in the rows ``HALVES[half]`` (the suptitle
+    goes with half 0); ``half`` None: show again what ``shown`` (a list this returned) says.
+    Returns each panel's visibility (and the suptitle's) as it was. Hidden panels are skipped
+    by the draw; their limits, shared axes and data stay, so a half is drawn pixel for pixel
+    as in the whole figure."""
+    axes = fig.get_axes()
+    title = getattr(fig, "_suptitle", None)  # matplotlib keeps the suptitle's Text here
+    before = [ax.get_visible() for ax in axes] + [title.get_visible() if title is not None else False]
+    if half is None:
+        for ax, v in zip(axes, shown):
+            ax.set_visible(v)
+        if title is not None:
+            title.set_visible(shown[-1])
+        return before
+    cols = len(LAYOUT[0])
+    for i, ax in enumerate(axes):
+        if i // cols not in HALVES[half]:
+            ax.set_visible(False)
+    if title is not None and half != 0:
+        title.set_visible(False)
+    return before
+
+
+def compose(a, b):
+    """The whole figure from two halves drawn apart (RGBA arrays of the same shape, each white
+    where its hidden panels were): each row of pixels from the half that drew something in
+    it. None where a row holds something of both halves (the halves' drawings touch, so the
+    whole must be drawn at once)."""
+    white = np.uint8(255)
+    in_a = (a != white).any(axis=(1, 2))
+    in_b = (b != white).any(axis=(1, 2))
+    if (in_a & in_b).any():
+        return None
+    return np.where(in_b[:, None, None], b, a)
+
+
+def save_pixels(fig, rgba, path) -> None:
+    """Write ``rgba`` (the canvas of ``fig``, drawn) as :func:`save_figure` writes the figure:
+    the same PNG, byte for byte (matplotlib's own writer, the same options)."""
+    from matplotlib.image import imsave
+
+    imsave(path, rgba, format="png", origin="upper", dpi=fig.dpi,
+           pil_kwargs={"compress_level": PNG_COMPRESSION})
+
+
 def save_figure(fig, path) -> None:
     """Write ``fig`` as a PNG at :data:`DPI`; with matplotlib's tight layout if the fixed
     margins would cut a tick label off (drawn again then)."""

@@ -93,7 +93,7 @@ def plugins_of(scenario: Scenario, controllers) -> list[dict]:
 def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, video: bool | None = None,
                  progress=None, log_every: int = 1, log_format: str = "csv",
                  keep_limited: bool = False, specs=None, log_sensors: bool = False,
-                 contained=False) -> ScenarioResult:
+                 contained=False, figure=None) -> ScenarioResult:
     """Run ``scenario`` with each of ``controllers`` (kinds; None: the scenario's
     ``controller.kinds``) on identical conditions: same true plant, sensor seed,
     estimator kind, pushes and faults.
@@ -126,7 +126,22 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
     (:mod:`twin.containment`): True, or the :class:`twin.scenarios.contained.ContainedScenario`
     that planned it already (the ``twin`` commands); False (the default): in this process. A
     scenario of built-in kinds alone always runs here. The numbers are the same either way.
+
+    ``figure``: a :class:`twin.outputs.figure_worker.FigureWorker` started by the caller
+    (``twin run`` starts it before it loads the scenario, so that it imports matplotlib
+    meanwhile), ended here whatever happens; None: one is started here where a CPU is free for it.
     """
+    try:
+        return _run_scenario(scenario, controllers, out, video, progress, log_every, log_format, keep_limited, specs,
+                             log_sensors, contained, figure)
+    finally:
+        if figure is not None:  # used and done, or not taken up (an error before the runs): ended
+            figure.cancel()
+
+
+def _run_scenario(scenario, controllers, out, video, progress, log_every, log_format, keep_limited, specs,
+                  log_sensors, contained, figure) -> ScenarioResult:
+    """:func:`run_scenario`'s work (which ends ``figure`` after it)."""
     from twin.sim.recorder import check_log_every
     from twin.registry import check_kinds, parse_controllers
 
@@ -154,15 +169,16 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
     if box is None and contained and involves_plugins(scenario, kinds):
         with ContainedScenario(scenario, kinds) as box:
             return run_scenario(scenario, kinds, out, video, progress, log_every, log_format, keep_limited, None,
-                                log_sensors, box)
+                                log_sensors, box, figure)
     if box is not None and box.kinds != tuple(kinds):
         raise TwinError(f"contained must be the ContainedScenario of controllers {list(kinds)!r}, got one of "
                         f"{list(box.kinds)!r}")
     # checked before the runs simulate, so that a directory that cannot take them is said at once
     staged = rundir.StagedDirectory(out, "twin run") if out is not None else None
     try:
-        # the figure's worker process starts now, to import matplotlib while the runs simulate
-        worker = figure_worker.start() if out is not None else None
+        # the figure's worker process starts now (unless the caller started it), to import
+        # matplotlib while the runs simulate
+        worker = (figure if figure is not None else figure_worker.start()) if out is not None else None
         try:
             return _run_and_write(scenario, kinds, staged, video, progress, every, log_format, worker, keep_limited,
                                   specs, log_sensors, box)
