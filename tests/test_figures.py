@@ -271,10 +271,15 @@ def test_the_video_key_names_every_marker_shown_in_its_colour():
     assert [(text, colour) for text, colour, _ in items] == [
         ("estimator's body (ghost)", panels.GHOST_BGR), ("position target 0.00 m", panels.TARGET_BGR),
         ("push 12 N forward", panels.PUSH_BGR)]
-    # a heading target is an arrow; no estimate, no ghost; no push acting, no push
-    quiet = hud.legend_lines(hud.HudState("T1", 1.0, 0.0, 0.0, 0.0, p_d=1.0, alpha_d=1.5))
-    assert [(text, shape) for text, _, shape in quiet] == [("heading target 1.50 rad", "arrow")]
+    # a heading target is an arrow, the position target then a ring ahead on the heading; no
+    # estimate, no ghost; no push acting, no push; near the start, no start
+    quiet = hud.legend_lines(hud.HudState("T1", 1.0, 0.0, 0.0, 0.0, p_d=1.0, alpha_d=1.5, from_start=0.04))
+    assert [(text, shape) for text, _, shape in quiet] == [("position target 1.00 m ahead", "ring"),
+                                                           ("heading target 1.50 rad", "arrow")]
     assert hud.legend_lines(hud.HudState("T1", 1.0, 0.0, 0.0, 0.0)) == []
+    # away from the start: the start's cross and the path since, in their colour
+    moved = hud.legend_lines(hud.HudState("T1", 1.0, 0.0, 0.0, 0.0, from_start=hud.START_SHOWN_M))
+    assert moved == [("start, path since", panels.PATH_BGR, "path")]
     # the push in the robot's frame: a world-frame force against the heading is "backward"
     assert hud.push_caption(0.0, -10.0, 0.0, math.pi / 2) == "10 N backward"
     assert hud.push_caption(0.0, 0.0, 0.0, 0.0) == ""

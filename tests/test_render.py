@@ -642,6 +642,49 @@ def test_floor_markers_are_hidden_where_the_robot_stands_in_front(egl_loads):
     assert without > 60 and with_robot < 0.5 * without, counts
 
 
+def _orange(bgr: np.ndarray) -> int:
+    """Pixels of the start's cross and the path (PATH_BGR (0, 140, 255): red high, blue low)."""
+    b, g, r = (bgr[..., i].astype(int) for i in range(3))
+    return int(((r > 200) & (g > 90) & (g < 190) & (b < 80)).sum())
+
+
+def test_the_start_the_path_and_the_target_ahead_are_drawn_on_the_floor(egl_loads):
+    """The camera follows the robot, so the travel shows on the floor: the start's cross and the
+    path since once the robot is 5 cm or more from the start (none before), and with a heading
+    target the position target's ring p_d − p ahead on the present heading."""
+    from types import SimpleNamespace
+
+    from twin.plant.urdf import body_box
+    from twin.render.hud import START_SHOWN_M
+    from twin.render.panels import draw_markers
+
+    config = TwinConfig()
+    box = body_box(config.params)
+    cam = Camera(yaw=0.0, pitch=-35.0, distance=1.6, follow_heading=False)
+
+    def drawn(xs, p_d=None, alpha_d=None, distance=0.0, robot=False):
+        track = SimpleNamespace(p_d=p_d, alpha_d=alpha_d, start=(0.0, 0.0, 0.0), r=config.params.r, box=box,
+                                body_top=box[1][2])
+        n = len(xs)
+        s = {k: np.zeros(n) for k in ("y", "alpha", "roll", "theta", "push_fx", "push_fy", "push_fz")}
+        s["x"], s["distance"] = np.asarray(xs, float), np.full(n, distance)
+        with Scene(config, (320, 240), "egl" if egl_loads else "tiny", cam) as scene:
+            img = cv2.cvtColor(scene.render(0.0, 0.0, s["x"][-1], 0.0, 0.0, 0.0, show_robot=robot),
+                               cv2.COLOR_RGB2BGR)
+            plain = img.copy()
+            draw_markers(img, scene, track, s, n - 1)
+        return img, plain
+
+    img, plain = drawn(np.linspace(0.0, 0.4, 9))
+    assert _orange(img) > 150 and _orange(plain) == 0, _orange(img)  # the cross at 0, the path to 0.4 m
+    img, _ = drawn([0.0, 0.5 * START_SHOWN_M])
+    assert _orange(img) == 0  # still at the start: nothing drawn
+    # the ring p_d − p = 0.4 m ahead of the axle at x = 0.2 m: around x = 0.6 m
+    with_ring, _ = drawn([0.0, 0.2], p_d=0.6, alpha_d=0.0, distance=0.2)
+    no_ring, _ = drawn([0.0, 0.2], p_d=None, alpha_d=0.0, distance=0.2)
+    assert _green(with_ring) > _green(no_ring) + 40, (_green(with_ring), _green(no_ring))
+
+
 def test_hud_names_the_plant_when_it_is_not_the_pybullet_twin(design, run_exp1):
     """A video of the analytic model (equation (1)) or of a user's plant says so under the
     label; the PyBullet twin's overlay is as it was (no plant line)."""

@@ -10,8 +10,8 @@ and, once the run has ended early, why (fell / diverged) in red.
 
 Top right, on a box of its own: the key to what is drawn over the picture (:func:`legend_lines`),
 each entry in its marker's colour beside a small copy of the marker: the cyan ghost (the body
-where the estimator puts it), the green ring or arrow (the position or heading target) and,
-while a push acts, the magenta arrow with the push's size and direction. Entries are shown
+where the estimator puts it), the green ring and arrow (the position and heading targets), the
+orange cross and line (the start and the path since) and, while a push acts, the magenta arrow with the push's size and direction. Entries are shown
 only when their marker is.
 """
 from __future__ import annotations
@@ -30,6 +30,8 @@ ORANGE = (60, 170, 255)  # the plant, when it is not the PyBullet twin
 CYAN = (255, 255, 0)  # the estimator's ghost (twin.render.panels.GHOST_BGR)
 GREEN = (40, 200, 40)  # the targets on the floor (twin.render.panels.TARGET_BGR)
 MAGENTA = (255, 0, 255)  # a push acting (twin.render.panels.PUSH_BGR)
+PATH = (0, 140, 255)  # the start and the path since, on the floor (twin.render.panels.PATH_BGR)
+START_SHOWN_M = 0.05  # m: the start and the path are drawn once the robot is this far from the start
 BOX_DARKEN = 0.45  # the box keeps this fraction of the picture's brightness
 
 
@@ -50,6 +52,7 @@ class HudState:
     theta_est: float | None = None  # rad, the estimator's pitch (None with ideal sensing)
     plant: str = ""  # what simulated the run when it is not the PyBullet twin (:func:`plant_caption`); "" for the twin
     push: str = ""  # the push acting now (:func:`push_caption`, e.g. "12 N forward"); "" for none
+    from_start: float = 0.0  # m, the axle's distance from where it started (the start drawn from START_SHOWN_M)
 
 
 PLANT_NAME_MAX = 36  # characters of a user's plant name on the overlay (its end kept: the class's name)
@@ -111,17 +114,19 @@ def push_caption(fx: float, fy: float, fz: float, alpha: float) -> str:
 
 def legend_lines(s: HudState) -> list[tuple[str, tuple[int, int, int], str]]:
     """The key to the markers drawn over the picture at this frame: (text, BGR colour, marker
-    shape: "box", "ring" or "arrow"), one entry per marker shown (as
+    shape: "box", "ring", "arrow" or "path"), one entry per marker shown (as
     :func:`twin.render.panels.draw_markers` draws them): the estimator's ghost (with an
-    estimate), the position target's ring (a position target and no heading target) or the
-    heading target's arrow, and a push while it acts."""
+    estimate), the position target's ring, the heading target's arrow, the start and the
+    path since (once the robot is :data:`START_SHOWN_M` from it), and a push while it acts."""
     out = []
     if s.theta_est is not None:
         out.append(("estimator's body (ghost)", CYAN, "box"))
+    if s.p_d is not None:
+        out.append((f"position target {s.p_d:.2f} m" + (" ahead" if s.alpha_d is not None else ""), GREEN, "ring"))
     if s.alpha_d is not None:
         out.append((f"heading target {s.alpha_d:.2f} rad", GREEN, "arrow"))
-    elif s.p_d is not None:
-        out.append((f"position target {s.p_d:.2f} m", GREEN, "ring"))
+    if s.from_start >= START_SHOWN_M:
+        out.append(("start, path since", PATH, "path"))
     if s.push:
         out.append((f"push {s.push}", MAGENTA, "arrow"))
     return out
@@ -195,6 +200,11 @@ def draw_legend(img: np.ndarray, s: HudState, hud_box: tuple[int, int] = (0, 0))
             cv2.rectangle(img, (mx0 + 1, cy - half), (mx1 - 1, cy + half), colour, 1, cv2.LINE_AA)
         elif shape == "ring":
             cv2.circle(img, ((mx0 + mx1) // 2, cy), half, colour, thick, cv2.LINE_AA)
+        elif shape == "path":  # a cross, and a line from it
+            c = mx0 + half
+            cv2.line(img, (c - half, cy - half), (c + half, cy + half), colour, thick, cv2.LINE_AA)
+            cv2.line(img, (c - half, cy + half), (c + half, cy - half), colour, thick, cv2.LINE_AA)
+            cv2.line(img, (c, cy), (mx1, cy), colour, thick, cv2.LINE_AA)
         else:
             cv2.arrowedLine(img, (mx0, cy), (mx1, cy), colour, thick + 1, cv2.LINE_AA, tipLength=0.4)
         cv2.putText(img, text, (mx1 + pad, base), cv2.FONT_HERSHEY_SIMPLEX, scale, colour, thick, cv2.LINE_AA)

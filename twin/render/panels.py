@@ -20,7 +20,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from twin.errors import TwinError
-from twin.render.hud import CYAN, GREEN, MAGENTA, HudState, draw_hud, push_caption
+from twin.render.hud import CYAN, GREEN, MAGENTA, PATH, START_SHOWN_M, HudState, draw_hud, push_caption
 from twin.render.scene import Scene
 
 _ERROR = b"ERROR: "
@@ -46,13 +46,17 @@ def panel_frames(scene: Scene, track, samples: dict, times: np.ndarray, hud: boo
                                      s["alpha"][k], track.p_d, track.alpha_d, track.ended(tk),
                                      track.status != "ok", track.fault_at(min(tk, track.duration)),
                                      s["theta_est"][k] if "theta_est" in s else None, track.plant,
-                                     push_caption(s["push_fx"][k], s["push_fy"][k], s["push_fz"][k], s["alpha"][k])))
+                                     push_caption(s["push_fx"][k], s["push_fy"][k], s["push_fz"][k], s["alpha"][k]),
+                                     from_start(track, s, k)))
         if tk > track.duration + 1e-9:
             held = panel  # the run has ended: this panel stays as it is
         yield panel
 
 
 TARGET_BGR = GREEN  # the position target on the floor, the heading target's arrow (the key: hud.legend_lines)
+PATH_BGR = PATH  # the start (a cross on the floor) and the path travelled since (a line on the floor)
+START_CROSS_M = 0.06  # m: half the length of each stroke of the start's cross
+RING_M = 0.06  # m: the position target's ring's radius
 PUSH_BGR = MAGENTA  # a push acting now (no other magenta in the scene)
 GHOST_BGR = CYAN  # the body where the estimator puts it (the HUD's estimate line has its colour)
 GHOST_FILL = 0.15  # opacity of the ghost's faces: the body shows through in its own colour
@@ -100,9 +104,13 @@ def draw_ghost(img: np.ndarray, uv: np.ndarray, thick: int) -> None:
 
 
 def draw_markers(img: np.ndarray, scene: Scene, track, s: dict, k: int) -> None:
-    """Draw, over the picture just taken, what the world does not show: the position target
-    (a ring on the floor, p_d ahead of the start along the starting heading; drawn only
-    without a heading target, when that is where the robot is to stop), the heading target
+    """Draw, over the picture just taken, what the world does not show: the start (a cross on
+    the floor) and the path travelled since (a line on the floor from the start to the axle),
+    once the robot is :data:`twin.render.hud.START_SHOWN_M` from the start (the camera follows
+    the robot, so these show the travel); the position target (a ring on the floor: without a
+    heading target p_d ahead of the start along the starting heading, where the robot is to
+    stop; with one, p_d − p ahead of the axle along the present heading, where p reaches p_d
+    if the robot drives straight on), the heading target
     (an arrow on the floor from the axle towards α_d), the estimator's ghost (the body box
     at the estimated pitch θ̂ and heading α̂, moved along the heading by r(ψ̂ − ψ), the error
     in travelled distance; translucent cyan) and a push acting now (an arrow into the top
@@ -125,22 +133,34 @@ def draw_markers(img: np.ndarray, scene: Scene, track, s: dict, k: int) -> None:
         else:
             cv2.line(img, p0, p1, colour, thick, cv2.LINE_AA)
 
-    thick = max(2, int(round(img.shape[0] / 160)))
-    x, y, a, roll = s["x"][k], s["y"][k], s["alpha"][k], s["roll"][k]
-    picture = img
-    if track.p_d is not None or track.alpha_d is not None:
-        img = img.copy()  # floor markers go on a layer, shown where the floor shows
-    if track.p_d is not None and track.alpha_d is None:
-        x0, y0, a0 = track.start
-        q = np.linspace(0, 2 * np.pi, 25)
-        ring = scene.floor_points(np.column_stack([x0 + track.p_d * np.cos(a0) + 0.06 * np.cos(q),
-                                                   y0 + track.p_d * np.sin(a0) + 0.06 * np.sin(q)]))
-        uv = scene.project(ring)  # one projection for the whole ring
+    def polyline(xy, colour, width):
+        uv = scene.project(scene.floor_points(xy))  # one projection for the whole line
         drawn_at.extend(uv[np.isfinite(uv).all(axis=1)].tolist())
         for p0, p1 in zip(uv[:-1], uv[1:]):
             if np.isfinite(p0).all() and np.isfinite(p1).all():
                 cv2.line(img, (int(round(p0[0])), int(round(p0[1]))), (int(round(p1[0])), int(round(p1[1]))),
-                         TARGET_BGR, thick, cv2.LINE_AA)
+                         colour, width, cv2.LINE_AA)
+
+    thick = max(2, int(round(img.shape[0] / 160)))
+    x, y, a, roll = s["x"][k], s["y"][k], s["alpha"][k], s["roll"][k]
+    x0, y0, a0 = track.start
+    travelled = from_start(track, s, k) >= START_SHOWN_M
+    picture = img
+    if track.p_d is not None or track.alpha_d is not None or travelled:
+        img = img.copy()  # floor markers go on a layer, shown where the floor shows
+    if travelled:
+        c, d = START_CROSS_M * np.cos(a0 + np.pi / 4), START_CROSS_M * np.sin(a0 + np.pi / 4)
+        polyline([(x0 - c, y0 - d), (x0 + c, y0 + d)], PATH_BGR, thick)
+        polyline([(x0 + d, y0 - c), (x0 - d, y0 + c)], PATH_BGR, thick)
+        polyline(np.column_stack([s["x"][:k + 1], s["y"][:k + 1]]), PATH_BGR, max(1, thick - 1))
+    if track.p_d is not None:
+        if track.alpha_d is None:  # the fixed point where the robot is to stop
+            cx, cy = x0 + track.p_d * np.cos(a0), y0 + track.p_d * np.sin(a0)
+        else:  # where p reaches p_d on the present heading
+            go = track.p_d - s["distance"][k]
+            cx, cy = x + go * np.cos(a), y + go * np.sin(a)
+        q = np.linspace(0, 2 * np.pi, 25)
+        polyline(np.column_stack([cx + RING_M * np.cos(q), cy + RING_M * np.sin(q)]), TARGET_BGR, thick)
     if track.alpha_d is not None:
         d = track.alpha_d
         a0, a1 = scene.floor_points([(x, y), (x + HEADING_ARROW_M * np.cos(d), y + HEADING_ARROW_M * np.sin(d))])
@@ -170,6 +190,12 @@ def draw_markers(img: np.ndarray, scene: Scene, track, s: dict, k: int) -> None:
     if np.abs(f).sum() > 0.0:
         top = scene.body_points([(0.0, 0.0, track.body_top)], s["theta"][k], a, x, y, roll)[0]
         line(top - PUSH_M_PER_N * f, top, PUSH_BGR, thick + 1, arrow=True)
+
+
+def from_start(track, s: dict, k: int) -> float:
+    """m: how far the robot's axle is from where it started, at frame ``k`` of samples ``s``."""
+    x0, y0, _ = track.start
+    return float(np.hypot(s["x"][k] - x0, s["y"][k] - y0))
 
 
 def _send(out, payload) -> None:
