@@ -394,3 +394,33 @@ def test_track_needs_a_target():
     with pytest.raises(TwinError, match="needs a target") as exc:
         make("mtwip/Track-v0", scenario="paper-exp1")
     assert "\n" not in str(exc.value)
+
+
+def test_an_episode_pictured_shows_the_start_the_path_and_the_targets_as_a_video_does():
+    """render() draws the floor markers a twin run video draws and its key names: the heading
+    target's arrow and the position target's ring (green), and once the robot has moved 5 cm
+    the start's cross and the path since (orange); the key's entries match what is drawn."""
+    from twin.render import hud
+
+    env = make("mtwip/Track-v0", overrides=("duration=1.5",), render_mode="rgb_array", render_size=(320, 240))
+    u = env.unwrapped
+    ctrl = u.scenario.build_controller("it2", u.scenario.build_context())
+    obs, _ = env.reset(seed=0)
+    ctrl.reset(u.experiment.targets)
+    first = env.render()
+    done = False
+    while not done:
+        ul, ur, *_ = ctrl(obs[:6], u.experiment.targets)
+        obs, _, terminated, truncated, _ = env.step(np.array([ul, ur], dtype=np.float32))
+        done = terminated or truncated
+        if u.loop.k % 20 == 0:
+            last = env.render()
+    env.close()
+
+    def count(rgb, colour):
+        return int((np.abs(rgb[:, :, ::-1].astype(int) - colour).max(axis=2) < 40).sum())
+
+    below_key = slice(110, None)  # rows under the text box and its key
+    # (the body's lit side comes near the path's orange in a few pixels)
+    assert count(last[below_key], hud.PATH) > count(first[below_key], hud.PATH) + 30  # moved: cross and path
+    assert count(last[below_key], hud.GREEN) > 30  # the targets on the floor (the arrow, the ring)

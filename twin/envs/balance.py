@@ -79,7 +79,9 @@ Episode End
 
 Rendering and video
     ``render_mode="rgb_array"``: (H, W, 3) uint8 pictures, taken only when ``render()``
-    is called; ``metadata["render_fps"]`` = 200, one picture per step (Gymnasium's
+    is called, with the overlay of a ``twin run`` video (``hud=True``): the text box, the
+    key, and on the floor the targets and, once the robot has moved 5 cm, the start and the
+    path through the places it was pictured at; ``metadata["render_fps"]`` = 200, one picture per step (Gymnasium's
     convention). :class:`twin.envs.RecordVideo` records real-time H.264 video at the
     scenario's ``video.fps`` (30 frames per simulated second), rendering 451 pictures
     for a 15 s episode instead of 3001.

@@ -249,6 +249,8 @@ class TwinEnv(gymnasium.Env):
         self._scene_key = None
         self._last_obs = None
         self._last_truth = None
+        self._path: list[tuple[float, float]] = []  # (x, y) m of the axle at reset and each picture since
+        self._start = (0.0, 0.0, 0.0)  # (x, y, α) m, m, rad at reset
 
     # ---- construction helpers ------------------------------------------------------------------
     def _parse_randomize(self, randomize) -> tuple[tuple[str, ...], bool]:
@@ -430,7 +432,8 @@ class TwinEnv(gymnasium.Env):
         self._begin_episode(exp.targets)
         self._held[:] = [0.0] * 11
         loop.reset(run_seed)
-        self._last_truth = loop.truth
+        self._last_truth = tr0 = loop.truth
+        self._start, self._path = (tr0.x, tr0.y, tr0.alpha), [(tr0.x, tr0.y)]
         sets = "".join(f" --set {shlex.quote(o)}" for o in self.overrides)
         if self.estimator_kind != self.scenario.estimator:
             sets += f" --set {shlex.quote('sensors.estimator=' + _toml_value(self.estimator_kind))}"
@@ -512,8 +515,9 @@ class TwinEnv(gymnasium.Env):
             tr = self._last_truth
         scene = self._scene_for(config)
         frame = scene.render(tr.theta, tr.alpha, tr.x, tr.y, tr.psi_l, tr.psi_r, tr.roll)
+        self._path.append((tr.x, tr.y))
         if self.hud:
-            frame = self._draw_hud(frame, tr, sc, targets)
+            frame = self._draw_hud(frame, tr, sc, targets, scene, config)
         return frame
 
     def _scene_for(self, config):
@@ -533,8 +537,15 @@ class TwinEnv(gymnasium.Env):
         if scene is not None:
             scene.close()
 
-    def _draw_hud(self, frame, tr, sc, targets):
+    def _draw_hud(self, frame, tr, sc, targets, scene, config):
+        """The overlay, as a ``twin run`` video draws it: the floor markers (the start, the path
+        since through the axle's places at reset and at each render(), the targets), then the
+        text and its key."""
+        from types import SimpleNamespace
+
+        from twin.plant.urdf import body_box
         from twin.render.hud import HudState, draw_hud
+        from twin.render.panels import draw_markers, from_start
 
         loop = self.loop
         ended, alarm = "", False
@@ -544,8 +555,17 @@ class TwinEnv(gymnasium.Env):
             ended = f"END at {loop.t:.2f} s"
         label = f"{self.spec.id if self.spec is not None else type(self).__name__}  {sc.name}"
         bgr = np.ascontiguousarray(frame[:, :, ::-1])
+        box = body_box(config.params)
+        track = SimpleNamespace(p_d=targets.position, alpha_d=targets.heading, r=config.params.r, box=box,
+                                body_top=box[1][2], start=self._start)
+        n = len(self._path)
+        xy = np.asarray(self._path, dtype=float)
+        now = {"alpha": tr.alpha, "roll": tr.roll, "theta": tr.theta, "distance": tr.distance,
+               "push_fx": 0.0, "push_fy": 0.0, "push_fz": 0.0}  # the push is not shown (nor keyed)
+        samples = {"x": xy[:, 0], "y": xy[:, 1], **{k: np.full(n, v) for k, v in now.items()}}
+        draw_markers(bgr, scene, track, samples, n - 1)
         draw_hud(bgr, HudState(label, loop.t, tr.theta, tr.distance, tr.alpha, targets.position, targets.heading,
-                               ended, alarm))
+                               ended, alarm, from_start=from_start(track, samples, n - 1)))
         return np.ascontiguousarray(bgr[:, :, ::-1])
 
     # ---- life cycle ----------------------------------------------------------------------------
