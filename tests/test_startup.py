@@ -239,3 +239,24 @@ def test_a_run_that_fails_before_its_runs_ends_the_early_figure_worker(tmp_path)
 
     if sys.platform.startswith("linux"):
         assert marked() == []
+
+
+def test_the_figures_png_holds_the_canvas_pixels(tmp_path):
+    """figure.write_png (the run figure's writer): PIL reads back every pixel, opaque pictures
+    as RGB, others with their alpha; the resolution is the figure's."""
+    from PIL import Image
+
+    from twin.outputs.figure import DPI, write_png
+
+    rng = np.random.default_rng(0)
+    img = rng.integers(0, 256, (37, 53, 4), dtype=np.uint8)
+    img[:, :, 3] = 255
+    img[10:20] = img[9]  # rows that repeat the one above (the Up filter's zero rows)
+    write_png(tmp_path / "a.png", img)
+    with Image.open(tmp_path / "a.png") as im:
+        assert im.mode == "RGB" and im.info["dpi"] == pytest.approx((DPI, DPI), abs=0.01)
+        assert np.array_equal(np.asarray(im), img[:, :, :3])
+    img[3, 4, 3] = 17  # one translucent pixel: alpha kept
+    write_png(tmp_path / "b.png", img, dpi=72)
+    with Image.open(tmp_path / "b.png") as im:
+        assert im.mode == "RGBA" and np.array_equal(np.asarray(im), img)

@@ -70,7 +70,7 @@ TICKS_READY = 10  # tick objects made per axis in advance (matplotlib reuses the
 # at the left and between the columns; the top leaves the suptitle's lines (see _place)
 LEFT, RIGHT, BOTTOM, WSPACE, HSPACE = 0.048, 0.99, 0.045, 0.2, 0.36
 TITLE_LINES = 6  # the suptitle's lines at most (the rest cut): the panels keep most of the height
-PNG_COMPRESSION = 1  # zlib level: 15 % larger files than matplotlib's 6, 30 ms less to write
+PNG_COMPRESSION = 1  # zlib level of the figures PIL writes (the replay's): 15 % larger than 6, 30 ms less
 LEGEND = {"fontsize": 7, "framealpha": 0.8}
 
 
@@ -528,21 +528,49 @@ def compose(a, b):
     return np.where(in_b[:, None, None], b, a)
 
 
-def save_pixels(fig, rgba, path) -> None:
-    """Write ``rgba`` (the canvas of ``fig``, drawn) as :func:`save_figure` writes the figure:
-    the same PNG, byte for byte (matplotlib's own writer, the same options)."""
-    from matplotlib.image import imsave
+def write_png(path, rgba, dpi: float = DPI) -> None:
+    """Write ``rgba`` (an (H, W, 4) uint8 array, a drawn canvas) as a PNG: RGB where every pixel
+    is opaque (the figure's are), each row's "Up" filter (the difference to the row above:
+    a figure's rows repeat each other), deflated at zlib level 1, with the resolution in dpi.
 
-    imsave(path, rgba, format="png", origin="upper", dpi=fig.dpi,
-           pil_kwargs={"compress_level": PNG_COMPRESSION})
+    Why not matplotlib's writer (PIL's): 0.06 s against 0.02 s for the twelve-panel figure,
+    and 8 % larger; the figure is what ``twin run`` waits for last. The pixels are the
+    canvas's, whatever writes them."""
+    import struct
+    import zlib
+
+    rgba = np.asarray(rgba, dtype=np.uint8)
+    h, w = rgba.shape[:2]
+    opaque = bool((rgba[:, :, 3] == 255).all())
+    px = rgba[:, :, :3] if opaque else rgba
+    rows = np.ascontiguousarray(px).reshape(h, -1)
+    data = np.empty((h, rows.shape[1] + 1), np.uint8)
+    data[:, 0] = 2  # filter type Up
+    data[0, 1:] = rows[0]
+    np.subtract(rows[1:], rows[:-1], out=data[1:, 1:])  # modulo 256, as PNG's Up filter is
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    ppm = round(dpi / 0.0254)  # pixels per metre
+    png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2 if opaque else 6, 0, 0, 0))
+           + chunk(b"pHYs", struct.pack(">IIB", ppm, ppm, 1)) + chunk(b"IDAT", zlib.compress(data.tobytes(), 1))
+           + chunk(b"IEND", b""))
+    with open(path, "wb") as fh:
+        fh.write(png)
+
+
+def save_pixels(fig, rgba, path) -> None:
+    """Write ``rgba`` (the canvas of ``fig``, drawn) as :func:`save_figure` writes the figure."""
+    write_png(path, rgba, fig.dpi)
 
 
 def save_figure(fig, path) -> None:
-    """Write ``fig`` as a PNG at :data:`DPI`; with matplotlib's tight layout if the fixed
-    margins would cut a tick label off (drawn again then)."""
-    kwargs = {"dpi": DPI, "pil_kwargs": {"compress_level": PNG_COMPRESSION}}
-    fig.savefig(path, **kwargs)
+    """Draw ``fig`` and write it as a PNG at :data:`DPI` (:func:`write_png`); with matplotlib's
+    tight layout if the fixed margins would cut a tick label off (drawn again then)."""
+    fig.canvas.draw()
     if fig.get_layout_engine() is None and _clipped(fig):
         n = fig.get_suptitle().count("\n") + 1
         fig.set_layout_engine("tight", rect=(0, 0, 1, 1 - 0.014 * n))  # the title's room kept
-        fig.savefig(path, **kwargs)
+        fig.canvas.draw()
+    write_png(path, np.asarray(fig.canvas.buffer_rgba()), fig.dpi)
