@@ -116,10 +116,20 @@ def panels(axes) -> dict:
     return dict(zip(KEYS, axes))
 
 
-def warm_up(fig) -> None:
+def warm_up(fig, stop=None) -> None:
     """Draw the empty figure once: fonts loaded, glyphs and text sizes cached, for the real
-    drawing later (a worker does this while the runs are simulated)."""
-    fig.canvas.draw()
+    drawing later (a worker does this while the runs are simulated). ``stop``: a function
+    asked after each panel; True ends the warm-up there (the data has come: drawing it
+    matters more than the rest of the warm-up)."""
+    if stop is None:
+        fig.canvas.draw()
+        return
+    renderer = fig.canvas.get_renderer()
+    for ax in fig.get_axes():
+        if ax.get_visible():
+            ax.draw(renderer)
+        if stop():
+            return
 
 
 def fill_figure(fig, axes, data: dict, title: str = ""):

@@ -2,11 +2,14 @@
 
 Why: of a 20 s ``twin run`` process on the project's 2-core machine, matplotlib took about
 0.45 s to import and the figure 0.3-0.5 s to draw, one after the other after the
-simulation. A worker started when the scenario starts imports matplotlib, builds the empty
-figure and draws it once (fonts loaded, tick objects made: :func:`twin.outputs.figure.warm_up`) on
-the other core while this process simulates. When the runs end their figure data (plain
-arrays and strings, :func:`twin.outputs.report.figure_data`) is handed over, and the worker draws and
-writes figure.png while this process writes trajectory.csv and metrics.json.
+simulation. A worker started before the scenario loads (``twin run``) or when the runs
+start imports matplotlib, builds the empty figure and draws it once, panel by panel until
+the data comes (fonts loaded, tick objects made: :func:`twin.outputs.figure.warm_up`), on the
+other core while this process simulates; from the empty figure on, in two processes, each
+half of the rows (:class:`_Half`). When the runs end their figure data (plain arrays and
+strings, :func:`twin.outputs.report.figure_data`) is handed over, and the worker's two
+processes draw their halves and write figure.png while this process writes trajectory.csv
+and metrics.json.
 
 The command waits for the worker (:meth:`FigureWorker.finish`) and always ends it
 (:meth:`FigureWorker.close`): no process outlives the command, and figure.png is complete
@@ -152,12 +155,13 @@ class FigureWorker:
             self._payload = None
 
 
-def _data_waiting() -> bool:
-    """True if the parent has already sent its line (no time left to warm up)."""
+def _data_waiting(stream=None) -> bool:
+    """True if the parent has already sent its line on ``stream`` (default: stdin; a file
+    descriptor or object) and the warm-up should stop."""
     try:
         import select
 
-        return bool(select.select([sys.stdin], [], [], 0.0)[0])
+        return bool(select.select([sys.stdin if stream is None else stream], [], [], 0.0)[0])
     except (OSError, ValueError):  # pragma: no cover - no select on pipes (Windows)
         return False
 
@@ -205,7 +209,7 @@ class _Half:
 
         if warm:
             shown = show_half(fig, 1)
-            warm_up(fig)
+            warm_up(fig, lambda: _data_waiting(self._to_child_r))
             show_half(fig, None, shown)
         with os.fdopen(self._to_child_r, "rb") as fh:
             line = fh.readline().strip()
@@ -273,9 +277,9 @@ def main() -> None:
     fig, axes = new_figure()
     warm = not _data_waiting()
     half = _Half(fig, warm) if _halves_wanted() else None
-    if warm:
+    if warm:  # panel by panel, until the data comes (then the halves draw it at once)
         shown = show_half(fig, 0) if half is not None else None
-        warm_up(fig)
+        warm_up(fig, _data_waiting)
         if half is not None:
             show_half(fig, None, shown)
     line = sys.stdin.readline().strip()
