@@ -260,3 +260,21 @@ def test_the_figures_png_holds_the_canvas_pixels(tmp_path):
     write_png(tmp_path / "b.png", img, dpi=72)
     with Image.open(tmp_path / "b.png") as im:
         assert im.mode == "RGBA" and np.array_equal(np.asarray(im), img)
+
+
+def test_the_warm_up_stops_when_the_data_comes():
+    """warm_up draws panel by panel and asks ``stop`` after each: the worker's warm-up gives way
+    to the data's drawing as soon as the data is there."""
+    from twin.outputs.figure import new_figure, warm_up
+
+    fig, axes = new_figure()
+    drawn = []
+    for ax in axes:
+        real = ax.draw
+        ax.draw = lambda renderer, real=real, ax=ax: (drawn.append(ax), real(renderer))
+    warm_up(fig, stop=lambda: len(drawn) >= 2)
+    assert drawn == axes[:2]
+    drawn.clear()
+    axes[3].set_visible(False)
+    warm_up(fig, stop=lambda: False)
+    assert drawn == [ax for i, ax in enumerate(axes) if i != 3]
