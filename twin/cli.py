@@ -34,6 +34,10 @@ if _the_process():  # from here (before the heavy imports below) a signal is not
     from twin.outputs import rundir as _rundir
 
     _rundir.hold_from_start()
+    if sys.argv[1:2] == ["run"]:  # the figure's worker, started before the imports below (see run)
+        from twin.outputs import figure_worker as _figure_worker
+
+        _figure_worker.start_early()
 
 
 import click  # noqa: E402
@@ -634,8 +638,9 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample, log
     from twin.outputs import figure_worker
 
     # first: the figure's worker imports matplotlib while the scenario loads and the runs simulate
-    # (started here, not when the runs start, it is ready 0.1-0.2 s sooner); ended by run_scenario
-    figure = figure_worker.start()
+    # (started here, or as this module loaded when it is the process's command, not when the
+    # runs start: it is ready 0.1-0.2 s sooner); ended by run_scenario
+    figure = figure_worker.take_early() or figure_worker.start()
     try:
         _run(scenario, controller, seed, duration, overrides, out, video, sample, log_every, log_format, log_sensors,
              plant_file, step_limit, run_limit, memory_limit, figure)

@@ -80,6 +80,36 @@ def start() -> FigureWorker | None:
         return None
 
 
+_EARLY: list = []  # the worker start_early() started, until twin run takes it (take_early)
+
+
+def start_early() -> None:
+    """``twin run`` as the process's command: start the worker now, before the command line's
+    own imports, so that it is ready sooner (the worker was the last to finish when the runs
+    were quick); :func:`take_early` hands it over. Nothing if none is wanted; a bad
+    ``TWIN_FIGURE_WORKER`` is left to :func:`start` to say, in one line. A worker not taken
+    (``twin run --help``, a usage error) is ended when the process ends."""
+    import atexit
+
+    try:
+        worker = start()
+    except Exception:  # noqa: BLE001 - said by start() when the command asks for its worker
+        return
+    if worker is not None:
+        _EARLY.append(worker)
+        atexit.register(_end_early)
+
+
+def take_early() -> FigureWorker | None:
+    """The worker :func:`start_early` started, now the caller's to use and end; None if none."""
+    return _EARLY.pop() if _EARLY else None
+
+
+def _end_early() -> None:
+    while _EARLY:
+        _EARLY.pop().cancel()
+
+
 class FigureWorker:
     """One figure drawn in a child process: :meth:`submit` the data, :meth:`finish` to wait."""
 
