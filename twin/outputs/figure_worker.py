@@ -306,7 +306,10 @@ def main() -> None:
 
     fig, axes = new_figure()
     warm = not _data_waiting()
-    half = _Half(fig, warm) if _halves_wanted() else None
+    try:
+        half = _Half(fig, warm) if _halves_wanted() else None
+    except OSError:  # no process to spare (a limit on processes, memory): the whole figure here
+        half = None
     if warm:  # panel by panel, until the data comes (then the halves draw it at once)
         shown = show_half(fig, 0) if half is not None else None
         warm_up(fig, _data_waiting)
