@@ -709,3 +709,45 @@ def test_hud_names_the_plant_when_it_is_not_the_pybullet_twin(design, run_exp1):
     assert hud.plant_caption("modèle.Pendule\n") == "mod?le.Pendule"
     long = hud.plant_caption("a_very.long.package.path.of.plugins.SpringPlant")
     assert len(long) == hud.PLANT_NAME_MAX and long.startswith("...") and long.endswith(".SpringPlant")
+
+
+def test_the_path_is_drawn_through_thinned_points_and_survives_points_at_the_eye(egl_loads):
+    """A frame draws the path since the start: through points a centimetre apart at most 400
+    of them (its cost does not grow with the frames before), the last point kept; a point that
+    projects far outside the picture (just in front of the eye, where a following camera
+    crosses an old path) breaks the line instead of breaking OpenCV."""
+    from types import SimpleNamespace
+
+    from twin.plant.urdf import body_box
+    from twin.render.panels import PATH_POINTS, draw_markers, path_points
+
+    x = np.linspace(0.0, 0.5, 5001)  # 0.1 mm apart
+    pts = path_points(x, np.zeros_like(x))
+    assert len(pts) == 51 and pts[-1][0] == 0.5 and np.all(np.diff(pts[:, 0]) >= 0.0099)
+    far = np.linspace(0.0, 100.0, 100001)
+    assert len(path_points(far, far)) <= PATH_POINTS + 1
+    assert len(path_points([0.0, np.nan, 0.2, 0.3], [0.0, 0.0, 0.0, 0.0])) == 3  # non-finite rows dropped
+
+    config = TwinConfig()
+    box = body_box(config.params)
+    track = SimpleNamespace(p_d=None, alpha_d=None, start=(-3.0, 0.0, 0.0), r=config.params.r, box=box,
+                            body_top=box[1][2])
+    s = {k: np.zeros(301) for k in ("y", "alpha", "roll", "theta", "push_fx", "push_fy", "push_fz", "distance")}
+    s["x"] = np.linspace(-3.0, 0.0, 301)
+    with Scene(config, (320, 240), "egl" if egl_loads else "tiny", Camera(yaw=0.0, follow_heading=False)) as scene:
+        img = cv2.cvtColor(scene.render(0.0, 0.0, 0.0, 0.0, 0.0, 0.0), cv2.COLOR_RGB2BGR)
+        real = scene.project
+
+        def project(points):  # one point as if a hair in front of the eye
+            uv = real(points)
+            if len(uv) > 3:
+                uv[len(uv) // 2] = (3e12, -2e12)
+            return uv
+
+        scene.project = project
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # no pixel coordinate cast out of range, no OpenCV error
+            draw_markers(img, scene, track, s, 300)
+    assert _orange(img) > 50

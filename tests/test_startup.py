@@ -180,13 +180,18 @@ def test_the_figure_drawn_in_two_halves_is_the_whole_figure(ran, tmp_path):
     data = figure_data(ran["here"][0].runs)
     payload = tmp_path / "payload.pickle"
     payload.write_bytes(pickle.dumps(("unused", "a title\nof two lines", data)))
+    import gc
+    import select
+
     fig, axes = new_figure()
     half = figure_worker._Half(fig, warm=True)  # the child warms up its half, as in the worker
+    gc.unfreeze()  # (the worker freezes its objects before the fork; this test process lives on)
     half.start(str(payload))
     fill_figure(fig, axes, data, "a title\nof two lines")
     shown = show_half(fig, 0)
     fig.canvas.draw()
     mine = np.asarray(fig.canvas.buffer_rgba()).copy()
+    assert select.select([half._status], [], [], 120.0)[0], "the child did not finish its half"
     theirs = half.result()
     assert theirs is not None  # drawn, no label clipped
     assert not np.array_equal(mine, theirs)  # each drew its own half
@@ -213,32 +218,38 @@ def test_halves_that_touch_are_not_composed():
     assert compose(a, b) is None
 
 
-def test_a_run_that_fails_before_its_runs_ends_the_early_figure_worker(tmp_path):
-    """twin run starts the figure's worker before it loads the scenario: a scenario that cannot
-    load is its one line, and no worker is left."""
+def test_the_early_worker_is_taken_once_and_one_not_taken_is_ended(monkeypatch):
+    """twin run, as the process's command, starts the figure's worker as the command line loads
+    (start_early); run takes it (take_early); one never taken (twin run --help, a usage error)
+    is killed at exit (_end_early), not left to draw nothing."""
+    monkeypatch.setenv("TWIN_FIGURE_WORKER", "1")
+    figure_worker.start_early()
+    worker = figure_worker.take_early()
+    assert worker is not None and worker._proc.poll() is None
+    assert figure_worker.take_early() is None  # taken once
+    worker.cancel()
+    assert worker._proc.returncode is not None and worker._proc.stdin.closed
+    figure_worker.start_early()
+    left = figure_worker._EARLY[0]
+    figure_worker._end_early()
+    assert not figure_worker._EARLY and left._proc.returncode is not None
+    monkeypatch.setenv("TWIN_FIGURE_WORKER", "yes")  # a bad setting: no worker; run says it in one line
+    figure_worker.start_early()
+    assert figure_worker.take_early() is None
+
+
+def test_a_run_that_fails_before_its_runs_is_one_line(tmp_path):
+    """With the worker started as the command line loads (python -m twin is the process's command
+    too), a scenario that cannot load is still its one line and exit status 2."""
     import os
-    from pathlib import Path
 
-    mark = f"mtwip-test-{os.getpid()}-{id(tmp_path)}"
     (tmp_path / "bad.toml").write_text("duration = -1\n")
-    env = {**os.environ, "TWIN_FIGURE_WORKER": "1", "MTWIP_TEST_MARK": mark}
-    r = subprocess.run([sys.executable, "-m", "twin", "run", "bad.toml", "--no-video"], cwd=tmp_path, env=env,
-                       capture_output=True, text=True)
-    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
-    assert "duration" in r.stderr
-
-    def marked():
-        found = []
-        for d in Path("/proc").iterdir():
-            try:
-                if d.name.isdigit() and mark.encode() in (d / "environ").read_bytes():
-                    found.append(int(d.name))
-            except OSError:
-                pass
-        return found
-
-    if sys.platform.startswith("linux"):
-        assert marked() == []
+    env = {**os.environ, "TWIN_FIGURE_WORKER": "1"}
+    for module in ("twin", "twin.cli"):
+        r = subprocess.run([sys.executable, "-m", module, "run", "bad.toml", "--no-video"], cwd=tmp_path, env=env,
+                           capture_output=True, text=True)
+        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+        assert "duration" in r.stderr
 
 
 def test_the_figures_png_holds_the_canvas_pixels(tmp_path):

@@ -21,11 +21,11 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 def _the_process() -> bool:
     """True when this module is the process's command (the ``twin`` script, ``python -m
-    twin.cli``), not imported by a program or a test that calls :func:`main` in its own process
+    twin``, ``python -m twin.cli``), not imported by a program or a test that calls :func:`main` in its own process
     (click's CliRunner): the command then owns the process's signals from its start, and its end."""
     m = sys.modules.get("__main__")
     spec = getattr(m, "__spec__", None)
-    if spec is not None and getattr(spec, "name", None) == "twin.cli":
+    if spec is not None and getattr(spec, "name", None) in ("twin.cli", "twin.__main__"):  # python -m twin(.cli)
         return True
     return os.path.basename(getattr(m, "__file__", None) or "") in ("twin", "twin-script.py", "twin.exe")
 

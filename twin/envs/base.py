@@ -249,7 +249,7 @@ class TwinEnv(gymnasium.Env):
         self._scene_key = None
         self._last_obs = None
         self._last_truth = None
-        self._path: list[tuple[float, float]] = []  # (x, y) m of the axle at reset and each picture since
+        self._path: list[tuple[float, float]] = []  # (x, y) m of the axle at reset and pictured since, 1 cm apart
         self._start = (0.0, 0.0, 0.0)  # (x, y, α) m, m, rad at reset
 
     # ---- construction helpers ------------------------------------------------------------------
@@ -515,7 +515,6 @@ class TwinEnv(gymnasium.Env):
             tr = self._last_truth
         scene = self._scene_for(config)
         frame = scene.render(tr.theta, tr.alpha, tr.x, tr.y, tr.psi_l, tr.psi_r, tr.roll)
-        self._path.append((tr.x, tr.y))
         if self.hud:
             frame = self._draw_hud(frame, tr, sc, targets, scene, config)
         return frame
@@ -539,13 +538,13 @@ class TwinEnv(gymnasium.Env):
 
     def _draw_hud(self, frame, tr, sc, targets, scene, config):
         """The overlay, as a ``twin run`` video draws it: the floor markers (the start, the path
-        since through the axle's places at reset and at each render(), the targets), then the
-        text and its key."""
+        since through the axle's places at reset and when pictured, a centimetre apart at
+        least; the targets), then the text and its key."""
         from types import SimpleNamespace
 
         from twin.plant.urdf import body_box
         from twin.render.hud import HudState, draw_hud
-        from twin.render.panels import draw_markers, from_start
+        from twin.render.panels import PATH_STEP_M, draw_markers, from_start
 
         loop = self.loop
         ended, alarm = "", False
@@ -558,8 +557,11 @@ class TwinEnv(gymnasium.Env):
         box = body_box(config.params)
         track = SimpleNamespace(p_d=targets.position, alpha_d=targets.heading, r=config.params.r, box=box,
                                 body_top=box[1][2], start=self._start)
-        n = len(self._path)
-        xy = np.asarray(self._path, dtype=float)
+        last = self._path[-1]
+        if math.hypot(tr.x - last[0], tr.y - last[1]) >= PATH_STEP_M:  # a point a centimetre on, at least
+            self._path.append((tr.x, tr.y))
+        xy = np.asarray(self._path + [(tr.x, tr.y)], dtype=float)  # the path kept, and where the robot is
+        n = len(xy)
         now = {"alpha": tr.alpha, "roll": tr.roll, "theta": tr.theta, "distance": tr.distance,
                "push_fx": 0.0, "push_fy": 0.0, "push_fz": 0.0}  # the push is not shown (nor keyed)
         samples = {"x": xy[:, 0], "y": xy[:, 1], **{k: np.full(n, v) for k, v in now.items()}}

@@ -83,7 +83,8 @@ def new_figure():
     from matplotlib.ticker import MaxNLocator
     from matplotlib.transforms import offset_copy
 
-    fig = Figure(figsize=SIZE, dpi=DPI)
+    # white whatever a matplotlibrc says: the halves drawn apart are put together where each is white
+    fig = Figure(figsize=SIZE, dpi=DPI, facecolor="white")
     FigureCanvasAgg(fig)
     axes = list(fig.subplots(len(LAYOUT), len(LAYOUT[0])).ravel())
     keyed = dict(zip(KEYS, axes))
@@ -576,8 +577,9 @@ def save_pixels(fig, rgba, path) -> None:
 
 
 def save_figure(fig, path) -> None:
-    """Draw ``fig`` and write it as a PNG at :data:`DPI` (:func:`write_png`); with matplotlib's
-    tight layout if the fixed margins would cut a tick label off (drawn again then)."""
+    """Draw ``fig`` and write it as a PNG at its own resolution (:func:`new_figure`'s
+    :data:`DPI`; :func:`write_png`); with matplotlib's tight layout if the fixed margins would
+    cut a tick label off (drawn again then)."""
     fig.canvas.draw()
     if fig.get_layout_engine() is None and _clipped(fig):
         n = fig.get_suptitle().count("\n") + 1

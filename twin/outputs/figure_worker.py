@@ -13,8 +13,8 @@ and metrics.json.
 
 The command waits for the worker (:meth:`FigureWorker.finish`) and always ends it
 (:meth:`FigureWorker.close`): no process outlives the command, and figure.png is complete
-when the command returns; killed, the command takes the worker with it
-(:mod:`twin.workers`). A worker that fails leaves the figure to this process, as before,
+when the command returns; killed, the command takes the worker with it, and the worker its
+forked half (:mod:`twin.workers`: each dies with its parent). A worker that fails leaves the figure to this process, as before,
 with a one-line note. The worker is started only where a CPU is free for it (:func:`wanted`;
 ``TWIN_FIGURE_WORKER=1`` forces it, ``0`` turns it off): sharing the simulation's CPU, it
 would slow the command down. Drawn here or there, the figure is the same, pixel for pixel.
@@ -164,6 +164,11 @@ class FigureWorker:
             except (OSError, subprocess.TimeoutExpired):
                 self._proc.kill()
                 self._proc.wait()
+        try:  # our end of its stdin, whoever ended it
+            if not self._proc.stdin.closed:
+                self._proc.stdin.close()
+        except OSError:
+            pass
         self._remove_payload()
         if not self._stderr.closed:
             self._stderr.close()
@@ -201,10 +206,12 @@ class _Half:
     from the worker once the empty figure is built, drawing half of the rows into memory it
     shares with the worker, which draws the other half and writes the PNG.
 
-    Why: once the runs end, the figure's draw (0.3-0.45 s) is what the command waits for, and
-    the command's own CPU is then idle. Forked after the figure is built, each process warms
-    up and draws only its half. A fork at the draw costs as much as it saves (the copy on
-    write of every Python object the draw touches), so it happens while the runs simulate."""
+    Why: once the runs end, the figure's draw (0.3-0.45 s) is what the command waits for,
+    and the command itself has only trajectory.csv and metrics.json left to write (about
+    0.1 s). Forked after the figure is built, each process warms up and draws only its half.
+    A fork at the draw costs as much as it saves (the copy on write of every Python object
+    the draw touches), so it happens while the runs simulate. The child dies with the worker
+    (its own parent-death signal)."""
 
     def __init__(self, fig, warm: bool):
         import mmap
@@ -213,12 +220,19 @@ class _Half:
         self.shape = (h, w, 4)
         self.pixels = mmap.mmap(-1, h * w * 4)  # shared with the child (MAP_SHARED, anonymous)
         self._to_child_r, self._to_child = os.pipe()  # the payload's name, or EOF
-        self._status, status_w = os.pipe()  # one byte: 0 drawn, 1 its labels are clipped, 2 failed
+        self._status, status_w = os.pipe()  # one byte: 0 drawn, 1 its labels are clipped (EOF: it failed)
         parent = os.getpid()
         # the objects made so far go to the GC's permanent generation: a collection in either
         # process would otherwise write to every one of them, copying their pages
         gc.freeze()
-        self.pid = os.fork()
+        try:
+            self.pid = os.fork()
+        except OSError:
+            for fd in (self._to_child_r, self._to_child, self._status, status_w):
+                os.close(fd)
+            self.pixels.close()
+            gc.unfreeze()
+            raise
         if self.pid == 0:
             os.close(self._to_child)
             os.close(self._status)
@@ -257,10 +271,13 @@ class _Half:
         return 0
 
     def start(self, payload: str | None) -> None:
-        """Hand the child the payload's name (None: nothing to draw, it exits)."""
+        """Hand the child the payload's name (None: nothing to draw, it exits). A child that
+        has died already is found by :meth:`result`."""
         try:
             if payload is not None:
                 os.write(self._to_child, payload.encode("utf-8") + b"\n")
+        except OSError:  # (BrokenPipeError) the child is gone: result() says so, the worker draws alone
+            pass
         finally:
             os.close(self._to_child)
 

@@ -57,6 +57,9 @@ TARGET_BGR = GREEN  # the position target on the floor, the heading target's arr
 PATH_BGR = PATH  # the start (a cross on the floor) and the path travelled since (a line on the floor)
 START_CROSS_M = 0.06  # m: half the length of each stroke of the start's cross
 RING_M = 0.06  # m: the position target's ring's radius
+PATH_STEP_M = 0.01  # m: the path is drawn through points this far apart along it ...
+PATH_POINTS = 400  # ... and through this many at most (a longer path, a longer step)
+PX_LIMIT = 1e5  # px: a point projected further out (just in front of the eye) is not drawn through
 PUSH_BGR = MAGENTA  # a push acting now (no other magenta in the scene)
 GHOST_BGR = CYAN  # the body where the estimator puts it (the HUD's estimate line has its colour)
 GHOST_FILL = 0.15  # opacity of the ghost's faces: the body shows through in its own colour
@@ -124,7 +127,7 @@ def draw_markers(img: np.ndarray, scene: Scene, track, s: dict, k: int) -> None:
 
     def line(a, b, colour, thick, arrow=False):
         (u0, v0), (u1, v1) = scene.project(np.array([a, b]))
-        if not np.isfinite([u0, v0, u1, v1]).all():
+        if not (np.isfinite([u0, v0, u1, v1]).all() and max(abs(u0), abs(v0), abs(u1), abs(v1)) < PX_LIMIT):
             return
         p0, p1 = (int(round(u0)), int(round(v0))), (int(round(u1)), int(round(v1)))
         drawn_at.extend((p0, p1))
@@ -135,11 +138,16 @@ def draw_markers(img: np.ndarray, scene: Scene, track, s: dict, k: int) -> None:
 
     def polyline(xy, colour, width):
         uv = scene.project(scene.floor_points(xy))  # one projection for the whole line
-        drawn_at.extend(uv[np.isfinite(uv).all(axis=1)].tolist())
-        for p0, p1 in zip(uv[:-1], uv[1:]):
-            if np.isfinite(p0).all() and np.isfinite(p1).all():
-                cv2.line(img, (int(round(p0[0])), int(round(p0[1]))), (int(round(p1[0])), int(round(p1[1]))),
-                         colour, width, cv2.LINE_AA)
+        # a point behind the eye (NaN) or just in front of it (far outside the picture) breaks the line
+        ok = np.isfinite(uv).all(axis=1)
+        ok[ok] = (np.abs(uv[ok]) < PX_LIMIT).all(axis=1)
+        drawn_at.extend(uv[ok].tolist())
+        px = np.zeros(uv.shape, np.int32)
+        px[ok] = np.rint(uv[ok])
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(np.int8), [0]])))
+        for a, b in zip(edges[::2], edges[1::2]):  # each run of drawable points, one polyline
+            if b - a >= 2:
+                cv2.polylines(img, [px[a:b]], False, colour, width, cv2.LINE_AA)
 
     thick = max(2, int(round(img.shape[0] / 160)))
     x, y, a, roll = s["x"][k], s["y"][k], s["alpha"][k], s["roll"][k]
@@ -152,7 +160,7 @@ def draw_markers(img: np.ndarray, scene: Scene, track, s: dict, k: int) -> None:
         c, d = START_CROSS_M * np.cos(a0 + np.pi / 4), START_CROSS_M * np.sin(a0 + np.pi / 4)
         polyline([(x0 - c, y0 - d), (x0 + c, y0 + d)], PATH_BGR, thick)
         polyline([(x0 + d, y0 - c), (x0 - d, y0 + c)], PATH_BGR, thick)
-        polyline(np.column_stack([s["x"][:k + 1], s["y"][:k + 1]]), PATH_BGR, max(1, thick - 1))
+        polyline(path_points(s["x"][:k + 1], s["y"][:k + 1]), PATH_BGR, max(1, thick - 1))
     if track.p_d is not None:
         if track.alpha_d is None:  # the fixed point where the robot is to stop
             cx, cy = x0 + track.p_d * np.cos(a0), y0 + track.p_d * np.sin(a0)
@@ -190,6 +198,20 @@ def draw_markers(img: np.ndarray, scene: Scene, track, s: dict, k: int) -> None:
     if np.abs(f).sum() > 0.0:
         top = scene.body_points([(0.0, 0.0, track.body_top)], s["theta"][k], a, x, y, roll)[0]
         line(top - PUSH_M_PER_N * f, top, PUSH_BGR, thick + 1, arrow=True)
+
+
+def path_points(x, y) -> np.ndarray:
+    """(k, 2) m: the path through the points ``x``, ``y`` (m), thinned to points
+    :data:`PATH_STEP_M` apart along it (at most :data:`PATH_POINTS`; the last kept): a frame
+    draws the path since the start, so its cost must not grow with the frames before it."""
+    xy = np.column_stack([np.asarray(x, dtype=float), np.asarray(y, dtype=float)])
+    xy = xy[np.isfinite(xy).all(axis=1)]
+    if len(xy) < 3:
+        return xy
+    arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
+    step = max(PATH_STEP_M, arc[-1] / PATH_POINTS)
+    _, first = np.unique(np.floor(arc / step), return_index=True)
+    return xy[np.union1d(first, [len(xy) - 1])]
 
 
 def from_start(track, s: dict, k: int) -> float:
