@@ -161,6 +161,18 @@ def test_the_worker_is_wanted_only_with_a_cpu_to_spare(monkeypatch):
     assert not figure_worker.wanted()  # one CPU: nothing to run it on
 
 
+def test_a_task_that_runs_for_a_moment_does_not_take_the_worker_away(monkeypatch):
+    """The other CPU counts as busy only if a task is runnable at every one of a few looks:
+    a moment's task (the kernel writing out files) no longer sends the figure to this process."""
+    looks = iter([1, 0, 1])
+    monkeypatch.setattr(figure_worker, "_runnable_now", lambda: next(looks))
+    assert figure_worker._running_elsewhere() == 0
+    looks = iter([1, 1, 1])
+    assert figure_worker._running_elsewhere() == 1  # busy at every look: busy
+    looks = iter([0])
+    assert figure_worker._running_elsewhere() == 0  # free at the first look: one look
+
+
 def test_a_bad_figure_worker_setting_is_one_line(monkeypatch):
     from twin.errors import TwinError
 

@@ -42,8 +42,8 @@ _CODE = f"import sys; sys.path.insert(0, {_ROOT!r}); from twin.outputs.figure_wo
 def wanted() -> bool:
     """True where a worker would draw on a CPU of its own. ``TWIN_FIGURE_WORKER=1`` forces it,
     ``0`` turns it off; by default, where this process may run on at least two CPUs and no
-    other process is running on them right now (on Linux, /proc/loadavg's count of runnable
-    tasks). A worker that has to share the simulation's CPU makes the command slower than
+    other process keeps running on them (on Linux, /proc/loadavg's count of runnable tasks,
+    the fewest of a few looks: :func:`_running_elsewhere`). A worker that has to share the simulation's CPU makes the command slower than
     drawing here: 2.3 s against 2.1 s, with another job busy on one of the two CPUs."""
     flag = os.environ.get("TWIN_FIGURE_WORKER", "").strip()
     if flag in ("0", "1"):
@@ -60,7 +60,10 @@ def wanted() -> bool:
     return cpus >= 2 and _running_elsewhere() < cpus - 1
 
 
-def _running_elsewhere() -> int:
+BUSY_SAMPLES, BUSY_SPACING_S = 3, 0.002  # looks at the runnable tasks, and the time between them
+
+
+def _runnable_now() -> int:
     """Tasks running or ready to run now besides this one (0 where that is not known)."""
     try:
         with open("/proc/loadavg", encoding="ascii") as fh:
@@ -68,6 +71,23 @@ def _running_elsewhere() -> int:
     except (OSError, ValueError, IndexError):
         return 0
     return max(0, running - 1)  # this process is one of them
+
+
+def _running_elsewhere() -> int:
+    """Tasks that keep running besides this one: the fewest of :data:`BUSY_SAMPLES` looks 2 ms
+    apart. One look was taken in by a task that runs for a moment (the kernel writing out
+    the files of the command before, on this machine in 1 run of 10 when commands ran back
+    to back), and the figure was then drawn here, 0.4-0.5 s slower; a job that keeps a CPU
+    busy is there at every look."""
+    import time
+
+    fewest = _runnable_now()
+    for _ in range(BUSY_SAMPLES - 1):
+        if fewest == 0:
+            break
+        time.sleep(BUSY_SPACING_S)
+        fewest = min(fewest, _runnable_now())
+    return fewest
 
 
 def start() -> FigureWorker | None:
