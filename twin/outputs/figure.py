@@ -531,12 +531,16 @@ def compose(a, b):
     where its hidden panels were): each row of pixels from the half that drew something in
     it. None where a row holds something of both halves (the halves' drawings touch, so the
     whole must be drawn at once)."""
-    white = np.uint8(255)
-    in_a = (a != white).any(axis=(1, 2))
-    in_b = (b != white).any(axis=(1, 2))
+    if a.shape != b.shape or a.ndim != 3 or a.shape[2] != 4:
+        return None
+    white = np.uint32(0xFFFFFFFF)  # a white opaque pixel, as one 32-bit word
+    in_a = (np.ascontiguousarray(a).view(np.uint32)[:, :, 0] != white).any(axis=1)
+    in_b = (np.ascontiguousarray(b).view(np.uint32)[:, :, 0] != white).any(axis=1)
     if (in_a & in_b).any():
         return None
-    return np.where(in_b[:, None, None], b, a)
+    whole = np.array(a)
+    whole[in_b] = b[in_b]
+    return whole
 
 
 def write_png(path, rgba, dpi: float = DPI) -> None:
@@ -554,8 +558,8 @@ def write_png(path, rgba, dpi: float = DPI) -> None:
     h, w = rgba.shape[:2]
     opaque = bool((rgba[:, :, 3] == 255).all())
     px = rgba[:, :, :3] if opaque else rgba
-    rows = np.ascontiguousarray(px).reshape(h, -1)
-    data = np.empty((h, rows.shape[1] + 1), np.uint8)
+    rows = np.ascontiguousarray(px).reshape(h, -1)  # (contiguous: the subtraction below is 2× faster)
+    data = np.empty((h, rows.shape[1] + 1), np.uint8)  # each row: its filter type, then its bytes
     data[:, 0] = 2  # filter type Up
     data[0, 1:] = rows[0]
     np.subtract(rows[1:], rows[:-1], out=data[1:, 1:])  # modulo 256, as PNG's Up filter is
@@ -565,7 +569,7 @@ def write_png(path, rgba, dpi: float = DPI) -> None:
 
     ppm = round(dpi / 0.0254)  # pixels per metre
     png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2 if opaque else 6, 0, 0, 0))
-           + chunk(b"pHYs", struct.pack(">IIB", ppm, ppm, 1)) + chunk(b"IDAT", zlib.compress(data.tobytes(), 1))
+           + chunk(b"pHYs", struct.pack(">IIB", ppm, ppm, 1)) + chunk(b"IDAT", zlib.compress(data, 1))
            + chunk(b"IEND", b""))
     with open(path, "wb") as fh:
         fh.write(png)
