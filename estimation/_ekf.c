@@ -36,6 +36,7 @@
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #include <math.h>
+#include <stdlib.h>
 #include <string.h>
 
 #define NX 12
@@ -889,7 +890,121 @@ static PyObject *state_into(PyObject *self, PyObject *const *args, Py_ssize_t na
     Py_RETURN_NONE;
 }
 
+/* ---- the latency watch's check (estimation.ekf_policies.LatencyWatch.observe), bit for bit ----
+ * The same arithmetic as the NumPy code, in its order: NumPy's sums of a 1-d array or along
+ * the rows of a C-ordered array are pairwise (eight accumulators up to 128 numbers, halves
+ * beyond), along the rows of an F-ordered one (what a column mask makes) sequential from 0.0,
+ * as estimation.detlinalg's rowsums are; the medians are order statistics (a sort gives
+ * NumPy's partition's values). Compiled with -ffp-contract=off, like the rest. */
+#define WATCH_MAX_N 512
+
+static double pairwise(const double *a, Py_ssize_t n) {
+    if (n < 8) {
+        double res = 0.;
+        for (Py_ssize_t i = 0; i < n; i++) res += a[i];
+        return res;
+    } else if (n <= 128) {
+        double r[8];
+        Py_ssize_t i, j;
+        for (j = 0; j < 8; j++) r[j] = a[j];
+        for (i = 8; i < n - (n % 8); i += 8)
+            for (j = 0; j < 8; j++) r[j] += a[i + j];
+        double res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
+        for (; i < n; i++) res += a[i];
+        return res;
+    } else {
+        Py_ssize_t n2 = n / 2;
+        n2 -= n2 % 8;
+        return pairwise(a, n2) + pairwise(a + n2, n - n2);
+    }
+}
+
+static int cmp_double(const void *x, const void *y) {
+    double a = *(const double *)x, b = *(const double *)y;
+    return (a > b) - (a < b);
+}
+
+static double median_of(const double *a, Py_ssize_t m, double *tmp) {
+    memcpy(tmp, a, (size_t)m * sizeof(double));
+    qsort(tmp, (size_t)m, sizeof(double), cmp_double);
+    Py_ssize_t k = m / 2;
+    if (m % 2) return tmp[k];
+    return (tmp[k - 1] + tmp[k]) / 2.0;
+}
+
+/* watch_rho(y, u, window, max_lag, clip, sign) -> tuple of max_lag + 1 correlations, or None
+ * when fewer than window // 2 rows hold a measurement. y, u: n = window + max_lag + 5 numbers. */
+static PyObject *watch_rho(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    if (nargs != 6) {
+        PyErr_SetString(PyExc_TypeError, "watch_rho takes y, u, window, max_lag, clip, sign");
+        return NULL;
+    }
+    Py_ssize_t W = PyLong_AsSsize_t(args[2]), L = PyLong_AsSsize_t(args[3]);
+    double clip = PyFloat_AsDouble(args[4]), sign = PyFloat_AsDouble(args[5]);
+    if (PyErr_Occurred()) return NULL;
+    Py_ssize_t n = W + L + 5, R = L + 1;
+    if (W < 2 || L < 0 || n > WATCH_MAX_N) {
+        PyErr_SetString(PyExc_ValueError, "watch_rho: window or max_lag out of range");
+        return NULL;
+    }
+    double y[WATCH_MAX_N], u[WATCH_MAX_N], y2[WATCH_MAX_N], yy[WATCH_MAX_N], tmp[WATCH_MAX_N];
+    double dk[WATCH_MAX_N], row[WATCH_MAX_N], zy[WATCH_MAX_N];
+    Py_ssize_t idx[WATCH_MAX_N];
+    if (floats(args[0], y, n, "y") < 0 || floats(args[1], u, n, "u") < 0) return NULL;
+    Py_ssize_t r0 = n - 1 - W, used = 0;
+    for (Py_ssize_t j = 0; j < W; j++) {
+        y2[j] = (y[r0 + j] - 2.0 * y[r0 - 1 + j]) + y[r0 - 2 + j];
+        if (isfinite(y2[j])) {
+            idx[used] = j;
+            yy[used++] = y2[j];
+        }
+    }
+    if (used < W / 2) Py_RETURN_NONE;
+    for (Py_ssize_t i = 0; i + 3 < n; i++) dk[i] = ((u[i + 3] + u[i + 2]) - u[i + 1]) - u[i];
+    double med = median_of(yy, used, tmp);
+    for (Py_ssize_t j = 0; j < used; j++) tmp[j] = fabs(yy[j] - med);
+    double lim = clip * 1.4826 * median_of(tmp, used, row);
+    double lo = med - lim, hi = med + lim;
+    for (Py_ssize_t j = 0; j < used; j++) {
+        double v = yy[j] > lo ? yy[j] : lo; /* np.maximum, then np.minimum (no NaN here) */
+        yy[j] = v < hi ? v : hi;
+    }
+    double mean = pairwise(yy, used) / (double)used;
+    for (Py_ssize_t j = 0; j < used; j++) yy[j] = yy[j] - mean;
+    double syy = 0.0;
+    for (Py_ssize_t j = 0; j < used; j++) syy += yy[j] * yy[j];
+    PyObject *out = PyTuple_New(R);
+    if (!out) return NULL;
+    for (Py_ssize_t l = 0; l < R; l++) {
+        for (Py_ssize_t j = 0; j < used; j++) row[j] = dk[L + 2 - l + idx[j]];
+        double zsum = 0.0;
+        if (used == W) { /* NumPy's Z is C-ordered then: each row's sum pairwise */
+            zsum = pairwise(row, used);
+        } else { /* a column mask leaves Z F-ordered: its rows are summed in turn */
+            for (Py_ssize_t j = 0; j < used; j++) zsum += row[j];
+        }
+        double zmean = zsum / (double)used;
+        double szy = 0.0, szz = 0.0;
+        for (Py_ssize_t j = 0; j < used; j++) {
+            double z = row[j] - zmean;
+            zy[j] = z;
+            szy += z * yy[j];
+        }
+        for (Py_ssize_t j = 0; j < used; j++) szz += zy[j] * zy[j];
+        double den = sqrt(syy * szz);
+        double rho = sign * szy / (den > 0 ? den : INFINITY);
+        PyObject *f = PyFloat_FromDouble(rho);
+        if (!f) {
+            Py_DECREF(out);
+            return NULL;
+        }
+        PyTuple_SET_ITEM(out, l, f);
+    }
+    return out;
+}
+
 static PyMethodDef methods[] = {
+    {"watch_rho", (PyCFunction)(void (*)(void))watch_rho, METH_FASTCALL, "The latency watch's correlations."},
     {"new", new_core, METH_O, "A filter from its constants."},
     {"set_state", (PyCFunction)(void (*)(void))set_state, METH_FASTCALL, "Set x, P and the last gyro rates."},
     {"state", get_state, METH_O, "(x, P, w, w_prev) as tuples."},
