@@ -52,7 +52,12 @@ def imu_kinematics(pose, vel, pose_prev, vel_prev, dt: float, lever, g: float):
     accel : (3,) m/s², the mean specific force over the interval in body axes now
     """
     v1, R = _point_velocity(pose, vel, lever)
-    v0, _ = _point_velocity(pose_prev, vel_prev, lever)
+    return _readings(pose, pose_prev, v1, R, _point_velocity(pose_prev, vel_prev, lever)[0], dt, g)
+
+
+def _readings(pose, pose_prev, v1, R, v0, dt: float, g: float):
+    """:func:`imu_kinematics` from the sensing point's world velocity now (``v1``, with the
+    body's rotation matrix ``R``) and at the interval's start (``v0``)."""
     fx, fy, fz = (v1[0] - v0[0]) / dt, (v1[1] - v0[1]) / dt, (v1[2] - v0[2]) / dt + g
     accel = (R[0][0] * fx + R[1][0] * fy + R[2][0] * fz, R[0][1] * fx + R[1][1] * fy + R[2][1] * fz,
              R[0][2] * fx + R[1][2] * fy + R[2][2] * fz)
@@ -92,7 +97,7 @@ class ImuMotion:
     after construction; :meth:`update` takes the body's kinematics at the next sample.
     """
 
-    __slots__ = ("lever", "dt", "g", "last", "reading")
+    __slots__ = ("lever", "dt", "g", "last", "reading", "_v_last")
 
     def __init__(self, plant, imu_position, dt: float):
         com = plant.com_local
@@ -101,10 +106,14 @@ class ImuMotion:
         pose, vel = self.last = plant.kinematics  # the body at rest before t = 0
         self.g = plant.gravity
         self.reading = imu_kinematics(pose, vel, pose, vel, dt, self.lever, self.g)
+        self._v_last = _point_velocity(pose, vel, self.lever)[0]
 
     def update(self, kinematics) -> tuple:
         """The true (gyro, accel) of the sample whose interval ends at ``kinematics`` (the
-        plant's, PyBullet's layout); it becomes the start of the next interval."""
-        self.reading = reading = imu_kinematics(*kinematics, *self.last, self.dt, self.lever, self.g)
-        self.last = kinematics
+        plant's, PyBullet's layout); it becomes the start of the next interval (its point
+        velocity kept: the same numbers :func:`imu_kinematics` would compute again)."""
+        pose, vel = kinematics
+        v1, R = _point_velocity(pose, vel, self.lever)
+        self.reading = reading = _readings(pose, self.last[0], v1, R, self._v_last, self.dt, self.g)
+        self.last, self._v_last = kinematics, v1
         return reading
