@@ -110,8 +110,18 @@ class _Channel:
         self.in_order = True  # arrival steps non-decreasing along the queue
         self.last = None
         self.counts = dict(produced=0, dropped=0, stuck=0, spiked=0, superseded=0)
+        # no fault and no latency change for this sensor (most runs): produce() only queues
+        self._plain = not (self.dropouts or self.stucks or self.spikes or self.latency_changes)
 
     def produce(self, k: int, values: tuple) -> None:
+        if self._plain:  # what the general path below does without faults, in fewer steps (600 calls a second)
+            self.counts["produced"] += 1
+            self.last = values
+            q, arrival = self.queue, k + self.latency
+            if q and q[-1][0] > arrival:
+                self.in_order = False
+            q.append((arrival, values))
+            return
         t = k * self.control_dt
         self.counts["produced"] += 1
         d = self.latency
