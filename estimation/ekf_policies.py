@@ -292,20 +292,13 @@ class LatencyWatch:
             del wy[0], wu[0]
         if k % WATCH_EVERY or len(wy) < n or self.hold_until > k:
             return None
-        if _kernel is not None:  # the compiled check: the arithmetic below, bit for bit, 10× faster
+        # the compiled check (estimation._ekf.watch_rho) is correlations() below, bit for bit,
+        # 10× faster (tests/test_latency_watch_kernel.py)
+        if _kernel is not None:
             rho = _kernel.watch_rho(wy, wu, WATCH_WINDOW, WATCH_MAX_LAG, WATCH_CLIP, self.torque_sign)
-            if rho is None:
-                return None
-            return self._verdict(t, rho, assumed)
-        return self._check(t, assumed)
-
-    def _check(self, t: float, assumed: int):
-        """The check of :meth:`observe` in NumPy (the reference the compiled one reproduces:
-        tests/test_latency_watch.py)."""
-        rho = self.correlations()
-        if rho is None:
-            return None
-        return self._verdict(t, rho, assumed)
+        else:
+            rho = self.correlations()
+        return None if rho is None else self._verdict(t, rho, assumed)
 
     def correlations(self):
         """ρ at latencies 0 … :data:`WATCH_MAX_LAG` over the present window (NumPy), or None

@@ -277,15 +277,9 @@ def test_a_catch_plays_slowly_with_a_caption_then_in_real_time(tmp_path):
     info = render_video(runs, tmp_path / "v.mp4", fps=10, size=(160, 120), slow=(0.1, 4.0), renderer="tiny",
                         parallel=False)
     assert info.frames == 4 + 2  # 0, 0.025, 0.05, 0.075 s at a quarter speed; then 0.1, 0.2 s
-    import cv2
+    from test_render import read_video
 
-    cap = cv2.VideoCapture(str(tmp_path / "v.mp4"))
-    frames = []
-    while True:
-        ok, f = cap.read()
-        if not ok:
-            break
-        frames.append(f)
+    frames = read_video(tmp_path / "v.mp4")
     assert len(frames) == 6
     def band(f) -> int:
         """Dark grey pixels (the caption's darkened box) in the caption's band, bottom centre,

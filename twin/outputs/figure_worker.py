@@ -25,14 +25,20 @@ EOF on stdin tells the worker that no figure is wanted.
 """
 from __future__ import annotations
 
+import atexit
 import gc
+import mmap
 import os
 import pickle
 import signal
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
+
+# NumPy and matplotlib are imported only where the drawing starts: `twin run` imports this
+# module before its own imports, to start the worker sooner (start_early)
 
 _ROOT = str(Path(__file__).resolve().parents[2])  # the directory holding this twin package
 # the worker imports this very twin package (not another one on its path or in its cwd)
@@ -79,8 +85,6 @@ def _running_elsewhere() -> int:
     the files of the command before, on this machine in 1 run of 10 when commands ran back
     to back), and the figure was then drawn here, 0.4-0.5 s slower; a job that keeps a CPU
     busy is there at every look."""
-    import time
-
     fewest = _runnable_now()
     for _ in range(BUSY_SAMPLES - 1):
         if fewest == 0:
@@ -109,8 +113,6 @@ def start_early() -> None:
     were quick); :func:`take_early` hands it over. Nothing if none is wanted; a bad
     ``TWIN_FIGURE_WORKER`` is left to :func:`start` to say, in one line. A worker not taken
     (``twin run --help``, a usage error) is ended when the process ends."""
-    import atexit
-
     try:
         worker = start()
     except Exception:  # noqa: BLE001 - said by start() when the command asks for its worker
@@ -234,8 +236,6 @@ class _Half:
     (its own parent-death signal)."""
 
     def __init__(self, fig, warm: bool):
-        import mmap
-
         w, h = fig.canvas.get_width_height()
         self.shape = (h, w, 4)
         self.pixels = mmap.mmap(-1, h * w * 4)  # shared with the child (MAP_SHARED, anonymous)
@@ -338,8 +338,8 @@ def main() -> None:
     # Ctrl-C (SIGINT to the terminal's process group) is the command's to handle: it ends this worker
     # (EOF, or a kill) when it stops; a KeyboardInterrupt here only wrote a traceback for it to read
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    from twin.outputs.figure import _clipped, compose, fill_figure, new_figure, save_figure, save_pixels, show_half
-    from twin.outputs.figure import warm_up
+    from twin.outputs.figure import (_clipped, compose, fill_figure, new_figure, save_figure, save_pixels, show_half,
+                                     warm_up)
 
     fig, axes = new_figure()
     warm = not _data_waiting()
