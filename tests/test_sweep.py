@@ -5,6 +5,7 @@ runs in seconds; what they check does not depend on size.
 """
 from __future__ import annotations
 
+import io
 import json
 import os
 import signal
@@ -153,7 +154,13 @@ def _interrupt(out: Path, sig, env=None) -> subprocess.Popen:
         assert time.monotonic() < deadline, "the sweep stored no samples in 120 s"
         time.sleep(0.05)
     os.killpg(proc.pid, sig)
-    proc.wait(timeout=60)
+    try:  # its output read while it ends (a full pipe would hold it up), and shown if it does not
+        out_s, err_s = proc.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out_s, err_s = proc.communicate()
+        pytest.fail(f"the sweep had not ended 60 s after {signal.Signals(sig).name}: {err_s[-3000:]}")
+    proc.stdout, proc.stderr = io.StringIO(out_s), io.StringIO(err_s)  # read by the tests as before
     return proc
 
 
