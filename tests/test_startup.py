@@ -5,6 +5,7 @@ import math
 import subprocess
 import sys
 import tempfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -102,7 +103,7 @@ def test_the_workers_figure_is_the_one_drawn_here(ran):
     from twin.outputs.figure import DPI, SIZE
 
     assert a.shape == b.shape == (math.ceil(SIZE[1] * DPI), math.ceil(SIZE[0] * DPI), 4)
-    assert np.array_equal(a, b)  # warmed up on the empty figure, drawn the same
+    assert np.array_equal(a, b)  # drawn in two processes or here: the same
 
 
 def test_a_failed_worker_leaves_the_figure_to_this_process(tmp_path, monkeypatch):
@@ -196,7 +197,7 @@ def test_the_figure_drawn_in_two_halves_is_the_whole_figure(ran, tmp_path):
     import select
 
     fig, axes = new_figure()
-    half = figure_worker._Half(fig, warm=True)  # the child warms up its half, as in the worker
+    half = figure_worker._Half(fig)
     gc.unfreeze()  # (the worker freezes its objects before the fork; this test process lives on)
     half.start(str(payload))
     fill_figure(fig, axes, data, "a title\nof two lines")
@@ -285,19 +286,25 @@ def test_the_figures_png_holds_the_canvas_pixels(tmp_path):
         assert im.mode == "RGBA" and np.array_equal(np.asarray(im), img)
 
 
-def test_the_warm_up_stops_when_the_data_comes():
-    """warm_up draws panel by panel and asks ``stop`` after each: the worker's warm-up gives way
-    to the data's drawing as soon as the data is there."""
-    from twin.outputs.figure import new_figure, warm_up
-
-    fig, axes = new_figure()
-    drawn = []
-    for ax in axes:
-        real = ax.draw
-        ax.draw = lambda renderer, real=real, ax=ax: (drawn.append(ax), real(renderer))
-    warm_up(fig, stop=lambda: len(drawn) >= 2)
-    assert drawn == axes[:2]
-    drawn.clear()
-    axes[3].set_visible(False)
-    warm_up(fig, stop=lambda: False)
-    assert drawn == [ax for i, ax in enumerate(axes) if i != 3]
+def test_the_command_goes_on_at_the_workers_word_not_its_exit(monkeypatch):
+    """finish() returns at the worker's word that figure.png is written (the kernel takes 10-50
+    ms to free a process of matplotlib); close() then waits for its exit, unless the worker is
+    the command's own (start_early: it dies with the command)."""
+    monkeypatch.setenv("TWIN_FIGURE_WORKER", "1")
+    # a worker that says it is done, then lives on until its stdin ends (at most 60 s)
+    code = ("import os, select, sys; sys.stdin.readline(); os.write(1, b'done\\n'); "
+            "select.select([sys.stdin], [], [], 60); sys.exit(0)")
+    monkeypatch.setattr(figure_worker, "_CODE", code)
+    for detach in (False, True):
+        worker = figure_worker.FigureWorker()
+        worker.detach = detach
+        proc = worker._proc
+        try:
+            assert worker.submit({}, "", Path("unused.png"))
+            assert worker.finish(timeout=30.0) is None
+            assert proc.poll() is None  # said, not yet ended
+            worker.close()
+            assert (proc.poll() is None) is detach  # ended (waited for), or left to end
+        finally:
+            proc.kill()
+            proc.wait()

@@ -21,8 +21,8 @@ and sensor faults are shaded and named (the force and its direction, the fault's
 
 Drawn for speed, the figure looking the same as with matplotlib's defaults: no pyplot (no
 figure manager, no global state); the empty figure (:func:`new_figure`) is built before the
-data exists, with its tick objects made, so that a worker can build it and draw it once
-(loading the fonts) while the runs are simulated; margins are fixed (:func:`_place`) instead
+data exists, with its tick objects made, so that a worker can build it while the runs
+are simulated; margins are fixed (:func:`_place`) instead
 of matplotlib's tight layout, which measures every text of the figure in an extra pass
 (0.1-0.2 s here), and are checked after drawing (:func:`_clipped`): only if a tick label
 would be cut off is the tight layout used after all. Titles and x labels are placed at fixed
@@ -115,22 +115,6 @@ def panels(axes) -> dict:
     if hasattr(axes, "get_axes"):
         axes = axes.get_axes()
     return dict(zip(KEYS, axes))
-
-
-def warm_up(fig, stop=None) -> None:
-    """Draw the empty figure once: fonts loaded, glyphs and text sizes cached, for the real
-    drawing later (a worker does this while the runs are simulated). ``stop``: a function
-    asked after each panel; True ends the warm-up there (the data has come: drawing it
-    matters more than the rest of the warm-up)."""
-    if stop is None:
-        fig.canvas.draw()
-        return
-    renderer = fig.canvas.get_renderer()
-    for ax in fig.get_axes():
-        if ax.get_visible():
-            ax.draw(renderer)
-        if stop():
-            return
 
 
 def fill_figure(fig, axes, data: dict, title: str = ""):

@@ -3,24 +3,28 @@
 Why: of a 20 s ``twin run`` process on the project's 2-core machine, matplotlib took about
 0.45 s to import and the figure 0.3-0.5 s to draw, one after the other after the
 simulation. A worker started before the scenario loads (``twin run``) or when the runs
-start imports matplotlib, builds the empty figure and draws it once, panel by panel until
-the data comes (fonts loaded, tick objects made: :func:`twin.outputs.figure.warm_up`), on the
-other core while this process simulates; from the empty figure on, in two processes, each
-half of the rows (:class:`_Half`). When the runs end their figure data (plain arrays and
-strings, :func:`twin.outputs.report.figure_data`) is handed over, and the worker's two
-processes draw their halves and write figure.png while this process writes trajectory.csv
-and metrics.json.
+start imports matplotlib and builds the empty figure (its tick objects made) on the other
+core while this process simulates, then forks: two processes, each to draw half of the rows
+(:class:`_Half`). They wait without drawing anything: a warm-up draw of the empty figure in
+both (fonts loaded, text sizes cached) saved 15 ms of the drawing later but, competing with
+the simulation for the two CPUs, cost it 25 ms. When the runs end their figure data (plain
+arrays and strings, :func:`twin.outputs.report.figure_data`) is handed over, and the worker's
+two processes draw their halves and write figure.png while this process writes
+trajectory.csv and metrics.json.
 
-The command waits for the worker (:meth:`FigureWorker.finish`) and always ends it
-(:meth:`FigureWorker.close`): no process outlives the command, and figure.png is complete
-when the command returns; killed, the command takes the worker with it, and the worker its
-forked half (:mod:`twin.workers`: each dies with its parent). A worker that fails leaves the figure to this process, as before,
+The command waits for the worker's word that figure.png is written (:meth:`FigureWorker.finish`)
+and always ends it (:meth:`FigureWorker.close`): figure.png is complete when the command
+returns, and no process outlives the command: killed, the command takes the worker with it,
+and the worker its forked half (:mod:`twin.workers`: each dies with its parent). As the
+process's command, ``twin run`` does not wait for the worker's exit after its word (the kernel
+freeing a process of matplotlib takes 10-50 ms): it dies with the command, if it has not ended
+by then. A worker that fails leaves the figure to this process, as before,
 with a one-line note. The worker is started only where a CPU is free for it (:func:`wanted`;
 ``TWIN_FIGURE_WORKER=1`` forces it, ``0`` turns it off): sharing the simulation's CPU, it
 would slow the command down. Drawn here or there, the figure is the same, pixel for pixel.
 
 The hand-over: the data is pickled to a private temporary file whose name goes down the
-worker's stdin (one line, so the write never waits on a worker that is still warming up);
+worker's stdin (one line, so the write never waits on a worker that is still building the figure);
 EOF on stdin tells the worker that no figure is wanted.
 """
 from __future__ import annotations
@@ -118,6 +122,7 @@ def start_early() -> None:
     except Exception:  # noqa: BLE001 - said by start() when the command asks for its worker
         return
     if worker is not None:
+        worker.detach = True  # the command's own: its exit is not waited for (the module's docstring)
         _EARLY.append(worker)
         atexit.register(_end_early)
 
@@ -141,9 +146,12 @@ class FigureWorker:
 
         # no BLAS thread pool for a process that only draws (its start costs 60 ms here); it dies with this process
         env = subprocess_env({**os.environ, "OPENBLAS_NUM_THREADS": "1"})
+        # stdin: the payload's name (EOF: none); stdout: its word that the figure is written
         self._proc = subprocess.Popen([sys.executable, "-c", _CODE], stdin=subprocess.PIPE,
-                                      stdout=subprocess.DEVNULL, stderr=self._stderr, env=env)
+                                      stdout=subprocess.PIPE, stderr=self._stderr, env=env)
         self._payload = None
+        self._done = False  # it said the figure is written
+        self.detach = False  # True: close() leaves a worker that is done to end by itself (start_early)
 
     def submit(self, data: dict, title: str, path: Path) -> bool:
         """Hand over the figure's data (:func:`twin.outputs.report.figure_data`), its title and the
@@ -159,14 +167,22 @@ class FigureWorker:
         return True
 
     def finish(self, timeout: float = 600.0) -> str | None:
-        """Wait for the figure: None once written, else why not (one line)."""
+        """Wait for the figure: None once written (the worker's word, :data:`DONE`), else why
+        not (one line: its exit status and last line of stderr)."""
+        import select
+
         try:
-            code = self._proc.wait(timeout)
+            said = (self._proc.stdout.readline() if select.select([self._proc.stdout], [], [], timeout)[0]
+                    else None)
+            self._done = said == DONE
+            code = 0 if self._done else None if said is None else self._proc.wait(timeout)
         except subprocess.TimeoutExpired:
-            self.close()
-            return f"the figure worker took more than {timeout:g} s"
+            code = None
         finally:
             self._remove_payload()
+        if code is None:
+            self.close()
+            return f"the figure worker took more than {timeout:g} s"
         self._stderr.seek(0)
         err = self._stderr.read().decode("utf-8", "replace").strip()
         self._stderr.close()
@@ -177,8 +193,9 @@ class FigureWorker:
         return None
 
     def close(self) -> None:
-        """End the worker if it still runs (EOF first, so that it can exit by itself)."""
-        if self._proc.poll() is None:
+        """End the worker if it still runs (EOF first, so that it can exit by itself); one that
+        is done and :attr:`detach` ed is left to end by itself."""
+        if self._proc.poll() is None and not (self._done and self.detach):
             try:
                 if not self._proc.stdin.closed:
                     self._proc.stdin.close()
@@ -186,11 +203,12 @@ class FigureWorker:
             except (OSError, subprocess.TimeoutExpired):
                 self._proc.kill()
                 self._proc.wait()
-        try:  # our end of its stdin, whoever ended it
-            if not self._proc.stdin.closed:
-                self._proc.stdin.close()
-        except OSError:
-            pass
+        for end in (self._proc.stdin, self._proc.stdout):  # our ends of its pipes, whoever ended it
+            try:
+                if not end.closed:
+                    end.close()
+            except OSError:
+                pass
         self._remove_payload()
         if not self._stderr.closed:
             self._stderr.close()
@@ -212,15 +230,7 @@ class FigureWorker:
             self._payload = None
 
 
-def _data_waiting(stream=None) -> bool:
-    """True if the parent has already sent its line on ``stream`` (default: stdin; a file
-    descriptor or object) and the warm-up should stop."""
-    try:
-        import select
-
-        return bool(select.select([sys.stdin if stream is None else stream], [], [], 0.0)[0])
-    except (OSError, ValueError):  # pragma: no cover - no select on pipes (Windows)
-        return False
+DONE = b"done\n"  # the worker's word on its stdout: figure.png is written
 
 
 class _Half:
@@ -230,12 +240,13 @@ class _Half:
 
     Why: once the runs end, the figure's draw (0.3-0.45 s) is what the command waits for,
     and the command itself has only trajectory.csv and metrics.json left to write (about
-    0.1 s). Forked after the figure is built, each process warms up and draws only its half.
-    A fork at the draw costs as much as it saves (the copy on write of every Python object
-    the draw touches), so it happens while the runs simulate. The child dies with the worker
-    (its own parent-death signal)."""
+    0.1 s). Forked after the figure is built, each process draws only its half. A fork at
+    the draw costs as much as it saves (the copy on write of every Python object the draw
+    touches), so it happens while the runs simulate. The child dies with the worker (its own
+    parent-death signal); the worker reaps it (:meth:`reap`) once figure.png is written, not
+    before: the kernel's freeing of a process takes 10-50 ms."""
 
-    def __init__(self, fig, warm: bool):
+    def __init__(self, fig):
         w, h = fig.canvas.get_width_height()
         self.shape = (h, w, 4)
         self.pixels = mmap.mmap(-1, h * w * 4)  # shared with the child (MAP_SHARED, anonymous)
@@ -261,20 +272,16 @@ class _Half:
                 from twin.workers import die_with_parent
 
                 die_with_parent(parent)  # the kernel's PDEATHSIG is not inherited across fork
-                code = self._draw(fig, warm, status_w)
+                code = self._draw(fig, status_w)
             finally:
                 os._exit(code)
         os.close(self._to_child_r)
         os.close(status_w)
 
-    def _draw(self, fig, warm: bool, status_w: int) -> int:
-        """The child: its half warmed up, then drawn from the payload the worker names."""
-        from twin.outputs.figure import _clipped, fill_figure, show_half, warm_up
+    def _draw(self, fig, status_w: int) -> int:
+        """The child: its half drawn from the payload the worker names."""
+        from twin.outputs.figure import _clipped, fill_figure, show_half
 
-        if warm:
-            shown = show_half(fig, 1)
-            warm_up(fig, lambda: _data_waiting(self._to_child_r))
-            show_half(fig, None, shown)
         with os.fdopen(self._to_child_r, "rb") as fh:
             line = fh.readline().strip()
         if not line:
@@ -305,7 +312,6 @@ class _Half:
         """The child's half (an RGBA array), or None if it failed or its labels are clipped."""
         status = os.read(self._status, 1)
         os.close(self._status)
-        os.waitpid(self.pid, 0)
         if status != b"\0":
             return None
         import numpy as np
@@ -316,6 +322,10 @@ class _Half:
         """Nothing to draw: the child told so, and waited for."""
         self.start(None)
         os.close(self._status)
+        self.reap()
+
+    def reap(self) -> None:
+        """Wait for the child's exit (after :meth:`result` or :meth:`end`)."""
         os.waitpid(self.pid, 0)
 
 
@@ -330,28 +340,22 @@ def _halves_wanted() -> bool:
 
 
 def main() -> None:
-    """The worker: the empty figure, warmed up while nothing has arrived (in two processes,
-    each its half of the rows: :class:`_Half`); then the data, drawn and written."""
+    """The worker: the empty figure, then two processes waiting for the data (each to draw its
+    half of the rows: :class:`_Half`); then the data, drawn and written, and the word
+    (:data:`DONE`) on stdout."""
     from twin.workers import subprocess_worker_init
 
-    subprocess_worker_init()  # first: it goes with a killed parent at once, not when its warm-up ends
+    subprocess_worker_init()  # first: it goes with a killed parent at once, not when its imports end
     # Ctrl-C (SIGINT to the terminal's process group) is the command's to handle: it ends this worker
     # (EOF, or a kill) when it stops; a KeyboardInterrupt here only wrote a traceback for it to read
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    from twin.outputs.figure import (_clipped, compose, fill_figure, new_figure, save_figure, save_pixels, show_half,
-                                     warm_up)
+    from twin.outputs.figure import _clipped, compose, fill_figure, new_figure, save_figure, save_pixels, show_half
 
     fig, axes = new_figure()
-    warm = not _data_waiting()
     try:
-        half = _Half(fig, warm) if _halves_wanted() else None
+        half = _Half(fig) if _halves_wanted() else None
     except OSError:  # no process to spare (a limit on processes, memory): the whole figure here
         half = None
-    if warm:  # panel by panel, until the data comes (then the halves draw it at once)
-        shown = show_half(fig, 0) if half is not None else None
-        warm_up(fig, _data_waiting)
-        if half is not None:
-            show_half(fig, None, shown)
     line = sys.stdin.readline().strip()
     if not line:  # EOF: the command ended without a figure to draw
         if half is not None:
@@ -376,7 +380,10 @@ def main() -> None:
         save_pixels(fig, whole, path)
     else:  # one process (or the halves touch, or a label is clipped): the whole figure, as drawn here
         save_figure(fig, path)  # written and closed
-    # done: leave without the interpreter's teardown of matplotlib and NumPy (0.1 s, which the
-    # command would wait for); nothing is buffered (stdout is not used, stderr unbuffered)
+    # done: said at once (the command need not wait for this process's exit), then leave
+    # without the interpreter's teardown of matplotlib and NumPy (0.1 s); stderr is unbuffered
     sys.stderr.flush()
+    os.write(sys.stdout.fileno(), DONE)
+    if half is not None:
+        half.reap()
     os._exit(0)
