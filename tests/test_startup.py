@@ -291,9 +291,8 @@ def test_the_command_goes_on_at_the_workers_word_not_its_exit(monkeypatch):
     ms to free a process of matplotlib); close() then waits for its exit, unless the worker is
     the command's own (start_early: it dies with the command)."""
     monkeypatch.setenv("TWIN_FIGURE_WORKER", "1")
-    # a worker that says it is done, then lives on until its stdin ends (at most 60 s)
-    code = ("import os, select, sys; sys.stdin.readline(); os.write(1, b'done\\n'); "
-            "select.select([sys.stdin], [], [], 60); sys.exit(0)")
+    # a worker that says it is done, then lives on (close() ends it after 2 s, unless it is left)
+    code = "import os, sys, time; sys.stdin.readline(); os.write(1, b'done\\n'); time.sleep(60)"
     monkeypatch.setattr(figure_worker, "_CODE", code)
     for detach in (False, True):
         worker = figure_worker.FigureWorker()
