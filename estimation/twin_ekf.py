@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 
-from estimation.ekf_core import N, cov_predict, joseph_update
+from estimation.ekf_steps import N, cov_predict, joseph_update
 
 
 class TwinEKF(ExtendedKalmanFilter):
@@ -35,7 +35,7 @@ class TwinEKF(ExtendedKalmanFilter):
 
     def predict(self, u=0, x_next=None, F=None, Q=None):
         """filterpy's predict with the predicted state ``x_next`` (and the step's F, Q), P = F P Fᵀ + Q
-        summed as the compiled kernel does (:func:`estimation.ekf_core.cov_predict`: F is the
+        summed as the compiled kernel does (:func:`estimation.ekf_steps.cov_predict`: F is the
         strapdown step's)."""
         if F is not None:
             self.F = F
@@ -53,7 +53,7 @@ class TwinEKF(ExtendedKalmanFilter):
         """filterpy's update (Joseph form) with the gain's rows of the consider states zeroed
         (the Schmidt–Kalman update: the Joseph form is exact for any gain, so P keeps their
         uncertainty and its correlations; only their estimates are never moved), every sum in
-        the compiled kernel's order (:func:`estimation.ekf_core.joseph_update`)."""
+        the compiled kernel's order (:func:`estimation.ekf_steps.joseph_update`)."""
         if R is None:
             R = self.R
         elif np.isscalar(R):

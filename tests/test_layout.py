@@ -1,43 +1,72 @@
-"""The layout of issue 27: the engine in twin/sim, the outputs in twin/outputs, verification in
-twin/verify; the flat paths of 0.1 still import the very modules that moved (not copies)."""
+"""The layering rules, read from the code (tests/layering.py: imports by ast, the units and
+their floors). ``python tests/layering.py`` prints the figures these tests hold."""
 from __future__ import annotations
 
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 
-from twin._moved import OLD_TO_NEW
-
-ROOT = Path(__file__).resolve().parent.parent
+from layering import LAYERS, ROOT, cycles, figures, imports, modules, unit
 
 
-def test_every_moved_module_is_in_its_package_and_not_left_at_the_top():
-    for old, new in OLD_TO_NEW.items():
-        assert (ROOT / (new.replace(".", "/") + ".py")).is_file(), new
-        assert not (ROOT / (old.replace(".", "/") + ".py")).exists(), f"{old} is still a file of its own"
+@pytest.fixture(scope="module")
+def fig():
+    return figures()
 
 
-@pytest.mark.parametrize("old", sorted(OLD_TO_NEW))
-def test_an_old_path_imports_the_module_that_moved(old):
-    new = OLD_TO_NEW[old]
-    code = (f"import importlib, sys\n"
-            f"a = importlib.import_module({old!r})\n"
-            f"b = importlib.import_module({new!r})\n"
-            f"assert a is b, (a, b)\n"
-            f"assert b.__name__ == {new!r} and b.__spec__.name == {new!r}\n"
-            f"assert sys.modules[{old!r}] is b\n")
+def test_every_unit_has_a_floor(fig):
+    assert fig["units without a floor"] == [], "add the new unit to tests/layering.py's LAYERS"
+
+
+def test_no_import_cycle_between_files(fig):
+    """Function-level imports counted: a cycle hidden inside a function is still a cycle."""
+    assert fig["file cycles"] == []
+
+
+def test_nothing_below_the_engine_imports_the_pybullet_twin():
+    """The types every plant shares are in twin.plant.base: the estimators, the contracts, the
+    controllers and the registry need no PyBullet (only the plant package's own builder)."""
+    engine = LAYERS["twin.sim"]
+    found = [(a, line) for a, b, _, line in imports(modules())
+             if b == "twin.plant.bullet" and LAYERS.get(unit(a), 99) < engine and unit(a) != "twin.plant"]
+    assert found == []
+    code = ("import sys, estimation.ekf, twin.protocols, twin.registry, twin.limits, twin.controllers.cascade\n"
+            "print(sorted(m for m in ('pybullet', 'twin.plant.bullet') if m in sys.modules))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT)
-    assert out.returncode == 0, out.stderr
+    assert out.returncode == 0 and out.stdout.strip() == "[]", out.stdout + out.stderr
 
 
-def test_from_imports_of_old_paths_and_patching_one_name_patches_both():
-    code = ("from twin.rundir import MANIFEST\n"
-            "from twin.bullet_loop import simulate_twin\n"
-            "import twin.loop, twin.sim.loop\n"
-            "twin.loop.MARK = 1\n"
-            "assert twin.sim.loop.MARK == 1 and MANIFEST == 'manifest.json'\n"
-            "import twin.nonexistent_module\n")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT)
-    assert out.returncode == 1 and "No module named 'twin.nonexistent_module'" in out.stderr, out.stderr
+def test_the_plant_configuration_holds_no_limits():
+    """Limits are the run's (RunSpec.limits), not the robot's."""
+    from twin.limits import PluginLimits
+    from twin.plant.base import TwinConfig
+    from twin.sim.spec import Plugin, RunSpec
+
+    assert "limits" not in TwinConfig.__dataclass_fields__
+    assert RunSpec(Plugin("it2"), limits=PluginLimits(step_wall_s=1.0)).limits.step_wall_s == 1.0
+    from twin.errors import TwinError
+
+    with pytest.raises(TwinError, match="RunSpec.limits must be a twin.limits.PluginLimits or None"):
+        RunSpec(Plugin("it2"), limits={"step_wall_s": 1.0})
+
+
+def test_the_cycle_finder_finds_a_cycle():
+    assert cycles({("a", "b"), ("b", "c"), ("c", "a"), ("c", "d")}) == [["a", "b", "c"]]
+    assert cycles({("a", "b"), ("b", "c")}) == []
+
+
+# ---- the rules still to meet (issue in progress): strict, so each fails once it holds ----
+@pytest.mark.xfail(strict=True, reason="the units' import cycle is being taken apart")
+def test_no_import_cycle_between_units(fig):
+    assert fig["unit cycles"] == []
+
+
+@pytest.mark.xfail(strict=True, reason="imports that run back up are being moved")
+def test_at_most_two_imports_run_back_up(fig):
+    assert len({(a, b) for a, b, _ in fig["back up"]}) <= 2
+
+
+@pytest.mark.xfail(strict=True, reason="function-level imports are being moved to the top")
+def test_at_most_60_function_level_imports_of_the_projects_own_modules(fig):
+    assert len(fig["function-level"]) <= 60

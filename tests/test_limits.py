@@ -164,7 +164,8 @@ def closed_loop_run(controller, limits: dict, duration=0.5, slow_estimator=False
     if slow_estimator:
         estimator = SlowEstimator(estimator)
     return simulate_twin(controller, sc.experiment(), sc.twin_config(), duration=duration,
-                         sensors=sc.sensor_config(), estimator=estimator, seed=0, model_params=context.model)
+                         sensors=sc.sensor_config(), estimator=estimator, seed=0, model_params=context.model,
+                         limits=sc.plugin_limits())
 
 
 def test_a_slow_controller_stops_the_closed_loop_at_its_step():
@@ -224,9 +225,9 @@ def test_without_limits_nothing_is_timed(monkeypatch):
     simulate(Feedback(), PAPER_EXPERIMENTS[1], duration=0.1)
     simulate(Feedback(), PAPER_EXPERIMENTS[1], duration=0.1, limits=PluginLimits())  # all None: none active
     from twin.sim.loop import ClosedLoop
-    from twin.plant.bullet import TwinConfig
+    from twin.plant.base import TwinConfig
 
-    loop = ClosedLoop(TwinConfig(limits=PluginLimits()), _Estimator(), Feedback())
+    loop = ClosedLoop(TwinConfig(), _Estimator(), Feedback(), limits=PluginLimits())
     assert loop._guard is None
 
 
@@ -245,7 +246,8 @@ def test_generous_limits_change_no_byte_of_a_run(tmp_path):
     sc = load_scenario("paper-exp1", ["duration=0.5", "video.enabled=false"])
     generous = {"step_wall_s": 3600.0, "run_wall_s": 1e6, "run_memory_mb": 1e6}
     limited = Scenario({**sc.data, "limits": generous}, sc.source, sc.overrides)
-    assert limited.twin_config().limits.active and sc.twin_config().limits is None
+    assert limited.plugin_limits().active and sc.plugin_limits() is None
+    assert limited.run_spec("it2", build=False).limits == limited.plugin_limits()  # the run's, not the plant's
     run_scenario(sc, ("it2", "lqr"), out=tmp_path / "plain")
     run_scenario(limited, ("it2", "lqr"), out=tmp_path / "limited")
     for name in ("metrics.json", "trajectory.csv"):

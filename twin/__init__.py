@@ -20,11 +20,8 @@ from __future__ import annotations
 
 import importlib
 
-from twin import _moved
 from twin.errors import InfeasibleDesign, PluginError, TwinError
 from twin.params import NOMINAL, RobotParams
-
-_moved.install()  # twin.loop, twin.rundir, ... (the flat layout of 0.1) import the modules that moved
 
 __version__ = "0.1.0"
 
@@ -33,7 +30,7 @@ _LAZY = {
     "Estimator": "twin.protocols", "Experiment": "twin.experiments", "PAPER_EXPERIMENTS": "twin.experiments",
     "simulate_twin": "twin.sim.bullet_loop", "load_scenario": "twin.scenarios", "run_scenario": "twin.scenarios.runner",
     "build_controller": "twin.registry", "build_estimator": "twin.registry", "BuildContext": "twin.registry",
-    "TwinConfig": "twin.plant.bullet", "SensorConfig": "twin.sensors",
+    "TwinConfig": "twin.plant.base", "SensorConfig": "twin.sensors",
     "RunSpec": "twin.sim.spec", "simulate": "twin.sim.simulate", "build_loop": "twin.sim.simulate",
 }
 

@@ -30,7 +30,7 @@ from __future__ import annotations
 from typing import Any, NamedTuple, Protocol, Sequence, runtime_checkable
 
 from twin.errors import shown  # re-exported: twin.registry quotes values with twin.protocols.shown
-from twin.plant.bullet import GroundTruth
+from twin.plant.base import GroundTruth
 from twin.sensors.suite import Measurement
 
 ESTIMATE_NAMES = ("theta", "theta_dot", "psi", "psi_dot", "alpha", "alpha_dot")

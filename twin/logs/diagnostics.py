@@ -27,6 +27,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from twin.errors import PluginError
+from twin.logs.instants import instants_of
 
 NEES_BLOCK = 1024  # instants whose states and covariances wait for their NEES (1.25 MB of them)
 _DIM = 12  # the EKF's states: the state truth of a log has 12 (estimation.consistency.DIM)
@@ -275,8 +276,6 @@ class _StateTruthRows:
         the state truth at the first instant (the encoder zeros' reference)."""
         if log.truth is None or log.truth_state is None or log.truth_constants is None or not len(t):
             return None
-        from twin.logs.replay import instants_of
-
         k = instants_of(log, t, log.truth_t)
         inside = (k >= 0) & (k < len(t))
         k = np.where(inside, k, 0).astype(np.int64)

@@ -75,10 +75,10 @@ from twin.errors import MAY_NOT_END, PluginError, TwinError, ends_process, raise
 from twin.logs.bounds import MAX_INSTANTS
 from twin.logs.diagnostics import DiagnosticsLog, normalised_innovation
 from twin.logs.format import SensorLog
+from twin.logs.instants import instants_of, rows_clock
 from twin.sensors import Measurement
 
 INSTANT_TOLERANCE = 1e-6  # of a control period: a reading this much after an instant counts as at it
-OFF_GRID = 0.01  # of a control period: command rows this far off t_0 + k / control_rate are instants of their own
 NEES_START = 0.5  # s after the first instant: the EKF's start-up transient of the encoder zeros is left out
 WHITENESS_LAGS = 20  # lags (in updates) of the innovations' autocorrelation: 0.1 s of 200 Hz updates at most
 WHITENESS_Z = 1.959963984540054  # the two-sided 95 % point of N(0, 1): the band is ±z/√N
@@ -116,29 +116,6 @@ class Schedule:
     encoders: np.ndarray
     command: np.ndarray
     rows: bool = False
-
-
-def rows_clock(log: SensorLog) -> bool:
-    """Whether ``log``'s instants are its command rows rather than the grid t_0 + k / control_rate:
-    some command row lies more than :data:`OFF_GRID` of a period off the grid (a logger whose
-    rows come 30–33 ms apart). The twin's logs, and any log on a regular clock, are on the grid."""
-    t = log.commands_t
-    if len(t) < 2:
-        return False
-    x = (t - t[0]) * log.control_rate
-    return bool(np.max(np.abs(x - np.round(x))) > OFF_GRID)
-
-
-def instants_of(log: SensorLog, t: np.ndarray, times: np.ndarray) -> np.ndarray:
-    """(j,) int: the instant of ``t`` (the replay's) nearest each of ``times`` (s), by the grid's
-    arithmetic where the replay is on it (the same numbers as ever), else by search; may lie
-    outside 0 … len(t) − 1 on the grid (callers test it)."""
-    if not rows_clock(log):
-        return np.round((times - t[0]) * log.control_rate).astype(np.int64)
-    i = np.clip(np.searchsorted(t, times), 1, max(len(t) - 1, 1))
-    if len(t) < 2:
-        return np.zeros(len(times), dtype=np.int64)
-    return np.where(np.abs(times - t[i - 1]) <= np.abs(t[i] - times), i - 1, i).astype(np.int64)
 
 
 def schedule(log: SensorLog) -> Schedule:

@@ -23,7 +23,7 @@ import numpy as np
 
 from twin.errors import TwinError
 from twin.plant.analytic import STATE_NAMES, rk4_step
-from twin.plant.bullet import Actuation, GroundTruth, TwinConfig, checked_start
+from twin.plant.base import Actuation, GroundTruth, TwinConfig, checked_start
 from twin.plant.disturbances import Disturbances, Ground
 
 _ZERO3 = (0.0, 0.0, 0.0)

@@ -35,7 +35,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from twin.errors import TwinError
-from twin.plant.bullet import WHEEL_JOINTS, TwinConfig, client_id, disconnect, initial_pose, quiet_native_output
+from twin.plant.base import TwinConfig, initial_pose
+from twin.plant.bullet import WHEEL_JOINTS, client_id, disconnect, quiet_native_output
 from twin.plant.urdf import UNIT_CUBE_OBJ, robot_urdf
 from twin.rotations import body_quaternion, matrix_rows
 

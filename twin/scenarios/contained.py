@@ -17,6 +17,7 @@ import time
 from dataclasses import dataclass, replace
 
 from twin.containment import Task, Workers, run_contained
+from twin.scenarios.planning import LazyDesign, plugins_of, refuse_unused_params
 from twin.scenarios.scenario import Scenario
 
 
@@ -64,14 +65,13 @@ def limits_of(scenario: Scenario):
 def plan_summary(recipe, kinds) -> dict:
     """Build every controller of ``kinds`` and the estimator of the scenario once (the one-line
     error of one that cannot be built is raised here), and say what a command needs of them:
-    ``plugins`` (the provenance of each import-path kind, :func:`twin.scenarios.runner.plugins_of`),
+    ``plugins`` (the provenance of each import-path kind, :func:`twin.scenarios.planning.plugins_of`),
     ``dirs`` (their modules' directories, :func:`twin.registry.plugin_dirs`), ``signals`` (kind →
     the controller's extra logged signals), ``digests`` (kind → its ``design_digest()``, for
     the controllers that have one), ``reads_truth`` (the estimator declares it), ``design``
     (the LMI design, if a controller asked for it: solved or taken from the design cache) and
     ``design_s`` (the seconds that took)."""
     from twin.registry import plugin_dirs
-    from twin.scenarios.runner import LazyDesign, plugins_of, refuse_unused_params
 
     sc = recipe.scenario() if isinstance(recipe, Recipe) else recipe
     kinds = tuple(kinds)
@@ -97,7 +97,6 @@ def run_kind(recipe: Recipe, kind: str, every: int = 1, log_format: str = "csv",
     """Controller ``kind``'s run of the recipe's scenario, logged every ``every`` control steps:
     ``run`` (a :class:`twin.sim.runs.Run`), ``digest`` (the controller's ``design_digest()``,
     or None), ``design`` and ``design_s`` (the LMI design if it was solved here)."""
-    from twin.scenarios.runner import LazyDesign
     from twin.sim.simulate import simulate
     from twin.sim.spec import Logging
 

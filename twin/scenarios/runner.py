@@ -42,6 +42,7 @@ from twin.outputs import figure_worker, rundir
 from twin.outputs.report import ZOOM_THETA0, _pushes, _zoom_window  # the catch the figure zooms on
 from twin.errors import PluginError, TwinError
 from twin.limits import limit_of
+from twin.scenarios.planning import LazyDesign, plugins_of, refuse_unused_params
 from twin.scenarios.scenario import Scenario
 
 from twin.sim.spec import LOG_FORMATS  # noqa: E402 -- trajectory.csv, or the same text gzip-compressed
@@ -79,15 +80,6 @@ def controllers_of(choice: str | None, scenario: Scenario | None = None) -> tupl
     if choice is None:
         return scenario.controllers if scenario is not None else ("it2", "t1")
     return parse_controllers(choice)
-
-
-def plugins_of(scenario: Scenario, controllers) -> list[dict]:
-    """The provenance (module, file, SHA-256) of every import-path kind a run of ``scenario``
-    with ``controllers`` loads (:func:`twin.registry.provenance`)."""
-    from twin.registry import provenance
-
-    found = [provenance("controller", k) for k in controllers] + [provenance("estimator", scenario.estimator)]
-    return [p for p in found if p is not None]
 
 
 def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, video: bool | None = None,
@@ -196,24 +188,6 @@ def _run_scenario(scenario, controllers, out, video, progress, log_every, log_fo
             staged.discard()
 
 
-class LazyDesign:
-    """The scenario's LMI design, solved (or taken from the design store) when a controller
-    first asks for it, with the time that took: only the fuzzy cascades, or a plugin that
-    asks, need it, and design.json is written only then."""
-
-    def __init__(self, scenario: Scenario):
-        self.scenario = scenario
-        self.solved = None
-        self.seconds = None
-
-    def __call__(self):
-        if self.solved is None:
-            t0 = time.perf_counter()
-            self.solved = self.scenario.design()
-            self.seconds = time.perf_counter() - t0
-        return self.solved
-
-
 def plan(scenario: Scenario, kinds) -> list:
     """The :class:`twin.sim.spec.RunSpec` of each controller kind's run of ``scenario``, its
     controller and estimator built once (:meth:`Scenario.run_spec`), so that a plugin that
@@ -222,22 +196,6 @@ def plan(scenario: Scenario, kinds) -> list:
     refuse_unused_params(scenario, kinds)
     context = scenario.build_context(LazyDesign(scenario))
     return [scenario.run_spec(kind, context) for kind in kinds]
-
-
-def refuse_unused_params(scenario: Scenario, kinds) -> None:
-    """``[controller.params.KIND]`` for a controller that neither this run nor the scenario's
-    ``controller.kinds`` runs would be ignored without a word (a typo in KIND, or parameters
-    for a controller that was taken out of the list): one line instead. Parameters for a
-    listed controller that ``--controller`` leaves out this time are kept for when it runs."""
-    from twin.scenarios.schema import ScenarioError, key_text
-
-    runs = list(dict.fromkeys([*kinds, *scenario.controllers]))
-    unused = [k for k in scenario.data["controller"]["params"] if k not in runs]
-    if unused:
-        raise ScenarioError(f"{scenario.source}: controller.params.{key_text(unused[0])}: controller "
-                            f"{unused[0]!r} is never run (this run's: {', '.join(kinds)}; controller.kinds: "
-                            f"{', '.join(scenario.controllers)}), so its parameters would be ignored; allowed: "
-                            f"parameters for a controller run or listed in controller.kinds")
 
 
 def reads_truth(run) -> bool:

@@ -177,7 +177,7 @@ class Scenario:
                        sensing=Sensing(self.sensor_config(), self.believed_sensor_config()),
                        design=self.design if context is None else context.design,
                        options=self.cascade_options(), logging=Logging(), name=self.name,
-                       description=self.description, label=kind or "")
+                       description=self.description, label=kind or "", limits=self.plugin_limits())
 
     def experiment(self):
         from twin.experiments import Experiment
@@ -205,7 +205,7 @@ class Scenario:
         return NOMINAL.perturbed(scale=self.data["plant"]["scale"])
 
     def twin_config(self):
-        from twin.plant.bullet import TwinConfig
+        from twin.plant.base import TwinConfig
         from twin.plant.disturbances import Disturbances, Ground, Push
         from twin.plant.urdf import Payload
 
@@ -217,12 +217,16 @@ class Scenario:
         dist = Disturbances(pushes=pushes, payload=payload, com_offset=tuple(p["com_offset"]))
         # the analytic model's torque sources are ideal, whatever plant.motor says
         kwargs = {} if p["motor"] == "dc" and p["model"] == "bullet" else {"motor": None}
-        if any(v is not None for v in d["limits"].values()):
-            from twin.limits import PluginLimits
-
-            kwargs["limits"] = PluginLimits(**d["limits"])
         return TwinConfig(params=self.true_params(), physics_rate=d["rates"]["physics"],
                           control_rate=d["rates"]["control"], ground=ground, disturbances=dist, **kwargs)
+
+    def plugin_limits(self):
+        """The scenario's ``[limits]`` as a :class:`twin.limits.PluginLimits`, or None if it sets none."""
+        if not any(v is not None for v in self.data["limits"].values()):
+            return None
+        from twin.limits import PluginLimits
+
+        return PluginLimits(**self.data["limits"])
 
     def sensor_config(self):
         """The sensors the twin simulates (the true specification), or None for ideal sensing."""
@@ -305,7 +309,7 @@ class Scenario:
                 raise
             except TwinError as exc:
                 raise self._error(f"{where}: {exc}") from None
-        from twin.plant.bullet import touch_angle
+        from twin.plant.base import touch_angle
 
         config = self.twin_config()  # validated just above
         limit = min(touch_angle(config.params), config.fall_angle) - 0.01
@@ -345,7 +349,7 @@ class Scenario:
         body's size is to blame: the error names plant.scale.l with the range that clears it (it
         blamed initial.theta, issue 31)."""
         from twin.params import NOMINAL
-        from twin.plant.bullet import touch_angle
+        from twin.plant.base import touch_angle
 
         touch = touch_angle(params)
         if touch >= MIN_CLEARANCE_RAD:
@@ -379,7 +383,7 @@ class Scenario:
         a payload below it, or a body pitched into a slope, is refused, naming the key."""
         from dataclasses import replace
 
-        from twin.plant.bullet import START_TOLERANCE, start_clearance, start_problem
+        from twin.plant.base import START_TOLERANCE, start_clearance, start_problem
 
         d = self.data
         i = d["initial"]

@@ -44,7 +44,7 @@ def simulate(controller, experiment: Experiment, params: RobotParams = NOMINAL,
     """
     from twin.sim.bullet_loop import simulate_twin
     from twin.plant.analytic_plant import AnalyticPlant
-    from twin.plant.bullet import TwinConfig
+    from twin.plant.base import TwinConfig
 
     steps_per_control(physics_dt, control_dt)  # a whole number of physics steps: said first
     duration = experiment.duration if duration is None else float(duration)
@@ -59,11 +59,10 @@ def simulate(controller, experiment: Experiment, params: RobotParams = NOMINAL,
             raise TwinError(f"x0 must be 8 finite numbers {STATE_NAMES}, got shape {x.shape}")
     if limits is not None and not isinstance(limits, PluginLimits):
         raise TwinError(f"limits must be a twin.limits.PluginLimits or None, got {limits!r}")
-    config = TwinConfig(params=params, physics_rate=1.0 / physics_dt, control_rate=1.0 / control_dt, motor=None,
-                        limits=limits)
+    config = TwinConfig(params=params, physics_rate=1.0 / physics_dt, control_rate=1.0 / control_dt, motor=None)
     plant = AnalyticPlant(config, experiment.theta0, disturbance=disturbance, initial=x0)
     return simulate_twin(controller, experiment, config, duration=duration, controller_name=controller_name,
-                         sensors=None, estimator="ideal", model_params=params, plant=plant)
+                         sensors=None, estimator="ideal", model_params=params, plant=plant, limits=limits)
 
 
 def run_paper_experiment(number: int, kind: str = "it2", design: BalanceDesign | None = None,

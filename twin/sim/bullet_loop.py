@@ -18,8 +18,9 @@ from __future__ import annotations
 
 from twin.errors import TwinError
 from twin.experiments import Experiment
+from twin.limits import PluginLimits
 from twin.params import NOMINAL, RobotParams
-from twin.plant.bullet import TwinConfig
+from twin.plant.base import TwinConfig
 from twin.sim.recorder import check_log_every
 from twin.sim.runs import (ACTUATION_NAMES, COMMAND_NAMES, COMMAND_UNITS, ESTIMATE_NAMES, ESTIMATE_UNITS, PUSH_NAMES,
                        PUSH_UNITS, TRUTH_NAMES, Run, TwinRun)
@@ -34,7 +35,8 @@ def simulate_twin(controller, experiment: Experiment, config: TwinConfig | None 
                   duration: float | None = None, controller_name: str = "", alpha0: float = 0.0,
                   position=(0.0, 0.0), sensors: SensorConfig | None = SensorConfig(), estimator="ekf",
                   seed: int = 0, model_params: RobotParams = NOMINAL, log_filter: bool = False,
-                  progress=None, estimator_params: dict | None = None, log_every: int = 1, plant=None) -> Run:
+                  progress=None, estimator_params: dict | None = None, log_every: int = 1, plant=None,
+                  limits: PluginLimits | None = None) -> Run:
     """Run ``controller`` on a new twin built from ``config`` (or on ``plant``) from the experiment's θ0.
 
     A driver of :class:`twin.sim.loop.ClosedLoop`: reset, then the controller's command and a
@@ -71,6 +73,8 @@ def simulate_twin(controller, experiment: Experiment, config: TwinConfig | None 
         other steps are not kept. The signals the metrics read are kept at every step
         (``Run.full_rate``), so :func:`twin.outputs.metrics.run_metrics` gives the same figures for
         every N. N > 1 excludes ``log_filter`` (the EKF's consistency checks need every step).
+    limits : PluginLimits or None
+        What the controller and the estimator may cost (:mod:`twin.limits`); None: no limits.
 
     The twin (the plant) is closed when the run ends, fallen or not.
     """
@@ -89,5 +93,5 @@ def simulate_twin(controller, experiment: Experiment, config: TwinConfig | None 
         initial=InitialState(experiment.theta0, alpha0, *position), targets=experiment.targets,
         duration=experiment.duration if duration is None else duration, seed=seed, sensing=Sensing(sensors),
         model=model_params, logging=Logging(log_every, log_filter), name=experiment.name,
-        description=experiment.description, label=controller_name)
+        description=experiment.description, label=controller_name, limits=limits)
     return simulate(spec, progress)

@@ -51,7 +51,7 @@ alone: every consumer runs this loop); a
 wrong length, a non-number or a non-finite value stops the run with a one-line
 :class:`~twin.errors.PluginError` naming the object.
 
-Limits. With ``config.limits`` (:class:`twin.limits.PluginLimits`: a scenario's
+Limits. With ``limits`` (:class:`twin.limits.PluginLimits`: a scenario's
 ``[limits]``) each call of the controller and of the estimator is timed, and a call over
 ``step_wall_s``, a run over ``run_wall_s`` (from :meth:`ClosedLoop.reset`) or a process
 whose resident memory grew by more than ``run_memory_mb`` over the run stops it with a
@@ -67,8 +67,9 @@ import numpy as np
 
 from twin.errors import MAY_NOT_END, PluginError, TwinError, ends_process, raised_text, shown
 from twin import limits as _limits
-from twin.limits import RunGuard
-from twin.plant.bullet import Actuation, BulletTwin, GroundTruth, TwinConfig
+from twin.limits import PluginLimits, RunGuard
+from twin.plant.base import Actuation, GroundTruth, TwinConfig
+from twin.plant.bullet import BulletTwin
 from twin.protocols import StepResult, Targets, describe_object, one_line
 from twin.sensors import ImuMotion, Measurement, SensorConfig, SensorSuite
 
@@ -99,8 +100,7 @@ class ClosedLoop:
     position : (float, float)
         Initial axle midpoint (x, y) in m.
     limits : PluginLimits or None
-        What the controller and the estimator may cost (:mod:`twin.limits`); None: the
-        config's ``limits``.
+        What the controller and the estimator may cost (:mod:`twin.limits`); None: no limits.
     """
 
     def __init__(self, config, estimator, controller=None, sensors: SensorConfig | None = None,
@@ -141,8 +141,8 @@ class ClosedLoop:
         self.signals = tuple(getattr(controller, "signals", ())) if controller is not None else ()
         self._n_out = 2 + len(self.signals)
         self._attach_truth = bool(getattr(estimator, "reads_truth", False))
-        if limits is None and self.config is not None:
-            limits = self.config.limits
+        if limits is not None and not isinstance(limits, PluginLimits):
+            raise TwinError(f"limits must be a twin.limits.PluginLimits or None, got {limits!r}")
         # None (no limits, and not in a contained worker, whose command watches each call): the hot
         # path below times nothing
         watched = _limits.STATUS is not None

@@ -26,7 +26,7 @@ from twin.errors import TwinError
 from twin.experiments import Experiment
 from twin.outputs.metrics import settling_time
 from twin.params import RobotParams
-from twin.plant.bullet import ACTUATION_UNITS, TRUTH_UNITS, Actuation, GroundTruth, TwinConfig
+from twin.plant.base import ACTUATION_UNITS, TRUTH_UNITS, Actuation, GroundTruth, TwinConfig
 from twin.sensors import Measurement, SensorConfig
 
 TRUTH_NAMES = GroundTruth._fields

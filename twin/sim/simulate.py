@@ -49,13 +49,13 @@ def build_loop(spec: RunSpec, controller=None, estimator=None):
     else:
         plant = model
     return ClosedLoop(plant, estimator, controller, spec.sensing.true, spec.targets, i.theta, i.alpha, i.position,
-                      limits=config_of(spec).limits)
+                      limits=spec.limits)
 
 
 def config_of(spec: RunSpec):
     """The :class:`~twin.plant.bullet.TwinConfig` a run of ``spec`` records: the plant object's
     own, if it has one (a BulletTwin, an AnalyticPlant), else ``spec.plant``."""
-    from twin.plant.bullet import TwinConfig
+    from twin.plant.base import TwinConfig
 
     own = getattr(spec.plant_model, "config", None) if not isinstance(spec.plant_model, str) else None
     return own if isinstance(own, TwinConfig) else spec.plant

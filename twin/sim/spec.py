@@ -23,8 +23,9 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from twin.errors import TwinError
+from twin.limits import PluginLimits
 from twin.params import NOMINAL, RobotParams
-from twin.plant.bullet import TwinConfig
+from twin.plant.base import TwinConfig
 from twin.protocols import Targets
 from twin.sim.recorder import check_log_every
 from twin.sensors import SensorConfig
@@ -156,8 +157,8 @@ class RunSpec:
         sensing the ``ideal`` estimator, which reads the truth, whatever is given here as long
         as it is "ekf", "ideal" or an object declaring ``reads_truth = True``).
     plant : TwinConfig
-        The true robot (Table III scaled), rates (physics and control, Hz), motors, floor,
-        disturbances and the plugins' limits.
+        The true robot (Table III scaled), rates (physics and control, Hz), motors, floor and
+        disturbances.
     plant_model : "bullet", "analytic" or a Plant
         The PyBullet twin on ``plant`` (new for each run), equation (1) on ``plant``
         (:class:`~twin.plant.analytic_plant.AnalyticPlant`, ideal torque sources), or an
@@ -185,6 +186,10 @@ class RunSpec:
         The run's name (the scenario's) and description, recorded with the run.
     label : str
         The controller's name in the run's log (a kind: "it2"); default the kind, if one.
+    limits : PluginLimits or None
+        What the controller and the estimator may cost (wall time per step and per run,
+        memory growth per run; :mod:`twin.limits`); None: no limits. Not the plant's: the
+        same robot runs a plugin with limits or without.
     """
 
     controller: Plugin | None
@@ -203,18 +208,20 @@ class RunSpec:
     name: str = ""
     description: str = ""
     label: str = ""
+    limits: PluginLimits | None = None
 
     def __post_init__(self):
         for name, kind, what in (("controller", Plugin, "twin.sim.spec.Plugin(kind, params) or None"),
                                  ("estimator", Plugin, "twin.sim.spec.Plugin(kind, params)"),
-                                 ("plant", TwinConfig, "twin.plant.bullet.TwinConfig"),
+                                 ("plant", TwinConfig, "twin.plant.base.TwinConfig"),
                                  ("initial", InitialState, "twin.sim.spec.InitialState"),
                                  ("targets", Targets, "twin.protocols.Targets(position, heading)"),
                                  ("sensing", Sensing, "twin.sim.spec.Sensing(true, believed)"),
                                  ("model", RobotParams, "twin.params.RobotParams"),
-                                 ("logging", Logging, "twin.sim.spec.Logging")):
+                                 ("logging", Logging, "twin.sim.spec.Logging"),
+                                 ("limits", PluginLimits, "twin.limits.PluginLimits or None")):
             value = getattr(self, name)
-            if not (isinstance(value, kind) or (name == "controller" and value is None)):
+            if not (isinstance(value, kind) or (name in ("controller", "limits") and value is None)):
                 raise TwinError(f"RunSpec.{name} must be a {what}, got {value!r}")
         if isinstance(self.plant_model, str):
             from twin.plant import PLANT_MODELS

@@ -1,0 +1,60 @@
+"""What a scenario's runs need settled before they run, wherever they run: the LMI design
+solved on first demand (:class:`LazyDesign`), the provenance of the plugins they load
+(:func:`plugins_of`) and the refusal of parameters no run would use
+(:func:`refuse_unused_params`).
+
+Both sides of a run use them: :mod:`twin.scenarios.runner` in the command's process and
+:mod:`twin.scenarios.contained` in a plugin's worker process; they live here, below both, so
+that neither imports the other for them (``twin.scenarios.runner`` still exports them).
+"""
+from __future__ import annotations
+
+import time
+
+from twin.scenarios.scenario import Scenario
+
+
+class LazyDesign:
+    """The scenario's LMI design, solved (or taken from the design store) when a controller
+    first asks for it, with the time that took: only the fuzzy cascades, or a plugin that
+    asks, need it, and design.json is written only then."""
+
+    def __init__(self, scenario: Scenario):
+        self.scenario = scenario
+        self.solved = None
+        self.seconds = None
+
+    def __call__(self):
+        if self.solved is None:
+            t0 = time.perf_counter()
+            self.solved = self.scenario.design()
+            self.seconds = time.perf_counter() - t0
+        return self.solved
+
+
+def plugins_of(scenario: Scenario, controllers) -> list[dict]:
+    """The provenance (module, file, SHA-256) of every import-path kind a run of ``scenario``
+    with ``controllers`` loads (:func:`twin.registry.provenance`)."""
+    from twin.registry import provenance
+
+    found = [provenance("controller", k) for k in controllers] + [provenance("estimator", scenario.estimator)]
+    return [p for p in found if p is not None]
+
+
+def refuse_unused_params(scenario: Scenario, kinds) -> None:
+    """``[controller.params.KIND]`` for a controller that neither this run nor the scenario's
+    ``controller.kinds`` runs would be ignored without a word (a typo in KIND, or parameters
+    for a controller that was taken out of the list): one line instead. Parameters for a
+    listed controller that ``--controller`` leaves out this time are kept for when it runs."""
+    from twin.scenarios.schema import ScenarioError, key_text
+
+    runs = list(dict.fromkeys([*kinds, *scenario.controllers]))
+    unused = [k for k in scenario.data["controller"]["params"] if k not in runs]
+    if unused:
+        raise ScenarioError(f"{scenario.source}: controller.params.{key_text(unused[0])}: controller "
+                            f"{unused[0]!r} is never run (this run's: {', '.join(kinds)}; controller.kinds: "
+                            f"{', '.join(scenario.controllers)}), so its parameters would be ignored; allowed: "
+                            f"parameters for a controller run or listed in controller.kinds")
+
+
+__all__ = ["LazyDesign", "plugins_of", "refuse_unused_params"]
