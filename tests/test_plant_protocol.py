@@ -150,7 +150,8 @@ def test_the_analytic_plant_refuses_what_only_the_twin_models():
         with pytest.raises(ScenarioError) as info:
             load_scenario(name, ["plant.model=analytic"])
         assert f": {key}: the analytic plant" in str(info.value) and "\n" not in str(info.value)
-    with pytest.raises(ScenarioError, match="plant.model: 'mujoco' is not allowed"):
+    with pytest.raises(ScenarioError, match=r"plant.model: plant 'mujoco' is neither a built-in \(bullet, analytic\) "
+                                            r"nor an import path 'package.module:attribute'"):
         load_scenario("paper-exp1", ["plant.model=mujoco"])
 
 

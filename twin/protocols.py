@@ -22,8 +22,9 @@ contract at every step and stops with a one-line :class:`twin.errors.PluginError
 the object and what was expected.
 
 The plant is one more such object (:class:`Plant`): the PyBullet twin, equation (1) or
-one's own, chosen by a scenario's ``plant.model`` (:func:`twin.plant.build_plant`) or
-handed to :class:`twin.sim.loop.ClosedLoop` directly.
+one's own, chosen by a scenario's ``plant.model`` (a kind of :mod:`twin.registry`:
+``"bullet"``, ``"analytic"`` or ``"package.module:attribute"``, built by
+:func:`twin.registry.build_plant`) or handed to :class:`twin.sim.loop.ClosedLoop` directly.
 """
 from __future__ import annotations
 
@@ -169,6 +170,11 @@ class Plant(Protocol):
     members (structural typing: no base class to inherit); built in are the PyBullet twin
     (:class:`twin.plant.bullet.BulletTwin`, ``plant.model = "bullet"``) and equation (1)
     (:class:`twin.plant.analytic_plant.AnalyticPlant`, ``plant.model = "analytic"``).
+    One's own is named in a scenario as ``plant.model = "package.module:attribute"``: the
+    attribute (a class or a function) is called as ``attribute(config, theta0, alpha0,
+    position, **params)`` with the scenario's :class:`~twin.plant.base.TwinConfig` (the true
+    robot, rates, floor, disturbances), the start (rad, rad, (m, m)) and ``[plant.params]``,
+    as the built-ins are.
 
     Attributes
     ----------
@@ -177,7 +183,7 @@ class Plant(Protocol):
     truth : GroundTruth
         The ground truth now (after the last :meth:`reset` or :meth:`step`), SI units:
         ``t`` s, θ, ψ_l, ψ_r, ψ, α, roll in rad, their rates in rad/s, ``distance`` p = r ψ
-        and the axle midpoint ``x``, ``y`` in m (see :class:`~twin.plant.bullet.GroundTruth`).
+        and the axle midpoint ``x``, ``y`` in m (see :class:`~twin.plant.base.GroundTruth`).
     status : str
         ``"running"``, ``"fell"`` or ``"diverged"`` (a non-finite state); ``"closed"`` after
         :meth:`close` mid-run. Only a running plant is stepped.
@@ -218,6 +224,14 @@ class Plant(Protocol):
         absent: the commands, delivered exactly.
     push_force : (3,) N
         Mean external push force over the last period, world axes; absent: none.
+    trusted : bool
+        True: the loop does not check the truth this plant returns at every step (the
+        built-ins', finite and well formed by construction; a check costs a few µs a step);
+        absent or False: it is checked, and a wrong one stops the run in one line.
+    applies_motor : bool
+        True: the plant drives its wheels through its configuration's ``motor``
+        (:class:`~twin.actuators.DCMotorParams`), so the controllers and the estimator are
+        told of it (back-EMF compensation); absent or False: they see ideal torque sources.
 
     A plant that lacks a member, or returns something other than a GroundTruth (15 numbers)
     from ``reset``/``step``, stops the run with a one-line :class:`twin.errors.PluginError`

@@ -1,7 +1,7 @@
-"""The one registry of controller and estimator kinds: built-in names and import paths.
+"""The one registry of plant, controller and estimator kinds: built-in names and import paths.
 
-A *kind* is either a built-in name (:data:`CONTROLLERS`, :data:`ESTIMATORS`) or an import
-path ``"package.module:attribute"`` naming a user's class or factory function. Every
+A *kind* is either a built-in name (:data:`PLANTS`, :data:`CONTROLLERS`, :data:`ESTIMATORS`)
+or an import path ``"package.module:attribute"`` naming a user's class or factory function. Every
 place that accepts a kind (the Python API, scenario files, ``twin run --controller``,
 ``twin sweep``, the Gymnasium environment) resolves it here, so the kind strings live
 here alone.
@@ -14,6 +14,11 @@ initial heading, balance design) if its signature has a parameter named ``contex
 The result must meet :class:`twin.protocols.Controller` or
 :class:`twin.protocols.Estimator`; anything that goes wrong is one
 :class:`~twin.errors.PluginError` line naming the kind and what was expected.
+
+A plant (:func:`build_plant`) is built from the robot instead: ``factory(config, theta0,
+alpha0, position, **params)``, ``config`` a :class:`~twin.plant.base.TwinConfig`, the pose
+in rad and m (a scenario's ``plant.model`` and ``[plant.params]``); the result must meet
+:class:`twin.protocols.Plant` (:func:`check_plant`).
 
 An import path runs that module's code, with the user's rights, exactly as
 ``python -c "import package.module"`` would. :func:`provenance` records the module, its
@@ -46,9 +51,10 @@ class Kind:
     name: str
     label: str
     description: str
-    factory: Callable = field(repr=False)
+    factory: Callable | None = field(repr=False)
     uses_design: bool = False
     parameters: tuple = ()  # the keyword parameters a scenario may give it
+    path: str = ""  # "package.module:attribute": the factory, imported on first use (factory None)
 
 
 def _nominal():
@@ -181,11 +187,24 @@ ESTIMATORS: dict[str, Kind] = {
     "ideal": Kind("ideal", "ideal", "the ground truth passed through (a reference, not an estimator)", _ideal),
 }
 
-_ROLES = {"controller": CONTROLLERS, "estimator": ESTIMATORS}
-_ROLE_CODES = {"controller": 1, "estimator": 2}  # twin.limits.ROLES' codes
-_METHODS = {"controller": ("reset", "__call__"), "estimator": ("start", "step")}
+
+# ---- built-in plants: classes by import path, as a user's plant is named -------------------------
+PLANTS: dict[str, Kind] = {
+    # the label is the plant's name in a run's record ("twin": the PyBullet twin)
+    "bullet": Kind("bullet", "twin", "the PyBullet twin: contact, friction, DC motors with PWM drivers, "
+                   "disturbances", None, path="twin.plant.bullet:BulletTwin"),
+    "analytic": Kind("analytic", "analytic", "equation (1) by RK4 at the physics rate: ideal torque sources, "
+                     "rolling without slip on a level floor", None, path="twin.plant.analytic_plant:AnalyticPlant"),
+}
+
+_ROLES = {"controller": CONTROLLERS, "estimator": ESTIMATORS, "plant": PLANTS}
+_ROLE_CODES = {"controller": 1, "estimator": 2, "plant": 3}  # twin.limits.ROLES' codes
+_METHODS = {"controller": ("reset", "__call__"), "estimator": ("start", "step"), "plant": ("reset", "step", "close")}
 _SIGNATURES = {"controller": "reset(targets) and __call__(estimate, targets)",
-               "estimator": "start(measurement) and step(measurement, command)"}
+               "estimator": "start(measurement) and step(measurement, command)",
+               "plant": "reset(theta0, alpha0, position), step(ul, ur) and close()"}
+_PLANT_ATTRIBUTES = ("control_rate",)
+_SENSOR_ATTRIBUTES = ("kinematics", "com_local", "gravity")  # what the simulated IMU reads of a plant
 
 
 def uses_design(kind: str) -> bool:
@@ -244,7 +263,11 @@ def resolve(role: str, kind: str) -> tuple[Callable, bool]:
     kind = check_kind(role, kind)
     table = _ROLES[role]
     if kind in table:
-        return table[kind].factory, False
+        built_in = table[kind]
+        if built_in.factory is not None:
+            return built_in.factory, False
+        module_name, attr = built_in.path.split(":", 1)
+        return getattr(importlib.import_module(module_name), attr), False
     module_name, attr = kind.split(":", 1)
     try:
         _limits.mark(_ROLE_CODES[role], _limits.IMPORTING)
@@ -392,6 +415,70 @@ def build_controller(kind: str, params: dict | None = None, context: BuildContex
 def build_estimator(kind: str, params: dict | None = None, context: BuildContext | None = None):
     """An estimator of ``kind`` (built-in name or import path) meeting the Estimator protocol."""
     return _build("estimator", kind, params, context)
+
+
+def build_plant(kind: str, config=None, theta0: float = 0.0, alpha0: float = 0.0, position=(0.0, 0.0),
+                params: dict | None = None):
+    """A plant of ``kind`` (built-in name or import path) on ``config`` (a
+    :class:`~twin.plant.base.TwinConfig`; None: the default one) at pitch ``theta0`` and heading
+    ``alpha0`` (rad) and axle midpoint ``position`` (m), meeting :class:`twin.protocols.Plant`."""
+    factory, plugin = resolve("plant", kind)
+    if params is not None and not isinstance(params, dict):
+        raise PluginError(f"plant {shown(kind)}: parameters must be a table of keyword arguments, got {shown(params)}")
+    params = dict(params or {})
+    if config is None:
+        from twin.plant.base import TwinConfig
+
+        config = TwinConfig()
+    if not plugin and params:
+        raise PluginError(f"plant {shown(kind)}: unknown parameter{'s' * (len(params) > 1)} "
+                          f"{', '.join(map(repr, params))}; allowed: none")
+    try:
+        if not plugin:
+            plant = factory(config, theta0, alpha0, position)
+        else:  # the same call, marked for the command that watches a plugin's calls
+            _limits.mark(_ROLE_CODES["plant"], _limits.BUILDING)
+            try:
+                plant = factory(config, theta0, alpha0, position, **params)
+            finally:
+                _limits.unmark()
+    except PluginError:
+        raise
+    except TwinError as exc:
+        if not plugin:
+            raise
+        raise PluginError(f"plant {shown(kind)}: {exc}") from None
+    except TypeError as exc:
+        if not plugin:
+            raise
+        raise PluginError(f"plant {shown(kind)}: cannot be built as factory(config, theta0, alpha0, position"
+                          f"{', **' + shown(params) if params else ''}) ({one_line(exc)}); allowed parameters: "
+                          f"{', '.join(_parameters(factory)[4:]) or 'none'}") from None
+    except _limits.PLUGIN_FAILURES as exc:  # the plugin's own failure, in one line
+        raise PluginError(f"plant {shown(kind)}: building it raised {raised_text(exc)}"
+                          + (f"; {MAY_NOT_END}" if ends_process(exc) else "")) from None
+    check_plant(plant, kind=kind)
+    return plant
+
+
+def check_plant(plant, sensors: bool = False, kind: str | None = None) -> None:
+    """A one-line :class:`~twin.errors.PluginError` unless ``plant`` has the members of
+    :class:`twin.protocols.Plant` (with ``sensors``, those the simulated IMU reads too)."""
+    from twin.protocols import describe_object
+
+    what = f"plant {shown(kind)}: {describe_object(plant)}" if kind else f"plant {describe_object(plant)}"
+    missing = [f"{m}()" for m in _METHODS["plant"] if not callable(getattr(plant, m, None))]
+    missing += [m for m in _PLANT_ATTRIBUTES + (_SENSOR_ATTRIBUTES if sensors else ()) if not hasattr(plant, m)]
+    if missing:
+        why = " (the simulated IMU reads them)" if sensors and set(missing) & set(_SENSOR_ATTRIBUTES) else ""
+        raise PluginError(f"{what} has no {', '.join(missing)}{why}; a plant needs "
+                          f"reset(theta0, alpha0, position), step(ul, ur), close(), control_rate, truth, status and "
+                          f"end_reason, and kinematics, com_local and gravity with sensors (see "
+                          f"twin.protocols.Plant)")
+    rate = plant.control_rate
+    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not 0 < rate <= 100_000:
+        raise PluginError(f"{what}: control_rate must be a frequency in (0, 100000] Hz, got "
+                          f"{rate!r} (see twin.protocols.Plant)")
 
 
 def build_estimator_for(kind: str, sensors, control_rate: float, motor, params, alpha0: float = 0.0,

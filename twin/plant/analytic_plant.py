@@ -72,6 +72,9 @@ class AnalyticPlant:
         [θ0, 0, 0, 0, α0, 0, x, y].
     """
 
+    trusted = True  # its truth is finite and well formed by construction: the loop need not check it
+    applies_motor = False  # ideal torque sources: config.motor is not used
+
     def __init__(self, config: TwinConfig | None = None, theta0: float = 0.0, alpha0: float = 0.0,
                  position=(0.0, 0.0), disturbance=None, initial=None):
         config = TwinConfig(motor=None) if config is None else config

@@ -17,16 +17,14 @@ import time
 from dataclasses import dataclass, replace
 
 from twin.containment import Task, Workers, run_contained
-from twin.scenarios.planning import LazyDesign, plugins_of, refuse_unused_params
+from twin.scenarios.planning import LazyDesign, plugin_roles, plugins_of, refuse_unused_params
 from twin.scenarios.scenario import Scenario
 
 
 def involves_plugins(scenario: Scenario, kinds) -> bool:
     """True if a run of ``scenario`` with controllers ``kinds`` runs a user's code: a
-    controller or the estimator named by an import path."""
-    from twin.registry import is_import_path
-
-    return any(is_import_path(k) for k in kinds) or is_import_path(scenario.estimator)
+    controller, the estimator or the plant named by an import path."""
+    return bool(plugin_roles(scenario, kinds))
 
 
 @dataclass(frozen=True)
@@ -87,8 +85,7 @@ def plan_summary(recipe, kinds) -> dict:
         if callable(own):
             digests[kind] = str(own())
     estimator = specs[0].estimator.kind if specs else sc.build_estimator(context)
-    roles = [("controller", k) for k in kinds] + [("estimator", sc.estimator)]
-    return {"plugins": plugins_of(sc, kinds), "dirs": plugin_dirs(roles), "signals": signals, "digests": digests,
+    return {"plugins": plugins_of(sc, kinds), "dirs": plugin_dirs(plugin_roles(sc, kinds)), "signals": signals, "digests": digests,
             "reads_truth": bool(getattr(estimator, "reads_truth", False)) if not isinstance(estimator, str) else False,
             "design": lazy.solved, "design_s": lazy.seconds}
 
@@ -159,14 +156,6 @@ class ContainedScenario:
         if out["design"] is not None and self.recipe.design is None:
             self.recipe = replace(self.recipe, design=out["design"])
         return out
-
-
-def plugin_roles(scenario: Scenario, kinds) -> tuple:
-    """(role, kind) of each import-path kind a run of ``scenario`` with ``kinds`` imports."""
-    from twin.registry import is_import_path
-
-    roles = [("controller", k) for k in kinds] + [("estimator", scenario.estimator)]
-    return tuple((role, k) for role, k in roles if is_import_path(k))
 
 
 __all__ = ["ContainedScenario", "Recipe", "involves_plugins", "limits_of", "names_of", "plan_summary", "plugin_roles",

@@ -32,13 +32,26 @@ class LazyDesign:
         return self.solved
 
 
+def kinds_of(scenario: Scenario, controllers) -> tuple:
+    """(role, kind) of every kind a run of ``scenario`` with ``controllers`` builds: each
+    controller, the estimator, the plant (the one place that lists them)."""
+    return (*(("controller", k) for k in controllers), ("estimator", scenario.estimator),
+            ("plant", scenario.plant_model))
+
+
+def plugin_roles(scenario: Scenario, controllers) -> tuple:
+    """(role, kind) of each import-path kind (a user's code) of :func:`kinds_of`."""
+    from twin.registry import is_import_path
+
+    return tuple((role, k) for role, k in kinds_of(scenario, controllers) if is_import_path(k))
+
+
 def plugins_of(scenario: Scenario, controllers) -> list[dict]:
     """The provenance (module, file, SHA-256) of every import-path kind a run of ``scenario``
     with ``controllers`` loads (:func:`twin.registry.provenance`)."""
     from twin.registry import provenance
 
-    found = [provenance("controller", k) for k in controllers] + [provenance("estimator", scenario.estimator)]
-    return [p for p in found if p is not None]
+    return [provenance(role, k) for role, k in plugin_roles(scenario, controllers)]
 
 
 def refuse_unused_params(scenario: Scenario, kinds) -> None:

@@ -172,6 +172,7 @@ class Scenario:
                                None if self.estimator == "ideal" else d["sensors"]["estimator_params"])
         config = self.twin_config()
         return RunSpec(controller=controller, estimator=estimator, plant=config, plant_model=self.plant_model,
+                       plant_params=d["plant"]["params"],
                        initial=InitialState(i["theta"], i["alpha"], i["x"], i["y"]),
                        targets=self.experiment().targets, duration=self.duration, seed=self.seed,
                        sensing=Sensing(self.sensor_config(), self.believed_sensor_config()),
@@ -188,16 +189,18 @@ class Scenario:
 
     @property
     def plant_model(self) -> str:
-        """``plant.model``: "bullet" (the PyBullet twin) or "analytic" (equation (1))."""
+        """``plant.model``: a plant kind of :mod:`twin.registry`: "bullet" (the PyBullet twin),
+        "analytic" (equation (1)) or one's own "package.module:attribute"."""
         return self.data["plant"]["model"]
 
     def plant(self):
         """A new plant of ``plant.model`` on :meth:`twin_config` at the initial state (a
-        :class:`twin.protocols.Plant`; :func:`twin.plant.build_plant`)."""
-        from twin.plant import build_plant
+        :class:`twin.protocols.Plant`; :func:`twin.registry.build_plant`)."""
+        from twin.registry import build_plant
 
         i = self.data["initial"]
-        return build_plant(self.plant_model, self.twin_config(), i["theta"], i["alpha"], (i["x"], i["y"]))
+        return build_plant(self.plant_model, self.twin_config(), i["theta"], i["alpha"], (i["x"], i["y"]),
+                           self.data["plant"]["params"])
 
     def true_params(self):
         from twin.params import NOMINAL
@@ -215,8 +218,12 @@ class Scenario:
                        for q in d["pushes"])
         payload = Payload(p["payload_mass"], tuple(p["payload_position"])) if p["payload_mass"] > 0 else None
         dist = Disturbances(pushes=pushes, payload=payload, com_offset=tuple(p["com_offset"]))
-        # the analytic model's torque sources are ideal, whatever plant.motor says
-        kwargs = {} if p["motor"] == "dc" and p["model"] == "bullet" else {"motor": None}
+        # a plant that does not drive its wheels through motors (Plant.applies_motor: the analytic
+        # model's torque sources are ideal) has none, whatever plant.motor says
+        from twin.registry import resolve
+
+        applies = getattr(resolve("plant", p["model"])[0], "applies_motor", False)
+        kwargs = {} if p["motor"] == "dc" and applies else {"motor": None}
         return TwinConfig(params=self.true_params(), physics_rate=d["rates"]["physics"],
                           control_rate=d["rates"]["control"], ground=ground, disturbances=dist, **kwargs)
 

@@ -22,7 +22,6 @@ from twin.controllers.mamdani import DEFAULT_FOU, P_E_RANGE
 from twin.fuzzy.mamdani import TYPE_REDUCERS
 from twin.errors import TwinError, shown
 from twin.params import PARAMETER_DOCS
-from twin.plant import PLANT_MODELS
 from twin.sensors.specs import IMU_PRESETS
 
 REQUIRED = object()
@@ -241,10 +240,14 @@ SCHEMA: dict[str, Key] = {
     }),
     "plant": Key("table", doc="the twin's true plant (the controllers and the estimator keep the nominal model)",
                  keys={
-        "model": Key("str", "bullet", choices=PLANT_MODELS, recorded_at_default=False,
+        "model": Key("kind", "bullet", role="plant", recorded_at_default=False,
                      doc="bullet: the PyBullet twin (contact, friction, motors, disturbances); analytic: equation (1) "
                          "by RK4 at rates.physics, ideal torque sources (plant.motor does not apply), rolling without "
-                         "slip on a level floor (ground, pushes, payload and com_offset at their defaults)"),
+                         "slip on a level floor (ground, pushes, payload and com_offset at their defaults); or one's "
+                         "own, \"package.module:attribute\", called as attribute(config, theta0, alpha0, position, "
+                         "**plant.params) (see twin.protocols.Plant)"),
+        "params": Key("params", {}, recorded_at_default=False,
+                      doc="keyword arguments for a plant.model of one's own"),
         "scale": Key("map", {}, 0.2, 5.0, choices=tuple(PARAMETER_DOCS), unit="×",
                      doc="Table III parameter → factor of its nominal value"),
         "motor": Key("str", "dc", choices=("dc", "ideal"), doc="DC motors with PWM drivers, or ideal torque sources"),

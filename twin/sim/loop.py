@@ -13,7 +13,7 @@ One control period (T = 1 / control_rate, a whole number of physics steps)::
 
 ``step(command)`` takes any (ul, ur) in N·m (the torques a reinforcement-learning agent
 chooses, say); without one it asks the controller. At every instant the loop exposes
-:attr:`truth` (:class:`~twin.plant.bullet.GroundTruth`), :attr:`measurement` (what
+:attr:`truth` (:class:`~twin.plant.base.GroundTruth`), :attr:`measurement` (what
 reached the estimator), :attr:`estimate` (6,) and, after a step, :attr:`actuation` and
 :attr:`push_force` (what the motors and pushes did over the period).
 
@@ -30,15 +30,15 @@ these, never the loop's internals: :class:`twin.sim.recorder.Recorder` (what
 At the end of a run :meth:`ClosedLoop.estimator_stats`, :meth:`ClosedLoop.sensor_counts`
 and :meth:`ClosedLoop.sensor_truth` give the counts and the sensors' drawn constants.
 
-The plant. Given a :class:`~twin.plant.bullet.TwinConfig` (or None: the defaults), every
-:meth:`ClosedLoop.reset` builds a new PyBullet twin (:class:`~twin.plant.bullet.BulletTwin`)
-on it, as it always has. Given any object meeting :class:`twin.protocols.Plant` instead
-(:class:`~twin.plant.analytic_plant.AnalyticPlant`: equation (1); or one's own), the loop
-runs that: :meth:`ClosedLoop.reset` calls its ``reset(theta0, alpha0, position)``, each step
-its ``step(ul, ur)``; the control rate is the plant's, the sensors read its truth and (for
-the IMU) its ``kinematics``. :func:`twin.plant.build_plant` makes a scenario's
-``plant.model``. A plant's missing member, or a truth that is not 15 numbers, is a
-one-line :class:`~twin.errors.PluginError` naming the plant and the contract.
+The plant: any object meeting :class:`twin.protocols.Plant` (the PyBullet twin, equation
+(1), one's own; :func:`twin.registry.build_plant` makes a scenario's ``plant.model``), which
+the loop knows by that contract alone: :meth:`ClosedLoop.reset` calls its ``reset(theta0,
+alpha0, position)``, each step its ``step(ul, ur)``; the control rate is the plant's, the
+sensors read its truth and (for the IMU) its ``kinematics``. Given a
+:class:`~twin.plant.base.TwinConfig` (or None: the defaults), the plant is the PyBullet twin
+on it. A plant's missing member, or a truth that is not 15 numbers, is a one-line
+:class:`~twin.errors.PluginError` naming the plant and the contract (a plant that declares
+``trusted``, as the built-ins do, has its truth taken as it is).
 
 Sensing. With a :class:`~twin.sensors.SensorConfig` the IMU and encoders are simulated
 with their noise and faults, drawn from ``numpy.random.default_rng(SeedSequence(seed))``
@@ -69,8 +69,8 @@ from twin.errors import MAY_NOT_END, PluginError, TwinError, ends_process, raise
 from twin import limits as _limits
 from twin.limits import PluginLimits, RunGuard
 from twin.plant.base import Actuation, GroundTruth, TwinConfig
-from twin.plant.bullet import BulletTwin
 from twin.protocols import StepResult, Targets, describe_object, one_line
+from twin.registry import build_plant, check_plant, check_protocol
 from twin.sensors import ImuMotion, Measurement, SensorConfig, SensorSuite
 
 _IDLE = "idle"
@@ -82,10 +82,10 @@ class ClosedLoop:
     Parameters
     ----------
     config : TwinConfig, Plant or None
-        A TwinConfig (None: the defaults): the PyBullet twin's true plant, rates, motors,
-        floor, disturbances and limits, built anew by every :meth:`reset`. Or an object
-        meeting :class:`twin.protocols.Plant` (the analytic plant, one's own), reused by
-        every :meth:`reset`; its ``config`` attribute, if a TwinConfig, gives the limits.
+        An object meeting :class:`twin.protocols.Plant` (a built-in or one's own, as
+        :func:`twin.registry.build_plant` makes them), reset by every :meth:`reset`. Or a
+        TwinConfig (None: the defaults): the PyBullet twin on it (the ``"bullet"`` kind),
+        built at the first :meth:`reset`.
     estimator : Estimator
         Meets :class:`twin.protocols.Estimator`; reused by every :meth:`reset` (its
         ``start`` begins a new run).
@@ -108,26 +108,22 @@ class ClosedLoop:
                  limits=None):
         if sensors is not None and not isinstance(sensors, SensorConfig):
             raise TwinError(f"sensors must be a SensorConfig or None (nothing measured), got {sensors!r}")
-        if config is None or isinstance(config, TwinConfig):
+        if config is None or isinstance(config, TwinConfig):  # the "bullet" kind on it, built at the first reset
             self.config = config if config is not None else TwinConfig()
-            self._given = None  # a new BulletTwin at every reset
+            self._given = None
             control_rate = self.config.control_rate
         else:
-            from twin.plant import check_plant
-
             check_plant(config, sensors is not None)
             self._given = config
             own = getattr(config, "config", None)
             self.config = own if isinstance(own, TwinConfig) else None
             control_rate = float(config.control_rate)
-        # a plant other than the built-in ones: its truth is checked at every step
-        self._foreign = self._given is not None and not _is_builtin(self._given)
+        # a plant that does not say its truth is sound (Plant.trusted): checked at every step
+        self._foreign = self._given is not None and not getattr(self._given, "trusted", False)
         if sensors is not None:
             sensors.steps(control_rate)  # rates and latencies fit the control period: check first
         if not isinstance(targets, Targets):
             raise TwinError(f"targets must be a twin.protocols.Targets(position, heading), got {targets!r}")
-        from twin.registry import check_protocol
-
         check_protocol("estimator", describe_object(estimator), estimator)
         if controller is not None:
             check_protocol("controller", describe_object(controller), controller)
@@ -148,7 +144,7 @@ class ClosedLoop:
         watched = _limits.STATUS is not None
         self._guard = RunGuard(limits, controller, estimator, self.control_dt) \
             if (limits and limits.active) or watched else None
-        self.twin = None  # the plant of the current run (a BulletTwin, or the plant given)
+        self.twin = None  # the plant of the current run
         self.suite: SensorSuite | None = None
         self._motion: ImuMotion | None = None  # the IMU's lever-arm kinematics of the current run
         self.k = 0
@@ -170,20 +166,18 @@ class ClosedLoop:
         self.close()
         self.seed = int(seed)
         self.k = 0
-        if self._given is None:
-            self.twin = twin = BulletTwin(self.config, theta0=self.theta0, alpha0=self.alpha0, position=self.position)
-            tr = twin.truth
-        else:
-            twin = self._given
-            if self._foreign:
-                try:
-                    tr = twin.reset(self.theta0, self.alpha0, self.position)
-                except _limits.PLUGIN_FAILURES as exc:  # the plant's failure, in one line
-                    raise self._raised("plant", twin, "reset()", exc) from None
-                tr = self._check_truth(tr, "reset")
-            else:
+        if self._given is None:  # a TwinConfig was given: its twin, built once (reset() rebuilds it)
+            self._given = build_plant("bullet", self.config, self.theta0, self.alpha0, self.position)
+        twin = self._given
+        if self._foreign:
+            try:
                 tr = twin.reset(self.theta0, self.alpha0, self.position)
-            self.twin = twin
+            except _limits.PLUGIN_FAILURES as exc:  # the plant's failure, in one line
+                raise self._raised("plant", twin, "reset()", exc) from None
+            tr = self._check_truth(tr, "reset")
+        else:
+            tr = twin.reset(self.theta0, self.alpha0, self.position)
+        self.twin = twin
         self._command = None
         self._last_command = (0.0, 0.0)
         tr = self.truth = tr
@@ -416,8 +410,7 @@ class ClosedLoop:
 
     @property
     def plant(self):
-        """The plant of the current run (a :class:`~twin.plant.bullet.BulletTwin`, or the plant
-        given), None before the first :meth:`reset` and after :meth:`close`."""
+        """The plant of the current run, None before the first :meth:`reset` and after :meth:`close`."""
         return self.twin
 
     @property
@@ -427,7 +420,7 @@ class ClosedLoop:
 
     @property
     def actuation(self):
-        """What the motors did over the last period (:class:`~twin.plant.bullet.Actuation`); for a
+        """What the motors did over the last period (:class:`~twin.plant.base.Actuation`); for a
         plant without ``actuation``, the last command delivered exactly."""
         got = getattr(self.twin, "actuation", None)
         if got is None:
@@ -473,13 +466,6 @@ class ClosedLoop:
         """The estimator's ``diagnostics()`` hook for the last step, or None without one."""
         hook = getattr(self.estimator, "diagnostics", None)
         return hook() if callable(hook) else None
-
-
-def _is_builtin(plant) -> bool:
-    """The built-in plants, whose truth needs no check at every step."""
-    from twin.plant.analytic_plant import AnalyticPlant
-
-    return type(plant) in (BulletTwin, AnalyticPlant)
 
 
 __all__ = ["ClosedLoop"]

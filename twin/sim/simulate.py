@@ -18,6 +18,7 @@ import sys
 
 import numpy as np
 
+from twin.registry import build_plant
 from twin.sim.recorder import Recorder
 from twin.sim.runs import COMMAND_UNITS, Run
 from twin.sim.spec import RunSpec
@@ -40,14 +41,9 @@ def build_loop(spec: RunSpec, controller=None, estimator=None):
         controller = spec.build_controller(context)
     i = spec.initial
     model = spec.plant_model
-    if model == "bullet":
-        plant = spec.plant  # a new PyBullet twin at every reset
-    elif isinstance(model, str):
-        from twin.plant import build_plant
-
-        plant = build_plant(model, spec.plant, i.theta, i.alpha, i.position)
-    else:
-        plant = model
+    # a kind: built here at the start (the loop resets it for each run); an object: the caller's
+    plant = build_plant(model, spec.plant, i.theta, i.alpha, i.position, spec.plant_params) \
+        if isinstance(model, str) else model
     return ClosedLoop(plant, estimator, controller, spec.sensing.true, spec.targets, i.theta, i.alpha, i.position,
                       limits=spec.limits)
 

@@ -27,6 +27,7 @@ from twin.limits import PluginLimits
 from twin.params import NOMINAL, RobotParams
 from twin.plant.base import TwinConfig
 from twin.protocols import Targets
+from twin.registry import PLANTS, check_kind, check_plant, label, resolve
 from twin.sim.recorder import check_log_every
 from twin.sensors import SensorConfig
 
@@ -159,10 +160,13 @@ class RunSpec:
     plant : TwinConfig
         The true robot (Table III scaled), rates (physics and control, Hz), motors, floor and
         disturbances.
-    plant_model : "bullet", "analytic" or a Plant
-        The PyBullet twin on ``plant`` (new for each run), equation (1) on ``plant``
-        (:class:`~twin.plant.analytic_plant.AnalyticPlant`, ideal torque sources), or an
-        object meeting :class:`twin.protocols.Plant` (its control rate is the run's).
+    plant_model : str or Plant
+        A plant kind of :mod:`twin.registry`, built on ``plant`` for the run: ``"bullet"``
+        (the PyBullet twin), ``"analytic"`` (equation (1), ideal torque sources) or one's own
+        ``"package.module:attribute"``; or an object meeting :class:`twin.protocols.Plant`
+        (its control rate is the run's).
+    plant_params : mapping
+        Keyword arguments for a plant kind of one's own (a scenario's ``[plant.params]``).
     initial : InitialState
         Pitch and heading (rad) and axle midpoint (m) at t = 0, at rest.
     targets : Targets
@@ -196,6 +200,7 @@ class RunSpec:
     estimator: Plugin = Plugin("ekf")
     plant: TwinConfig = field(default_factory=TwinConfig)
     plant_model: Any = "bullet"
+    plant_params: Mapping[str, Any] = field(default_factory=dict)
     initial: InitialState = InitialState()
     targets: Targets = Targets()
     duration: float = 15.0
@@ -224,15 +229,11 @@ class RunSpec:
             if not (isinstance(value, kind) or (name in ("controller", "limits") and value is None)):
                 raise TwinError(f"RunSpec.{name} must be a {what}, got {value!r}")
         if isinstance(self.plant_model, str):
-            from twin.plant import PLANT_MODELS
-
-            if self.plant_model not in PLANT_MODELS:
-                raise TwinError(f"plant model must be one of {', '.join(map(repr, PLANT_MODELS))} or an object "
-                                f"meeting twin.protocols.Plant, got {self.plant_model!r}")
+            check_kind("plant", self.plant_model)
         else:
-            from twin.plant import check_plant
-
             check_plant(self.plant_model, not self.sensing.ideal)
+        if not isinstance(self.plant_params, Mapping):
+            raise TwinError(f"RunSpec.plant_params must be a table of keyword arguments, got {self.plant_params!r}")
         rate = self.control_rate
         duration = self.duration
         if isinstance(duration, bool) or not isinstance(duration, (int, float, np.floating, np.integer)) \
@@ -268,28 +269,28 @@ class RunSpec:
 
     @property
     def motor(self):
-        """The motors the controllers and the estimator may know of: the twin's (None: ideal
-        torque sources, as the analytic plant's and as a plant of one's own says nothing of)."""
-        from twin.plant.bullet import BulletTwin
-
-        if self.plant_model == "bullet":
-            return self.plant.motor
-        if isinstance(self.plant_model, BulletTwin):
-            return self.plant_model.config.motor
-        return None
+        """The motors the controllers and the estimator may know of: the configuration's, for a
+        plant that applies them (:class:`twin.protocols.Plant`'s ``applies_motor``: the PyBullet
+        twin); None (ideal torque sources) for one that does not say so."""
+        m = self.plant_model
+        if isinstance(m, str):
+            return self.plant.motor if getattr(resolve("plant", m)[0], "applies_motor", False) else None
+        return m.config.motor if getattr(m, "applies_motor", False) and isinstance(
+            getattr(m, "config", None), TwinConfig) else None
 
     @property
     def plant_name(self) -> str:
-        """"twin", "analytic" or a plant object's class, as the run records it."""
-        from twin.plant.analytic_plant import AnalyticPlant
-        from twin.plant.bullet import BulletTwin
+        """The plant as the run records it: a built-in kind's label ("twin" for the PyBullet
+        twin, "analytic"), a plant kind of one's own as named, a plant object's class; a
+        built-in's object as its kind."""
         from twin.protocols import describe_object
 
         m = self.plant_model
-        if m == "bullet" or isinstance(m, BulletTwin):
-            return "twin"
-        if m == "analytic" or isinstance(m, AnalyticPlant):
-            return "analytic"
+        if isinstance(m, str):
+            return label(m) if m in PLANTS else m
+        for kind in PLANTS:
+            if type(m) is resolve("plant", kind)[0]:
+                return label(kind)
         return describe_object(m)
 
     @property

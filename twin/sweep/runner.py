@@ -37,6 +37,7 @@ from pathlib import Path
 
 from twin.errors import TwinError
 from twin.registry import uses_design
+from twin.scenarios.planning import plugin_roles
 from twin.scenarios.scenario import Scenario
 from twin.sweep.backends import BACKENDS, default_workers, run_local, run_ray
 from twin.sweep.sampling import value_columns
@@ -114,14 +115,14 @@ def sweep_plan(scenario: Scenario, kinds) -> dict:
 
 
 def preflight(scenario: Scenario, kinds, duration: float = 0.05, design=None) -> None:
-    """Run the plugins among ``kinds`` (and a plugin estimator) for ``duration`` s in a worker
+    """Run the plugins among ``kinds`` (and a plugin estimator or plant) for ``duration`` s in a worker
     process, before anything is written: a plugin that breaks its contract at once is a
     one-line error rather than N failed samples."""
     from twin.registry import is_import_path
     from twin.scenarios.runner import run_scenario
 
     plugins = [k for k in kinds if is_import_path(k)]
-    if is_import_path(scenario.estimator) and not plugins:
+    if plugin_roles(scenario, ()) and not plugins:  # the estimator or the plant is a user's
         plugins = [kinds[0]]
     if not plugins:
         return
@@ -166,7 +167,7 @@ def run_sweep(scenario: Scenario, draws: int, out: Path, scenario_arg: str | Non
     from twin.sweep.sampling import SAMPLES_VERSION
 
     levels = scenario.sweep["levels"]
-    roles = [("controller", k) for k in kinds] + [("estimator", scenario.estimator)]
+    roles = plugin_roles(scenario, kinds)
     manifest = {"scenario": scenario.data, "source": scenario.source, "scenario_arg": scenario_arg or scenario.name,
                 "overrides": [o for o in scenario.overrides if not o.startswith("seed=")],
                 "root_seed": scenario.seed, "controllers": list(kinds),

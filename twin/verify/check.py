@@ -165,7 +165,7 @@ def run_checks(scenarios, controllers=None, seeds: int = 1, workers: int = 1, pr
             paths, reads = summary["dirs"], summary["reads_truth"]
             signals = [summary["signals"][k] for k in kinds]
         else:
-            paths, reads = plugin_dirs([("controller", k) for k in kinds] + [("estimator", sc.estimator)]), False
+            paths, reads = plugin_dirs(plugin_roles(sc, kinds)), False
             signals = [getattr(spec.controller.kind, "signals", ()) for spec in runs_of(sc, kinds)]
         _refuse_truth_reader(sc, reads)
         for kind, own in zip(kinds, signals):
