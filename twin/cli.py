@@ -1421,17 +1421,17 @@ def scenarios(name):
 
 @main.command()
 def kinds():
-    """List the built-in controller and estimator kinds (any 'package.module:attribute' works too).
+    """List the built-in controller, estimator and plant kinds (any 'package.module:attribute' works too).
 
     \b
     Examples:
       twin kinds
       twin run paper-exp2 --controller it2,lqr
     """
-    from twin.registry import CONTROLLERS, ESTIMATORS
+    from twin.registry import CONTROLLERS, ESTIMATORS, PLANTS
 
     for title, table in (("controllers (--controller, controller.kinds)", CONTROLLERS),
-                         ("estimators (sensors.estimator)", ESTIMATORS)):
+                         ("estimators (sensors.estimator)", ESTIMATORS), ("plants (plant.model)", PLANTS)):
         click.echo(title)
         width = max(map(len, table))
         for name, kind in table.items():
