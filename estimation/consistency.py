@@ -148,7 +148,7 @@ def filter_rows(lag, n: int, last: int = 0) -> np.ndarray:
     return np.maximum.accumulate(np.maximum(cand, last))
 
 
-def _truth_rows(c: TruthConstants, ref: tuple, th, thd, psl, psr, psi, psd, al, by, bz) -> np.ndarray:
+def truth_rows(c: TruthConstants, ref: tuple, th, thd, psl, psr, psi, psd, al, by, bz) -> np.ndarray:
     """The 12 true states (m, 12) of rows given by their truth columns (arrays (m,));
     ``ref`` (q_l(0), q_r(0), α(0)) of the run's first row. Elementwise: a row's values depend on
     that row alone (the batch and the streaming figures agree to the bit)."""
@@ -176,7 +176,7 @@ def state_matrix(s: StateTruth, lag) -> np.ndarray:
     if not n:
         return out
     ref = (float(s.psi_l[0] - s.theta[0]), float(s.psi_r[0] - s.theta[0]), float(s.alpha[0]))
-    x = _truth_rows(s.constants, ref, *(np.asarray(v, float) for v in (
+    x = truth_rows(s.constants, ref, *(np.asarray(v, float) for v in (
         s.theta, s.theta_dot, s.psi_l, s.psi_r, s.psi, s.psi_dot, s.alpha)), s.gyro_bias[:, 1], s.gyro_bias[:, 2])
     ok = f >= 1
     out[ok] = x[f[ok]]
@@ -188,10 +188,10 @@ def nees(source) -> np.ndarray:
     :class:`twin.sim.runs.Run` or a :class:`FilterRecord`. Solved by
     :func:`estimation.detlinalg.quad_inv_rows` (the same bits on every CPU)."""
     x, P = source.filter_log["x"], source.filter_log["P"]
-    return _nees_rows(x, P, filter_truth(source))
+    return nees_rows(x, P, filter_truth(source))
 
 
-def _nees_rows(x, P, truth) -> np.ndarray:
+def nees_rows(x, P, truth) -> np.ndarray:
     e = x - truth
     ok = np.isfinite(e).all(axis=1)
     if ok.all():
@@ -328,10 +328,10 @@ class RunningConsistency:
         q = np.full(m, np.nan)
         if ok.any():
             T = self._truth[f[ok] - self._base]
-            X = _truth_rows(self.constants, self._ref, *T.T)
+            X = truth_rows(self.constants, self._ref, *T.T)
             truth = np.full((m, DIM), np.nan)
             truth[ok] = X
-            q = _nees_rows(state[:, :DIM], state[:, DIM:].reshape(m, DIM, DIM), truth)
+            q = nees_rows(state[:, :DIM], state[:, DIM:].reshape(m, DIM, DIM), truth)
         self._sums.block(tr[:, 0], q, nis, dof)
         self.n = i0 + m
         self._f = int(f[-1])

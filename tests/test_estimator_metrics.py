@@ -207,7 +207,7 @@ def test_nees_after_a_latency_change_is_aligned(latency_runs):
     seeds 0–9: 1.37–4.2×). A test of the alignment alone: how consistent the filter is after a
     change it saw late is its own matter (the mean NEES there is 8–315 on seeds 0–9, 6–15
     before the fault)."""
-    from estimation.consistency import _truth_rows
+    from estimation.consistency import truth_rows
 
     for run in latency_runs:
         lag = run.filter_log["lag"]
@@ -215,7 +215,7 @@ def test_nees_after_a_latency_change_is_aligned(latency_runs):
         t_change = run.t[np.flatnonzero(np.diff(lag))[0] + 1]
         s = run_truth(run)
         ref = (float(s.psi_l[0] - s.theta[0]), float(s.psi_r[0] - s.theta[0]), float(s.alpha[0]))
-        X = _truth_rows(s.constants, ref, s.theta, s.theta_dot, s.psi_l, s.psi_r, s.psi, s.psi_dot, s.alpha,
+        X = truth_rows(s.constants, ref, s.theta, s.theta_dot, s.psi_l, s.psi_r, s.psi, s.psi_dot, s.alpha,
                         s.gyro_bias[:, 1], s.gyro_bias[:, 2])
         f = filter_rows(lag, n)
         rows = np.flatnonzero(run.t >= t_change + 0.5)

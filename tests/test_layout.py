@@ -51,6 +51,21 @@ def test_the_plant_configuration_holds_no_limits():
         RunSpec(Plugin("it2"), limits={"step_wall_s": 1.0})
 
 
+def test_no_private_name_is_imported_from_another_package():
+    """What one package uses of another is public (named without a leading underscore)."""
+    import ast
+
+    found = []
+    for mod, path in modules().items():
+        if path.suffix != ".py":
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith(("twin", "estimation")):
+                found += [f"{mod} <- {node.module}:{a.name}" for a in node.names
+                          if a.name.startswith("_") and not a.name.startswith("__") and unit(mod) != unit(node.module)]
+    assert found == []
+
+
 def test_the_cycle_finder_finds_a_cycle():
     assert cycles({("a", "b"), ("b", "c"), ("c", "a"), ("c", "d")}) == [["a", "b", "c"]]
     assert cycles({("a", "b"), ("b", "c")}) == []

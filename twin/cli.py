@@ -379,7 +379,7 @@ def _limit_overrides(overrides, step_limit, run_limit, memory_limit) -> tuple:
     given = {"step_limit": step_limit, "run_limit": run_limit, "memory_limit": memory_limit}
     if all(v is None for v in given.values()):
         return tuple(overrides)
-    from twin.scenarios.schema import ScenarioError, _value, lookup
+    from twin.scenarios.schema import ScenarioError, parse_value, lookup
     from twin.scenarios.scenario import parse_override
 
     extra = []
@@ -394,7 +394,7 @@ def _limit_overrides(overrides, step_limit, run_limit, memory_limit) -> tuple:
                 raise TwinError(f"{flag} and --set {name}=... both set limits.{key}; give one of them")
         try:
             _, value = parse_override(f"limits.{key}={text}")
-            value = _value(value, lookup(f"limits.{key}"), flag)
+            value = parse_value(value, lookup(f"limits.{key}"), flag)
         except ScenarioError as exc:
             message = str(exc)
             if message.startswith("--set"):  # what the TOML reader could not take, said of the option

@@ -42,17 +42,12 @@ import numpy as np
 from twin.actuators.dc_motor import DCMotorParams
 from twin.errors import TwinError
 from twin.params import RobotParams
-from twin.plant.analytic import rhs_batch
+from twin.plant.analytic import compiled_windows, rhs_batch
 from twin.timing import steps_per_control
 
 PLANTS = ("bullet", "analytic")
-try:  # the compiled stepping of twin/plant/_fastpath.c (optional: the Python loop below does the same)
-    from twin.plant import _fastpath as _kernel
-
-    if not hasattr(_kernel, "windows"):
-        _kernel = None
-except ImportError:  # pragma: no cover - the kernel did not build
-    _kernel = None
+# the compiled stepping of twin/plant/_fastpath.c, None without it (the Python loop below does the same)
+_windows = compiled_windows
 _FORCE_PYTHON = False  # tests set it to compare the two paths
 
 
@@ -156,12 +151,12 @@ def step_windows(S0, drive, params: RobotParams, motor: DCMotorParams | None, ph
     # joint damping d_b + c_e at every physics step; d_w enters as held torques instead
     joint = params.replace(d_b=params.d_b + c_e, d_w=0.0)
     d_w = params.d_w
-    if _kernel is not None and (motor is None or drive_is_duty) and not _FORCE_PYTHON:
+    if _windows is not None and (motor is None or drive_is_duty) and not _FORCE_PYTHON:
         # the held torques do not depend on the state: the compiled loop (the same arithmetic)
         tau0 = drive if motor is None else stall_part(drive, motor)
         consts = (joint.m11, joint.m12, joint.m22, joint.n_bla, joint.g_b, joint.d_b, d_w, joint.yaw_damping, b_r,
                   joint.m33, h)
-        _kernel.windows(np.ascontiguousarray(S0), np.ascontiguousarray(tau0, dtype=float), out, consts, k)
+        _windows(np.ascontiguousarray(S0), np.ascontiguousarray(tau0, dtype=float), out, consts, k)
         return out
     tau = np.zeros((W, 3))
     for n in range(N):

@@ -207,9 +207,9 @@ def plant_overrides(path) -> list[str]:
 def write_figure(cal, params: dict, validation, path) -> None:
     """figure.png: the fit over the log's first seconds, the residuals, the intervals and the
     validation's prediction error over the horizon."""
-    from twin.outputs.report import _load_matplotlib
+    from twin.outputs.report import load_matplotlib
 
-    _load_matplotlib(pyplot=True)  # signals held while its C++ modules load (an interrupt there broke them)
+    load_matplotlib(pyplot=True)  # signals held while its C++ modules load (an interrupt there broke them)
     import matplotlib
     import matplotlib.pyplot as plt
 

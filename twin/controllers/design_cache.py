@@ -44,6 +44,9 @@ from pathlib import Path
 
 import numpy as np
 
+from twin.digests import dist_version
+from twin.interrupts import deferred_signals
+
 FORMAT = 3  # bump when the file layout or what is stored changes (2: damping ratio, parameter box; 3: the
 #            unique central point, keyed without package versions)
 _PREFIX = "lmi-"
@@ -101,8 +104,6 @@ _versions_memo: dict | None = None
 def _versions() -> dict:
     global _versions_memo
     if _versions_memo is None:
-        from twin.outputs.fingerprint import dist_version
-
         here = Path(__file__).resolve().parent
         code = hashlib.sha256()
         for f in (here / "lmi.py", here / "lmi_regions.py", here / "lmi_center.py",
@@ -178,8 +179,6 @@ def store(key: str, inputs: dict, design) -> None:
            "checksum": hashlib.sha256(_canonical(body)).hexdigest()}
     target = path_of(key)
     tmp = None
-    from twin.outputs.rundir import deferred_signals
-
     # signals held while it writes (a few ms), delivered after: an interrupt between mkstemp and its
     # name's being kept, or in the clean-up below, left a temporary file in the store
     with deferred_signals():

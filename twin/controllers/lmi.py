@@ -69,7 +69,9 @@ from types import MappingProxyType
 import numpy as np
 
 from twin.controllers import lmi_regions as regions
+from twin.digests import design_digest
 from twin.errors import InfeasibleDesign, TwinError
+from twin.interrupts import deferred_signals
 from twin.params import NOMINAL, RobotParams
 from twin.plant.ts_model import rule1_weight, ts_matrices
 
@@ -229,8 +231,6 @@ class BalanceDesign:
     def digest(self) -> str:
         """SHA-256 of the gains and P by their exact bits (:func:`twin.outputs.fingerprint.design_digest`):
         equal digests, identical designs."""
-        from twin.outputs.fingerprint import design_digest
-
         return design_digest(gains=self.gains, P=self.P)
 
     def certified_models(self) -> list[tuple[list[np.ndarray], list[np.ndarray]]]:
@@ -325,12 +325,10 @@ def _solve(A, B, decay_rate, solver, T=None, feasibility_only=False):
 
 def _solver_call():
     """SIGINT and SIGTERM held while a solver runs, delivered as it returns
-    (:func:`twin.outputs.rundir.deferred_signals`): Clarabel is Rust, and calls back into Python
+    (:func:`twin.interrupts.deferred_signals`): Clarabel is Rust, and calls back into Python
     while it solves (it imports SciPy's LAPACK on its first solve); an interrupt raised there
     became a Rust panic (a traceback, exit status 1), or an error the fallback to SCS took for
     a failed solver, the signal lost. A solve takes 0.1-0.5 s here (SCS, the fallback, a few s)."""
-    from twin.outputs.rundir import deferred_signals
-
     return deferred_signals()
 
 

@@ -127,6 +127,7 @@ from twin.controllers import decimal_linalg as dl
 from twin.controllers.cascade import DEFAULT_PSI_ERROR_LIMIT
 from twin.controllers.lmi import DEFAULT_SCALING, DEFAULT_RHO
 from twin.controllers.mamdani import ALPHA_DOT_E_RANGE, ALPHA_E_RANGE, DEFAULT_U_ALPHA_MAX
+from twin.digests import design_digest
 from twin.errors import TwinError
 from twin.params import NOMINAL, RobotParams
 from twin.plant.ts_model import ts_matrices
@@ -393,8 +394,6 @@ class LQRController:
     def design_digest(self) -> str:
         """SHA-256 (hex) of the gains' exact bits, K and K_yaw (:func:`twin.outputs.fingerprint.design_digest`):
         equal digests, identical gains."""
-        from twin.outputs.fingerprint import design_digest
-
         return design_digest(K=self.K, K_yaw=self.K_yaw)
 
     def closed_loop_poles(self) -> tuple[np.ndarray, np.ndarray]:

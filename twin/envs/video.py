@@ -39,35 +39,26 @@ def capped_cubic_video_schedule(episode: int) -> bool:
 
 
 class _Recording:
-    """One episode's video being written (temporary file, encoder thread, frame clock)."""
+    """One episode's video being written (:class:`twin.render.video.VideoStream`) and its frame clock."""
 
     def __init__(self, path: Path, fps: float, rate: float):
-        from twin.render.video import _temp_file, frame_count
+        from twin.render.video import VideoStream, frame_count
 
         self._frame_count = frame_count  # due() runs every control step: looked up once
         self.path = path
         self.fps = fps
         self.rate = rate  # control steps per simulated second
-        self.tmp = _temp_file(path)
-        self.encoder = None
-        self.codec = self.encoder_name = self.note = ""
-        self.size = None
+        self.stream = VideoStream(path, fps)
         self.frames = 0  # frames written; the next one is due at frames / fps s
         self.last_k = -1  # the control step of the last picture taken
         self.render_seconds = 0.0
         self.started = time.perf_counter()
 
     def put(self, rgb: np.ndarray, k: int) -> None:
-        from twin.render.video import _Encoder, _open_writer
-
         if not (isinstance(rgb, np.ndarray) and rgb.ndim == 3 and rgb.shape[2] == 3 and rgb.dtype == np.uint8):
             raise TwinError(f"render() must return an (H, W, 3) uint8 picture to record, got "
                             f"{getattr(rgb, 'shape', type(rgb).__name__)}")
-        if self.encoder is None:
-            self.size = (rgb.shape[1], rgb.shape[0])
-            writer, self.codec, self.encoder_name, self.note = _open_writer(self.tmp, self.fps, self.size)
-            self.encoder = _Encoder(writer)
-        self.encoder.put(np.ascontiguousarray(rgb[:, :, ::-1]))  # the writers take BGR
+        self.stream.put(np.ascontiguousarray(rgb[:, :, ::-1]))  # the stream takes BGR
         self.frames += 1
         self.last_k = k
 
@@ -76,24 +67,18 @@ class _Recording:
         return max(0, self._frame_count(k / self.rate, self.fps) - self.frames)  # frames at 0, 1/fps, … ≤ k / rate
 
     def finish(self, renderer: str):
-        from twin.render.video import VideoInfo, _publish
+        from twin.render.video import VideoInfo
 
-        if self.encoder is None:  # nothing was rendered: no video
-            self.tmp.unlink(missing_ok=True)
+        st = self.stream
+        if not st.close():  # nothing was rendered: no video
             return None
-        enc, self.encoder = self.encoder, None
-        enc.close()
-        _publish(self.tmp, self.path, self.encoder_name)
-        return VideoInfo(path=self.path, frames=self.frames, size=self.size, fps=self.fps, codec=self.codec,
+        return VideoInfo(path=self.path, frames=self.frames, size=st.size, fps=self.fps, codec=st.codec,
                          renderer=renderer, panels=1, seconds=time.perf_counter() - self.started,
-                         render_seconds=self.render_seconds, encode_seconds=enc.busy, encoder=self.encoder_name,
-                         note=self.note)
+                         render_seconds=self.render_seconds, encode_seconds=st.encode_seconds, encoder=st.encoder,
+                         note=st.note)
 
     def abort(self) -> None:
-        enc, self.encoder = self.encoder, None
-        if enc is not None:
-            enc.abort()
-        self.tmp.unlink(missing_ok=True)
+        self.stream.abort()
 
 
 class RecordVideo(gymnasium.Wrapper, gymnasium.utils.RecordConstructorArgs):
@@ -152,7 +137,7 @@ class RecordVideo(gymnasium.Wrapper, gymnasium.utils.RecordConstructorArgs):
     def __init__(self, env: gymnasium.Env, video_folder, episode_trigger=None, name_prefix: str = "rl-video",
                  fps: float | None = None):
         from twin.envs.base import TwinEnv
-        from twin.render.video import _check_fps
+        from twin.render.video import check_fps
 
         gymnasium.utils.RecordConstructorArgs.__init__(self, video_folder=video_folder,
                                                        episode_trigger=episode_trigger, name_prefix=name_prefix,
@@ -174,7 +159,7 @@ class RecordVideo(gymnasium.Wrapper, gymnasium.utils.RecordConstructorArgs):
                             f"got {episode_trigger!r}")
         if not isinstance(name_prefix, str) or not name_prefix or os.sep in name_prefix:
             raise TwinError(f"name_prefix must be a non-empty file name prefix (no {os.sep!r}), got {name_prefix!r}")
-        self.fps = _check_fps(raw.video_fps if fps is None else fps)
+        self.fps = check_fps(raw.video_fps if fps is None else fps)
         self.video_folder = Path(os.fspath(video_folder))
         self.episode_trigger = episode_trigger
         self.name_prefix = name_prefix
@@ -190,9 +175,9 @@ class RecordVideo(gymnasium.Wrapper, gymnasium.utils.RecordConstructorArgs):
         obs, info = self.env.reset(seed=seed, options=options)
         self.episode_id += 1
         if self.episode_trigger(self.episode_id):
-            from twin.render.video import _check_path
+            from twin.render.video import check_video_path
 
-            path = _check_path(self.video_folder / f"{self.name_prefix}-episode-{self.episode_id}.mp4")
+            path = check_video_path(self.video_folder / f"{self.name_prefix}-episode-{self.episode_id}.mp4")
             self._rec = _Recording(path, self.fps, self.unwrapped.control_rate)
             self._guarded(self._capture, 0)
         return obs, info

@@ -175,7 +175,7 @@ class DiagnosticsLog(Sequence):
         m = len(lags)
         if not m:
             return
-        from estimation.consistency import _nees_rows
+        from estimation.consistency import nees_rows
 
         i0 = len(self._nees)
         f = np.maximum.accumulate(np.maximum(np.arange(i0, i0 + m, dtype=np.int64) - np.array(lags, np.int64),
@@ -185,7 +185,7 @@ class DiagnosticsLog(Sequence):
         if ok.any():
             truth[ok] = self._truth.states(f[ok])
         state = self._states[:m]
-        self._nees.extend(_nees_rows(state[:, :_DIM], state[:, _DIM:].reshape(m, _DIM, _DIM), truth).tolist())
+        self._nees.extend(nees_rows(state[:, :_DIM], state[:, _DIM:].reshape(m, _DIM, _DIM), truth).tolist())
         self._f = int(f[-1])
         lags.clear()
 
@@ -288,7 +288,7 @@ class _StateTruthRows:
 
     def states(self, f: np.ndarray) -> np.ndarray:
         """The 12 true states (m, 12) of instants ``f``; NaN at an instant without a truth row."""
-        from estimation.consistency import _truth_rows
+        from estimation.consistency import truth_rows
 
         r = self.rows[f]
         ok = r >= 0
@@ -298,7 +298,7 @@ class _StateTruthRows:
                 out[ok] = self.states(f[ok])
             return out
         tr, st = self.truth[r], self.state[r]
-        return _truth_rows(self.constants, self.ref, tr[:, 0], tr[:, 1], st[:, 0], st[:, 1], tr[:, 2], tr[:, 3],
+        return truth_rows(self.constants, self.ref, tr[:, 0], tr[:, 1], st[:, 0], st[:, 1], tr[:, 2], tr[:, 3],
                            tr[:, 4], st[:, 3], st[:, 4])
 
 

@@ -513,7 +513,7 @@ def filter_record(log: SensorLog | None, r: Replay):
     reported the EKF's ``x``, ``P`` and ``lag`` at every instant and they were kept (a replay
     of :func:`replay` with ``diagnostics``; :func:`replay_logs` keeps the NEES instead)."""
     from estimation.consistency import FilterRecord
-    from twin.sim.recorder import _filter_log  # the arrays Run.filter_log holds, built the same way
+    from twin.sim.recorder import filter_log_of  # the arrays Run.filter_log holds, built the same way
 
     if isinstance(r.diagnostics, DiagnosticsLog):
         return None
@@ -521,7 +521,7 @@ def filter_record(log: SensorLog | None, r: Replay):
     if not ds or not all(isinstance(d, dict) and {"x", "P", "lag"} <= set(d) for d in ds):
         return None
     keys = ("x", "P", "nis", "nis_dof", "lag")
-    flog = _filter_log([{k: d[k] for k in keys if k in d} for d in ds], len(ds))
+    flog = filter_log_of([{k: d[k] for k in keys if k in d} for d in ds], len(ds))
     if "nis" not in flog:
         flog["nis"], flog["nis_dof"] = np.full(len(ds), math.nan), np.zeros(len(ds), dtype=int)
     t = r.t - r.t[0]

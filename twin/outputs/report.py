@@ -17,7 +17,7 @@ _COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab
             "tab:olive", "tab:cyan")  # matplotlib's tab10, in the order the runs are given
 
 
-def _load_matplotlib(pyplot: bool = False) -> None:
+def load_matplotlib(pyplot: bool = False) -> None:
     """Import what the figures are drawn with (the Agg canvas, Figure; ``pyplot``: pyplot on
     Agg), SIGINT and SIGTERM held meanwhile (:func:`twin.outputs.rundir.deferred_signals`,
     delivered as the imports end; 0.3-0.5 s, once). matplotlib's extension modules are C++
@@ -46,7 +46,7 @@ def _load_matplotlib(pyplot: bool = False) -> None:
 
 
 def _pyplot():
-    _load_matplotlib(pyplot=True)
+    load_matplotlib(pyplot=True)
     import matplotlib
 
     matplotlib.use("Agg")
@@ -80,7 +80,7 @@ def figure_runs(runs: list, title: str = ""):
     ``runs``: :class:`~twin.sim.runs.Run` (from the twin or the analytic model)."""
     from twin.outputs.figure import fill_figure, new_figure
 
-    _load_matplotlib()
+    load_matplotlib()
     fig, axes = new_figure()
     return fill_figure(fig, axes, figure_data(runs), title)
 
@@ -100,13 +100,13 @@ def figure_data(runs: list) -> dict:
     ``difference`` to the first (:func:`_difference`); and, with a zoom window, the same
     signals over the window at full rate (``zoom``). Then the experiment's targets p_d, α_d
     (None if it has none), the shaded spans (:func:`_shaded_spans`), the zoom window
-    (:func:`_zoom_window`: (start s, end s, why) or None, and ``zoom_why_not`` the reason
+    (:func:`zoom_window`: (start s, end s, why) or None, and ``zoom_why_not`` the reason
     for None), the first run's ``pushes`` (their time, force, where they hit and a label)
     and its ``start`` (x m, y m, α rad)."""
     out = []
     first = runs[0]
-    pushes = _pushes(first)
-    zoom = _zoom_window(runs, pushes)
+    pushes = push_windows(first)
+    zoom = zoom_window(runs, pushes)
     for i, r in enumerate(runs):
         name = kind_label(r.controller) or r.controller or f"run {i + 1}"
         d = {"name": name, "colour": _COLOURS[i % len(_COLOURS)], "settling_time": float(r.settling_time()),
@@ -173,7 +173,7 @@ def _difference(ref: Run, run: Run) -> dict:
     return {"theta": _envelope(t, dth), "largest": largest, "span": float(np.ptp(theta)) if theta.size else 0.0}
 
 
-def _zoom_window(runs: list, pushes: list):
+def zoom_window(runs: list, pushes: list):
     """(start s, end s, why) the zoom panels show, or None: the catch from a start tilted by
     :data:`ZOOM_THETA0` or more (until 3 times the last moment, in the first half of the
     run, that any run's |θ| exceeded a fifth of its start; at least :data:`ZOOM_MIN_S`),
@@ -220,7 +220,7 @@ def _zoomed(r: Run, zoom) -> dict:
 _DIRECTIONS = (("forward", "backward"), ("to the left", "to the right"), ("up", "down"))
 
 
-def _pushes(run: Run) -> list:
+def push_windows(run: Run) -> list:
     """The pushes on ``run``: per stretch of rows with a push force, its start ``t`` (s), its
     end ``end`` (s), the largest ``force`` (fx, fy, fz) N in the world frame, where it hit
     (``at``: the robot's (x, y) m then) and a ``label``: its size and direction in the robot's
@@ -250,13 +250,13 @@ def _pushes(run: Run) -> list:
 
 def _shaded_spans(runs: list, pushes: list | None = None) -> list:
     """[(kind, start, end, label)]: the pushes of the first run ("push", where a push force
-    acted, labelled with its size and direction: :func:`_pushes`) and the sensor-fault windows
+    acted, labelled with its size and direction: :func:`push_windows`) and the sensor-fault windows
     of its sensors ("sensor fault", labelled with the fault's kind, e.g. "IMU dropout"; a
     latency change from its time to the end), in s."""
     spans = []
     end = max(float(r.t[-1]) for r in runs) if runs else 0.0
     for r in runs[:1]:
-        for p in _pushes(r) if pushes is None else pushes:
+        for p in push_windows(r) if pushes is None else pushes:
             spans.append(("push", p["t"], p["end"], f"push {p['label']}"))
         for name, a, b in fault_windows(getattr(r.sensor_config, "faults", ())):
             spans.append(("sensor fault", a, min(b, end), name))  # a latency change lasts to the end

@@ -152,3 +152,8 @@ def rhs_batch(S, tau_l, tau_r, p: RobotParams, tau=None) -> np.ndarray:
     out[:, 0], out[:, 1], out[:, 2] = theta_d, theta_dd, psi_d
     out[:, 3], out[:, 4], out[:, 5] = psi_dd, alpha_d, alpha_dd
     return out
+
+try:  # the compiled batch stepping of twin/plant/_fastpath.c (optional: rhs_batch by RK4 does the same)
+    from twin.plant._fastpath import windows as compiled_windows
+except ImportError:  # pragma: no cover - the kernel did not build (or is an older one without it)
+    compiled_windows = None

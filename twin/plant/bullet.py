@@ -62,6 +62,7 @@ from math import asin, atan2, cos, isfinite, remainder, sin
 
 from twin.actuators.dc_motor import MotorDriver
 from twin.errors import TwinError
+from twin.interrupts import deferred_signals
 # the types and start checks every plant shares, importable from here as before
 from twin.plant.base import (ACTUATION_UNITS, START_TOLERANCE, TRUTH_UNITS, Actuation, GroundTruth,  # noqa: F401
                              TwinConfig, checked_start, initial_pose, start_clearance, start_problem, touch_angle)
@@ -120,12 +121,10 @@ def quiet_native_output():
 def _connect():
     """A new DIRECT physics server of its own, and the pybullet module.
 
-    SIGINT and SIGTERM are held meanwhile (:func:`twin.outputs.rundir.deferred_signals`, delivered
+    SIGINT and SIGTERM are held meanwhile (:func:`twin.interrupts.deferred_signals`, delivered
     as it returns): an interrupt raised between ``pybullet.connect`` and BulletClient's storing its
     id left a client without one, whose ``__del__`` then printed an AttributeError traceback after
     the command's one line (and the server it had connected was never disconnected)."""
-    from twin.outputs.rundir import deferred_signals
-
     with deferred_signals(), quiet_native_output():
         import pybullet
         from pybullet_utils.bullet_client import BulletClient

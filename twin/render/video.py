@@ -217,14 +217,17 @@ def _check_runs(runs) -> list:
     return runs
 
 
-def _check_fps(fps) -> float:
+def check_fps(fps) -> float:
+    """``fps`` as a float if it is a frame rate in [1, MAX_FPS] frames/s; else a one-line TwinError."""
     if not (isinstance(fps, (int, float, np.integer, np.floating)) and not isinstance(fps, bool)
             and math.isfinite(fps) and 1.0 <= fps <= MAX_FPS):
         raise TwinError(f"fps must be a number of frames per second in [1, {MAX_FPS:g}], got {fps!r}")
     return float(fps)
 
 
-def _check_path(path) -> Path:
+def check_video_path(path) -> Path:
+    """``path`` as a Path if it names an .mp4 file whose directory can be made (made here);
+    else a one-line TwinError."""
     try:
         p = Path(os.fspath(path))
     except TypeError:
@@ -449,6 +452,76 @@ class _Encoder:
             raise self.error
 
 
+class VideoStream:
+    """An MP4 written frame by frame while it is rendered: H.264 by ffmpeg where it can be (else
+    OpenCV's first codec that works, :data:`CODECS`), encoded on a thread of its own, under a
+    temporary name beside ``path`` until :meth:`close` renames it into place; :meth:`abort`
+    (an error, an interrupt) leaves no file. The frame size is the first frame's.
+
+    Parameters
+    ----------
+    path : str or Path
+        The video, ending in ``.mp4`` (:func:`check_video_path`).
+    fps : float
+        Frames per second (:func:`check_fps`).
+
+    After :meth:`close`: ``frames``, ``size`` (w, h) px, ``codec`` ("avc1", or OpenCV's
+    fourcc), ``encoder`` ("ffmpeg libx264", …), ``note`` (why not H.264 by ffmpeg; "" when
+    it was) and ``encode_seconds`` (s spent encoding).
+    """
+
+    def __init__(self, path, fps: float):
+        self.fps = check_fps(fps)
+        self.path = check_video_path(path)
+        self._tmp = _temp_file(self.path)  # made now: a directory that cannot take it is said at once
+        self._encoder: _Encoder | None = None
+        self.frames = 0
+        self.size: tuple[int, int] | None = None
+        self.codec = self.encoder = self.note = ""
+        self.encode_seconds = 0.0
+
+    def put(self, frame: np.ndarray) -> None:
+        """Queue a BGR frame, (h, w, 3) uint8, not to be changed afterwards (waits while the
+        encoder's queue is full)."""
+        if self._encoder is None:
+            if self._tmp is None:
+                raise TwinError(f"the video {str(self.path)!r} is closed")
+            self.size = (frame.shape[1], frame.shape[0])
+            writer, self.codec, self.encoder, self.note = _open_writer(self._tmp, self.fps, self.size)
+            self._encoder = _Encoder(writer)
+        self._encoder.put(frame)
+        self.frames += 1
+
+    def close(self) -> bool:
+        """Encode what is queued and put the video in its place; False (and no file) if no
+        frame was put."""
+        enc, self._encoder = self._encoder, None
+        tmp, self._tmp = self._tmp, None
+        if tmp is None:
+            return False
+        if enc is None:
+            tmp.unlink(missing_ok=True)
+            return False
+        try:
+            enc.close()
+            _publish(tmp, self.path, self.encoder)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+        finally:
+            self.encode_seconds = enc.busy
+        return True
+
+    def abort(self) -> None:
+        """Abandon the video: nothing more is encoded and no file is left."""
+        enc, self._encoder = self._encoder, None
+        tmp, self._tmp = self._tmp, None
+        if enc is not None:
+            enc.abort()
+        if tmp is not None:
+            tmp.unlink(missing_ok=True)
+
+
 def _default_label(run, i: int) -> str:
     """The run's name as the figure and metrics.json give it (the registry's label: "IT2", "type-1",
     "LQR", a plugin's attribute), then the experiment's."""
@@ -529,7 +602,7 @@ def render_video(runs, path, fps: float = 30, size=(640, 480),
     """
     t_start = time.perf_counter()
     runs = _check_runs(runs)
-    fps = _check_fps(fps)
+    fps = check_fps(fps)
     w, h = check_size(size)
     total_w = w * len(runs)
     if total_w > MAX_WIDTH:
@@ -551,7 +624,7 @@ def render_video(runs, path, fps: float = 30, size=(640, 480),
     if camera is not None and not isinstance(camera, Camera):
         raise TwinError(f"camera must be a twin.render.Camera, got {camera!r}")
     renderer = resolve_renderer(renderer)
-    path = _check_path(path)
+    path = check_video_path(path)
 
     from twin.render.panels import RemotePanel, panel_frames
 
@@ -563,10 +636,9 @@ def render_video(runs, path, fps: float = 30, size=(640, 480),
     samples = [tr.sample(times) for tr in tracks]
     if parallel is None:
         parallel = len(runs) > 1 and (os.cpu_count() or 1) > 1
-    tmp = _temp_file(path)
+    stream = VideoStream(path, fps)
     scenes: list[Scene] = []
     remotes: list[RemotePanel] = []
-    encoder = None
     t_render = 0.0
     try:
         sources = []
@@ -577,8 +649,6 @@ def render_video(runs, path, fps: float = 30, size=(640, 480),
             else:
                 scenes.append(Scene(r.config, (w, h), renderer, camera))
                 sources.append(panel_frames(scenes[-1], tr, smp, times, hud))
-        writer, codec, encoder_name, note = _open_writer(tmp, fps, (total_w, h))
-        encoder = _Encoder(writer)
         for k in range(n):
             t0 = time.perf_counter()
             panels = [next(src) for src in sources]
@@ -591,16 +661,12 @@ def render_video(runs, path, fps: float = 30, size=(640, 480),
             if k < slow_frames:  # the slowed frames say so, at the bottom of each panel
                 _caption(frame, caption, w, len(panels))
             t_render += time.perf_counter() - t0
-            encoder.put(frame)
+            stream.put(frame)
             if progress is not None:
                 progress(k + 1, n)
-        enc, encoder = encoder, None
-        enc.close()
-        _publish(tmp, path, encoder_name)
+        stream.close()
     except BaseException:
-        if encoder is not None:
-            encoder.abort()
-        tmp.unlink(missing_ok=True)
+        stream.abort()
         raise
     finally:
         for scene in scenes:
@@ -608,6 +674,6 @@ def render_video(runs, path, fps: float = 30, size=(640, 480),
         for remote in remotes:
             remote.close()
     used = sorted({s.renderer for s in scenes} | {rp.renderer for rp in remotes})
-    return VideoInfo(path=path, frames=n, size=(total_w, h), fps=fps, codec=codec, renderer="+".join(used),
+    return VideoInfo(path=path, frames=n, size=(total_w, h), fps=fps, codec=stream.codec, renderer="+".join(used),
                      panels=len(runs), seconds=time.perf_counter() - t_start, render_seconds=t_render,
-                     encode_seconds=enc.busy, encoder=encoder_name, note=note)
+                     encode_seconds=stream.encode_seconds, encoder=stream.encoder, note=stream.note)

@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from twin.outputs import figure_worker, rundir
-from twin.outputs.report import ZOOM_THETA0, _pushes, _zoom_window  # the catch the figure zooms on
+from twin.outputs.report import ZOOM_THETA0, push_windows, zoom_window  # the catch the figure zooms on
 from twin.errors import PluginError, TwinError
 from twin.limits import limit_of
 from twin.scenarios.planning import LazyDesign, plugins_of, refuse_unused_params
@@ -247,7 +247,7 @@ def _run_and_write(scenario, kinds, staged, video, progress, every, log_format, 
                 raise
             errors[kind] = exc  # that controller's alone: the others run on
             continue
-        controllers.append((kind, spec.controller.kind if box is None else _Digest(done["digest"])))
+        controllers.append((kind, spec.controller.kind if box is None else DesignDigest(done["digest"])))
         run.sensing = scenario.estimator
         timings[f"run_{kind}_s"] = time.perf_counter() - t0
         runs.append(run)
@@ -270,7 +270,7 @@ def _run_and_write(scenario, kinds, staged, video, progress, every, log_format, 
     return result
 
 
-class _Digest:
+class DesignDigest:
     """A controller run in a worker, as :func:`twin.outputs.fingerprint.digests` asks of it: its
     ``design_digest()`` (None: it has none)."""
 
@@ -506,7 +506,7 @@ def _catch_end(runs) -> float | None:
     """s: the end of the catch from a tilted start the figure zooms on (None: no such catch)."""
     if abs(float(runs[0].signal("theta")[0])) < ZOOM_THETA0:
         return None
-    zoom = _zoom_window(runs, _pushes(runs[0]))
+    zoom = zoom_window(runs, push_windows(runs[0]))
     return None if zoom is None else float(zoom[1])
 
 

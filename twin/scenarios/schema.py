@@ -377,7 +377,7 @@ def _range(key: Key) -> str:
     return f" in {left}{fmt(lo) if not math.isinf(lo) else '-inf'}, {fmt(hi) if not math.isinf(hi) else 'inf'}{right}{unit}"
 
 
-def _value(v, key: Key, path: str):
+def parse_value(v, key: Key, path: str):
     k = key.kind
     if k == "float":
         return _number(v, key, path)
@@ -494,7 +494,7 @@ def _table(raw, keys: dict[str, Key], path: str) -> dict:
     for name, key in keys.items():
         p = f"{path}.{name}" if path else name
         if name in raw:
-            out[name] = _value(raw[name], key, p)
+            out[name] = parse_value(raw[name], key, p)
         elif key.kind == "table":
             out[name] = _table({}, key.keys, p)
         elif key.default is REQUIRED:

@@ -226,7 +226,7 @@ class Recorder:
             command_units = tuple("N·m" if k in ("ul_cmd", "ur_cmd") else "1" for k in self.command_names)
         return Run(truth[:, 0].copy(), truth, cmds, act, push, status, reason, config, estimates=est,
                    measurements=[] if self.meas is None else self.meas[:rows],
-                   gyro_bias=None if self.bias is None else self.bias[:rows], filter_log=_filter_log(self._diag, n),
+                   gyro_bias=None if self.bias is None else self.bias[:rows], filter_log=filter_log_of(self._diag, n),
                    command_names=self.command_names, command_units=tuple(command_units), log_every=self.every,
                    full_rate=None if self.full is None else {name: a[:n] for name, a in self.full.items()}, **fields)
 
@@ -248,7 +248,7 @@ def _array(rows, m: int, k: int) -> np.ndarray:
     return a.reshape(m, k)
 
 
-def _filter_log(diag: list | None, n: int) -> dict | None:
+def filter_log_of(diag: list | None, n: int) -> dict | None:
     """The estimator's per-step diagnostics as arrays: for the EKF ``x`` (n, 12), ``P`` (n, 12, 12),
     ``nis`` (n,), ``nis_dof`` (n,) and ``lag`` (n,) the lag in force at each row (control
     periods: it changes when the filter detects a latency change); None if not logged or no hook."""

@@ -320,10 +320,10 @@ def environment_of(summary: dict, kinds, design) -> dict:
     controller's own ``design_digest()``, from :func:`sweep_plan`'s ``summary``: every sample's
     controllers are designed on the same nominal model)."""
     from twin.outputs.fingerprint import digests, record
-    from twin.scenarios.runner import _Digest
+    from twin.scenarios.runner import DesignDigest
 
     asked = summary["design"] is not None or design is not None
-    return record(digests(design if asked else None, [(k, _Digest(summary["digests"].get(k))) for k in kinds]))
+    return record(digests(design if asked else None, [(k, DesignDigest(summary["digests"].get(k))) for k in kinds]))
 
 
 def write_report(out: Path, manifest: dict, records, scenario: Scenario, reference: str | None = None) -> SweepResult:
