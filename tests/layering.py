@@ -29,6 +29,7 @@ LAYERS = {
     # shared types and helpers of no domain
     "twin": 0, "twin.errors": 0, "twin.validation": 0, "twin.timing": 0, "twin.rotations": 0,
     "twin.params": 0, "twin.inputs": 0, "twin.workers": 0, "twin.interrupts": 0, "twin.digests": 0,
+    "twin.measures": 0,
     # the parts: fuzzy systems, motors, sensors
     "twin.fuzzy": 1, "twin.actuators": 1, "twin.sensors": 1,
     # the plants and the types every plant shares

@@ -31,12 +31,25 @@ from __future__ import annotations
 from typing import Any, NamedTuple, Protocol, Sequence, runtime_checkable
 
 from twin.errors import shown  # re-exported: twin.registry quotes values with twin.protocols.shown
-from twin.plant.base import GroundTruth
+from twin.plant.base import Actuation, GroundTruth
 from twin.sensors.suite import Measurement
 
 ESTIMATE_NAMES = ("theta", "theta_dot", "psi", "psi_dot", "alpha", "alpha_dot")
 ESTIMATE_UNITS = ("rad", "rad/s", "rad", "rad/s", "rad", "rad/s")
 
+
+
+# the names of the columns a run logs of each part (twin.sim.runs): what a controller's own
+# signals may not be called
+TRUTH_NAMES = GroundTruth._fields
+ESTIMATE_NAMES = ("theta_est", "theta_dot_est", "psi_est", "psi_dot_est", "alpha_est", "alpha_dot_est")
+ESTIMATE_UNITS = dict(theta_est="rad", theta_dot_est="rad/s", psi_est="rad", psi_dot_est="rad/s", alpha_est="rad",
+                      alpha_dot_est="rad/s")
+COMMAND_NAMES = ("ul_cmd", "ur_cmd", "u", "theta_off", "u_alpha")  # the fuzzy cascade's (and LQR's)
+COMMAND_UNITS = dict(ul_cmd="N·m", ur_cmd="N·m", u="N·m", theta_off="rad", u_alpha="N·m")
+ACTUATION_NAMES = Actuation._fields
+PUSH_NAMES = ("push_fx", "push_fy", "push_fz")
+PUSH_UNITS = dict(push_fx="N", push_fy="N", push_fz="N")
 
 class Estimate(NamedTuple):
     """The controllers' state [θ, θ̇, ψ, ψ̇, α, α̇] (rad, rad/s, rad, rad/s, rad, rad/s) at one

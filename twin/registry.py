@@ -38,7 +38,7 @@ from typing import Any, Callable
 
 from twin import limits as _limits
 from twin.errors import MAY_NOT_END, PluginError, TwinError, ends_process, raised_text
-from twin.protocols import Targets, one_line, shown
+from twin.protocols import ACTUATION_NAMES, ESTIMATE_NAMES, PUSH_NAMES, TRUTH_NAMES, Targets, one_line, shown
 
 _IMPORT_PATH = re.compile(r"^[A-Za-z_][\w]*(\.[A-Za-z_][\w]*)*:[A-Za-z_][\w]*(\.[A-Za-z_][\w]*)*$")
 
@@ -398,8 +398,6 @@ def check_protocol(role: str, kind: str, obj) -> None:
         if not (isinstance(signals, (tuple, list)) and all(isinstance(s, str) and s.isidentifier() for s in signals)):
             raise PluginError(f"{role} {shown(kind)}: 'signals' must be a tuple of names (identifiers) of extra logged "
                               f"signals, got {shown(signals)}")
-        from twin.sim.runs import ACTUATION_NAMES, ESTIMATE_NAMES, PUSH_NAMES, TRUTH_NAMES
-
         taken = set(TRUTH_NAMES + ESTIMATE_NAMES + ACTUATION_NAMES + PUSH_NAMES + ("ul_cmd", "ur_cmd"))
         clash = sorted({s for s in signals if s in taken or list(signals).count(s) > 1})
         if clash:

@@ -6,6 +6,9 @@ import re
 
 import numpy as np
 
+# the exactly rounded figures a run computes too, named here as before
+from twin.measures import exact_mean, settling_time  # noqa: F401
+
 EVENTS_KEPT = 100  # the estimator's events listed in metrics.json (all are counted): the first ones
 _EVENT = re.compile(r"t = ([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?) s: (.*)", re.S)
 
@@ -67,22 +70,6 @@ REPLAY_METRIC_DEFINITIONS = {
                                   "outside the 95 % band ±1.96/√N of a white sequence: about 0.05 for a "
                                   "consistent filter.",
 }
-
-
-def exact_mean(x: np.ndarray) -> float:
-    """The mean of ``x`` with an exactly rounded sum (``math.fsum``). numpy's SIMD sums can depend
-    on where the array sits in memory, which breaks bit-identical replays across processes."""
-    return math.fsum(np.ravel(x).tolist()) / x.size
-
-
-def settling_time(t: np.ndarray, theta: np.ndarray, tol: float = 0.01) -> float:
-    """First time (s) after which |θ| stays below ``tol`` rad; inf if it never does."""
-    bad = np.nonzero(~(np.abs(theta) < tol))[0]
-    if len(bad) == 0:
-        return float(t[0])
-    if bad[-1] == len(t) - 1:
-        return math.inf
-    return float(t[bad[-1] + 1])
 
 
 def _integral(t: np.ndarray, y: np.ndarray) -> float:

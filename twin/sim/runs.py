@@ -24,20 +24,14 @@ import numpy as np
 
 from twin.errors import TwinError
 from twin.experiments import Experiment
-from twin.outputs.metrics import settling_time
+from twin.measures import exact_mean, settling_time
 from twin.params import RobotParams
 from twin.plant.base import ACTUATION_UNITS, TRUTH_UNITS, Actuation, GroundTruth, TwinConfig
+# the names of a run's logged columns are the contracts' (twin.protocols), named here as before
+from twin.protocols import (ACTUATION_NAMES, COMMAND_NAMES, COMMAND_UNITS, ESTIMATE_NAMES, ESTIMATE_UNITS,  # noqa: F401
+                            PUSH_NAMES, PUSH_UNITS, TRUTH_NAMES)
 from twin.sensors import Measurement, SensorConfig
 
-TRUTH_NAMES = GroundTruth._fields
-ESTIMATE_NAMES = ("theta_est", "theta_dot_est", "psi_est", "psi_dot_est", "alpha_est", "alpha_dot_est")
-ESTIMATE_UNITS = dict(theta_est="rad", theta_dot_est="rad/s", psi_est="rad", psi_dot_est="rad/s", alpha_est="rad",
-                      alpha_dot_est="rad/s")
-COMMAND_NAMES = ("ul_cmd", "ur_cmd", "u", "theta_off", "u_alpha")  # the fuzzy cascade's (and LQR's)
-COMMAND_UNITS = dict(ul_cmd="N·m", ur_cmd="N·m", u="N·m", theta_off="rad", u_alpha="N·m")
-ACTUATION_NAMES = Actuation._fields
-PUSH_NAMES = ("push_fx", "push_fy", "push_fz")
-PUSH_UNITS = dict(push_fx="N", push_fy="N", push_fz="N")
 # the signals twin.outputs.metrics.run_metrics reads, kept at every control step when the log keeps every N-th
 FULL_RATE_NAMES = ("t", "theta", "theta_est", "torque_l", "torque_r", "distance", "alpha")
 
@@ -284,8 +278,6 @@ class Run:
         get, t = (self.full_signal, self.full_signal("t")) if full else (self.signal, self.t)
         keep = t >= start - 1e-9
         err = get(name + "_est")[keep] - get(name)[keep]
-        from twin.outputs.metrics import exact_mean
-
         return math.sqrt(exact_mean(err * err)) if err.size else math.nan
 
 

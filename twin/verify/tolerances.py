@@ -98,7 +98,7 @@ class Tolerances:
 def known_signals(extra=()) -> tuple[str, ...]:
     """Every signal a twin run logs (truth, estimates, commands, actuation, pushes), then ``extra``
     (a controller's own, its ``signals`` attribute)."""
-    from twin.sim.runs import ACTUATION_NAMES, COMMAND_NAMES, ESTIMATE_NAMES, PUSH_NAMES, TRUTH_NAMES
+    from twin.protocols import ACTUATION_NAMES, COMMAND_NAMES, ESTIMATE_NAMES, PUSH_NAMES, TRUTH_NAMES
 
     names = TRUTH_NAMES + ESTIMATE_NAMES + COMMAND_NAMES + tuple(extra) + ACTUATION_NAMES + PUSH_NAMES
     return tuple(dict.fromkeys(names))
