@@ -33,7 +33,7 @@ from pathlib import Path
 
 import pytest
 
-from twin.verify import golden
+from twin.outputs import golden
 
 HERE = Path(__file__).resolve().parent
 CHILD = HERE / "kernels_child.py"

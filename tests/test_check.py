@@ -10,7 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 from twin.cli import main
-from twin.verify.expectations import ALL, SEEDS, ExpectError, evaluate, failed, parse_expect
+from twin.scenarios.expectations import ALL, SEEDS, ExpectError, evaluate, failed, parse_expect
 from twin.scenarios.scenario import builtin_names
 
 BROKEN = textwrap.dedent('''
@@ -222,7 +222,7 @@ def test_a_directory_checks_the_files_with_expectations(tmp_path):
 
 # ---- found in review -----------------------------------------------------------------------------
 def test_an_undefined_value_sits_on_the_failing_side_of_a_statistic():
-    from twin.verify.expectations import _stat
+    from twin.scenarios.expectations import _stat
 
     assert _stat("median", [1.0, 2.0, None]) == 2.0 and _stat("p50", [1.0, None, 3.0]) == 3.0  # not NaN
     cap = parse_expect({"seeds": {"median(settling_time_s)": "<= 5"}})

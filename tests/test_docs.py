@@ -386,7 +386,7 @@ from test_scenario_docs import _reference  # noqa: E402  (the reference extensio
 
 def test_every_metric_has_a_unit_and_a_definition():
     from twin.outputs.metrics import METRIC_DEFINITIONS, REPLAY_METRIC_DEFINITIONS
-    from twin.verify.expectations import METRICS, REPLAY_METRICS
+    from twin.scenarios.expectations import METRICS, REPLAY_METRICS
 
     assert set(METRIC_DEFINITIONS) == set(METRICS)
     assert set(REPLAY_METRIC_DEFINITIONS) == set(REPLAY_METRICS)
@@ -399,7 +399,7 @@ def test_the_generated_reference_covers_every_key_metric_and_command(tmp_path):
 
     from twin.cli import main
     from twin.scenarios.schema import describe
-    from twin.verify.expectations import METRICS
+    from twin.scenarios.expectations import METRICS
 
     ref = _reference()
     ref.generate(tmp_path)

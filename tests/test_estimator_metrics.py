@@ -319,7 +319,7 @@ def test_twin_run_prints_the_estimators_line(tmp_path):
 
 # ---- twin check ---------------------------------------------------------------------------------
 def test_twin_check_may_bound_the_new_metrics(faulty):
-    from twin.verify.expectations import parse_expect
+    from twin.scenarios.expectations import parse_expect
 
     bounds = parse_expect({"estimator_nees_mean": "<= 23.4", "estimator_nis_per_dof": "<= 20",
                            "estimator_events": ">= 1"})

@@ -15,12 +15,12 @@ from click.testing import CliRunner
 
 from twin.outputs import fingerprint, rundir
 
-from twin.verify import golden
+from twin.outputs import golden
 from twin.cli import main
 from twin.errors import TwinError
-from twin.verify.golden import ATOL, Trajectory, compare
+from twin.outputs.golden import ATOL, Trajectory, compare
 from twin.scenarios import load_scenario
-from twin.verify.tolerances import Tolerances, parse_options, parse_table
+from twin.outputs.tolerances import Tolerances, parse_options, parse_table
 
 # One second of balance from 0.48 rad: short, and with ideal sensing its response to a
 # plant change is smooth (an estimator's gates would turn a tiny change into a large one)

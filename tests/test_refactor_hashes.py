@@ -26,7 +26,7 @@ from pathlib import Path
 import pytest
 
 from kernels_child import metrics_bytes
-from twin.verify import golden
+from twin.outputs import golden
 from twin.scenarios import load_scenario
 from twin.scenarios.runner import run_scenario
 

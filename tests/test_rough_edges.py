@@ -46,7 +46,7 @@ def test_repeatable_options_stay_repeatable(tmp_path):
 
 
 def test_a_failed_bound_prints_six_digits_and_a_real_unit():
-    from twin.verify.expectations import Bound, Verdict
+    from twin.scenarios.expectations import Bound, Verdict
 
     def line(metric, measured, value, unit_op="<="):
         b = Bound(metric, metric, False, None, unit_op, value)
@@ -60,7 +60,7 @@ def test_a_failed_bound_prints_six_digits_and_a_real_unit():
 
 
 def test_a_failed_pass_rate_names_the_seeds_and_the_bounds_they_broke():
-    from twin.verify.expectations import evaluate, parse_expect
+    from twin.scenarios.expectations import evaluate, parse_expect
 
     bounds = parse_expect({"iae_theta": "<= 0.5", "seeds": {"pass_rate": ">= 0.9"}}, "expect")
     runs = {0: {"iae_theta": 0.2}, 1: {"iae_theta": 0.7}, 2: {"iae_theta": 0.3}}
@@ -103,7 +103,7 @@ def _junit_cases(iae_by_seed: dict, rate: str):
     import xml.etree.ElementTree as ET
 
     from twin.verify.check import CaseResult, CheckResult, write_junit
-    from twin.verify.expectations import evaluate, failed, parse_expect
+    from twin.scenarios.expectations import evaluate, failed, parse_expect
 
     bounds = parse_expect({"iae_theta": "<= 0.5", "seeds": {"pass_rate": rate}}, "expect")
     runs = {seed: {"iae_theta": v} for seed, v in iae_by_seed.items()}
@@ -350,7 +350,7 @@ def test_ctrl_c_during_twin_check_is_130_with_one_line_not_1(tmp_path):
 
 def test_twin_checks_table_shows_each_measured_value_with_its_unit():
     from twin.verify.check import CaseResult, CheckResult, format_table
-    from twin.verify.expectations import evaluate, failed, parse_expect
+    from twin.scenarios.expectations import evaluate, failed, parse_expect
 
     bounds = parse_expect({"iae_theta": "<= 0.5", "settling_time_s": "<= 2", "rejected_measurements": "== 0"},
                           "expect")

@@ -24,7 +24,7 @@ import pytest
 
 from test_golden import write_short
 from test_scenarios import assert_one_line_error, twin
-from twin.verify import golden
+from twin.outputs import golden
 from twin.outputs import rundir
 from twin.errors import TwinError
 

@@ -310,7 +310,7 @@ def _no_cache_option(f):
 
 
 def _tolerance_options(what: str):
-    """--atol, --rtol and --tolerance SIGNAL=ATOL[,RTOL] (twin.verify.tolerances), for ``what``."""
+    """--atol, --rtol and --tolerance SIGNAL=ATOL[,RTOL] (twin.outputs.tolerances), for ``what``."""
     def decorate(f):
         f = click.option("--tolerance", multiple=True, metavar="SIGNAL=ATOL[,RTOL]",
                          help="Tolerance of one signal (repeatable), e.g. theta=1e-6 or torque_l=1e-3,1e-6; "
@@ -326,7 +326,7 @@ def _tolerance_options(what: str):
 
 
 def _tolerances(atol, rtol, items):
-    from twin.verify.tolerances import parse_options
+    from twin.outputs.tolerances import parse_options
 
     return parse_options(atol, rtol, items)
 

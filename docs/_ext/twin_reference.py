@@ -8,8 +8,8 @@ from the sources: the reference pages include it):
 ``scenario-keys.md``
     every scenario key, from :func:`twin.scenarios.schema.describe`;
 ``metrics.md`` and ``replay-metrics.md``
-    every metric with its unit (:data:`twin.verify.expectations.METRICS`,
-    :data:`~twin.verify.expectations.REPLAY_METRICS`) and definition
+    every metric with its unit (:data:`twin.scenarios.expectations.METRICS`,
+    :data:`~twin.scenarios.expectations.REPLAY_METRICS`) and definition
     (:data:`twin.outputs.metrics.METRIC_DEFINITIONS`, ``REPLAY_METRIC_DEFINITIONS``).
 
 It also escapes, in the docstrings autodoc reads, the ``|x|`` of absolute values (reST would take
@@ -101,7 +101,7 @@ def scenario_markdown() -> str:
 
 def metrics_markdown(replay: bool = False) -> str:
     from twin.outputs.metrics import METRIC_DEFINITIONS, REPLAY_METRIC_DEFINITIONS
-    from twin.verify.expectations import METRICS, REPLAY_METRICS
+    from twin.scenarios.expectations import METRICS, REPLAY_METRICS
 
     units, defs = (REPLAY_METRICS, REPLAY_METRIC_DEFINITIONS) if replay else (METRICS, METRIC_DEFINITIONS)
     missing = set(units) ^ set(defs)

@@ -18,7 +18,7 @@ Two places hold the bounds:
 
 Bounds in ``[expect]`` itself apply to every estimator named in a sub-table (an estimator is
 replayed because a sub-table names it). The metrics are
-:data:`twin.verify.expectations.REPLAY_METRICS`; one that is undefined (an error without
+:data:`twin.scenarios.expectations.REPLAY_METRICS`; one that is undefined (an error without
 truth, NIS from an estimator that reports none) fails its bound.
 """
 from __future__ import annotations
@@ -59,7 +59,7 @@ def is_log_target(target) -> bool:
 
 def load_log_check(target) -> LogCheck:
     """The bounds of ``target`` (see the module docstring); a one-line error without any."""
-    from twin.verify.expectations import ALL, REPLAY_METRICS, parse_expect
+    from twin.scenarios.expectations import ALL, REPLAY_METRICS, parse_expect
 
     p = Path(target)
     file = p / "log.toml" if p.is_dir() else p
@@ -103,9 +103,9 @@ def load_log_check(target) -> LogCheck:
 
 
 def replay_metrics(entry: dict) -> dict:
-    """The :data:`~twin.verify.expectations.REPLAY_METRICS` of one estimator's replay entry
+    """The :data:`~twin.scenarios.expectations.REPLAY_METRICS` of one estimator's replay entry
     (``replay_logs``'s ``doc["logs"][path]["estimators"][kind]``); None where undefined."""
-    from twin.verify.expectations import REPLAY_METRICS
+    from twin.scenarios.expectations import REPLAY_METRICS
 
     errors, c = entry.get("errors") or {}, entry.get("consistency") or {}
     out = {k: errors.get(k) for k in REPLAY_METRICS if k.startswith(("theta_", "psi_", "alpha_"))}
@@ -119,8 +119,10 @@ def replay_metrics(entry: dict) -> dict:
 def run_log_checks(checks) -> list:
     """A :class:`twin.verify.check.CaseResult` per log and estimator (seed 0: a replay has none)."""
     from twin.logs.replay import replay_logs_contained
+    # runs back up: a log's check is one case of `twin check`, reported as its cases are (both are
+    # workflows, to sit together above the engine's layers)
     from twin.verify.check import CaseResult
-    from twin.verify.expectations import evaluate, failed
+    from twin.scenarios.expectations import evaluate, failed
 
     cases = []
     for chk in checks:

@@ -8,7 +8,7 @@ taken as the reference and B as the run compared with it, as in ``twin check --g
 
 * for each controller both hold: its metrics, with B − A and (B − A)/|A| where that means
   something; the first departure of each signal of B from A's, under the tolerances of
-  :mod:`twin.verify.tolerances` (none set: bit for bit, as golden trajectories on one build);
+  :mod:`twin.outputs.tolerances` (none set: bit for bit, as golden trajectories on one build);
   and whether the runs end alike (rows, last time, status);
 * the controllers only one side holds are named, not compared;
 * what the environments and the designs differ in (:func:`twin.outputs.fingerprint.differences`).
@@ -31,8 +31,9 @@ import numpy as np
 
 from twin.errors import TwinError
 from twin.inputs import json_loads
-from twin.verify.golden import Departure, Trajectory, ends_text, first_departures, signals_text
-from twin.verify.tolerances import Tolerances
+from twin.outputs import golden
+from twin.outputs.golden import Departure, Trajectory, ends_text, first_departures, signals_text
+from twin.outputs.tolerances import Tolerances
 
 _HEADER = re.compile(r"^(?P<name>.+) \[(?P<unit>[^\]]*)\]$")
 
@@ -67,8 +68,6 @@ def load(path) -> Result:
 
 
 def _load_golden(path: Path) -> Result:
-    from twin.verify import golden
-
     if path.suffix != ".npz":
         raise TwinError(f"{path}: neither a run directory nor a golden trajectory (.npz); give a directory of "
                         "'twin run' or a .npz of 'twin check --record'")
@@ -213,7 +212,7 @@ class Comparison:
 def compare(a: Result, b: Result, tolerances: Tolerances | None = None) -> Comparison:
     """A and B side by side (see the module docstring); a one-line error if they share no controller."""
     from twin.outputs.fingerprint import differences
-    from twin.verify.tolerances import known_signals
+    from twin.outputs.tolerances import known_signals
 
     tolerances = tolerances or Tolerances()
     common = [k for k in a.trajectories if k in b.trajectories]

@@ -15,7 +15,7 @@ _EVENT = re.compile(r"t = ([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?) s: (.*)", 
 
 # What each metric a run's metrics.json holds (and an [expect] bound may name) measures: the single
 # place of these definitions; the documentation's metrics reference is generated from it, with the
-# units of twin.verify.expectations.METRICS (a test keeps the two key sets equal). "θ" is the body's
+# units of twin.scenarios.expectations.METRICS (a test keeps the two key sets equal). "θ" is the body's
 # pitch from upright, "ψ" the wheels' mean rotation, "α" the heading; every figure from every
 # control step (see run_metrics).
 METRIC_DEFINITIONS = {
@@ -52,7 +52,7 @@ METRIC_DEFINITIONS = {
                              "updates: 1 for a consistent filter; absent (null) where not computed.",
 }
 # The metrics of a replay of a sensor log (twin.logs.replay; a log's [expect] may name them), with
-# the units of twin.verify.expectations.REPLAY_METRICS.
+# the units of twin.scenarios.expectations.REPLAY_METRICS.
 REPLAY_METRIC_DEFINITIONS = {
     "theta_rmse_rad": "Root mean square of the replayed estimator's θ minus the log's truth (logs with a "
                       "[truth], such as the twin's).",

@@ -6,7 +6,7 @@
   (:class:`FileBatch`). Either way a ``manifest.json`` is written last: every file with its
   size in bytes and SHA-256, the command, its exit status and whether every output it was
   asked for is there (``complete``, ``missing``, ``stopped``: what stopped it).
-* **Checked when read.** A reader (:mod:`twin.outputs.compare`, :mod:`twin.verify.golden`, ``twin check
+* **Checked when read.** A reader (:mod:`twin.outputs.compare`, :mod:`twin.outputs.golden`, ``twin check
   --golden``) refuses, in one line (:class:`Incomplete`), a directory without a manifest, with
   a damaged one, or whose files are not the ones listed (:func:`read_manifest`,
   :func:`check_listed`).

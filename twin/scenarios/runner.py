@@ -321,6 +321,8 @@ def _write(result, staged, video, progress, every, log_format, worker, sensors, 
             writing = "design.json"
             report.write_json(solved.to_json_dict(), out / writing)
         if log_sensors:
+            # runs back up: --log-sensors writes the robot-log format (the runner is a workflow, to
+            # sit above the log formats)
             from twin.logs.format import write_log
 
             for run in runs:

@@ -440,7 +440,7 @@ def parse_value(v, key: Key, path: str):
             raise ScenarioError(f"{path}: a kind is repeated in {shown(list(items))}; allowed: each at most once")
         return v if k == "kind" else tuple(items)
     if k == "expect":
-        from twin.verify.expectations import parse_expect
+        from twin.scenarios.expectations import parse_expect
 
         try:
             parse_expect(v, path)

@@ -4,7 +4,7 @@ Every (scenario, controller, seed) is one run of :func:`twin.scenarios.runner.ru
 on local worker processes when there are several (spawned, like the sweeps'; the LMI
 design is solved once per scenario here and shipped). Seeds are the scenario's ``seed``,
 ``seed + 1``, … so that any run replays with ``twin run SCENARIO --seed S``. The verdicts
-come from :mod:`twin.verify.expectations`. Nothing here depends on the number of workers or the
+come from :mod:`twin.scenarios.expectations`. Nothing here depends on the number of workers or the
 order in which runs finish.
 """
 from __future__ import annotations
@@ -15,8 +15,8 @@ from pathlib import Path
 
 from twin.errors import TwinError
 from twin.outputs.rundir import MANIFEST, RECORD_COMMAND, FileBatch, kept, test_point
-from twin.verify.expectations import GOLDEN, evaluate, failed, parse_expect
-from twin.verify.tolerances import known_signals
+from twin.scenarios.expectations import GOLDEN, evaluate, failed, parse_expect
+from twin.outputs.tolerances import known_signals
 
 
 @dataclass(frozen=True)
@@ -52,7 +52,7 @@ def run_task(task: CheckTask) -> tuple[dict | None, str, object, dict | None]:
         return None, f"{type(exc).__name__}: {' '.join(str(exc).split())}", None, None
     traj = None
     if task.trajectory:
-        from twin.verify.golden import Trajectory
+        from twin.outputs.golden import Trajectory
 
         traj = Trajectory.of(result.runs[0])
     return result.metrics[task.kind], "", traj, result.environment()
@@ -138,14 +138,14 @@ def run_checks(scenarios, controllers=None, seeds: int = 1, workers: int = 1, pr
     """Run every scenario with each controller (None: each scenario's ``controller.kinds``) on
     ``seeds`` seeds, on ``workers`` processes, and judge the runs by the ``[expect]`` tables;
     ``record``: store each run as a golden trajectory under this directory; ``golden``:
-    compare each run with the one stored there (:mod:`twin.verify.golden`), with ``tolerances``
-    (a :class:`twin.verify.tolerances.Tolerances`, the command line's) over each scenario's
+    compare each run with the one stored there (:mod:`twin.outputs.golden`), with ``tolerances``
+    (a :class:`twin.outputs.tolerances.Tolerances`, the command line's) over each scenario's
     ``[expect.golden]``."""
     from twin.containment import Task, run_contained
     from twin.registry import check_kinds, plugin_dirs, uses_design
     from twin.scenarios.contained import Recipe, involves_plugins, limits_of, plan_summary, plugin_roles
     from twin.scenarios.runner import plan as runs_of
-    from twin.verify.tolerances import Tolerances
+    from twin.outputs.tolerances import Tolerances
 
     if not (isinstance(seeds, int) and 1 <= seeds <= 10_000):
         raise TwinError(f"--seeds must be an integer from 1 to 10000, got {seeds!r}")
@@ -234,7 +234,7 @@ def _record(batch, items, exit_status: int) -> int:
     """Store every run of ``items`` as a golden trajectory, as one unit (:class:`twin.outputs.rundir.FileBatch`):
     an interrupt or an error while they are written leaves the directory as it was; the
     number stored."""
-    from twin.verify import golden as g
+    from twin.outputs import golden as g
 
     try:
         with batch:
@@ -258,7 +258,7 @@ def _record(batch, items, exit_status: int) -> int:
 
 def _scenario_tolerances(sc, extra):
     """The scenario's ``[expect.golden]`` tolerances, their signals checked against those its runs log."""
-    from twin.verify.tolerances import Tolerances, parse_table
+    from twin.outputs.tolerances import Tolerances, parse_table
 
     table = sc.expect.get(GOLDEN)
     if table is None:
@@ -270,7 +270,7 @@ def _scenario_tolerances(sc, extra):
 
 def _golden(case: CaseResult, sc, kind: str, seed: int, traj, env, golden, tolerances) -> None:
     """Compare the run with its reference under ``golden`` (with ``tolerances``), if given."""
-    from twin.verify import golden as g
+    from twin.outputs import golden as g
     from twin.outputs.fingerprint import differences
 
     if golden is None:

@@ -19,7 +19,7 @@ or ``--tolerance NAME=...``) if that sets it, else the overall ``atol`` / ``rtol
 are 0: the comparison is bit for bit, as it has to be on one build (the twin is
 deterministic). Between builds (the compiled kernels on one side, the pure-Python paths
 on the other), which agree to about 1e-13 and not bit for bit, each is at least the
-builds' floor :data:`BUILD_ATOL`, :data:`BUILD_RTOL` (see :mod:`twin.verify.golden`).
+builds' floor :data:`BUILD_ATOL`, :data:`BUILD_RTOL` (see :mod:`twin.outputs.golden`).
 """
 from __future__ import annotations
 

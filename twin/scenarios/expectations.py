@@ -15,7 +15,7 @@ The TOML form reads like the bound it states, one key per bound::
     pass_rate = ">= 0.95"                     # fraction of seeds on which every bound above holds
     "p95(iae_theta)" = "<= 0.8"               # a statistic over the seeds: mean, median, min, max, pNN
 
-    [expect.golden]                           # tolerances of 'twin check --golden' (twin.verify.tolerances)
+    [expect.golden]                           # tolerances of 'twin check --golden' (twin.outputs.tolerances)
     atol = 1e-6                               # in each signal's SI unit
     signals = { theta = { atol = 1e-5 } }
 
@@ -59,7 +59,7 @@ REPLAY_METRICS = {
 OPS = {"<=": operator.le, "<": operator.lt, ">=": operator.ge, ">": operator.gt, "==": operator.eq}
 ALL = "*"  # the scope of the bounds that apply to every controller
 SEEDS = "seeds"  # the table of bounds over seeds
-GOLDEN = "golden"  # the tolerances of golden comparisons (twin.verify.tolerances), not bounds
+GOLDEN = "golden"  # the tolerances of golden comparisons (twin.outputs.tolerances), not bounds
 _KEY = re.compile(r"^(?:(?P<stat>mean|median|min|max|p\d{1,2})\()?(?P<bar>\|)?(?P<metric>[a-z_]+)(?P<bar2>\|)?"
                   r"(?P<close>\))?$")
 _VALUE = re.compile(r"^\s*(?P<op><=|>=|==|<|>)\s*(?P<num>[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?)\s*$")
@@ -158,7 +158,7 @@ def parse_expect(table, path: str = "expect", metrics: dict = METRICS,  # noqa: 
     out: dict[str, list[Bound]] = {}
     for key, value in table.items():
         if key == GOLDEN:
-            from twin.verify.tolerances import parse_table
+            from twin.outputs.tolerances import parse_table
 
             try:
                 parse_table(value, f"{path}.{GOLDEN}")

@@ -18,7 +18,7 @@ own (it was written whole, by a rename, and its archive's checksums catch damage
 What is compared how, and why:
 
 * **The same build** (the compiled kernels on both sides, or the pure-Python paths on
-  both): every value **bit for bit**, unless tolerances are set (:mod:`twin.verify.tolerances`).
+  both): every value **bit for bit**, unless tolerances are set (:mod:`twin.outputs.tolerances`).
   The twin is deterministic (one seeded generator, one physics server per run, sums in a
   fixed order), so any difference at all is a change in the code, the scenario, the
   libraries or the machine's arithmetic (another BLAS kernel), and the first one is
@@ -46,7 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from twin.errors import TwinError
-from twin.verify.tolerances import BUILD_ATOL, BUILD_RTOL, Tolerances
+from twin.outputs.tolerances import BUILD_ATOL, BUILD_RTOL, Tolerances
 
 ATOL, RTOL = BUILD_ATOL, BUILD_RTOL  # the tolerance between builds (in each signal's SI unit; a fraction)
 FORMAT = 2  # 2: the meta records the environment and the design digests (twin.outputs.fingerprint)
