@@ -38,7 +38,8 @@ from typing import Any, Callable
 
 from twin import limits as _limits
 from twin.errors import MAY_NOT_END, PluginError, TwinError, ends_process, raised_text
-from twin.protocols import ACTUATION_NAMES, ESTIMATE_NAMES, PUSH_NAMES, TRUTH_NAMES, Targets, one_line, shown
+from twin.protocols import (ACTUATION_NAMES, ESTIMATE_NAMES, PUSH_NAMES, TRUTH_NAMES, Targets, describe_object,
+                            one_line, shown)
 
 _IMPORT_PATH = re.compile(r"^[A-Za-z_][\w]*(\.[A-Za-z_][\w]*)*:[A-Za-z_][\w]*(\.[A-Za-z_][\w]*)*$")
 
@@ -388,8 +389,6 @@ def check_protocol(role: str, kind: str, obj) -> None:
     """A one-line PluginError unless ``obj`` has the protocol's methods."""
     missing = [m for m in _METHODS[role] if not callable(getattr(obj, m, None))]
     if missing:
-        from twin.protocols import describe_object
-
         raise PluginError(f"{role} {shown(kind)}: {describe_object(obj)} has no {' or '.join(f'{m}()' for m in missing)}; "
                           f"{'an' if role[0] in 'aeiou' else 'a'} {role} needs {_SIGNATURES[role]} "
                           f"(see twin.protocols.{role.capitalize()})")
@@ -462,8 +461,6 @@ def build_plant(kind: str, config=None, theta0: float = 0.0, alpha0: float = 0.0
 def check_plant(plant, sensors: bool = False, kind: str | None = None) -> None:
     """A one-line :class:`~twin.errors.PluginError` unless ``plant`` has the members of
     :class:`twin.protocols.Plant` (with ``sensors``, those the simulated IMU reads too)."""
-    from twin.protocols import describe_object
-
     what = f"plant {shown(kind)}: {describe_object(plant)}" if kind else f"plant {describe_object(plant)}"
     missing = [f"{m}()" for m in _METHODS["plant"] if not callable(getattr(plant, m, None))]
     missing += [m for m in _PLANT_ATTRIBUTES + (_SENSOR_ATTRIBUTES if sensors else ()) if not hasattr(plant, m)]

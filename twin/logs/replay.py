@@ -73,8 +73,8 @@ import numpy as np
 from twin import limits as _limits
 from twin.errors import MAY_NOT_END, PluginError, TwinError, ends_process, raised_text
 from twin.logs.bounds import MAX_INSTANTS
-from twin.logs.diagnostics import DiagnosticsLog, normalised_innovation
-from twin.logs.format import SensorLog
+from twin.logs.diagnostics import DiagnosticsLog, NeesRecord, normalised_innovation
+from twin.logs.format import SensorLog, read_log
 from twin.logs.instants import instants_of, rows_clock
 from twin.sensors import Measurement
 
@@ -538,7 +538,6 @@ def monte_carlo(records, start: float = NEES_START) -> dict | None:
     The records may also be :class:`twin.logs.diagnostics.NeesRecord` s (what :func:`replay_logs`
     keeps: the NEES of each instant), all of one kind."""
     from estimation.consistency import monte_carlo as mc
-    from twin.logs.diagnostics import NeesRecord
     from twin.logs.diagnostics import monte_carlo as mc_arrays
 
     recs = [x for x in records if x is not None and (isinstance(x, NeesRecord) or x.truth is not None)]
@@ -564,7 +563,6 @@ def replay_logs(paths, kinds, noise: str = "log") -> dict:
     from dataclasses import replace
 
     from twin.logs.checks import sign_checks
-    from twin.logs.format import read_log
     from twin.logs.noise import choose
 
     doc, replays, records = {"logs": {}}, {}, {k: [] for k in kinds}
@@ -803,7 +801,6 @@ def write_figure(doc: dict, replays: dict, path, confidence: float = 0.95, which
     from matplotlib.figure import Figure
     from scipy.stats import chi2
 
-    from twin.logs.format import read_log
     from twin.outputs.figure import DPI, PNG_COMPRESSION
 
     first = list(doc["logs"])[which]

@@ -33,7 +33,7 @@ from twin.errors import TwinError
 from twin.inputs import json_loads
 from twin.outputs import golden
 from twin.outputs.golden import Departure, Trajectory, ends_text, first_departures, signals_text
-from twin.outputs.tolerances import Tolerances
+from twin.outputs.tolerances import Tolerances, known_signals
 
 _HEADER = re.compile(r"^(?P<name>.+) \[(?P<unit>[^\]]*)\]$")
 
@@ -212,7 +212,6 @@ class Comparison:
 def compare(a: Result, b: Result, tolerances: Tolerances | None = None) -> Comparison:
     """A and B side by side (see the module docstring); a one-line error if they share no controller."""
     from twin.outputs.fingerprint import differences
-    from twin.outputs.tolerances import known_signals
 
     tolerances = tolerances or Tolerances()
     common = [k for k in a.trajectories if k in b.trajectories]

@@ -8,7 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from twin.outputs.figure import FAULT_COLOUR, PUSH_COLOUR  # noqa: F401 (named here too, where they always were)
+# FAULT_COLOUR and PUSH_COLOUR are named here too, where they always were
+from twin.outputs.figure import FAULT_COLOUR, PUSH_COLOUR, fill_figure, new_figure, save_figure  # noqa: F401
 from twin.registry import label as kind_label
 from twin.sim.runs import Run
 from twin.sensors.faults import fault_windows
@@ -57,8 +58,6 @@ def _pyplot():
 
 def plot_runs(runs: list, path: Path, title: str = "") -> Path:
     """The figure of a scenario's runs (:func:`figure_runs`), written to ``path`` (PNG)."""
-    from twin.outputs.figure import save_figure
-
     path.parent.mkdir(parents=True, exist_ok=True)
     save_figure(figure_runs(runs, title), path)
     return path
@@ -78,8 +77,6 @@ def figure_runs(runs: list, title: str = ""):
     (:func:`twin.outputs.figure.panels` gives its panels by key).
 
     ``runs``: :class:`~twin.sim.runs.Run` (from the twin or the analytic model)."""
-    from twin.outputs.figure import fill_figure, new_figure
-
     load_matplotlib()
     fig, axes = new_figure()
     return fill_figure(fig, axes, figure_data(runs), title)

@@ -45,7 +45,7 @@ from twin.limits import limit_of
 from twin.scenarios.planning import LazyDesign, plugins_of, refuse_unused_params
 from twin.scenarios.scenario import Scenario
 
-from twin.sim.spec import LOG_FORMATS  # noqa: E402 -- trajectory.csv, or the same text gzip-compressed
+from twin.sim.spec import LOG_FORMATS, Logging  # noqa: E402 -- trajectory.csv, or the same text gzip-compressed
 
 
 @dataclass
@@ -212,7 +212,6 @@ def _run_and_write(scenario, kinds, staged, video, progress, every, log_format, 
     whose worker runs every controller, or None (here)."""
     from twin.outputs.metrics import run_metrics
     from twin.sim.simulate import simulate
-    from twin.sim.spec import Logging
 
     timings = {}
     if box is not None:

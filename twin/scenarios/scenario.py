@@ -16,8 +16,8 @@ from pathlib import Path
 
 from twin.errors import TwinError, shown
 from twin.inputs import MAX_TOML_BYTES, inside, read_text
-from twin.scenarios.schema import (MAX_DEPTH, NAME_RULE, ScenarioError, check_depth, key_text, lookup, name_problem,
-                                   record, split_key, validate)
+from twin.scenarios.schema import (MAX_DEPTH, NAME_RULE, SCHEMA, ScenarioError, check_depth, key_text, lookup,
+                                   name_problem, record, split_key, validate)
 from twin.timing import steps_per_control
 
 MIN_CLEARANCE_RAD = 0.3  # rad: the body box must clear the floor at least this far from upright
@@ -373,7 +373,6 @@ class Scenario:
         d = self.data
         if d["plant"]["model"] != "analytic":
             return
-        from twin.scenarios.schema import SCHEMA
 
         keys = SCHEMA["plant"].keys
         used = ["plant.payload_mass"] * (d["plant"]["payload_mass"] != keys["payload_mass"].default)

@@ -26,8 +26,9 @@ from twin.errors import TwinError
 from twin.limits import PluginLimits
 from twin.params import NOMINAL, RobotParams
 from twin.plant.base import TwinConfig
-from twin.protocols import Targets
-from twin.registry import PLANTS, check_kind, check_plant, label, resolve
+from twin.protocols import Targets, describe_object
+from twin.registry import (PLANTS, BuildContext, build_controller, build_estimator, check_kind, check_plant, label,
+                           resolve)
 from twin.sim.recorder import check_log_every
 from twin.sensors import SensorConfig
 
@@ -283,8 +284,6 @@ class RunSpec:
         """The plant as the run records it: a built-in kind's label ("twin" for the PyBullet
         twin, "analytic"), a plant kind of one's own as named, a plant object's class; a
         built-in's object as its kind."""
-        from twin.protocols import describe_object
-
         m = self.plant_model
         if isinstance(m, str):
             return label(m) if m in PLANTS else m
@@ -312,8 +311,6 @@ class RunSpec:
 
     def context(self):
         """The :class:`twin.registry.BuildContext` the controller and the estimator are built with."""
-        from twin.registry import BuildContext
-
         return BuildContext(self.control_rate, self.model, self.motor, self.sensing.as_believed, self.targets,
                             self.initial.alpha, self.design, dict(self.options))
 
@@ -325,7 +322,6 @@ class RunSpec:
                             "with commands")
         if not self.controller.is_kind:
             return self.controller.kind
-        from twin.registry import build_controller
 
         return build_controller(self.controller.kind, self.controller.params, context or self.context())
 
@@ -335,7 +331,6 @@ class RunSpec:
         e = self.estimator
         if not e.is_kind and not self.sensing.ideal:
             return e.kind
-        from twin.registry import build_estimator
 
         return build_estimator("ideal" if self.sensing.ideal else e.kind, e.params, context or self.context())
 

@@ -36,11 +36,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from twin.errors import TwinError
-from twin.registry import uses_design
+from twin.registry import check_kinds, is_import_path, label, plugin_dirs, uses_design
 from twin.scenarios.planning import plugin_roles
 from twin.scenarios.scenario import Scenario
 from twin.sweep.backends import BACKENDS, default_workers, run_local, run_ray
-from twin.sweep.sampling import value_columns
+from twin.sweep.sampling import SAMPLES_VERSION, sample_scenario, value_columns
 from twin.sweep.store import SweepStore
 from twin.sweep.table import columns, rows_of, write_sweep_csv
 from twin.sweep.worker import LIMIT, SweepJob
@@ -89,8 +89,6 @@ def sweep_controllers(scenario: Scenario, controllers=None, reference: str | Non
     """(kinds, reference): ``controllers`` (None: the scenario's ``controller.kinds``) checked,
     and the reference the paired statistics compare each other controller with (default:
     the last one listed)."""
-    from twin.registry import check_kinds
-
     from twin.scenarios.runner import refuse_unused_params
 
     kinds = check_kinds("controller", controllers if controllers is not None else scenario.controllers, "controllers")
@@ -118,7 +116,6 @@ def preflight(scenario: Scenario, kinds, duration: float = 0.05, design=None) ->
     """Run the plugins among ``kinds`` (and a plugin estimator or plant) for ``duration`` s in a worker
     process, before anything is written: a plugin that breaks its contract at once is a
     one-line error rather than N failed samples."""
-    from twin.registry import is_import_path
     from twin.scenarios.runner import run_scenario
 
     plugins = [k for k in kinds if is_import_path(k)]
@@ -148,7 +145,6 @@ def run_sweep(scenario: Scenario, draws: int, out: Path, scenario_arg: str | Non
     numbers whose runs are also written as sensor logs (:func:`write_sample_logs`); ``summary``:
     :func:`sweep_plan`'s, if the caller made it already (planned here if None).
     """
-    from twin.registry import plugin_dirs
     if not (isinstance(draws, int) and 1 <= draws <= MAX_DRAWS):
         raise TwinError(f"--samples must be an integer from 1 to {MAX_DRAWS} (samples per level), got {draws!r}")
     if backend not in BACKENDS:
@@ -164,7 +160,6 @@ def run_sweep(scenario: Scenario, draws: int, out: Path, scenario_arg: str | Non
         design = scenario.design()
     preflight(scenario, kinds, design=design)
     from twin.outputs import rundir
-    from twin.sweep.sampling import SAMPLES_VERSION
 
     levels = scenario.sweep["levels"]
     roles = plugin_roles(scenario, kinds)
@@ -265,7 +260,6 @@ def write_sample_logs(job: SweepJob, samples, records, out: Path) -> tuple[dict,
     from twin.logs.format import write_log
     from twin.outputs import rundir
     from twin.scenarios.runner import run_scenario
-    from twin.sweep.sampling import sample_scenario
 
     sc = job.scenario()  # exactly what the workers ran: the sweep's limits and design
     logs, notes = {}, []
@@ -331,7 +325,6 @@ def write_report(out: Path, manifest: dict, records, scenario: Scenario, referen
     statistics compare each controller with ``reference`` (default: the last; it is not part
     of the manifest, so a finished sweep can be reported against another reference)."""
     from twin.outputs import report
-    from twin.registry import label
     from twin.sweep import figures, statistics
 
     out = Path(out)

@@ -16,7 +16,7 @@ from pathlib import Path
 from twin.errors import TwinError
 from twin.outputs.rundir import MANIFEST, RECORD_COMMAND, FileBatch, kept, test_point
 from twin.scenarios.expectations import GOLDEN, evaluate, failed, parse_expect
-from twin.outputs.tolerances import known_signals
+from twin.outputs.tolerances import Tolerances, known_signals, parse_table
 
 
 @dataclass(frozen=True)
@@ -145,7 +145,6 @@ def run_checks(scenarios, controllers=None, seeds: int = 1, workers: int = 1, pr
     from twin.registry import check_kinds, plugin_dirs, uses_design
     from twin.scenarios.contained import Recipe, involves_plugins, limits_of, plan_summary, plugin_roles
     from twin.scenarios.runner import plan as runs_of
-    from twin.outputs.tolerances import Tolerances
 
     if not (isinstance(seeds, int) and 1 <= seeds <= 10_000):
         raise TwinError(f"--seeds must be an integer from 1 to 10000, got {seeds!r}")
@@ -258,8 +257,6 @@ def _record(batch, items, exit_status: int) -> int:
 
 def _scenario_tolerances(sc, extra):
     """The scenario's ``[expect.golden]`` tolerances, their signals checked against those its runs log."""
-    from twin.outputs.tolerances import Tolerances, parse_table
-
     table = sc.expect.get(GOLDEN)
     if table is None:
         return Tolerances()
