@@ -68,6 +68,8 @@ def test_a_plant_of_ones_own_runs_from_a_scenario_file(lab):
 
     sc = load_scenario(str(lab / "my_plant.toml"), ["duration=1.0"])
     assert sc.plant_model == "my_plant:TSPlant"
+    sc.twin_config()
+    assert "my_plant" not in sys.modules  # loading a scenario runs none of a user's code
     result = run_scenario(sc, ("it2",), out=lab / "out", video=False)
     m = result.metrics["it2"]
     assert m["status"] == "ok" and m["settling_time_s"] < 1.0

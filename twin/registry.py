@@ -458,6 +458,13 @@ def build_plant(kind: str, config=None, theta0: float = 0.0, alpha0: float = 0.0
     return plant
 
 
+def plant_motor(kind: str, config):
+    """The motors a run's controllers and estimator are told of: ``config.motor`` for a plant
+    ``kind`` whose class drives its wheels through them (:class:`twin.protocols.Plant`'s
+    ``applies_motor``), else None (ideal torque sources). Imports a plugin kind's module."""
+    return config.motor if getattr(resolve("plant", kind)[0], "applies_motor", False) else None
+
+
 def check_plant(plant, sensors: bool = False, kind: str | None = None) -> None:
     """A one-line :class:`~twin.errors.PluginError` unless ``plant`` has the members of
     :class:`twin.protocols.Plant` (with ``sensors``, those the simulated IMU reads too)."""

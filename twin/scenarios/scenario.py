@@ -113,11 +113,12 @@ class Scenario:
         targets, heading, cascade options, and ``design`` (a zero-argument callable; default
         :meth:`design`, which solves the LMIs only when a controller asks)."""
         from twin.params import NOMINAL
-        from twin.registry import BuildContext
+        from twin.registry import BuildContext, plant_motor
 
         d = self.data
         config = self.twin_config()
-        return BuildContext(config.control_rate, NOMINAL, config.motor, self.believed_sensor_config(),
+        return BuildContext(config.control_rate, NOMINAL, plant_motor(self.plant_model, config),
+                            self.believed_sensor_config(),
                             self.experiment().targets, d["initial"]["alpha"], design or self.design,
                             self.cascade_options())
 
@@ -218,11 +219,13 @@ class Scenario:
                        for q in d["pushes"])
         payload = Payload(p["payload_mass"], tuple(p["payload_position"])) if p["payload_mass"] > 0 else None
         dist = Disturbances(pushes=pushes, payload=payload, com_offset=tuple(p["com_offset"]))
-        # a plant that does not drive its wheels through motors (Plant.applies_motor: the analytic
-        # model's torque sources are ideal) has none, whatever plant.motor says
-        from twin.registry import resolve
+        # a built-in plant that does not drive its wheels through motors (Plant.applies_motor: the
+        # analytic model's torque sources are ideal) has none, whatever plant.motor says; a plant of
+        # one's own is not imported here (its code runs in a worker): it gets plant.motor's, and
+        # registry.plant_motor says whether the controllers are told of them
+        from twin.registry import PLANTS, resolve
 
-        applies = getattr(resolve("plant", p["model"])[0], "applies_motor", False)
+        applies = p["model"] not in PLANTS or getattr(resolve("plant", p["model"])[0], "applies_motor", False)
         kwargs = {} if p["motor"] == "dc" and applies else {"motor": None}
         return TwinConfig(params=self.true_params(), physics_rate=d["rates"]["physics"],
                           control_rate=d["rates"]["control"], ground=ground, disturbances=dist, **kwargs)

@@ -28,7 +28,7 @@ from twin.params import NOMINAL, RobotParams
 from twin.plant.base import TwinConfig
 from twin.protocols import Targets, describe_object
 from twin.registry import (PLANTS, BuildContext, build_controller, build_estimator, check_kind, check_plant, label,
-                           resolve)
+                           plant_motor, resolve)
 from twin.sim.recorder import check_log_every
 from twin.sensors import SensorConfig
 
@@ -275,7 +275,7 @@ class RunSpec:
         twin); None (ideal torque sources) for one that does not say so."""
         m = self.plant_model
         if isinstance(m, str):
-            return self.plant.motor if getattr(resolve("plant", m)[0], "applies_motor", False) else None
+            return plant_motor(m, self.plant)
         return m.config.motor if getattr(m, "applies_motor", False) and isinstance(
             getattr(m, "config", None), TwinConfig) else None
 
