@@ -44,7 +44,7 @@ def main(argv=None) -> int:
     import twin.sim.simulate as S
     from estimation.ekf_core import compiled_kernel_loaded
     from twin.scenarios import load_scenario
-    from twin.scenarios.runner import plan
+    from twin.scenarios.planning import plan
 
     rounds = 2 if args.quick else 20
     sc = load_scenario("paper-exp3", ["duration=3"] if args.quick else [])

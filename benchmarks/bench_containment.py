@@ -38,7 +38,7 @@ from published import as_text_block, cpu_model, write_markdown  # noqa: E402
 
 def measure(rounds: int) -> list[tuple[str, float, float]]:
     from twin.scenarios import load_scenario
-    from twin.scenarios.runner import run_scenario
+    from twin.workflows.run import run_scenario
 
     kinds = ["my_plugins:StateFeedback"]
     est = ["sensors.estimator='my_plugins:TiltFilter'"]

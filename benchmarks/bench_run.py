@@ -42,7 +42,7 @@ def main(argv=None) -> int:
     from twin.sim.bullet_loop import simulate_twin
     from twin.controllers.lmi import design_balance_gains
     from twin.scenarios import load_scenario
-    from twin.scenarios.runner import run_scenario
+    from twin.workflows.run import run_scenario
 
     rounds = 2 if args.quick else 5
     sc = load_scenario("paper-exp3", ["duration=5"] if args.quick else [])

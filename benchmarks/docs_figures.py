@@ -84,7 +84,8 @@ def video_frame(path: Path) -> float:
 
     from twin.render.video import frame_times
     from twin.scenarios import load_scenario
-    from twin.scenarios.runner import SLOW_CATCH, _catch_end, run_scenario
+    from twin.outputs.run_directory import SLOW_CATCH, catch_end as _catch_end
+    from twin.workflows.run import run_scenario
 
     with tempfile.TemporaryDirectory() as tmp:
         sc = load_scenario("paper-exp3")

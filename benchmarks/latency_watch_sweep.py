@@ -74,7 +74,7 @@ def _summary(run) -> dict:
 def _scenario_job(job):
     """Section A (extra None) or C (extra: (t, latency)): one scenario at one seed, all controllers."""
     name, seed, extra = job
-    from twin.scenarios.runner import run_scenario
+    from twin.workflows.run import run_scenario
     from twin.scenarios.scenario import load_scenario
 
     if extra is None:

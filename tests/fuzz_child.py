@@ -32,7 +32,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 def run_case(case: dict, work: Path) -> dict:
     from twin.errors import TwinError
     from twin.scenarios import load_scenario
-    from twin.scenarios.runner import run_scenario
+    from twin.workflows.run import run_scenario
 
     try:
         if case["text"] is not None:
@@ -43,7 +43,7 @@ def run_case(case: dict, work: Path) -> dict:
             target = case["scenario"]
         sc = load_scenario(target, case["overrides"])
         context = sc.build_context()
-        for kind in sc.controllers:  # as twin run does (twin.scenarios.runner.plan): every controller built once
+        for kind in sc.controllers:  # as twin run does (twin.scenarios.planning.plan): every controller built once
             sc.build_controller(kind, context)
         sc.build_estimator(context)
         if case["run"]:

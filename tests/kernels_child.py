@@ -42,7 +42,7 @@ def main() -> None:
     from twin.controllers.lqr import LQRController
     from twin.params import NOMINAL
     from twin.scenarios import load_scenario
-    from twin.scenarios.runner import run_scenario
+    from twin.workflows.run import run_scenario
 
     env = fingerprint.environment()
     result = {"kernel": env["blas"].get("kernel"), "numpy_simd": env["numpy_simd"]["dispatched"],

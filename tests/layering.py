@@ -46,10 +46,12 @@ LAYERS = {
     "twin.outputs": 8, "twin.render": 8, "twin.containment": 8,
     # scenarios, robot logs, checks
     "twin.scenarios": 9, "twin.logs": 10, "twin.verify": 11,
-    # the workflows over them
+    # calibration, sweeps and environments over them
     "twin.calibrate": 12, "twin.sweep": 12, "twin.envs": 12,
-    # the command line
-    "twin.cli": 13, "twin.__main__": 14,
+    # the workflows: what each command does
+    "twin.workflows": 13,
+    # the command line: the commands (options, what they print), the process they run in
+    "twin.commands": 14, "twin.cli": 15, "twin.__main__": 16,
 }
 
 

@@ -355,7 +355,8 @@ def test_a_contained_run_is_the_run_made_in_this_process_byte_for_byte(tmp_path,
     import shutil
 
     from twin.scenarios import load_scenario
-    from twin.scenarios.runner import run_scenario, write_trajectories_csv
+    from twin.outputs.run_directory import write_trajectories_csv
+    from twin.workflows.run import run_scenario
 
     from twin import registry
 

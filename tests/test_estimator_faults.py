@@ -150,7 +150,7 @@ def test_a_push_is_not_taken_for_an_accelerometer_spike(design):
     """The push-recovery built-in's shoves move the specific force for 0.1 s and θ̈ with it:
     the gyro disagrees with the model too, so no accelerometer sample is rejected (measured
     0; before the gyro check, 5 and a fall)."""
-    from twin.scenarios.runner import run_scenario
+    from twin.workflows.run import run_scenario
     from twin.scenarios.scenario import load_scenario
 
     res = run_scenario(load_scenario("push-recovery"), controllers="it2")

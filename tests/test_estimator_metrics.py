@@ -40,7 +40,8 @@ from twin.errors import TwinError
 from twin.outputs.metrics import exact_mean, jsonable, run_metrics
 from twin.outputs.report import estimator_line
 from twin.scenarios import load_scenario
-from twin.scenarios.runner import plan, run_scenario
+from twin.scenarios.planning import plan
+from twin.workflows.run import run_scenario
 from twin.sim.simulate import simulate
 from twin.sim.spec import Logging
 

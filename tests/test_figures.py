@@ -22,7 +22,7 @@ import pytest
 
 from twin.outputs.report import figure_runs
 from twin.scenarios import load_scenario
-from twin.scenarios.runner import run_scenario
+from twin.workflows.run import run_scenario
 
 
 def _runs(name: str, sets=(), controllers=("it2",)):

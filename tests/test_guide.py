@@ -42,7 +42,7 @@ def test_a_run_says_it_replaces_an_earlier_one_and_an_empty_file_says_the_defaul
     # without a terminal (here: a pipe) no progress bar's label is left behind
     assert "  run" not in second.stderr and "  video" not in second.stderr
     (tmp_path / "empty.toml").write_text("")
-    from twin.cli import _title
+    from twin.workflows.run import title as _title
     from twin.scenarios import load_scenario
 
     text = _title(load_scenario(str(tmp_path / "empty.toml")))
@@ -58,7 +58,7 @@ def test_two_controllers_report_the_time_each_simulated(tmp_path):
 
 
 def test_counts_agree_with_their_nouns():
-    from twin.cli import counted
+    from twin.commands.common import counted
 
     assert counted(1, "check") == "1 check" and counted(2, "run") == "2 runs" and counted(0, "sample") == "0 samples"
 
@@ -246,10 +246,10 @@ def test_a_paper_exp3_video_shows_the_catch_side_on(tmp_path):
     """The frames of the catch are taken with the starting heading's side view (the runner hands
     the figure's catch window to the camera)."""
     from twin.scenarios import load_scenario
-    from twin.scenarios.runner import _catch_end
+    from twin.outputs.run_directory import catch_end as _catch_end
 
     from twin.sim.runs import Run  # noqa: F401 - the runner's runs
-    from twin.scenarios.runner import run_scenario
+    from twin.workflows.run import run_scenario
 
     r = run_scenario(load_scenario("paper-exp3", ["duration=6"]), ("it2",), out=None, video=False)
     end = _catch_end(r.runs)
@@ -265,7 +265,8 @@ def test_a_catch_plays_slowly_with_a_caption_then_in_real_time(tmp_path):
 
     from twin.render.video import frame_times, render_video
     from twin.scenarios import load_scenario
-    from twin.scenarios.runner import SLOW_CATCH, run_scenario
+    from twin.outputs.run_directory import SLOW_CATCH
+    from twin.workflows.run import run_scenario
 
     t = frame_times(3.0, 30, (1.5, SLOW_CATCH))
     assert len(t) == 180 + 46 and np.allclose(np.diff(t[:180]), 1 / 120) and np.allclose(np.diff(t[180:]), 1 / 30)

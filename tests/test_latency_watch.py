@@ -43,7 +43,7 @@ def _latency_events(run_or_events):
 
 def _scenario(name, seed, controllers, extra_toml=""):
     """The runs of built-in ``name`` at ``seed``, with ``extra_toml`` appended to its file."""
-    from twin.scenarios.runner import run_scenario
+    from twin.workflows.run import run_scenario
     from twin.scenarios.scenario import load_scenario
 
     if not extra_toml:
@@ -59,7 +59,7 @@ def _scenario_text(text, seed, controllers):
     import os
     import tempfile
 
-    from twin.scenarios.runner import run_scenario
+    from twin.workflows.run import run_scenario
     from twin.scenarios.scenario import load_scenario
 
     fd, path = tempfile.mkstemp(suffix=".toml", prefix="scenario-")

@@ -240,7 +240,7 @@ class _Estimator:
 
 
 def test_generous_limits_change_no_byte_of_a_run(tmp_path):
-    from twin.scenarios.runner import run_scenario
+    from twin.workflows.run import run_scenario
     from twin.scenarios.scenario import Scenario, load_scenario
 
     sc = load_scenario("paper-exp1", ["duration=0.5", "video.enabled=false"])
@@ -414,7 +414,7 @@ def test_bad_limit_options_are_one_line(command, args, message, tmp_path):
 
 
 def test_the_options_same_key_as_another_set_is_fine():
-    from twin.cli import _limit_overrides
+    from twin.commands.common import limit_overrides as _limit_overrides
 
     assert _limit_overrides(("limits.run_wall_s=5",), "0.5", None, None) == ("limits.run_wall_s=5",
                                                                                "limits.step_wall_s=0.5")
@@ -424,7 +424,7 @@ def test_the_options_same_key_as_another_set_is_fine():
 
 
 def test_the_help_states_the_schemas_ranges_and_the_sweep_default():
-    from twin.cli import LIMIT_OPTIONS
+    from twin.commands.common import LIMIT_OPTIONS
     from twin.scenarios.schema import _range, lookup
     from twin.sweep.runner import RUN_WALL_BASE_S, RUN_WALL_PER_SIMULATED_S
 

@@ -17,7 +17,7 @@ from twin.errors import TwinError
 from twin.logs.format import STREAMS, SensorLog, read_log, write_log
 from twin.logs.replay import build_for, errors, replay
 from twin.scenarios import load_scenario
-from twin.scenarios.runner import run_scenario
+from twin.workflows.run import run_scenario
 
 
 @pytest.fixture(scope="module")

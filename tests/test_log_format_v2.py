@@ -21,7 +21,7 @@ from twin.logs.checks import sign_checks
 from twin.logs.format import read_log, write_log
 from twin.logs.replay import build_for, instants, replay, replay_logs, write_estimates_csv
 from twin.scenarios import load_scenario
-from twin.scenarios.runner import run_scenario
+from twin.workflows.run import run_scenario
 
 KINDS = ["ekf", "complementary", "kalman2"]
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "reference" / "sensor-log.md"

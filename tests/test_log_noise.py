@@ -336,7 +336,7 @@ def test_a_twins_own_log_keeps_its_figures_by_default(tmp_path):
     replays with them (the log's very SensorConfig) and equals --noise given."""
     from twin.logs.format import write_log
     from twin.scenarios import load_scenario
-    from twin.scenarios.runner import run_scenario
+    from twin.workflows.run import run_scenario
 
     sc = load_scenario("paper-exp3", ["duration=2"])
     run = run_scenario(sc, ["it2"], out=None, video=False).runs[0]

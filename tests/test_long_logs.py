@@ -24,7 +24,7 @@ from twin.plant.bullet import TwinConfig
 from twin.plant.disturbances import Disturbances, Push
 from twin.sim.runs import FULL_RATE_NAMES, MeasurementLog
 from twin.scenarios import load_scenario
-from twin.scenarios.runner import run_scenario
+from twin.workflows.run import run_scenario
 from twin.sensors import Measurement, SensorConfig
 from twin.sensors.specs import ImuSpec
 

@@ -11,7 +11,7 @@ import pytest
 from twin.plant.bullet import TwinConfig
 from twin.errors import TwinError
 from twin.scenarios import load_scenario
-from twin.scenarios.runner import run_scenario
+from twin.workflows.run import run_scenario
 
 
 def _run(name, *sets, controller="it2"):

@@ -348,7 +348,7 @@ def test_lqr_balances_the_paper_experiments_on_the_twin_with_the_ekf(number):
     θ peak-to-peak over the last 5 s 0.004, 0.004, 0.033 rad; final position error 9e-5 m (exp 2),
     1e-5 m (exp 3); heading error −0.007 rad (exp 3)."""
     from twin.scenarios import load_scenario
-    from twin.scenarios.runner import run_scenario
+    from twin.workflows.run import run_scenario
 
     sc = load_scenario(f"paper-exp{number}")
     assert sc.estimator == "ekf" and sc.data["plant"]["scale"]  # the EKF in the loop, a true plant that differs

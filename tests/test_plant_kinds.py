@@ -64,7 +64,7 @@ def test_a_fresh_twin_is_kept_by_reset_and_a_stepped_one_rebuilt():
 
 def test_a_plant_of_ones_own_runs_from_a_scenario_file(lab):
     from twin.scenarios import load_scenario
-    from twin.scenarios.runner import run_scenario
+    from twin.workflows.run import run_scenario
 
     sc = load_scenario(str(lab / "my_plant.toml"), ["duration=1.0"])
     assert sc.plant_model == "my_plant:TSPlant"

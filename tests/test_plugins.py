@@ -23,7 +23,7 @@ from twin.protocols import Controller, Estimator, Targets
 from twin.registry import (BuildContext, build_controller, build_estimator, check_kind, label, parse_controllers,
                            provenance)
 from twin.scenarios import load_scenario
-from twin.scenarios.runner import run_scenario
+from twin.workflows.run import run_scenario
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "my_plugins.py"
 CTRL, EST = "my_plugins:StateFeedback", "my_plugins:TiltFilter"

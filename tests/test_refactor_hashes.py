@@ -28,7 +28,7 @@ import pytest
 from kernels_child import metrics_bytes
 from twin.outputs import golden
 from twin.scenarios import load_scenario
-from twin.scenarios.runner import run_scenario
+from twin.workflows.run import run_scenario
 
 DATA = json.loads((Path(__file__).parent / "data" / "refactor_hashes.json").read_text(encoding="utf-8"))
 

@@ -436,7 +436,7 @@ def test_without_ffmpeg_opencv_writes_the_video_and_says_why(run_exp1, tmp_path,
 
 def test_twin_run_notes_the_fallback_encoder(tmp_path, monkeypatch):
     from twin.scenarios import load_scenario
-    from twin.scenarios.runner import run_scenario
+    from twin.workflows.run import run_scenario
 
     monkeypatch.setenv("IMAGEIO_FFMPEG_EXE", str(tmp_path / "no-such-ffmpeg"))
     sc = load_scenario("paper-exp2", ["duration=0.2", "video.width=64", "video.height=48"])
@@ -510,7 +510,7 @@ def _green(bgr: np.ndarray) -> int:
 
 def test_push_arrow_is_drawn_while_a_push_acts_and_only_then(tmp_path):
     from twin.scenarios import load_scenario
-    from twin.scenarios.runner import run_scenario
+    from twin.workflows.run import run_scenario
 
     run = run_scenario(load_scenario("push-recovery", ["duration=9"]), controllers="it2").runs[0]
     info = render_video(run, tmp_path / "push.mp4", fps=20, size=(320, 240))
@@ -525,7 +525,7 @@ def test_push_arrow_is_drawn_while_a_push_acts_and_only_then(tmp_path):
 
 def test_position_target_is_marked_on_the_floor_in_experiment_2(tmp_path):
     from twin.scenarios import load_scenario
-    from twin.scenarios.runner import run_scenario
+    from twin.workflows.run import run_scenario
 
     run = run_scenario(load_scenario("paper-exp2", ["duration=4"]), controllers="it2").runs[0]
     # no estimator ghost: H.264's shared chroma turns its thin cyan lines beside orange greenish
@@ -560,7 +560,7 @@ def _cyan_column(bgr: np.ndarray) -> float:
 def run_ekf():
     """Paper experiment 1 with the EKF in the loop (the scenario's sensing), its first 1.5 s."""
     from twin.scenarios import load_scenario
-    from twin.scenarios.runner import run_scenario
+    from twin.workflows.run import run_scenario
 
     run = run_scenario(load_scenario("paper-exp1", ["duration=1.5"]), controllers="it2").runs[0]
     assert run.sensing != "ideal" and run.status == "ok"

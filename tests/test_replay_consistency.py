@@ -22,7 +22,7 @@ from twin.logs.format import read_log, write_log
 from twin.logs.replay import (NEES_START, Replay, build_for, consistency, normalised_innovations, replay,
                               replay_logs, whiteness)
 from twin.scenarios import load_scenario
-from twin.scenarios.runner import plan
+from twin.scenarios.planning import plan
 from twin.sim.simulate import simulate
 from twin.sim.spec import Logging
 

@@ -9,7 +9,7 @@ import pytest
 from twin.outputs.figure import TIME_KEYS, panels
 from twin.outputs.report import FAULT_COLOUR, PUSH_COLOUR, figure_runs
 from twin.scenarios import load_scenario
-from twin.scenarios.runner import run_scenario
+from twin.workflows.run import run_scenario
 
 TITLES = {"theta": "θ [rad]", "error": "estimator error θ̂ − θ [rad]",
           "torque": "torque per wheel [N·m]: delivered left ─, right ╌; commanded ·; saturated ×",

@@ -13,7 +13,8 @@ import pytest
 
 from twin.errors import PluginError, TwinError
 from twin.scenarios import load_scenario
-from twin.scenarios.runner import plan, run_scenario
+from twin.scenarios.planning import plan
+from twin.workflows.run import run_scenario
 from twin.sensors import SensorConfig
 from twin.sim.simulate import build_loop, simulate
 from twin.sim.spec import IDEAL_SENSING, InitialState, Logging, Plugin, RunSpec, Sensing
@@ -147,7 +148,7 @@ def test_a_plugin_that_cannot_be_built_is_said_once_before_anything_runs(tmp_pat
             "    return orig(*a, **k)\n"
             "r.build_controller = counted\n"
             "from twin.scenarios import load_scenario\n"
-            "from twin.scenarios.runner import plan, run_scenario\n"
+            "from twin.scenarios.planning import plan\nfrom twin.workflows.run import run_scenario\n"
             "sc = load_scenario('paper-exp1', ['duration=0.05'])\n"
             "specs = plan(sc, ('lqr', 't1'))\n"
             "run_scenario(sc, ('lqr', 't1'), specs=specs)\n"

@@ -468,7 +468,7 @@ def test_a_mount_point_is_refused_as_an_output_directory(small_disk):
 
 def test_a_write_error_is_one_line_and_the_target_as_it_was_mocked(earlier, tmp_path, monkeypatch):
     """The full disk of the tests above, without a tmpfs: the trajectory's writer fails half-way."""
-    from twin.scenarios import runner
+    from twin.outputs import run_directory as runner
 
     real = runner.write_trajectories_csv
 

@@ -23,7 +23,7 @@ from twin.cli import main
 from twin.outputs.metrics import run_metrics
 from twin.params import NOMINAL
 from twin.scenarios import ScenarioError, builtin_names, load_scenario
-from twin.scenarios.runner import run_scenario
+from twin.workflows.run import run_scenario
 from twin.scenarios.scenario import parse_override
 
 BUILTINS = ("paper-exp1", "paper-exp2", "paper-exp3", "push-recovery", "sensor-faults", "slope-payload")

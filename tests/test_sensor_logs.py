@@ -19,7 +19,7 @@ from twin.errors import TwinError
 from twin.logs.format import read_log, write_log
 from twin.logs.replay import build_for, errors, instants, replay
 from twin.scenarios import load_scenario
-from twin.scenarios.runner import run_scenario
+from twin.workflows.run import run_scenario
 
 MANIFEST = """format = "mtwip-sensor-log"
 version = 1

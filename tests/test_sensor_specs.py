@@ -23,7 +23,7 @@ from click.testing import CliRunner
 from estimation.ekf import EKFEstimator
 from twin.cli import main
 from twin.scenarios import load_scenario
-from twin.scenarios.runner import run_scenario
+from twin.workflows.run import run_scenario
 from twin.sensors.noise import TriadNoise
 from twin.sensors.specs import DEG, G0, IMU_PRESETS, MPU6050_ACCEL, MPU6050_GYRO
 

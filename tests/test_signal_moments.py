@@ -123,7 +123,7 @@ elif _kind == "finalizer":  # in a garbage collector's callback (as in a __del__
     import gc
 
     def _collecting(phase, info):
-        if phase == "start" and "twin.scenarios.runner" in sys.modules:
+        if phase == "start" and "twin.workflows.run" in sys.modules:
             _fire()
 
     gc.callbacks.append(_collecting)

@@ -12,7 +12,7 @@ import pytest
 
 from twin.outputs import figure_worker
 from twin.scenarios import load_scenario
-from twin.scenarios.runner import run_scenario
+from twin.workflows.run import run_scenario
 
 HEAVY = ("scipy.stats", "filterpy", "filterpy.stats", "cvxpy", "clarabel")
 
@@ -135,12 +135,12 @@ def test_no_worker_outlives_a_run_that_raises(monkeypatch):
             started.append(self)
 
     monkeypatch.setattr(figure_worker, "FigureWorker", Recorded)
-    import twin.scenarios.runner as runner
+    import twin.workflows.run as runner
 
     def boom(*args, **kwargs):
         raise RuntimeError("the simulation broke")
 
-    monkeypatch.setattr(runner, "_run_and_write", boom)
+    monkeypatch.setattr(runner, "run_controllers", boom)
     with pytest.raises(RuntimeError, match="broke"), tempfile.TemporaryDirectory() as tmp:
         run_scenario(load_scenario("paper-exp3", ["duration=1"]), ("it2",), out=tmp, video=False)
     assert started and started[0]._proc.returncode is not None

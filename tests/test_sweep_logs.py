@@ -20,7 +20,7 @@ from twin.logs.format import read_log, write_log
 from twin.logs.replay import build_for, errors, replay
 from twin.params import NOMINAL
 from twin.scenarios import load_scenario
-from twin.scenarios.runner import run_scenario
+from twin.workflows.run import run_scenario
 from twin.sweep.sampling import sample_scenario
 from twin.sweep.table import read_sweep_csv
 

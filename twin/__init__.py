@@ -28,7 +28,7 @@ __version__ = "0.1.0"
 _LAZY = {
     "ClosedLoop": "twin.sim.loop", "Run": "twin.sim.runs", "Targets": "twin.protocols", "Controller": "twin.protocols",
     "Estimator": "twin.protocols", "Experiment": "twin.experiments", "PAPER_EXPERIMENTS": "twin.experiments",
-    "simulate_twin": "twin.sim.bullet_loop", "load_scenario": "twin.scenarios", "run_scenario": "twin.scenarios.runner",
+    "simulate_twin": "twin.sim.bullet_loop", "load_scenario": "twin.scenarios", "run_scenario": "twin.workflows.run",
     "build_controller": "twin.registry", "build_estimator": "twin.registry", "BuildContext": "twin.registry",
     "TwinConfig": "twin.plant.base", "SensorConfig": "twin.sensors",
     "RunSpec": "twin.sim.spec", "simulate": "twin.sim.simulate", "build_loop": "twin.sim.simulate",

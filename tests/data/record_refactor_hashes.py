@@ -23,7 +23,7 @@ from kernels_child import metrics_bytes  # noqa: E402
 
 def hashes() -> dict:
     from twin.scenarios import load_scenario
-    from twin.scenarios.runner import run_scenario
+    from twin.workflows.run import run_scenario
 
     data = json.loads(FILE.read_text(encoding="utf-8"))
     out = {}

@@ -17,7 +17,8 @@ Two places hold the bounds:
       nis_per_dof = "<= 2"
 
 Bounds in ``[expect]`` itself apply to every estimator named in a sub-table (an estimator is
-replayed because a sub-table names it). The metrics are
+replayed because a sub-table names it); :func:`twin.verify.check.run_log_checks` replays and
+judges them. The metrics are
 :data:`twin.scenarios.expectations.REPLAY_METRICS`; one that is undefined (an error without
 truth, NIS from an estimator that reports none) fails its bound.
 """
@@ -116,28 +117,4 @@ def replay_metrics(entry: dict) -> dict:
     return out
 
 
-def run_log_checks(checks) -> list:
-    """A :class:`twin.verify.check.CaseResult` per log and estimator (seed 0: a replay has none)."""
-    from twin.logs.replay import replay_logs_contained
-    # runs back up: a log's check is one case of `twin check`, reported as its cases are (both are
-    # workflows, to sit together above the engine's layers)
-    from twin.verify.check import CaseResult
-    from twin.scenarios.expectations import evaluate, failed
-
-    cases = []
-    for chk in checks:
-        try:
-            doc, _ = replay_logs_contained([chk.log], chk.kinds)  # a plugin's in a worker: it cannot end the check
-            entries = doc["logs"][str(chk.log)]["estimators"]
-            errors = {}
-        except TwinError as exc:
-            entries, errors = {}, {0: f"{type(exc).__name__}: {' '.join(str(exc).split())}"}
-        for kind in chk.kinds:
-            metrics = {0: replay_metrics(entries[kind])} if kind in entries else {}
-            verdicts = evaluate(chk.bounds, kind, metrics) if metrics else []
-            cases.append(CaseResult(f"log:{chk.name}", chk.source, kind, (0,), metrics, dict(errors), verdicts,
-                                    failed(verdicts, chk.bounds), kind_of="log"))
-    return cases
-
-
-__all__ = ["LogCheck", "is_log_target", "load_log_check", "replay_metrics", "run_log_checks"]
+__all__ = ["LogCheck", "is_log_target", "load_log_check", "replay_metrics"]

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from twin.errors import TwinError
+from twin.interrupts import deferred_signals
 from twin.plant.base import TwinConfig, initial_pose
 from twin.plant.bullet import WHEEL_JOINTS, client_id, disconnect, quiet_native_output
 from twin.plant.urdf import UNIT_CUBE_OBJ, robot_urdf
@@ -295,8 +296,6 @@ class Scene:
         self.config = config
         self.client = None
         self._plugin = -1
-        from twin.outputs.rundir import deferred_signals
-
         # signals held: an interrupt raised before BulletClient stored its server's id left a
         # client whose __del__ printed a traceback after the command's line (see twin.plant.bullet._connect)
         with deferred_signals(), quiet_native_output():

@@ -1,16 +1,19 @@
-"""What a scenario's runs need settled before they run, wherever they run: the LMI design
-solved on first demand (:class:`LazyDesign`), the provenance of the plugins they load
-(:func:`plugins_of`) and the refusal of parameters no run would use
+"""What a scenario's runs need settled before they run, wherever they run: the controllers
+asked for (:func:`controllers_of`), each run's specification with its plugins built
+(:func:`plan`), the LMI design solved on first demand (:class:`LazyDesign`), the provenance
+of the plugins they load (:func:`plugins_of`) and the refusal of parameters no run would use
 (:func:`refuse_unused_params`).
 
-Both sides of a run use them: :mod:`twin.scenarios.runner` in the command's process and
+Both sides of a run use them: :mod:`twin.scenarios.runs` in the command's process and
 :mod:`twin.scenarios.contained` in a plugin's worker process; they live here, below both, so
-that neither imports the other for them (``twin.scenarios.runner`` still exports them).
+that neither imports the other for them.
 """
 from __future__ import annotations
 
 import time
 
+from twin.registry import is_import_path, parse_controllers, provenance
+from twin.scenarios.schema import ScenarioError, key_text
 from twin.scenarios.scenario import Scenario
 
 
@@ -41,16 +44,12 @@ def kinds_of(scenario: Scenario, controllers) -> tuple:
 
 def plugin_roles(scenario: Scenario, controllers) -> tuple:
     """(role, kind) of each import-path kind (a user's code) of :func:`kinds_of`."""
-    from twin.registry import is_import_path
-
     return tuple((role, k) for role, k in kinds_of(scenario, controllers) if is_import_path(k))
 
 
 def plugins_of(scenario: Scenario, controllers) -> list[dict]:
     """The provenance (module, file, SHA-256) of every import-path kind a run of ``scenario``
     with ``controllers`` loads (:func:`twin.registry.provenance`)."""
-    from twin.registry import provenance
-
     return [provenance(role, k) for role, k in plugin_roles(scenario, controllers)]
 
 
@@ -59,8 +58,6 @@ def refuse_unused_params(scenario: Scenario, kinds) -> None:
     ``controller.kinds`` runs would be ignored without a word (a typo in KIND, or parameters
     for a controller that was taken out of the list): one line instead. Parameters for a
     listed controller that ``--controller`` leaves out this time are kept for when it runs."""
-    from twin.scenarios.schema import ScenarioError, key_text
-
     runs = list(dict.fromkeys([*kinds, *scenario.controllers]))
     unused = [k for k in scenario.data["controller"]["params"] if k not in runs]
     if unused:
@@ -70,4 +67,22 @@ def refuse_unused_params(scenario: Scenario, kinds) -> None:
                             f"parameters for a controller run or listed in controller.kinds")
 
 
-__all__ = ["LazyDesign", "plugins_of", "refuse_unused_params"]
+def controllers_of(choice: str | None, scenario: Scenario | None = None) -> tuple[str, ...]:
+    """The controller kinds of ``--controller CHOICE`` ("both", or a comma-separated list of
+    built-in names and import paths); None: the scenario's ``controller.kinds``."""
+    if choice is None:
+        return scenario.controllers if scenario is not None else ("it2", "t1")
+    return parse_controllers(choice)
+
+
+def plan(scenario: Scenario, kinds) -> list:
+    """The :class:`twin.sim.spec.RunSpec` of each controller kind's run of ``scenario``, its
+    controller and estimator built once (:meth:`Scenario.run_spec`), so that a plugin that
+    cannot be built is one line before anything runs; the LMI design is solved only if a
+    controller asks for it (:class:`LazyDesign`)."""
+    refuse_unused_params(scenario, kinds)
+    context = scenario.build_context(LazyDesign(scenario))
+    return [scenario.run_spec(kind, context) for kind in kinds]
+
+
+__all__ = ["LazyDesign", "controllers_of", "kinds_of", "plan", "plugin_roles", "plugins_of", "refuse_unused_params"]

@@ -89,7 +89,7 @@ def sweep_controllers(scenario: Scenario, controllers=None, reference: str | Non
     """(kinds, reference): ``controllers`` (None: the scenario's ``controller.kinds``) checked,
     and the reference the paired statistics compare each other controller with (default:
     the last one listed)."""
-    from twin.scenarios.runner import refuse_unused_params
+    from twin.scenarios.planning import refuse_unused_params
 
     kinds = check_kinds("controller", controllers if controllers is not None else scenario.controllers, "controllers")
     refuse_unused_params(scenario, kinds)
@@ -116,7 +116,7 @@ def preflight(scenario: Scenario, kinds, duration: float = 0.05, design=None) ->
     """Run the plugins among ``kinds`` (and a plugin estimator or plant) for ``duration`` s in a worker
     process, before anything is written: a plugin that breaks its contract at once is a
     one-line error rather than N failed samples."""
-    from twin.scenarios.runner import run_scenario
+    from twin.scenarios.runs import simulate_scenario
 
     plugins = [k for k in kinds if is_import_path(k)]
     if plugin_roles(scenario, ()) and not plugins:  # the estimator or the plant is a user's
@@ -128,7 +128,7 @@ def preflight(scenario: Scenario, kinds, duration: float = 0.05, design=None) ->
                      scenario.overrides)
     if design is not None:
         short.adopt_design(design)
-    run_scenario(short, plugins, contained=True)
+    simulate_scenario(short, plugins, contained=True)
 
 
 def run_sweep(scenario: Scenario, draws: int, out: Path, scenario_arg: str | None = None, workers: int | None = None,
@@ -259,7 +259,7 @@ def write_sample_logs(job: SweepJob, samples, records, out: Path) -> tuple[dict,
 
     from twin.logs.format import write_log
     from twin.outputs import rundir
-    from twin.scenarios.runner import run_scenario
+    from twin.scenarios.runs import simulate_scenario
 
     sc = job.scenario()  # exactly what the workers ran: the sweep's limits and design
     logs, notes = {}, []
@@ -271,7 +271,7 @@ def write_sample_logs(job: SweepJob, samples, records, out: Path) -> tuple[dict,
                 notes.append(f"sample {k}, {kind}: no sensor log (its run ended in an error: "
                              f"{(records[k].get('errors') or {}).get(kind, records[k]['error'])})")
                 continue
-            done = run_scenario(sample.scenario, (kind,), contained=True)  # as the worker runs it (twin.sweep.worker)
+            done = simulate_scenario(sample.scenario, (kind,), contained=True)  # as the worker runs it (twin.sweep.worker)
             run, metrics = done.runs[0], done.metrics[kind]
             if json.dumps(metrics, sort_keys=True) != json.dumps(
                     {m: v for m, v in stored[kind].items() if m != "success"}, sort_keys=True):
@@ -314,7 +314,7 @@ def environment_of(summary: dict, kinds, design) -> dict:
     controller's own ``design_digest()``, from :func:`sweep_plan`'s ``summary``: every sample's
     controllers are designed on the same nominal model)."""
     from twin.outputs.fingerprint import digests, record
-    from twin.scenarios.runner import DesignDigest
+    from twin.scenarios.runs import DesignDigest
 
     asked = summary["design"] is not None or design is not None
     return record(digests(design if asked else None, [(k, DesignDigest(summary["digests"].get(k))) for k in kinds]))

@@ -59,7 +59,7 @@ def run_part(job: SweepJob, index: int, kind: str) -> dict:
     ``wall_s``. What a local worker runs (:func:`twin.sweep.backends.run_local`): each
     controller of a sample apart, so that a run a limit stops from outside (its worker killed)
     costs the others nothing."""
-    from twin.scenarios.runner import run_scenario
+    from twin.scenarios.runs import simulate_scenario
     from twin.sweep.sampling import sample_scenario, success
 
     if str(index) in os.environ.get(CRASH_ENV, "").split(","):
@@ -69,7 +69,7 @@ def run_part(job: SweepJob, index: int, kind: str) -> dict:
     sample = sample_scenario(scenario, job.root_seed, index)
     out = {"sample": _head(sample)}
     try:
-        metrics = run_scenario(sample.scenario, (kind,)).metrics[kind]
+        metrics = simulate_scenario(sample.scenario, (kind,)).metrics[kind]
         out["metrics"] = {**metrics, "success": success(metrics, scenario)}
     except Exception as exc:  # noqa: BLE001 -- a run that errors is a result, kept with its message
         out["error"] = error_text(exc)

@@ -1,6 +1,6 @@
 """``twin check``: run scenarios with their ``[expect]`` tables and say pass or fail.
 
-Every (scenario, controller, seed) is one run of :func:`twin.scenarios.runner.run_scenario`,
+Every (scenario, controller, seed) is one run of :func:`twin.scenarios.runs.simulate_scenario`,
 on local worker processes when there are several (spawned, like the sweeps'; the LMI
 design is solved once per scenario here and shipped). Seeds are the scenario's ``seed``,
 ``seed + 1``, … so that any run replays with ``twin run SCENARIO --seed S``. The verdicts
@@ -14,6 +14,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from twin.errors import TwinError
+from twin.logs.expect import replay_metrics
+from twin.logs.replay import replay_logs_contained
 from twin.outputs.rundir import MANIFEST, RECORD_COMMAND, FileBatch, kept, test_point
 from twin.scenarios.expectations import GOLDEN, evaluate, failed, parse_expect
 from twin.outputs.tolerances import Tolerances, known_signals, parse_table
@@ -39,7 +41,7 @@ def run_task(task: CheckTask) -> tuple[dict | None, str, object, dict | None]:
     None) if it raised; the environment is the one it ran in, with its designs' digests
     (:func:`twin.outputs.fingerprint.record`)."""
     from twin.registry import use_plugin_dirs
-    from twin.scenarios.runner import run_scenario
+    from twin.scenarios.runs import simulate_scenario
     from twin.scenarios.scenario import Scenario
 
     use_plugin_dirs(task.plugin_paths)
@@ -47,7 +49,7 @@ def run_task(task: CheckTask) -> tuple[dict | None, str, object, dict | None]:
     if task.design is not None:
         sc.adopt_design(task.design)
     try:
-        result = run_scenario(sc, (task.kind,))
+        result = simulate_scenario(sc, (task.kind,))
     except Exception as exc:  # noqa: BLE001 -- a run that errors fails its check, with its message
         return None, f"{type(exc).__name__}: {' '.join(str(exc).split())}", None, None
     traj = None
@@ -144,7 +146,7 @@ def run_checks(scenarios, controllers=None, seeds: int = 1, workers: int = 1, pr
     from twin.containment import Task, run_contained
     from twin.registry import check_kinds, plugin_dirs, uses_design
     from twin.scenarios.contained import Recipe, involves_plugins, limits_of, plan_summary, plugin_roles
-    from twin.scenarios.runner import plan as runs_of
+    from twin.scenarios.planning import plan as runs_of
 
     if not (isinstance(seeds, int) and 1 <= seeds <= 10_000):
         raise TwinError(f"--seeds must be an integer from 1 to 10000, got {seeds!r}")
@@ -495,5 +497,24 @@ def write_junit(result: CheckResult, path: Path) -> Path:
     return path
 
 
+def run_log_checks(checks) -> list:
+    """A :class:`CaseResult` per log and estimator of ``checks`` (:class:`twin.logs.expect.LogCheck`;
+    seed 0: a replay has none)."""
+    cases = []
+    for chk in checks:
+        try:
+            doc, _ = replay_logs_contained([chk.log], chk.kinds)  # a plugin's in a worker: it cannot end the check
+            entries = doc["logs"][str(chk.log)]["estimators"]
+            errors = {}
+        except TwinError as exc:
+            entries, errors = {}, {0: f"{type(exc).__name__}: {' '.join(str(exc).split())}"}
+        for kind in chk.kinds:
+            metrics = {0: replay_metrics(entries[kind])} if kind in entries else {}
+            verdicts = evaluate(chk.bounds, kind, metrics) if metrics else []
+            cases.append(CaseResult(f"log:{chk.name}", chk.source, kind, (0,), metrics, dict(errors), verdicts,
+                                    failed(verdicts, chk.bounds), kind_of="log"))
+    return cases
+
+
 __all__ = ["CaseResult", "CheckResult", "CheckTask", "collect", "failure_lines", "format_table", "run_checks",
-           "run_task", "write_junit"]
+           "run_log_checks", "run_task", "write_junit"]

@@ -164,7 +164,7 @@ class TwinLogItem(_CheckItem):
     def _result(self):
         from dataclasses import replace
 
-        from twin.logs.expect import run_log_checks
+        from twin.verify.check import run_log_checks
         from twin.verify.check import CheckResult
 
         return CheckResult(run_log_checks([replace(self.check, kinds=(self.kind,))]))

@@ -1,0 +1,63 @@
+"""``twin scenarios`` and ``twin kinds``: the built-in scenarios (or one's TOML to copy), and the
+controller, estimator and plant kinds."""
+from __future__ import annotations
+
+import re
+from importlib import resources
+
+import click
+
+from twin.commands.common import Once
+from twin.errors import TwinError
+from twin.registry import CONTROLLERS, ESTIMATORS, PLANTS
+from twin.scenarios import builtin_scenarios
+from twin.scenarios.scenario import BUILTIN_PACKAGE, builtin_names
+
+
+def copy_text(text: str) -> str:
+    """A built-in scenario's TOML as ``twin scenarios NAME`` prints it to copy: its ``name`` line
+    commented out, so that a copy takes its file's name (``my-exp2.toml`` runs as ``my-exp2``, into
+    ``runs/my-exp2``) instead of replacing the built-in's results in ``runs/NAME``."""
+    return re.sub(r'^name\s*=\s*(.*)$', lambda m: f"# name = {m.group(1)}   (a copy takes its file's name: "
+                  f"my-copy.toml runs as my-copy, into runs/my-copy)", text, count=1, flags=re.M)
+
+
+@click.command("scenarios", cls=Once)
+@click.argument("name", required=False)
+def scenarios_command(name):
+    """List the built-in scenarios, a line each; with NAME, print that one's TOML to copy and edit.
+
+    \b
+    Examples:
+      twin scenarios
+      twin scenarios paper-exp2 > my-exp2.toml
+      twin run slope-payload --controller both
+    """
+    if name is not None:
+        if name not in builtin_names():
+            raise TwinError(f"no built-in scenario {name!r}; built-ins: {', '.join(builtin_names())}")
+        text = resources.files(BUILTIN_PACKAGE).joinpath(f"{name}.toml").read_text(encoding="utf-8")
+        click.echo(copy_text(text), nl=False)
+        return
+    items = builtin_scenarios()
+    width = max(map(len, items))
+    for name, description in items.items():
+        click.echo(f"{name:{width}}  {description}")
+
+
+@click.command("kinds", cls=Once)
+def kinds_command():
+    """List the built-in controller, estimator and plant kinds (any 'package.module:attribute' works too).
+
+    \b
+    Examples:
+      twin kinds
+      twin run paper-exp2 --controller it2,lqr
+    """
+    for title, table in (("controllers (--controller, controller.kinds)", CONTROLLERS),
+                         ("estimators (sensors.estimator)", ESTIMATORS), ("plants (plant.model)", PLANTS)):
+        click.echo(title)
+        width = max(map(len, table))
+        for name, kind in table.items():
+            click.echo(f"  {name:{width}}  {kind.description}")
+    click.echo("your own: package.module:attribute, a class or factory (see docs/howto/plugins.md)")
