@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from layering import LAYERS, ROOT, cycles, figures, imports, modules, unit
+from layering import LAYERS, ROOT, cycles, figures, imports, modules, unit, walk
 
 
 @pytest.fixture(scope="module")
@@ -97,6 +97,16 @@ def test_the_command_line_parses_and_prints_only():
     reached = sorted({(a, b) for a, b, _, _ in imports(mods) if a.startswith(("twin.cli", "twin.commands"))
                       and b.startswith(engine)})
     assert reached == []
+
+
+def test_a_scenario_goes_from_twin_run_to_its_files_without_going_back_and_forth():
+    """The walk of a scenario's description (tests/layering.py --walk): the registry builds the
+    run's plugins in one visit, every other module is entered at most three times (the scenario:
+    loaded, asked for its runs, recorded), and the walk is short."""
+    w = walk()
+    assert w["count"].get("twin.registry") == 1, w["entries"]
+    assert max(w["count"].values()) <= 3, w["count"]
+    assert len(w["entries"]) <= 15, w["entries"]
 
 
 # ---- the rules still to meet (issue in progress): strict, so each fails once it holds ----

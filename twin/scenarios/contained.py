@@ -17,8 +17,12 @@ import time
 from dataclasses import dataclass, replace
 
 from twin.containment import Task, Workers, run_contained
-from twin.scenarios.planning import LazyDesign, plugin_roles, plugins_of, refuse_unused_params
+from twin.limits import PluginLimits
+from twin.registry import plugin_dirs
+from twin.scenarios.planning import LazyDesign, plan, plugin_roles, plugins_of
 from twin.scenarios.scenario import Scenario
+from twin.sim.simulate import simulate
+from twin.sim.spec import Logging
 
 
 def involves_plugins(scenario: Scenario, kinds) -> bool:
@@ -53,8 +57,6 @@ def names_of(scenario: Scenario, kind: str | None = None) -> dict:
 
 def limits_of(scenario: Scenario):
     """The scenario's :class:`twin.limits.PluginLimits` (inactive if ``[limits]`` sets none)."""
-    from twin.limits import PluginLimits
-
     return PluginLimits(**scenario.data["limits"])
 
 
@@ -69,14 +71,13 @@ def plan_summary(recipe, kinds) -> dict:
     the controllers that have one), ``reads_truth`` (the estimator declares it), ``design``
     (the LMI design, if a controller asked for it: solved or taken from the design cache) and
     ``design_s`` (the seconds that took)."""
-    from twin.registry import plugin_dirs
-
     sc = recipe.scenario() if isinstance(recipe, Recipe) else recipe
     kinds = tuple(kinds)
-    refuse_unused_params(sc, kinds)
-    lazy = LazyDesign(sc)
-    context = sc.build_context(lazy)
-    specs = [sc.run_spec(kind, context) for kind in kinds]
+    if kinds:
+        specs = plan(sc, kinds)
+    else:  # the estimator alone (a sweep's preflight of a user's estimator)
+        specs = [sc.run_specs((None,), LazyDesign(sc))[0].built(sc.named(None))]
+    lazy = specs[0].design
     signals, digests = {}, {}
     for kind, spec in zip(kinds, specs):
         obj = spec.controller.kind
@@ -84,7 +85,7 @@ def plan_summary(recipe, kinds) -> dict:
         own = getattr(obj, "design_digest", None)
         if callable(own):
             digests[kind] = str(own())
-    estimator = specs[0].estimator.kind if specs else sc.build_estimator(context)
+    estimator = specs[0].estimator.kind
     return {"plugins": plugins_of(sc, kinds), "dirs": plugin_dirs(plugin_roles(sc, kinds)), "signals": signals, "digests": digests,
             "reads_truth": bool(getattr(estimator, "reads_truth", False)) if not isinstance(estimator, str) else False,
             "design": lazy.solved, "design_s": lazy.seconds}
@@ -94,12 +95,9 @@ def run_kind(recipe: Recipe, kind: str, every: int = 1, log_format: str = "csv",
     """Controller ``kind``'s run of the recipe's scenario, logged every ``every`` control steps:
     ``run`` (a :class:`twin.sim.runs.Run`), ``digest`` (the controller's ``design_digest()``,
     or None), ``design`` and ``design_s`` (the LMI design if it was solved here)."""
-    from twin.sim.simulate import simulate
-    from twin.sim.spec import Logging
-
     sc = recipe.scenario()
     lazy = LazyDesign(sc)
-    spec = replace(sc.run_spec(kind, sc.build_context(lazy)), logging=Logging(every, format=log_format))
+    spec = replace(sc.run_specs((kind,), lazy)[0], logging=Logging(every, format=log_format)).built(sc.named(kind))
     run = simulate(spec, progress)
     own = getattr(spec.controller.kind, "design_digest", None)
     return {"run": run, "digest": str(own()) if callable(own) else None, "design": lazy.solved,

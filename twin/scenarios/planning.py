@@ -11,6 +11,7 @@ that neither imports the other for them.
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 from twin.registry import is_import_path, parse_controllers, provenance
 from twin.scenarios.schema import ScenarioError, key_text
@@ -23,14 +24,14 @@ class LazyDesign:
     asks, need it, and design.json is written only then."""
 
     def __init__(self, scenario: Scenario):
-        self.scenario = scenario
+        self.solve = scenario.design_solver()  # the scenario's design options alone, not the scenario
         self.solved = None
         self.seconds = None
 
     def __call__(self):
         if self.solved is None:
             t0 = time.perf_counter()
-            self.solved = self.scenario.design()
+            self.solved = self.solve()
             self.seconds = time.perf_counter() - t0
         return self.solved
 
@@ -58,12 +59,13 @@ def refuse_unused_params(scenario: Scenario, kinds) -> None:
     ``controller.kinds`` runs would be ignored without a word (a typo in KIND, or parameters
     for a controller that was taken out of the list): one line instead. Parameters for a
     listed controller that ``--controller`` leaves out this time are kept for when it runs."""
-    runs = list(dict.fromkeys([*kinds, *scenario.controllers]))
+    listed = scenario.data["controller"]["kinds"]
+    runs = list(dict.fromkeys([*kinds, *listed]))
     unused = [k for k in scenario.data["controller"]["params"] if k not in runs]
     if unused:
         raise ScenarioError(f"{scenario.source}: controller.params.{key_text(unused[0])}: controller "
                             f"{unused[0]!r} is never run (this run's: {', '.join(kinds)}; controller.kinds: "
-                            f"{', '.join(scenario.controllers)}), so its parameters would be ignored; allowed: "
+                            f"{', '.join(listed)}), so its parameters would be ignored; allowed: "
                             f"parameters for a controller run or listed in controller.kinds")
 
 
@@ -77,12 +79,35 @@ def controllers_of(choice: str | None, scenario: Scenario | None = None) -> tupl
 
 def plan(scenario: Scenario, kinds) -> list:
     """The :class:`twin.sim.spec.RunSpec` of each controller kind's run of ``scenario``, its
-    controller and estimator built once (:meth:`Scenario.run_spec`), so that a plugin that
-    cannot be built is one line before anything runs; the LMI design is solved only if a
-    controller asks for it (:class:`LazyDesign`)."""
+    controller and estimator built once (:meth:`twin.sim.spec.RunSpec.built`, a plugin that
+    cannot be built a one-line error naming the scenario's key), so that it is said before
+    anything runs; the LMI design is solved only if a controller asks for it (:class:`LazyDesign`)."""
     refuse_unused_params(scenario, kinds)
-    context = scenario.build_context(LazyDesign(scenario))
-    return [scenario.run_spec(kind, context) for kind in kinds]
+    design = LazyDesign(scenario)
+    named = [scenario.named(k) for k in kinds]
+    return [spec.built(n) for spec, n in zip(scenario.run_specs(kinds, design), named)]
 
 
-__all__ = ["LazyDesign", "controllers_of", "kinds_of", "plan", "plugin_roles", "plugins_of", "refuse_unused_params"]
+@dataclass(frozen=True)
+class RunPlan:
+    """What a command runs of a scenario, settled before anything runs or is said: the
+    controller ``kinds``; ``roles``, the (role, kind) of each import-path kind (a user's code);
+    ``plugins``, their provenance (:func:`twin.registry.provenance`); ``specs``, each run's
+    specification with its plugins built (:func:`plan`), or None when a user's code is
+    involved: it is then built and run in a worker process (:mod:`twin.scenarios.contained`)."""
+
+    kinds: tuple
+    roles: tuple
+    plugins: list
+    specs: list | None
+
+
+def plan_runs(scenario: Scenario, choice: str | None = None) -> RunPlan:
+    """The :class:`RunPlan` of ``scenario`` with ``--controller CHOICE`` (None: its ``controller.kinds``)."""
+    kinds = controllers_of(choice, scenario)
+    roles = plugin_roles(scenario, kinds)
+    return RunPlan(kinds, roles, [provenance(role, k) for role, k in roles], None if roles else plan(scenario, kinds))
+
+
+__all__ = ["LazyDesign", "RunPlan", "controllers_of", "kinds_of", "plan", "plan_runs", "plugin_roles", "plugins_of",
+           "refuse_unused_params"]

@@ -46,13 +46,12 @@ class ScenarioResult:
         return record(self.designs)
 
 
-def checked_kinds(scenario: Scenario, controllers) -> tuple[str, ...]:
-    """The controller kinds of a run of ``scenario``: ``controllers`` ("both", a comma-separated
-    text, or a sequence of kinds; None: the scenario's ``controller.kinds``), each checked."""
+def checked_kinds(controllers, listed) -> tuple[str, ...]:
+    """The controller kinds of a run: ``controllers`` ("both", a comma-separated text, or a
+    sequence of kinds; None: ``listed``, the scenario's ``controller.kinds``), each checked."""
     if isinstance(controllers, str):
         return parse_controllers(controllers)
-    return check_kinds("controller", controllers if controllers is not None else scenario.controllers,
-                       "controllers")
+    return check_kinds("controller", controllers if controllers is not None else listed, "controllers")
 
 
 def check_logging(log_every: int, log_format: str) -> int:
@@ -70,7 +69,7 @@ def reads_truth(run) -> bool:
 
 
 def run_controllers(scenario: Scenario, kinds, progress=None, every: int = 1, log_format: str = "csv",
-                    keep_limited: bool = False, specs=None, box=None) -> ScenarioResult:
+                    keep_limited: bool = False, specs=None, box=None, plugins=None) -> ScenarioResult:
     """Run ``scenario`` with each controller of ``kinds`` (checked already) and measure each run.
 
     ``progress(stage, done, total)``: called as the runs advance; ``every`` N: keep every N-th
@@ -82,7 +81,8 @@ def run_controllers(scenario: Scenario, kinds, progress=None, every: int = 1, lo
     ``specs``: the runs' specifications as :func:`twin.scenarios.planning.plan` made them (their
     plugins built already); None: planned here. ``box``: a
     :class:`twin.scenarios.contained.ContainedScenario` whose worker process runs every
-    controller (a user's plugin is involved), or None (here). The numbers are the same either way."""
+    controller (a user's plugin is involved), or None (here). The numbers are the same either way.
+    ``plugins``: the provenance of the plugins the runs load, if known (None: found here)."""
     timings = {}
     if box is not None:
         summary = box.plan()
@@ -95,14 +95,17 @@ def run_controllers(scenario: Scenario, kinds, progress=None, every: int = 1, lo
         if specs is None:
             specs = plan(scenario, kinds)
         lazy = specs[0].design if specs and isinstance(specs[0].design, LazyDesign) else None
-        plugins = plugins_of(scenario, kinds)
+        if plugins is None:
+            plugins = plugins_of(scenario, kinds)
     runs, metrics, controllers, errors = [], {}, [], {}
     for kind, spec in zip(kinds, specs):
         cb = None if progress is None else (lambda done, total, k=kind: progress(f"run {k}", done, total))
         t0 = time.perf_counter()
         try:
             if box is None:
-                spec = replace(spec, logging=Logging(every, format=log_format))
+                logging = Logging(every, format=log_format)
+                if spec.logging != logging:
+                    spec = replace(spec, logging=logging)
                 run = simulate(spec, cb)
             else:
                 done = box.run(kind, every, log_format, cb)
@@ -136,7 +139,7 @@ def simulate_scenario(scenario: Scenario, controllers=None, contained: bool = Fa
     ``controller.kinds``) and their metrics, nothing written (:func:`run_controllers`);
     ``contained``: a run that involves a user's plugin runs in a worker process
     (:mod:`twin.containment`), with the same numbers."""
-    kinds = checked_kinds(scenario, controllers)
+    kinds = checked_kinds(controllers, scenario.controllers)
     if contained and involves_plugins(scenario, kinds):
         with ContainedScenario(scenario, kinds) as box:
             return run_controllers(scenario, kinds, progress, box=box)

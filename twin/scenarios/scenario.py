@@ -11,11 +11,22 @@ from __future__ import annotations
 import copy
 import tomllib
 from dataclasses import dataclass
+from functools import cached_property, lru_cache, partial
 from importlib import resources
 from pathlib import Path
 
+from twin.controllers.designs import adopt, balance_design
 from twin.errors import TwinError, shown
+from twin.experiments import Experiment
 from twin.inputs import MAX_TOML_BYTES, inside, read_text
+from twin.limits import PluginLimits
+from twin.params import NOMINAL
+from twin.plant.base import START_TOLERANCE, TwinConfig, start_clearance, start_problem, touch_angle
+from twin.plant.disturbances import Disturbances, Ground, Push
+from twin.plant.urdf import Payload, body_box
+from twin.registry import PLANTS, build_plant, look_beside, resolve
+from twin.scenarios.sensors import believed_config, problems, true_config
+from twin.sim.spec import InitialState, Logging, Plugin, RunSpec, Sensing
 from twin.scenarios.schema import (MAX_DEPTH, NAME_RULE, SCHEMA, ScenarioError, check_depth, key_text, lookup,
                                    name_problem, record, split_key, validate)
 from twin.timing import steps_per_control
@@ -46,43 +57,51 @@ class Scenario:
     source: str
     overrides: tuple[str, ...] = ()
 
-    @property
+    # what follows from the data is computed once (cached_property): ``data`` is validated and
+    # not changed after the scenario is made (a changed scenario is a new one: --set, a sample);
+    # the facts every run asks for are computed as it is made
+    def __post_init__(self):
+        for fact in ("name", "description", "duration", "seed", "controllers", "estimator", "plant_model",
+                     "changed_keys", "sets_nothing"):
+            getattr(self, fact)
+
+    @cached_property
     def name(self) -> str:
         return self.data["name"]
 
-    @property
+    @cached_property
     def description(self) -> str:
         return self.data["description"]
 
-    @property
+    @cached_property
     def sets_nothing(self) -> bool:
         """True for a scenario whose every key is the default (an empty file): what it runs is
         then the schema's defaults, which a user may not expect."""
-        return {**self.data, "name": "defaults"} == validate({"name": "defaults"})
+        return {**self.data, "name": "defaults"} == _defaults()
 
-    @property
+    @cached_property
     def duration(self) -> float:
         return self.data["duration"]
 
-    @property
+    @cached_property
     def seed(self) -> int:
         return self.data["seed"]
 
-    @property
+    @cached_property
     def video(self) -> dict:
         return self.data["video"]
 
-    @property
+    @cached_property
     def expect(self) -> dict:
         """The ``[expect]`` table: the bounds ``twin check`` holds the runs to (empty: none)."""
         return self.data["expect"]
 
-    @property
+    @cached_property
     def sweep(self) -> dict:
         """The ``[sweep]`` table: the uncertainty levels and what is drawn at each."""
         return self.data["sweep"]
 
-    @property
+    @cached_property
     def changed_keys(self) -> tuple[str, ...]:
         """The top-level tables and keys that ``--set`` items changed (besides the seed and
         duration), so that a description written for the file can be read with care."""
@@ -90,12 +109,12 @@ class Scenario:
         return tuple(dict.fromkeys(k for k in keys if k not in ("seed", "duration", "video", "sweep", "expect",
                                                               "name", "description", "limits")))
 
-    @property
+    @cached_property
     def controllers(self) -> tuple[str, ...]:
         """The controller kinds the scenario runs (``controller.kinds``)."""
         return tuple(self.data["controller"]["kinds"])
 
-    @property
+    @cached_property
     def estimator(self) -> str:
         """The estimator kind: ``"ideal"`` with ideal sensing, else ``sensors.estimator``."""
         s = self.data["sensors"]
@@ -108,87 +127,79 @@ class Scenario:
 
     # ---- what the scenario builds ------------------------------------------------------------
     def build_context(self, design=None):
-        """The :class:`twin.registry.BuildContext` of this scenario's runs: nominal model, its
-        motors, the sensors as the estimator believes them (:meth:`believed_sensor_config`),
-        targets, heading, cascade options, and ``design`` (a zero-argument callable; default
-        :meth:`design`, which solves the LMIs only when a controller asks)."""
-        from twin.params import NOMINAL
-        from twin.registry import BuildContext, plant_motor
-
-        d = self.data
-        config = self.twin_config()
-        return BuildContext(config.control_rate, NOMINAL, plant_motor(self.plant_model, config),
-                            self.believed_sensor_config(),
-                            self.experiment().targets, d["initial"]["alpha"], design or self.design,
-                            self.cascade_options())
+        """The :class:`twin.registry.BuildContext` of this scenario's runs (their specification's,
+        :meth:`twin.sim.spec.RunSpec.context`): nominal model, its motors, the sensors as the
+        estimator believes them (:meth:`believed_sensor_config`), targets, heading, cascade
+        options, and ``design`` (a zero-argument callable; default :meth:`design`, which solves
+        the LMIs only when a controller asks)."""
+        return self.run_specs((None,), design)[0].context()
 
     def build_controller(self, kind: str, context=None):
         """Controller ``kind`` with its ``[controller.params.KIND]``; a one-line error naming the key."""
-        from twin.registry import build_controller
-
-        params = self.data["controller"]["params"].get(kind)
+        spec = self.run_specs((kind,), None if context is None else context.design)[0]
+        if context is None:
+            return spec.build_plugins(True, False, self.named(kind))["controller"]
         try:
-            return build_controller(kind, params, context or self.build_context())
+            return spec.build_controller(context)
         except TwinError as exc:
-            if isinstance(exc, ScenarioError):
-                raise
-            where = f"controller.params.{kind}" if params else "controller"
-            raise self._error(f"{where}: {exc}") from None
+            raise self.named(kind)("controller", exc) from None
 
     def build_estimator(self, context=None):
         """The scenario's estimator with ``sensors.estimator_params``; a one-line error naming the key."""
-        from twin.registry import build_estimator
-
-        # with ideal sensing the estimator is the truth: the other estimator's parameters do not apply
-        params = None if self.estimator == "ideal" else self.data["sensors"]["estimator_params"]
+        spec = self.run_specs((None,), None if context is None else context.design)[0]
+        if context is None:
+            return spec.build_plugins(False, True, self.named(None))["estimator"]
         try:
-            return build_estimator(self.estimator, params, context or self.build_context())
+            return spec.build_estimator(context)
         except TwinError as exc:
-            if isinstance(exc, ScenarioError):
-                raise
-            where = "sensors.estimator_params" if params else "sensors.estimator"
-            raise self._error(f"{where}: {exc}") from None
+            raise self.named(None)("estimator", exc) from None
+
+    def named(self, kind: str | None):
+        """``named(role, error)`` for :meth:`twin.sim.spec.RunSpec.build_plugins`: the error of a
+        plugin that cannot be built, as one line naming this scenario's key (a ScenarioError
+        stands as it is)."""
+        return partial(plugin_error, self.source, kind, self.data["controller"]["params"].get(kind) if kind else None,
+                       None if self.estimator == "ideal" else self.data["sensors"]["estimator_params"])
 
     def run_spec(self, kind: str | None, context=None, build: bool = True):
         """The :class:`twin.sim.spec.RunSpec` of a run of this scenario with controller ``kind``
         (None: no controller; whoever steps the loop gives the torques, as a Gymnasium agent does).
 
-        ``build``: the controller and the estimator are built here (:meth:`build_controller`,
-        :meth:`build_estimator`, with ``context``: default :meth:`build_context`), once, so a
-        plugin that cannot be built is a one-line error naming the scenario's key before
-        anything runs, and the spec carries the objects; False: the spec carries the kinds
-        with their ``[controller.params.KIND]`` and ``sensors.estimator_params``, built by
-        each run of it (:func:`twin.sim.simulate.simulate`)."""
-        from twin.sim.spec import InitialState, Logging, Plugin, RunSpec, Sensing
+        ``build``: the controller and the estimator are built here, once
+        (:meth:`twin.sim.spec.RunSpec.built`), so a plugin that cannot be built is a one-line
+        error naming the scenario's key before anything runs, and the spec carries the objects;
+        False: the spec carries the kinds with their ``[controller.params.KIND]`` and
+        ``sensors.estimator_params``, built by each run of it (:func:`twin.sim.simulate.simulate`).
+        ``context``: a :class:`twin.registry.BuildContext` whose ``design`` the run uses (default
+        :meth:`design`, solved when a controller asks)."""
+        spec = self.run_specs((kind,), None if context is None else context.design)[0]
+        return spec.built(self.named(kind)) if build else spec
 
+    def run_specs(self, kinds, design=None) -> list:
+        """The :class:`twin.sim.spec.RunSpec` of a run with each controller of ``kinds`` (None for
+        no controller), their kinds not built: the same plant, sensors, seed and estimator;
+        ``design``: the zero-argument callable the controllers take the LMI design from (default
+        :meth:`design`)."""
         d = self.data
         i = d["initial"]
-        if build:
-            context = context or self.build_context()
-            estimator = Plugin(self.build_estimator(context))
-            controller = None if kind is None else Plugin(self.build_controller(kind, context))
-        else:
-            controller = None if kind is None else Plugin(kind, self.data["controller"]["params"].get(kind))
-            estimator = Plugin(self.estimator,
-                               None if self.estimator == "ideal" else d["sensors"]["estimator_params"])
-        config = self.twin_config()
-        return RunSpec(controller=controller, estimator=estimator, plant=config, plant_model=self.plant_model,
-                       plant_params=d["plant"]["params"],
-                       initial=InitialState(i["theta"], i["alpha"], i["x"], i["y"]),
-                       targets=self.experiment().targets, duration=self.duration, seed=self.seed,
-                       sensing=Sensing(self.sensor_config(), self.believed_sensor_config()),
-                       design=self.design if context is None else context.design,
-                       options=self.cascade_options(), logging=Logging(), name=self.name,
-                       description=self.description, label=kind or "", limits=self.plugin_limits())
+        params = d["controller"]["params"]
+        estimator = Plugin(self.estimator, None if self.estimator == "ideal" else d["sensors"]["estimator_params"])
+        shared = dict(estimator=estimator, plant=self.twin_config(), plant_model=self.plant_model,
+                      plant_params=d["plant"]["params"], initial=InitialState(i["theta"], i["alpha"], i["x"], i["y"]),
+                      targets=self.experiment().targets, duration=self.duration, seed=self.seed,
+                      sensing=Sensing(self.sensor_config(), self.believed_sensor_config()),
+                      design=self.design if design is None else design, options=self.cascade_options(),
+                      logging=Logging(), name=self.name, description=self.description, limits=self.plugin_limits())
+        plugins = [None if k is None else Plugin(k, params.get(k)) for k in kinds]
+        return [RunSpec(controller=c, label=k or "", **shared) for k, c in zip(kinds, plugins)]
 
     def experiment(self):
-        from twin.experiments import Experiment
 
         d = self.data
         return Experiment(d["name"], d["description"], theta0=d["initial"]["theta"],
                           p_d=d["targets"]["position"], alpha_d=d["targets"]["heading"], duration=d["duration"])
 
-    @property
+    @cached_property
     def plant_model(self) -> str:
         """``plant.model``: a plant kind of :mod:`twin.registry`: "bullet" (the PyBullet twin),
         "analytic" (equation (1)) or one's own "package.module:attribute"."""
@@ -197,21 +208,15 @@ class Scenario:
     def plant(self):
         """A new plant of ``plant.model`` on :meth:`twin_config` at the initial state (a
         :class:`twin.protocols.Plant`; :func:`twin.registry.build_plant`)."""
-        from twin.registry import build_plant
-
         i = self.data["initial"]
         return build_plant(self.plant_model, self.twin_config(), i["theta"], i["alpha"], (i["x"], i["y"]),
                            self.data["plant"]["params"])
 
     def true_params(self):
-        from twin.params import NOMINAL
 
         return NOMINAL.perturbed(scale=self.data["plant"]["scale"])
 
     def twin_config(self):
-        from twin.plant.base import TwinConfig
-        from twin.plant.disturbances import Disturbances, Ground, Push
-        from twin.plant.urdf import Payload
 
         d, p = self.data, self.data["plant"]
         ground = Ground(**d["ground"])
@@ -223,7 +228,6 @@ class Scenario:
         # analytic model's torque sources are ideal) has none, whatever plant.motor says; a plant of
         # one's own is not imported here (its code runs in a worker): it gets plant.motor's, and
         # registry.plant_motor says whether the controllers are told of them
-        from twin.registry import PLANTS, resolve
 
         applies = p["model"] not in PLANTS or getattr(resolve("plant", p["model"])[0], "applies_motor", False)
         kwargs = {} if p["motor"] == "dc" and applies else {"motor": None}
@@ -234,21 +238,16 @@ class Scenario:
         """The scenario's ``[limits]`` as a :class:`twin.limits.PluginLimits`, or None if it sets none."""
         if not any(v is not None for v in self.data["limits"].values()):
             return None
-        from twin.limits import PluginLimits
 
         return PluginLimits(**self.data["limits"])
 
     def sensor_config(self):
         """The sensors the twin simulates (the true specification), or None for ideal sensing."""
-        from twin.scenarios.sensors import true_config
-
         return true_config(self.data)
 
     def believed_sensor_config(self):
         """The sensors as the estimator believes them (``[sensors.believed]``; without it the
         true specification), or None for ideal sensing. The estimator's Q and R derive from it."""
-        from twin.scenarios.sensors import believed_config
-
         return believed_config(self.data)
 
     def design_options(self) -> dict:
@@ -258,23 +257,15 @@ class Scenario:
         """The LMI balance design (on the nominal model), from the design store
         (:mod:`twin.controllers.designs`: solved once per process and set of options, and
         taken from the on-disk cache when it has it, when cvxpy is never imported)."""
-        from twin.controllers.designs import balance_design
+        return solve_design(self.source, self.design_options())
 
-        try:
-            return balance_design(**self.design_options())
-        except TwinError as exc:
-            msg = str(exc)
-            for flag, name in (("--epsilon", "design.epsilon"), ("--rho", "design.rho"),
-                               ("--decay-rate", "design.decay_rate"), ("--max-gain", "design.max_gain"),
-                               ("--damping", "design.damping"), ("--uncertain", "design.uncertain")):
-                msg = msg.replace(flag, name)
-            raise self._error(f"design: {msg}") from None
+    def design_solver(self):
+        """:meth:`design` as a zero-argument callable of this scenario's design options alone."""
+        return partial(solve_design, self.source, self.design_options())
 
     def adopt_design(self, design) -> "Scenario":
         """Use ``design`` (solved elsewhere for these design options) instead of solving it
         again: a sweep's workers take the design the sweep solved once."""
-        from twin.controllers.designs import adopt
-
         adopt(design, **self.design_options())
         return self
 
@@ -302,7 +293,6 @@ class Scenario:
                                       f"(duration = {d['duration']:g} s); allowed: [0, {d['duration']:g}) s")
 
         def sensors():
-            from twin.scenarios.sensors import problems
 
             problem = problems(d, self.true_params())
             if problem:
@@ -319,7 +309,6 @@ class Scenario:
                 raise
             except TwinError as exc:
                 raise self._error(f"{where}: {exc}") from None
-        from twin.plant.base import touch_angle
 
         config = self.twin_config()  # validated just above
         limit = min(touch_angle(config.params), config.fall_angle) - 0.01
@@ -337,8 +326,6 @@ class Scenario:
     def _check_payload_on_body(self, config) -> None:
         """A payload is a mass fixed to the body: one far outside the body box (a 20 kg mass
         half a metre away, on nothing) is a typo or a unit slip, refused naming the key."""
-        from twin.plant.urdf import body_box
-
         payload = config.disturbances.payload
         if payload is None:
             return
@@ -358,9 +345,6 @@ class Scenario:
         l, twin.plant.urdf.body_height) clears the floor by less than MIN_CLEARANCE_RAD of tilt, the
         body's size is to blame: the error names plant.scale.l with the range that clears it (it
         blamed initial.theta, issue 31)."""
-        from twin.params import NOMINAL
-        from twin.plant.base import touch_angle
-
         touch = touch_angle(params)
         if touch >= MIN_CLEARANCE_RAD:
             return
@@ -392,7 +376,6 @@ class Scenario:
         a payload below it, or a body pitched into a slope, is refused, naming the key."""
         from dataclasses import replace
 
-        from twin.plant.base import START_TOLERANCE, start_clearance, start_problem
 
         d = self.data
         i = d["initial"]
@@ -415,6 +398,40 @@ class Scenario:
 
     def _error(self, message: str) -> ScenarioError:
         return ScenarioError(f"{self.source}: {message}")
+
+
+@lru_cache(maxsize=1)
+def _defaults() -> dict:
+    """The schema's defaults, as an empty scenario file validates (compare only: not to be changed)."""
+    return validate({"name": "defaults"})
+
+
+def solve_design(source: str, options: dict):
+    """The LMI balance design of a scenario's ``[design]`` ``options`` (from ``source``), from the
+    design store; a one-line error naming the scenario's key."""
+    try:
+        return balance_design(**options)
+    except TwinError as exc:
+        msg = str(exc)
+        for flag, name in (("--epsilon", "design.epsilon"), ("--rho", "design.rho"),
+                           ("--decay-rate", "design.decay_rate"), ("--max-gain", "design.max_gain"),
+                           ("--damping", "design.damping"), ("--uncertain", "design.uncertain")):
+            msg = msg.replace(flag, name)
+        raise ScenarioError(f"{source}: design: {msg}") from None
+
+
+def plugin_error(source: str, kind: str | None, controller_params, estimator_params, role: str,
+                 exc: TwinError) -> TwinError:
+    """A plugin of a scenario's run that cannot be built, as one line naming the scenario's key
+    (``controller.params.KIND`` or ``controller``, ``sensors.estimator_params`` or
+    ``sensors.estimator``); a ScenarioError stands as it is."""
+    if isinstance(exc, ScenarioError):
+        return exc
+    if role == "controller":
+        where = f"controller.params.{kind}" if controller_params else "controller"
+    else:
+        where = "sensors.estimator_params" if estimator_params else "sensors.estimator"
+    return ScenarioError(f"{source}: {where}: {exc}")
 
 
 def parse_override(item: str) -> tuple[str, object]:
@@ -494,8 +511,6 @@ def _read(name_or_path: str, within: Path | None = None) -> tuple[dict, str, str
                 from None
         source, stem = shown_path, path.stem
         if within is None:  # a sensor log's scenario is data: its folder is no place to import code from
-            from twin.registry import look_beside
-
             look_beside(path.parent)  # the plugins a scenario file names may lie beside it
     else:
         raise ScenarioError(f"{name_or_path!r} is neither a built-in scenario nor a .toml file; built-ins: "

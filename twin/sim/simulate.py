@@ -34,11 +34,9 @@ def build_loop(spec: RunSpec, controller=None, estimator=None):
     controller gives a loop stepped with commands."""
     from twin.sim.loop import ClosedLoop
 
-    context = spec.context() if controller is None or estimator is None else None
-    if estimator is None:
-        estimator = spec.build_estimator(context)
-    if controller is None and spec.controller is not None:
-        controller = spec.build_controller(context)
+    made = spec.build_plugins(controller is None and spec.controller is not None, estimator is None)
+    estimator = made.get("estimator", estimator)
+    controller = made.get("controller", controller)
     i = spec.initial
     model = spec.plant_model
     # a kind: built here at the start (the loop resets it for each run); an object: the caller's
@@ -64,8 +62,10 @@ def simulate(spec: RunSpec, progress=None, controller=None, estimator=None) -> R
     ``controller``/``estimator``: objects already built for ``spec`` (see :func:`build_loop`).
     """
     if spec.controller is None and controller is None:
-        spec.build_controller()  # the one-line error: a run needs a controller
+        spec.build_plugins(True, False)  # the one-line error: a run needs a controller
     loop = build_loop(spec, controller, estimator)
+    # what the run records of its specification, asked once (the loop is built: the plugins are the run's)
+    experiment, sensing_name, plant_name = spec.experiment, spec.sensing_name, spec.plant_name
     controller = loop.controller
     ideal = spec.sensing.ideal
     log_filter = spec.logging.diagnostics
@@ -107,9 +107,9 @@ def simulate(spec: RunSpec, progress=None, controller=None, estimator=None) -> R
     label = spec.label or (spec.controller.kind if spec.controller is not None and spec.controller.is_kind else "")
     config = config_of(spec)
     run = rec.run(status, reason, config, command_units=tuple(units.get(k, "1") for k in rec.command_names),
-                  experiment=spec.experiment, controller=label, sensing=spec.sensing_name, estimator_stats=stats,
+                  experiment=experiment, controller=label, sensing=sensing_name, estimator_stats=stats,
                   sensor_counts=sensor_counts, seed=None if ideal else int(spec.seed), sensor_truth=sensor_truth,
-                  sensor_config=spec.sensing.true, model_params=spec.model, plant=spec.plant_name,
+                  sensor_config=spec.sensing.true, model_params=spec.model, plant=plant_name,
                   estimator_consistency=None if meter is None else meter.result())
     return run
 

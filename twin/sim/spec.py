@@ -16,6 +16,7 @@ the control period, the logging options, and ideal sensing against the estimator
 """
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
@@ -309,30 +310,70 @@ class RunSpec:
         return Experiment(self.name, self.description, theta0=self.initial.theta, p_d=t.position, alpha_d=t.heading,
                           duration=self.duration)
 
-    def context(self):
-        """The :class:`twin.registry.BuildContext` the controller and the estimator are built with."""
+    def context(self) -> BuildContext:
+        """The :class:`twin.registry.BuildContext` the controller and the estimator are built with
+        (the one place a run's build context is made)."""
         return BuildContext(self.control_rate, self.model, self.motor, self.sensing.as_believed, self.targets,
                             self.initial.alpha, self.design, dict(self.options))
 
-    def build_controller(self, context=None):
-        """The controller of this run: the object given, or the kind built (a one-line
-        :class:`~twin.errors.PluginError` if it cannot be)."""
-        if self.controller is None:
+    def build_plugins(self, controller: bool = True, estimator: bool = True, named=None) -> dict:
+        """The run's controller and estimator (``controller``/``estimator``: which are wanted),
+        role → object: an object given is used as it is, a kind is built for this run with its
+        parameters (the ``ideal`` estimator with ideal sensing, unless an object that reads the
+        truth was given). The one place a run's plugins are built: the context is made once,
+        and the registry builds them one after the other.
+
+        ``named(role, error)``: what a plugin that cannot be built raises instead of the
+        registry's one-line :class:`~twin.errors.PluginError` (a scenario names its key)."""
+        if controller and self.controller is None:
             raise TwinError("this run has no controller (RunSpec.controller is None): give one, or step the loop "
                             "with commands")
-        if not self.controller.is_kind:
-            return self.controller.kind
+        e, c = self.estimator, self.controller
+        wanted = []
+        if estimator:
+            wanted.append(("estimator", e.kind if (not e.is_kind and not self.sensing.ideal) else None,
+                           "ideal" if self.sensing.ideal else e.kind, e.params))
+        if controller:
+            wanted.append(("controller", None if c.is_kind else c.kind, c.kind, c.params))
+        context = self.context() if any(obj is None for _, obj, _, _ in wanted) else None
+        built = {}
+        for role, obj, kind, params in wanted:
+            if obj is None:
+                try:
+                    obj = (build_estimator if role == "estimator" else build_controller)(kind, params, context)
+                except TwinError as exc:
+                    if named is None:
+                        raise
+                    raise named(role, exc) from None
+            built[role] = obj
+        return built
 
-        return build_controller(self.controller.kind, self.controller.params, context or self.context())
+    def built(self, named=None) -> "RunSpec":
+        """This specification with its controller (if any) and estimator built for one run
+        (:meth:`build_plugins`), so that a plugin that cannot be built is said before anything
+        runs. The fields are validated already: the copy is not validated again."""
+        made = self.build_plugins(self.controller is not None, True, named)
+        spec = copy.copy(self)
+        object.__setattr__(spec, "estimator", Plugin(made["estimator"]))
+        if "controller" in made:
+            object.__setattr__(spec, "controller", Plugin(made["controller"]))
+        return spec
+
+    def build_controller(self, context=None):
+        """The controller of this run: the object given, or the kind built (a one-line
+        :class:`~twin.errors.PluginError` if it cannot be); ``context``: the one to build it
+        with (default :meth:`context`)."""
+        if context is None or not (self.controller is not None and self.controller.is_kind):
+            return self.build_plugins(True, False)["controller"]
+        return build_controller(self.controller.kind, self.controller.params, context)
 
     def build_estimator(self, context=None):
         """The estimator of this run (the ``ideal`` one with ideal sensing, unless an object that
-        reads the truth was given)."""
+        reads the truth was given); ``context``: the one to build it with (default :meth:`context`)."""
         e = self.estimator
-        if not e.is_kind and not self.sensing.ideal:
-            return e.kind
-
-        return build_estimator("ideal" if self.sensing.ideal else e.kind, e.params, context or self.context())
+        if context is None or (not e.is_kind and not self.sensing.ideal):
+            return self.build_plugins(False, True)["estimator"]
+        return build_estimator("ideal" if self.sensing.ideal else e.kind, e.params, context)
 
 
 __all__ = ["IDEAL_SENSING", "InitialState", "LOG_FORMATS", "Logging", "Plugin", "RunSpec", "Sensing",

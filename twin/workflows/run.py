@@ -18,7 +18,7 @@ from twin.outputs import figure_worker, rundir
 from twin.outputs.run_directory import RunFiles, write_run_directory
 from twin.scenarios import load_scenario
 from twin.scenarios.contained import ContainedScenario, involves_plugins
-from twin.scenarios.planning import controllers_of, plan, plugins_of
+from twin.scenarios.planning import plan, plan_runs
 from twin.scenarios.runs import ScenarioResult, check_logging, checked_kinds, run_controllers
 from twin.scenarios.scenario import Scenario
 
@@ -51,7 +51,7 @@ def title(sc: Scenario) -> str:
 def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, video: bool | None = None,
                  progress=None, log_every: int = 1, log_format: str = "csv",
                  keep_limited: bool = False, specs=None, log_sensors: bool = False,
-                 contained=False, figure=None) -> ScenarioResult:
+                 contained=False, figure=None, plugins=None) -> ScenarioResult:
     """Run ``scenario`` with each of ``controllers`` (kinds; None: the scenario's
     ``controller.kinds``) on identical conditions: same true plant, sensor seed,
     estimator kind, pushes and faults.
@@ -89,10 +89,12 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
     ``figure``: a :class:`twin.outputs.figure_worker.FigureWorker` started by the caller
     (``twin run`` starts it before it loads the scenario, so that it imports matplotlib
     meanwhile), ended here whatever happens; None: one is started here where a CPU is free for it.
+
+    ``plugins``: the provenance of the plugins the runs load, if known (None: found here).
     """
     try:
         every = check_logging(log_every, log_format)
-        kinds = checked_kinds(scenario, controllers)
+        kinds = checked_kinds(controllers, scenario.controllers)
         if specs is not None and [s.label for s in specs] != list(kinds):
             raise TwinError(f"specs must be plan(scenario, {list(kinds)!r})'s, one per controller in that order, got "
                             f"runs of {[s.label for s in specs]!r}")
@@ -107,19 +109,19 @@ def run_scenario(scenario: Scenario, controllers=None, out: Path | None = None, 
         if box is None and contained and involves_plugins(scenario, kinds):
             with ContainedScenario(scenario, kinds) as box:
                 return _run(scenario, kinds, out, video, progress, every, log_format, keep_limited, None,
-                            log_sensors, box, figure)
+                            log_sensors, box, figure, plugins)
         if box is not None and box.kinds != tuple(kinds):
             raise TwinError(f"contained must be the ContainedScenario of controllers {list(kinds)!r}, got one of "
                             f"{list(box.kinds)!r}")
         return _run(scenario, kinds, out, video, progress, every, log_format, keep_limited, specs, log_sensors, box,
-                    figure)
+                    figure, plugins)
     finally:
         if figure is not None:  # used and done, or not taken up (an error before the runs): ended
             figure.cancel()
 
 
 def _run(scenario, kinds, out, video, progress, every, log_format, keep_limited, specs, log_sensors, box,
-         figure) -> ScenarioResult:
+         figure, plugins) -> ScenarioResult:
     """:func:`run_scenario` after its checks: the runs, then their directory."""
     # checked before the runs simulate, so that a directory that cannot take them is said at once
     staged = rundir.StagedDirectory(out, "twin run") if out is not None else None
@@ -130,7 +132,7 @@ def _run(scenario, kinds, out, video, progress, every, log_format, keep_limited,
         try:
             if box is None and specs is None:
                 specs = plan(scenario, kinds)
-            result = run_controllers(scenario, kinds, progress, every, log_format, keep_limited, specs, box)
+            result = run_controllers(scenario, kinds, progress, every, log_format, keep_limited, specs, box, plugins)
             if staged is not None:
                 write_run_directory(result, staged, _files(scenario, specs, video, every, log_format, log_sensors,
                                                            result), progress, worker)
@@ -208,7 +210,6 @@ class RunJob:
         earlier = target.existed and any(Path(out).iterdir())
         stack = contextlib.ExitStack()
         try:
-            kinds = controllers_of(controller, sc)
             picked, root = None, sc.seed
             if sample is not None:
                 # only with --sample: the sweep's package (its runner, its backends) is not loaded for every run
@@ -218,12 +219,11 @@ class RunJob:
                 sc = picked.scenario
             # every plugin built once, before anything runs or is said: a user's in a worker process
             # (twin.containment), where its exits, crashes, hangs, threads and processes are contained
-            box, specs = None, None
-            if involves_plugins(sc, kinds):
+            planned = plan_runs(sc, controller)
+            box, kinds, specs, plugins = None, planned.kinds, planned.specs, planned.plugins
+            if specs is None:
                 box = stack.enter_context(ContainedScenario(sc, kinds))
                 plugins = box.plan()["plugins"]
-            else:
-                specs, plugins = plan(sc, kinds), plugins_of(sc, kinds)
         except BaseException as exc:
             stack.close()
             if isinstance(exc, KeyboardInterrupt):
@@ -238,7 +238,8 @@ class RunJob:
         try:
             return run_scenario(self.scenario, self.kinds, out=self.out, video=video, progress=progress,
                                 log_every=log_every, log_format=log_format, keep_limited=True, specs=self._specs,
-                                log_sensors=log_sensors, contained=self._box or False, figure=figure)
+                                log_sensors=log_sensors, contained=self._box or False, figure=figure,
+                                plugins=self.plugins)
         except KeyboardInterrupt as exc:  # what the run kept, if it got that far, stands
             rundir.kept(exc, self._target.unchanged())
             raise
