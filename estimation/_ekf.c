@@ -6,56 +6,65 @@
    that both paths agree to rounding: the matrix products sum in another order than
    NumPy's, so the paths are close, not bit-identical; each is deterministic.
 
-     new(consts)                       -> capsule holding the filter (see Core)
+   Every constant and policy threshold comes from the configuration the filter is built with
+   (estimation.ekf_config.KernelConfig, read by field name; the fields' list is the generated
+   header _ekf_config.h): this file writes none of the policy's numbers (estimation.ekf_config
+   says why the rules themselves are written here and in Python, and what holds them together).
+
+     new(config)                       -> capsule holding the filter (see Core), config a KernelConfig
+     config_fields()                   -> the configuration's field names, in the order read
      set_state(core, x, P, w, w_prev)  /  state(core) -> (x, P, w, w_prev) as tuples
-     advance(core, imu, enc, last, T, command, may_reject, acc_test)
+     advance(core, imu, enc, last, T, command, in_row, acc_test)
          one step driven by an IMU sample (steps without one, or with one rejected, coast
-         in Python: EKFEstimator._coast).
+         in Python: estimation.ekf_filter.Coasting).
          imu = (ω_y, ω_z, f_x, f_z), optionally followed by the variances (4,) the sample adds
          (point samples rebuilt as interval means); enc, last = (e_l, e_r) or None; T the time since the
-         encoder sample ``last`` (s); command = (ul, ur) N·m held over the step.
+         encoder sample ``last`` (s); command = (ul, ur) N·m held over the step; in_row the
+         encoder samples rejected in a row so far (from max_rejects_in_row on the next is forced in).
          acc_test = (gate, b_x, b_z, may): gate > 0 computes the accelerometer half's innovation
          e against the model's (f_x, f_z); with may != 0 the half is an outlier (replaced by the
-         model's) when (e − b)ᵀ S⁻¹ (e − b) > 2 gate, b the recent innovations' median
+         model's) when (e − b)ᵀ S⁻¹ (e − b) > accel_variance_factor × gate, b the recent
+         innovations' median
          -> (imu_code, saturated, enc_code, nis, dof, healthy, acc_out, e_x, e_z, inside)
             imu_code 1 used; 2 an outlier (the encoders fail the IMU gate with it and pass the
             normal gate with the model's sample): nothing changed, nis is the encoders' NIS
             with it, and the Python side coasts instead
             enc_code 0 no sample, 1 unchanged counts, 2 used, 3 rejected, 4 used although
-            failing the gate (may_reject false); healthy 0 if the state had to be restored
+            failing the gate (forced in after max_rejects_in_row rejections); healthy 0 if the state had to be restored
             (non-finite), -1 if it left the physical range (in_range: the Python side
-            re-initialises it, EKFEstimator._lost);
+            re-initialises it, estimation.ekf_fusion.Fusion.lost);
             inside the truncated updates that brought a wheel back into its unchanged count
      forward(core, commands) -> ([θ, θ̇, ψ, ψ̇, α, α̇] predicted over the commands, finite)
      state6(core) -> the filter's own [θ, θ̇, ψ, ψ̇, α, α̇]
      set_consider(core, mask)          mask (12,): 1.0 for a state the updates leave alone (Schmidt)
      innovation(core) -> (y, S)        the last encoder update's innovation (dof,) rad and its
                                        covariance (dof × dof, row-major) rad², for diagnostics()
+     state_into(core, buffer[, row])   x then P as float64 into row `row` (default 0) of a buffer
 
    Built by setup.py with -ffp-contract=off like the other kernels. */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #include <math.h>
 #include <stdlib.h>
+#include <stddef.h>
 #include <string.h>
+
+#include "_ekf_config.h"
 
 #define NX 12
 enum { TH, PS, V, AL, BY, BZ, C0, SY, H0, SZ, SAX, SAZ };
 enum { ITH, ITHD, IPS, IPSD, IAL, IALD };
 
 typedef struct {
-    /* filter */
-    double dt, r, xi, zi, b_r, alpha0, delta, g_var, a_var, bias_q;
-    double gate[3], imu_gate[3], lim[4];
-    /* the estimator's model: equation (1) with d_b + c_e, and the motors' driver */
-    double mdt, m11, m12, m22, n_bla, d_b, d_w, g_b, yaw_damping, m33, g;
-    double has_motor, compensates, tau_max, i_tau, sigma_tau, c_e, tol, every;
-    /* half the width (rad) of the interval an unchanged count keeps its wheel in (keep_inside) */
-    double inside_half;
-    /* σ beyond that interval at which an unchanged count is implausible (EKFEstimator._keep_inside) */
-    double stuck_sigmas;
-    /* RK4 steps of the model per control period (EstimatorModel.substeps) */
-    double msub;
+    /* the configuration (estimation.ekf_config.KernelConfig, every field a double or an array of
+       them, in the generated header's order; its units there): the filter's constants, the
+       estimator's model (equation (1) with d_b + c_e, and the motors' driver) and the policy's
+       thresholds (estimation.ekf_config.POLICY), none of which is written in this file */
+#define CONFIG_SCALAR(name) double name;
+#define CONFIG_ARRAY(name, n) double name[n];
+    EKF_CONFIG(CONFIG_SCALAR, CONFIG_ARRAY)
+#undef CONFIG_SCALAR
+#undef CONFIG_ARRAY
     /* 1.0 for a consider state (Schmidt): kept in P, never corrected by a measurement */
     double consider[NX];
     /* state */
@@ -70,7 +79,20 @@ typedef struct {
     double Cx[4 * NX];
 } Core;
 
-#define NCONST 54 /* doubles before x */
+/* the configuration's fields by name: new() reads each from the KernelConfig it is given */
+typedef struct {
+    const char *name;
+    size_t offset;
+    Py_ssize_t n;
+} ConfigField;
+
+static const ConfigField config_fields[] = {
+#define CONFIG_SCALAR(name) {#name, offsetof(Core, name), 1},
+#define CONFIG_ARRAY(name, n) {#name, offsetof(Core, name), n},
+    EKF_CONFIG(CONFIG_SCALAR, CONFIG_ARRAY)
+#undef CONFIG_SCALAR
+#undef CONFIG_ARRAY
+};
 
 static void core_free(PyObject *cap) { PyMem_Free(PyCapsule_GetPointer(cap, "ekf_core")); }
 
@@ -217,7 +239,7 @@ static void synthetic(const Core *c, const double *x, double ul, double ur, doub
     extra[2] = extra[3] = av;
 }
 
-/* one strapdown step: x1, F, Q from x and the sample (ω_y, ω_z, f_x, f_z) (see _propagate) */
+/* one strapdown step: x1, F, Q from x and the sample (ω_y, ω_z, f_x, f_z) (see StrapdownFilter.propagate) */
 static void propagate(const Core *c, const double *x, const double *smp, const double *extra, const double *half,
                       double *x1, double *F, double *Q, double *Cx_new) {
     double wy = smp[0], wz = smp[1], fx = smp[2], fz = smp[3];
@@ -319,9 +341,9 @@ static void propagate(const Core *c, const double *x, const double *smp, const d
     }
     Q[BY * NX + BY] += c->bias_q;
     Q[BZ * NX + BZ] += c->bias_q;
-    /* the trapezoid's error in psi: U(-1/2, 1/2) of dt |v1 - v| / r (EKFEstimator._propagate) */
+    /* the trapezoid's error in psi: U(-1/2, 1/2) of dt |v1 - v| / r (StrapdownFilter.propagate) */
     double hv = dt * (v1 - v) / r;
-    Q[PS * NX + PS] += hv * hv * (1.0 / 12.0);
+    Q[PS * NX + PS] += hv * hv * c->trapezoid_var;
 }
 
 /* Pp = F P Fᵀ + Q; F is the identity outside rows TH, AL, V, PS */
@@ -489,7 +511,7 @@ static int kalman_update(double *x, double *P, const EncMeas *em, const double *
 
 /* (z, R) of the measurement whose update truncates the prior N(w, s2) to [lo, hi]; 0 if
    there is nothing to do (w inside, s2 not positive, w more than gate σ outside): as
-   truncated_measurement in ekf.py */
+   truncated_measurement in estimation/ekf_policies.py */
 static int truncated_measurement(double w, double s2, double lo, double hi, double gate, double *z, double *R) {
     if (!(s2 > 0.0) || (lo <= w && w < hi)) return 0;
     double s = sqrt(s2), a = (lo - w) / s, b = (hi - w) / s, sign = 1.0;
@@ -513,7 +535,7 @@ static int truncated_measurement(double w, double s2, double lo, double hi, doub
 }
 
 /* the truncated updates of the wheels whose count is unchanged and whose estimate has left
-   it (EKFEstimator._keep_inside); returns how many were made + 16 × the mask of the wheels
+   it (SensorFrontEnd.keep_inside); returns how many were made + 16 × the mask of the wheels
    (bit 0 left, 1 right) whose estimate lies more than stuck_sigmas σ outside (implausible: no
    update), −1 if one failed */
 static int keep_inside(Core *c, const double *enc, const double *last) {
@@ -573,18 +595,17 @@ static int positive_definite(const double *P) {
     return 1;
 }
 
-/* the state within its physical range (EKFEstimator._in_range): |θ| < π/2, θ's variance below
-   that of a tilt known only to lie in (−π/2, π/2), P positive definite */
+/* the state within its physical range (StrapdownFilter.in_range): |θ| < tilt_limit (π/2), θ's variance
+   below tilt_var_max (that of a tilt known only to lie in (−π/2, π/2)), P positive definite */
 static int in_range(const Core *c) {
-    double lim = 0.5 * M_PI, vmax = M_PI * M_PI / 12.0;
-    return fabs(c->x[TH]) < lim && c->P[TH * NX + TH] < vmax && positive_definite(c->P);
+    return fabs(c->x[TH]) < c->tilt_limit && c->P[TH * NX + TH] < c->tilt_var_max && positive_definite(c->P);
 }
 
 static void restore(Core *c) {
     memset(c->Cx, 0, sizeof c->Cx);
     memcpy(c->x, c->xg, sizeof c->x);
-    for (int i = 0; i < NX * NX; i++) c->P[i] = 4.0 * c->Pg[i];
-    for (int i = 0; i < NX; i++) c->P[i * NX + i] += 1e-10;
+    for (int i = 0; i < NX * NX; i++) c->P[i] = c->restore_inflation * c->Pg[i];
+    for (int i = 0; i < NX; i++) c->P[i * NX + i] += c->restore_jitter;
     memcpy(c->w, c->wg, sizeof c->w);
     memcpy(c->w_prev, c->wpg, sizeof c->w_prev);
 }
@@ -597,12 +618,26 @@ static void keep_good(Core *c) {
 }
 
 /* ---- Python interface ----------------------------------------------------------------- */
+/* new(config) -> a filter built from config (an estimation.ekf_config.KernelConfig, or any object
+   with its attributes): each field read by its name, a missing one an AttributeError */
 static PyObject *new_core(PyObject *self, PyObject *arg) {
     Core *c = PyMem_Calloc(1, sizeof(Core));
     if (!c) return PyErr_NoMemory();
-    if (floats(arg, (double *)c, NCONST, "consts")) {
-        PyMem_Free(c);
-        return NULL;
+    for (size_t i = 0; i < sizeof config_fields / sizeof config_fields[0]; i++) {
+        const ConfigField *f = &config_fields[i];
+        double *out = (double *)((char *)c + f->offset);
+        PyObject *v = PyObject_GetAttrString(arg, f->name);
+        int bad = v == NULL;
+        if (!bad && f->n == 1) {
+            *out = PyFloat_AsDouble(v);
+            bad = *out == -1.0 && PyErr_Occurred();
+        } else if (!bad)
+            bad = floats(v, out, f->n, f->name) != 0;
+        Py_XDECREF(v);
+        if (bad) {
+            PyMem_Free(c);
+            return NULL;
+        }
     }
     PyObject *cap = PyCapsule_New(c, "ekf_core", core_free);
     if (!cap) PyMem_Free(c);
@@ -670,8 +705,8 @@ static PyObject *py_state6(PyObject *self, PyObject *arg) {
    model's prediction (syn, computed here) with its extra variance; with acc[0] > 0 the
    accelerometer half's innovation e against the model's (f_x, f_z) is computed and, with
    acc[3] != 0, the half is an outlier and replaced when e less the recent innovations' median
-   (acc[1], acc[2]) fails the gate (EKFEstimator._accel_nis); returns 1 if any axis was saturated
-   (a guard: EKFEstimator._railed sends samples within 3 sigma of the rail to the Python coasting
+   (acc[1], acc[2]) fails the gate (Fusion.imu_sample); returns 1 if any axis was saturated
+   (a guard: SensorFrontEnd.railed sends samples within 3 sigma of the rail to the Python coasting
    step before they reach the kernel) */
 static int imu_sample(const Core *c, const double *cmd, const double *acc, double *smp, double *extra, double *syn,
                       double *syn_extra, int *acc_out, double *e) {
@@ -692,8 +727,9 @@ static int imu_sample(const Core *c, const double *cmd, const double *acc, doubl
         double ex = e[0] - acc[1], ez = e[1] - acc[2];
         /* a push moves the specific force too, but also θ̈, which the gyro sees: an
            accelerometer outlier needs a gyro sample that agrees with the model */
-        double eg = smp[0] - syn[0], sg = 3.5 * c->g_var + syn_extra[0];
-        *acc_out = acc[3] != 0.0 && ex * ex / sx + ez * ez / sz > 2.0 * acc[0] && eg * eg / sg <= c->imu_gate[1];
+        double eg = smp[0] - syn[0], sg = c->gyro_extrapolation_samples * c->g_var + syn_extra[0];
+        *acc_out = acc[3] != 0.0 && ex * ex / sx + ez * ez / sz > c->accel_variance_factor * acc[0] &&
+                   eg * eg / sg <= c->imu_gate[0];
     }
     if (!any && !*acc_out) return 0;
     if (!have_syn) synthetic(c, c->x, cmd[0], cmd[1], syn, syn_extra);
@@ -705,7 +741,7 @@ static int imu_sample(const Core *c, const double *cmd, const double *acc, doubl
     return any;
 }
 
-/* advance(core, imu, enc, last, T, command, may_reject, acc_test)
+/* advance(core, imu, enc, last, T, command, in_row, acc_test)
        -> (imu_code, saturated, enc_code, nis, dof, ok, acc_out, e_x, e_z):
    one strapdown step with an IMU sample (steps without one are the Python side's); imu_code 2:
    the sample is an outlier (the encoders fail the IMU gate with it and pass the normal gate with
@@ -714,7 +750,7 @@ static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs
     Core *c;
     if (nargs != 8 || !(c = get(args[0]))) {
         if (!PyErr_Occurred())
-            PyErr_SetString(PyExc_TypeError, "advance(core, imu, enc, last, T, command, may_reject, acc_test)");
+            PyErr_SetString(PyExc_TypeError, "advance(core, imu, enc, last, T, command, in_row, acc_test)");
         return NULL;
     }
     double smp[4], extra[4] = {0.0, 0.0, 0.0, 0.0}, syn[4], syn_extra[4], enc[2], last[2], cmd[2], T = 0.0;
@@ -740,8 +776,9 @@ static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs
     T = PyFloat_AsDouble(args[4]);
     if (T == -1.0 && PyErr_Occurred()) return NULL;
     if (floats(args[5], cmd, 2, "command")) return NULL;
-    int may_reject = PyObject_IsTrue(args[6]);
-    if (may_reject < 0) return NULL;
+    long in_row = PyLong_AsLong(args[6]);
+    if (in_row == -1 && PyErr_Occurred()) return NULL;
+    int may_reject = in_row < c->max_rejects_in_row; /* (EncoderGate.may_reject) */
     double acc[4], e[2];
     if (floats(args[7], acc, 4, "acc_test")) return NULL;
     int acc_out = 0;
@@ -764,12 +801,12 @@ static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs
     cov_predict(F, c->P, Q, Pp);
     if (has_enc) {
         double eps = encoder_fit(c, enc, last, T, x1, smp, Pp, 1, &em);
-        if (!(eps <= c->imu_gate[em.dof])) {
+        if (!(eps <= c->imu_gate[em.dof - 1])) {
             double ax1[NX], aF[NX * NX], aQ[NX * NX], aPp[NX * NX];
             if (!saturated && !acc_out) synthetic(c, c->x, cmd[0], cmd[1], syn, syn_extra);
             propagate(c, c->x, syn, syn_extra, NULL, ax1, aF, aQ, NULL);
             cov_predict(aF, c->P, aQ, aPp);
-            if (encoder_fit(c, enc, last, T, ax1, syn, aPp, 1, &em) <= c->gate[em.dof]) {
+            if (encoder_fit(c, enc, last, T, ax1, syn, aPp, 1, &em) <= c->gate[em.dof - 1]) {
                 memset(c->Cx, 0, sizeof c->Cx); /* the sample is not used: its noise is in nothing */
                 return Py_BuildValue("(iiidiiiddi)", 2, 0, 0, eps, 0, 1, acc_out, e[0], e[1], 0);
             }
@@ -799,10 +836,10 @@ static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs
     if (has_enc) {
         if (dof == 0)
             enc_code = 1;
-        else if (!(nis <= c->gate[dof]) && may_reject)
+        else if (!(nis <= c->gate[dof - 1]) && may_reject)
             enc_code = 3;
         else {
-            enc_code = (nis <= c->gate[dof]) ? 2 : 4;
+            enc_code = (nis <= c->gate[dof - 1]) ? 2 : 4;
             if (kalman_update(c->x, c->P, &em, c->consider, points ? c->Cx : NULL)) ok = 0;
         }
         if (ok && enc_code != 3) {
@@ -822,7 +859,7 @@ static PyObject *advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs
         if (in_range(c))
             keep_good(c);
         else
-            ok = -1; /* finite but out of range: the Python side re-initialises (EKFEstimator._lost) */
+            ok = -1; /* finite but out of range: the Python side re-initialises (Fusion.lost) */
     } else {
         restore(c);
         ok = 0;
@@ -867,13 +904,13 @@ static PyObject *forward(PyObject *self, PyObject *const *args, Py_ssize_t nargs
     return Py_BuildValue("(NN)", tuple_of(finite ? s : s0, 6), PyBool_FromLong(finite));
 }
 
-/* state_into(core, buffer, row): x (12) then P (144) as float64 into row `row` of a writable
-   C-contiguous float64 buffer of rows of 156 (for estimation.consistency.RunningConsistency) */
+/* state_into(core, buffer[, row]): x (12) then P (144) as float64 into row `row` (default 0) of a
+   writable C-contiguous float64 buffer of rows of 156 (for estimation.consistency.RunningConsistency) */
 static PyObject *state_into(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
-    if (nargs != 3) { PyErr_SetString(PyExc_TypeError, "state_into(core, buffer, row)"); return NULL; }
+    if (nargs != 2 && nargs != 3) { PyErr_SetString(PyExc_TypeError, "state_into(core, buffer[, row])"); return NULL; }
     Core *c = get(args[0]);
     if (!c) return NULL;
-    Py_ssize_t row = PyLong_AsSsize_t(args[2]);
+    Py_ssize_t row = nargs == 3 ? PyLong_AsSsize_t(args[2]) : 0;
     if (row == -1 && PyErr_Occurred()) return NULL;
     Py_buffer view;
     if (PyObject_GetBuffer(args[1], &view, PyBUF_WRITABLE | PyBUF_C_CONTIGUOUS) < 0) return NULL;
@@ -1003,9 +1040,26 @@ static PyObject *watch_rho(PyObject *self, PyObject *const *args, Py_ssize_t nar
     return out;
 }
 
+/* config_fields() -> the names of the configuration's fields, in order (KernelConfig's, checked) */
+static PyObject *py_config_fields(PyObject *self, PyObject *unused) {
+    Py_ssize_t n = (Py_ssize_t)(sizeof config_fields / sizeof config_fields[0]);
+    PyObject *t = PyTuple_New(n);
+    if (!t) return NULL;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        PyObject *s = PyUnicode_FromString(config_fields[i].name);
+        if (!s) {
+            Py_DECREF(t);
+            return NULL;
+        }
+        PyTuple_SET_ITEM(t, i, s);
+    }
+    return t;
+}
+
 static PyMethodDef methods[] = {
+    {"config_fields", py_config_fields, METH_NOARGS, "The configuration's field names, in order."},
     {"watch_rho", (PyCFunction)(void (*)(void))watch_rho, METH_FASTCALL, "The latency watch's correlations."},
-    {"new", new_core, METH_O, "A filter from its constants."},
+    {"new", new_core, METH_O, "A filter from its configuration (KernelConfig)."},
     {"set_state", (PyCFunction)(void (*)(void))set_state, METH_FASTCALL, "Set x, P and the last gyro rates."},
     {"state", get_state, METH_O, "(x, P, w, w_prev) as tuples."},
     {"state_into", (PyCFunction)(void (*)(void))state_into, METH_FASTCALL, "x, P into a row of a buffer."},

@@ -26,6 +26,7 @@ from itertools import chain
 import numpy as np
 
 from estimation.detlinalg import quad_inv_rows
+from estimation.ekf_steps import STATE_NAMES
 from twin.errors import TwinError
 
 NEES_START = 0.5  # s: one run's summary leaves out the start-up transient of the encoder zeros
@@ -254,6 +255,16 @@ class _Sums:
 
 _TRUTH_COLUMNS = [1, 2, 3, 4, 5, 6, 7]  # θ, θ̇, ψ_l, ψ_r, ψ, ψ̇, α of a GroundTruth (t first)
 _STATE = 12 + 12 * 12  # x then P (row-major) of one row
+
+
+def measurable(estimator) -> bool:
+    """True for an estimator whose state a run can hold against the twin's truth: it reports
+    the EKF's twelve states (``state_names`` is :data:`estimation.ekf_steps.STATE_NAMES`),
+    writes them with their covariance (``state_into(out, row)``: x, then P row by row, at its
+    own time t_{k − lag}) and gives ``last_nis``, ``last_dof`` and ``lag`` after each step."""
+    return (tuple(getattr(estimator, "state_names", ()) or ()) == tuple(STATE_NAMES)
+            and callable(getattr(estimator, "state_into", None))
+            and all(hasattr(estimator, n) for n in ("last_nis", "last_dof", "lag")))
 
 
 class RunningConsistency:

@@ -3,7 +3,7 @@ behind one interface with two implementations.
 
 :class:`FilterCore` (the interface) in textbook terms: ``x`` (12,) and ``P`` (12, 12);
 ``predict(x_next, F, Q, w)``, the state predicted beforehand (the strapdown step is
-nonlinear: :meth:`estimation.ekf.EKFEstimator._propagate` computes x⁺, F and Q) with
+nonlinear: :meth:`estimation.ekf_filter.StrapdownFilter.propagate` computes x⁺, F and Q) with
 P = F P Fᵀ + Q; ``update(z, off, H, R)``, the Joseph-form update of the affine measurement
 z = off + H x + v, v ~ N(0, R), with the consider states' gain rows zeroed (Schmidt), returning
 the innovation y and its covariance S; ``hold(mask)`` makes the masked states consider states;
@@ -13,14 +13,16 @@ The implementations:
 
 * :class:`PythonCore`, the reference: filterpy's ExtendedKalmanFilter
   (:class:`~estimation.twin_ekf.TwinEKF`, imported on first use: filterpy imports scipy.stats).
-* :class:`CompiledCore`: the state lives in the compiled kernel ``estimation._ekf``, with a
-  Python-side mirror (:class:`KernelState`). ``pull()`` brings the mirror up to date,
+* :class:`CompiledCore`: the state lives in the compiled kernel ``estimation._ekf``, built from
+  a :class:`~estimation.ekf_config.KernelConfig` (read by field name), with a Python-side
+  mirror (:class:`KernelState`). ``pull()`` brings the mirror up to date,
   ``push()`` writes it back; between the two, Python code (coasting, re-basing the encoders,
   and ``predict``/``update`` here, which run the same arithmetic on the mirror) works on the
   mirror. The kernel also *fuses* the whole IMU-driven step, the EKF's policies included
   (accelerometer outlier test, IMU outlier test, encoder gate, truncation into an unchanged
-  count), in ``CompiledCore.advance``: ``fuses_imu_step`` says so, and the estimator
-  then books the kernel's decisions instead of taking them one by one in Python.
+  count), in ``CompiledCore.advance``: ``fuses_imu_step`` says so, and the fusion step
+  (:class:`estimation.ekf_fusion.Fusion`) then books the kernel's decisions instead of taking
+  them one by one in Python.
 
 Both implementations run the same sums in the same order (:mod:`estimation.detlinalg`), so
 a predict/update sequence gives the same bits on either (tests/test_ekf_core.py).
@@ -38,6 +40,7 @@ from typing import Protocol
 import numpy as np
 
 from estimation.detlinalg import affine
+from estimation.ekf_config import CONFIG_FIELDS, RESTORE_INFLATION, RESTORE_JITTER, KernelConfig
 # the state vector and the two steps both implementations run (TwinEKF too): estimation.ekf_steps;
 # named here as well, where estimation.ekf and the tests import them
 from estimation.ekf_steps import (AL, BY, BZ, C0, H0, PS, SAX, SAZ, STATE_NAMES, STATE_UNITS, SY, SZ,  # noqa: F401
@@ -81,7 +84,7 @@ class FilterCore(Protocol):
     def push(self) -> None:
         """Write the Python-side state to the implementation."""
 
-    def state_into(self, out, row: int) -> None:
+    def state_into(self, out, row: int = 0) -> None:
         """x then P into row ``row`` of ``out`` (C-contiguous rows of 156 float64), from the
         implementation's own state."""
 
@@ -155,13 +158,17 @@ class _Core:
         self.w, self.w_prev = w, w_prev
         self.push()
 
-    def state_into(self, out, row: int) -> None:
+    def state_into(self, out, row: int = 0) -> None:
         """Write x (12,) then P (12, 12) row by row into row ``row`` of ``out``, a C-contiguous
         float64 array of rows of 156: the state at the filter's own time, for a reader that
         wants it at every step without arrays of its own
         (:class:`estimation.consistency.RunningConsistency`, fed by
         :func:`twin.sim.simulate.simulate` in every run with the EKF)."""
         kf = self.kf
+        if not isinstance(out, np.ndarray):  # any writable buffer of float64
+            out = np.frombuffer(out, dtype=np.float64)
+        if out.ndim == 1:  # a flat buffer: its rows of 156
+            out = out.reshape(-1, N + N * N)
         out[row, :N] = kf.x
         out[row, N:] = np.ravel(kf.P)
 
@@ -171,7 +178,7 @@ class _Core:
 
     def restore(self) -> None:
         x, P, self.w, self.w_prev = self.good
-        self.kf.x, self.kf.P = x.copy(), 4.0 * P + np.diag(np.full(N, 1e-10))
+        self.kf.x, self.kf.P = x.copy(), RESTORE_INFLATION * P + np.diag(np.full(N, RESTORE_JITTER))
         self.push()
 
 
@@ -184,6 +191,7 @@ class PythonCore(_Core):
     fuses_imu_step = False
 
     def __init__(self):
+        # filterpy (imported with TwinEKF) imports scipy.stats, 0.8 s: only this path loads it
         from estimation.twin_ekf import TwinEKF
 
         self.kf = TwinEKF()
@@ -231,19 +239,23 @@ class PythonCore(_Core):
 
 
 class CompiledCore(_Core):
-    """The compiled kernel ``estimation._ekf`` (``kernel``, built from the filter's constants
-    ``args``), with the Python-side mirror :class:`KernelState`."""
+    """The compiled kernel ``estimation._ekf`` (``kernel``, built from ``config``, a
+    :class:`~estimation.ekf_config.KernelConfig` it reads by field name), with the Python-side
+    mirror :class:`KernelState`."""
 
     compiled = True
     fuses_imu_step = True
 
-    def __init__(self, kernel, args):
+    def __init__(self, kernel, config: KernelConfig):
+        if not isinstance(config, KernelConfig):
+            raise TypeError(f"the compiled core is built from a KernelConfig, got {type(config).__name__}")
+        check_kernel_layout(kernel)
         self.kf = KernelState()
         self._kernel = kernel
-        self._core = kernel.new(args)
+        self._core = kernel.new(config)
         # the whole IMU-driven step, called every control period: the kernel's own function
         # bound to this core once (no Python frame in between); see advance() in estimation/_ekf.c:
-        # advance(sample, enc, last, T, command, may_reject, acc_test) ->
+        # advance(sample, enc, last, T, command, in_row, acc_test) ->
         # (imu_code, saturated, enc_code, nis, dof, ok, acc_out, e_x, e_z, inside)
         self.advance = partial(kernel.advance, self._core)
         into = getattr(kernel, "state_into", None)
@@ -257,7 +269,7 @@ class CompiledCore(_Core):
     def push(self) -> None:
         self._kernel.set_state(self._core, self.kf.x, self.kf.P.ravel(), self.w, self.w_prev)
 
-    def state_into(self, out, row: int) -> None:
+    def state_into(self, out, row: int = 0) -> None:
         """As :meth:`_Core.state_into`, from the kernel's own state (the mirror is not updated):
         from its tuples of Python floats (``state``), about 3 µs. A kernel with a
         ``state_into(core, out, row)`` of its own (a copy in C, about 0.2 µs) replaces this
@@ -298,12 +310,25 @@ class CompiledCore(_Core):
         return partial(self._kernel.forward, self._core)
 
 
-def make_core(compiled: bool | None, kernel, args) -> FilterCore:
-    """The core for ``compiled`` (None: the kernel where it is built)."""
+def check_kernel_layout(kernel) -> None:
+    """Raise if ``kernel`` reads another configuration than :class:`~estimation.ekf_config.KernelConfig`
+    (a build older than the Python side, or a header not regenerated): its fields by name and in
+    order, or no list of them at all (a kernel that took the constants as a positional tuple)."""
+    fields = getattr(kernel, "config_fields", None)
+    got = None if fields is None else tuple(fields())
+    if got != CONFIG_FIELDS:
+        raise RuntimeError("the compiled EKF kernel (estimation._ekf) was built for another configuration than "
+                           "estimation.ekf_config.KernelConfig: regenerate its header (python -m "
+                           "estimation.ekf_config) and rebuild it (python setup.py build_ext --inplace)")
+
+
+def make_core(compiled: bool | None, kernel, config: KernelConfig | None) -> FilterCore:
+    """The core for ``compiled`` (None: the kernel where it is built), the compiled one built
+    from ``config``."""
     if kernel is not None and compiled is not False:
-        return CompiledCore(kernel, args)
+        return CompiledCore(kernel, config)
     return PythonCore()
 
 
 __all__ = ["CompiledCore", "FilterCore", "KernelState", "N", "PythonCore", "STATE_NAMES", "STATE_UNITS",
-           "compiled_kernel_loaded", "cov_predict", "joseph_update", "make_core"]
+           "check_kernel_layout", "compiled_kernel_loaded", "cov_predict", "joseph_update", "make_core"]

@@ -1,7 +1,9 @@
-"""The EKF's policies, composed on its filter core (:mod:`estimation.ekf_core`) by
-:class:`estimation.ekf.EKFEstimator`: what to do with a measurement, not how to filter it.
+"""The EKF's policies, composed on its filter core (:mod:`estimation.ekf_core`) by the sensor
+front end (:mod:`estimation.ekf_frontend`) and the fusion step (:mod:`estimation.ekf_fusion`):
+what to do with a measurement, not how to filter it.
 
-:class:`EncoderGate`       the χ² gate of the encoder update and the forced re-synchronisation
+:class:`EncoderGate`       the χ² gates of the encoder update and of the IMU outlier test, and
+                           the forced re-synchronisation
 :class:`LatencyWatch`      the gyro's latency watched against the commands
 :class:`AccelOutlierTest`  the accelerometer half of an IMU sample against equation (1)
 :class:`KeepInside`        the truncation that keeps a wheel in an unchanged count
@@ -9,8 +11,9 @@
 :class:`ConsiderStates`    which states are held (Schmidt) after the learning time
 
 The module docstring of :mod:`estimation.ekf` gives the reasons and the measurements behind
-each. The compiled core runs the gate, the accelerometer test and the truncation fused in its
-IMU step (estimation/_ekf.c) with the same constants; the estimator books its decisions.
+each; their thresholds are :data:`estimation.ekf_config.POLICY`'s. The compiled core runs the
+gate, the accelerometer test and the truncation fused in its IMU step (estimation/_ekf.c) with
+the same thresholds, handed to it in its configuration; the front end books its decisions.
 """
 from __future__ import annotations
 
@@ -19,24 +22,15 @@ import math
 import numpy as np
 
 from estimation.detlinalg import affine, dot, mv, rowsums
+from estimation.ekf_config import (ACCEL_MAX_IN_ROW, ACCEL_VARIANCE_FACTOR, IMU_GATE_PROBABILITY, INSIDE_MARGIN,
+                                   LEARN_SLACK, WATCH_CLIP, WATCH_EVERY, WATCH_MARGIN, WATCH_MAX_LAG, WATCH_PERSIST,
+                                   WATCH_RHO, WATCH_WINDOW)
 from estimation.ekf_core import _kernel
 from estimation.gates import chi2_gate
 
-# counts each side added to the count an unchanged wheel is kept in: see KeepInside
-INSIDE_MARGIN = 1.0
-# the latency watch (LatencyWatch), all in control periods
-WATCH_WINDOW = 100  # samples correlated (0.5 s at 200 Hz)
-WATCH_EVERY = 10  # periods between checks
-WATCH_MAX_LAG = 20  # the largest latency looked for (100 ms at 200 Hz)
-WATCH_RHO = 0.2  # the best lag's correlation must reach this ...
-WATCH_MARGIN = 0.15  # ... and beat the assumed latency's by this much ...
-WATCH_PERSIST = 3  # ... in this many checks in a row
-WATCH_CLIP = 5.0  # robust σ of the window's Δ²ω_y beyond which a row is winsorised (LatencyWatch)
 # row j of the window at latency L reads the command kernel at r0 − 2 − L + j, where
 # r0 = n − 1 − WATCH_WINDOW = WATCH_MAX_LAG + 4 is the window's first row (see LatencyWatch.observe)
 _WATCH_INDEX = (WATCH_MAX_LAG + 2 - np.arange(WATCH_MAX_LAG + 1)[:, None] + np.arange(WATCH_WINDOW)[None, :])
-ACCEL_MAX_IN_ROW = 2  # accelerometer samples rejected in a row before the next is taken as real
-IMU_GATE_PROBABILITY = 1e-9  # an IMU sample is called an outlier only on much stronger evidence
 
 
 class EncoderGate:
@@ -51,11 +45,21 @@ class EncoderGate:
         self.max_rejects_in_row = int(max_rejects_in_row)
 
     def passes(self, eps: float, dof: int) -> bool:
+        """The encoder measurement whose NIS is ``eps`` (``dof`` rows) passes the gate."""
         return eps <= self.gates[dof]
 
     def may_reject(self, in_row: int) -> bool:
         """False once ``in_row`` rejections in a row force the next sample in."""
         return in_row < self.max_rejects_in_row
+
+    def imu_outlier(self, eps: float, dof: int, alternative) -> bool:
+        """The IMU sample is an outlier: the encoders' NIS with it, ``eps`` (``dof`` rows, every
+        wheel), fails the IMU gate, and the NIS with the sample equation (1) predicts instead,
+        ``alternative()`` → (NIS, rows) (called only then), passes the normal gate."""
+        if eps <= self.imu_gates[dof]:
+            return False
+        eps_alt, dof_alt = alternative()
+        return eps_alt <= self.gates[dof_alt]
 
 
 def truncated_measurement(w: float, s2: float, lo: float, hi: float, gate: float):
@@ -95,7 +99,7 @@ _SQRT_2, _SQRT_2PI = math.sqrt(2.0), math.sqrt(2.0 * math.pi)
 class KeepInside:
     """For each wheel whose count has not changed since the last sample used: if the estimate
     has left that count by more than :data:`INSIDE_MARGIN` counts, the truncated update that
-    brings it back (see :meth:`estimation.ekf.EKFEstimator._keep_inside` for why, and why the margin).
+    brings it back (see :meth:`estimation.ekf_frontend.SensorFrontEnd.keep_inside` for why, and why the margin).
 
     ``H`` (2, 12) the wheels' rows, ``b_r`` b/r, ``alpha0`` the initial heading (rad),
     ``delta`` the count (rad), ``gate`` the σ beyond which the unchanged count is implausible
@@ -131,8 +135,9 @@ class KeepInside:
 
 class AccelOutlierTest:
     """The accelerometer half of an IMU sample against the specific force equation (1) predicts:
-    its innovation less the median of the last three must pass the IMU gate (2 dof) at twice
-    the variance, while the gyro agrees with the model; at most :data:`ACCEL_MAX_IN_ROW` in a row."""
+    its innovation less the median of the last three must pass the IMU gate (2 dof) at
+    :data:`~estimation.ekf_config.ACCEL_VARIANCE_FACTOR` times the variance, while the gyro agrees
+    with the model; at most :data:`~estimation.ekf_config.ACCEL_MAX_IN_ROW` in a row."""
 
     def __init__(self, gate2: float, gyro_gate: float):
         self.gate2, self.gyro_gate = gate2, gyro_gate
@@ -150,10 +155,11 @@ class AccelOutlierTest:
 
     def is_outlier(self, test, e, sx: float, sz: float, eg: float, sg: float) -> bool:
         """With ``test`` from :meth:`params`: innovation ``e`` (variances ``sx``, ``sz``) less the
-        median fails the gate at twice the variance, and the gyro's innovation ``eg`` (variance
+        median fails the gate at ACCEL_VARIANCE_FACTOR times the variance, and the gyro's innovation ``eg`` (variance
         ``sg``) passes its own (a push moves θ̈ too, a sensor spike does not)."""
         ex, ez = e[0] - test[1], e[1] - test[2]
-        return bool(test[3]) and ex * ex / sx + ez * ez / sz > 2.0 * test[0] and eg * eg / sg <= self.gyro_gate
+        return bool(test[3]) and ex * ex / sx + ez * ez / sz > ACCEL_VARIANCE_FACTOR * test[0] and \
+            eg * eg / sg <= self.gyro_gate
 
     def seen(self, e, outlier: bool) -> None:
         """After a sample: its innovation ``e`` (None: not computed) and the verdict."""
@@ -374,11 +380,17 @@ class ConsiderStates:
         self.mask = np.array([n in self.names for n in state_names])
         self.learn_time = float(learn_time)
 
+    @property
+    def hold_from(self) -> float:
+        """s: the first instant from which the states are held (inf: there are none)."""
+        return self.learn_time - LEARN_SLACK if self.names else math.inf
+
     def due(self, t: float, holding: bool) -> bool:
         """True when the states are to be held from time ``t`` on."""
-        return not holding and bool(self.names) and t >= self.learn_time - 1e-9
+        return not holding and t >= self.hold_from
 
 
-__all__ = ["ACCEL_MAX_IN_ROW", "INSIDE_MARGIN", "WATCH_CLIP", "WATCH_EVERY", "WATCH_MARGIN", "WATCH_MAX_LAG",
-           "WATCH_PERSIST", "WATCH_RHO", "WATCH_WINDOW", "AccelOutlierTest", "ConsiderStates", "EncoderGate",
-           "KeepInside", "LatencyWatch", "truncated_measurement"]
+# (the thresholds are estimation.ekf_config's, named here too for the tests and the benchmarks)
+__all__ = ["ACCEL_MAX_IN_ROW", "IMU_GATE_PROBABILITY", "INSIDE_MARGIN", "WATCH_CLIP", "WATCH_EVERY", "WATCH_MARGIN",
+           "WATCH_MAX_LAG", "WATCH_PERSIST", "WATCH_RHO", "WATCH_WINDOW", "AccelOutlierTest", "ConsiderStates",
+           "EncoderGate", "KeepInside", "LatencyWatch", "truncated_measurement"]

@@ -24,8 +24,8 @@ _F_ROWS = [TH, AL, V, PS]  # the rows of the strapdown step's F that are not the
 
 
 def cov_predict(F, P, Q) -> np.ndarray:
-    """F P Fᵀ + Q for the strapdown step's F (:meth:`EKFEstimator._propagate`: the identity but
-    in rows θ, α, v, ψ), as the compiled kernel's ``cov_predict``: only those rows of F P and
+    """F P Fᵀ + Q for the strapdown step's F (:meth:`~estimation.ekf_filter.StrapdownFilter.propagate`: the
+    identity but in rows θ, α, v, ψ), as the compiled kernel's ``cov_predict``: only those rows of F P and
     those columns of (F P) Fᵀ are sums, in ascending order (:mod:`estimation.detlinalg`); the
     others are P's own entries, which the full product would give too (x·1 plus zeros)."""
     A = P.copy()

@@ -19,7 +19,7 @@ torque; motor datasheets give ±10 %). The robot's own parameters are uncertain 
 (Table III's figures "cannot be 100 % accurate"): :data:`MODEL_UNCERTAINTY` is the box
 the estimator assumes them in, and :meth:`EstimatorModel.sensitivity` how a synthetic
 sample moves with each; the filter carries the parameters' errors as random constants
-while the model stands in for a sensor (:meth:`estimation.ekf.EKFEstimator._coast`).
+while the model stands in for a sensor (:class:`estimation.ekf_filter.Coasting`).
 """
 from __future__ import annotations
 

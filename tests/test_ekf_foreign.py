@@ -161,7 +161,7 @@ def test_sampling_is_checked(logs_a):
 
 def test_the_compiled_and_the_python_cores_agree_on_rebuilt_point_samples(tmp_path):
     """The kernel takes a rebuilt point sample's own variances with the sample (an 8-tuple); the
-    reference path adds them in _propagate: the two paths stay together."""
+    reference path adds them in StrapdownFilter.propagate: the two paths stay together."""
     from estimation.ekf_core import compiled_kernel_loaded
 
     if not compiled_kernel_loaded():

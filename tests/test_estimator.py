@@ -95,7 +95,7 @@ JACOBIAN_SENSORS = {
     # an IMU off the centre line (x_i ≠ 0) at 100 Hz: the dx, dz terms and Δt = 10 ms
     "off-centre-100Hz": SensorConfig(imu=ImuSpec(position=(0.03, 0.0, 0.12), rate=100.0)),
 }
-# variances (ω_y, ω_z, f_x, f_z) that a synthetic (model) sample adds, as _synthetic gives them
+# variances (ω_y, ω_z, f_x, f_z) that a synthetic (model) sample adds, as StrapdownFilter.synthetic gives them
 EXTRA = (3e-4, 2e-3, 0.05, 0.02)
 CONSTANT_STATES = (C0, SY, H0, SZ, SAX, SAZ)
 
@@ -133,7 +133,7 @@ def _jacobian_cases():
 @pytest.mark.parametrize("extra", [None, EXTRA], ids=["real-sample", "synthetic-sample"])
 @pytest.mark.parametrize("imu", list(JACOBIAN_SENSORS), ids=list(JACOBIAN_SENSORS))
 def test_prediction_jacobian_equals_finite_differences(imu, extra):
-    """F of ``_propagate`` against central differences of x⁺ over the state (h = 1e-5 relative),
+    """F of ``StrapdownFilter.propagate`` against central differences of x⁺ over the state (h = 1e-5 relative),
     at six seeded random states and samples: |F − F_fd| ≤ 2e-9 + 1e-6 |F_fd| entrywise.
 
     Measured: the largest difference is 1.4e-10 (central differences' own error); the smallest
@@ -143,10 +143,10 @@ def test_prediction_jacobian_equals_finite_differences(imu, extra):
     est = _ekf(JACOBIAN_SENSORS[imu], compiled=False)
     for x, s in _jacobian_cases():
         sample = (tuple(s), extra)
-        x1, F, _, w = est._propagate(x, sample)
+        x1, F, _, w = est.filter.propagate(x, sample)
         assert w == (s[0], s[1])
-        assert np.array_equal(x1, est._propagate(x, (tuple(s), None))[0])
-        F_fd = _central(lambda z: est._propagate(z, sample)[0], x)
+        assert np.array_equal(x1, est.filter.propagate(x, (tuple(s), None))[0])
+        F_fd = _central(lambda z: est.filter.propagate(z, sample)[0], x)
         bad = np.abs(F - F_fd) > 2e-9 + 1e-6 * np.abs(F_fd)
         assert not bad.any(), [(int(i), int(j), F[i, j], F_fd[i, j]) for i, j in zip(*np.nonzero(bad))]
 
@@ -154,7 +154,7 @@ def test_prediction_jacobian_equals_finite_differences(imu, extra):
 @pytest.mark.parametrize("extra", [None, EXTRA], ids=["real-sample", "synthetic-sample"])
 @pytest.mark.parametrize("imu", list(JACOBIAN_SENSORS), ids=list(JACOBIAN_SENSORS))
 def test_process_noise_equals_finite_difference_noise_map(imu, extra):
-    """Q of ``_propagate`` = L_fd diag(var) L_fdᵀ + the gyro-bias random walk on b_y, b_z, with L_fd
+    """Q of ``StrapdownFilter.propagate`` = L_fd diag(var) L_fdᵀ + the gyro-bias random walk on b_y, b_z, with L_fd
     = ∂x⁺/∂(ω_y, ω_z, f_x, f_z) by central differences and var = (gyro, gyro, accel, accel)
     per-sample variances (+ ``extra`` for a synthetic sample), and ψ's share of the trapezoid's
     error (Δt |v⁺ − v| / r)² / 12 (issue 29: the acceleration's course within the period is unknown).
@@ -173,8 +173,8 @@ def test_process_noise_equals_finite_difference_noise_map(imu, extra):
         var = var + np.array(extra)
     walk = g.bias_random_walk ** 2 * dt
     for x, s in _jacobian_cases():
-        x1, _, Q, _ = est._propagate(x, (tuple(s), extra))
-        L_fd = _central(lambda z: est._propagate(x, (tuple(z), extra))[0], s)
+        x1, _, Q, _ = est.filter.propagate(x, (tuple(s), extra))
+        L_fd = _central(lambda z: est.filter.propagate(x, (tuple(z), extra))[0], s)
         Q_fd = (L_fd * var) @ L_fd.T
         Q_fd[BY, BY] += walk
         Q_fd[BZ, BZ] += walk
@@ -228,7 +228,7 @@ def test_monte_carlo_nees_and_nis_are_consistent(mc_runs):
     of the rows with an encoder update; NIS per dof within 5 standard errors of 1.
 
     Measured on seeds 0–19: mean NEES 12.28 (bounds 9.95–14.24), NIS inside 96.5 %, NIS per
-    dof 0.969 (tolerance ±0.148); before the dwelling-wheel update (EKFEstimator._keep_inside)
+    dof 0.969 (tolerance ±0.148); before the dwelling-wheel update (SensorFrontEnd.keep_inside)
     12.21, 94.7 %, 0.962, and with it at the count's own edges 12.93, 92.9 %, 0.754 (fails).
     The batch figures below predate that update. On the 15 disjoint batches
     of seeds 0–299 the NEES test passes 14 times (seeds 40–59 fail: mean 15.07, interval
@@ -285,7 +285,7 @@ def test_monte_carlo_test_fails_for_a_mistuned_filter(design):
 
 def test_strapdown_is_exact_for_theta_and_v_but_not_for_the_twins_position(design):
     """What the consistency figures from θ0 = 0.2 rad rest on (docs/explanation/sensors-ekf.md, "Consistency"): on noise-free,
-    finely quantised IMU samples, the EKF's strapdown step (``_propagate``) from the true initial
+    finely quantised IMU samples, the EKF's strapdown step (``StrapdownFilter.propagate``) from the true initial
     state reproduces the twin's θ and v over 1 s (the gyro is a delta-angle, the accelerometer a
     delta-velocity sample), but not its ψ: the simulator's positions are not the trapezoid of its
     velocities (Bullet integrates positions with the end-of-substep velocities at 1 kHz, and the
@@ -313,7 +313,7 @@ def test_strapdown_is_exact_for_theta_and_v_but_not_for_the_twins_position(desig
     P = np.zeros((N, N))  # the true initial state: only the step's own Q
     for k in range(int(run.filter_log["lag"][0]) + 1, len(run.t)):  # the sample taken at t_m arrives at m + lag
         g, a = run.measurements[k].gyro, run.measurements[k].accel
-        x, F, Q, _ = est._propagate(x, ((g[1], g[2], a[0], a[2]), None))
+        x, F, Q, _ = est.filter.propagate(x, ((g[1], g[2], a[0], a[2]), None))
         P = F @ P @ F.T + Q
         err.append(x - truth[k])
         sd.append(math.sqrt(P[1, 1]))
@@ -449,7 +449,7 @@ def test_fault_keeps_the_estimate_bounded_and_it_reconverges(twin_run, name):
     1.9, 2.0; 0.24, 0.35; 0.2 s 1.9, 2.0; 0.36, 0.29; 0.5 s 4.8, 2.8; 0.38, 0.30. Encoder
     dropout 0.5 s 1.8, 1.9; 0.33, 0.48. IMU stuck 0.1 s 1.9, 2.0; 0.24, 0.35; 0.3 s 2.3, 2.8;
     0.27, 0.23. Encoders stuck 0.3 s 2.0, 3.0; 0.27, 0.44. Latency changes 1.3–2.1; 0.28–0.73.
-    Before the filter coasted with θ̇ in its state (see EKFEstimator._coast) and told stale IMU
+    Before the filter coasted with θ̇ in its state (see estimation.ekf_filter.Coasting) and told stale IMU
     samples from real ones, a 0.2 s IMU dropout gave 39, 62; 9.4, 14.1 and 0.5 s fell.
     """
     faults, end = FAULTS[name]
@@ -679,6 +679,34 @@ def test_covariance6_is_symmetric_psd_and_its_theta_variance_is_p_theta(twin_run
     assert checked == (len(meas) - 1) // 25
 
 
+@pytest.mark.parametrize("tilt_bias", [0.0, 0.05])
+@pytest.mark.parametrize("compiled", PATHS)
+def test_state_into_writes_x_then_the_reported_covariance_into_any_buffer(twin_run, compiled, tilt_bias):
+    """EKFEstimator.state_into (what twin.sim.simulate's consistency meter reads every step): x
+    then covariance12() row by row, float64, into a row of a 2-d array, a flat array or a
+    bytearray, the same bits as diagnostics(); with an accelerometer turn-on bias too (the
+    covariance then has (σ_b/g)² added on the θ, c block)."""
+    r = twin_run(0.2, 1.0, 0)
+    accel = dataclasses.replace(SENSORS.imu.accel, turn_on_bias=tilt_bias)
+    sensors = dataclasses.replace(SENSORS, imu=dataclasses.replace(SENSORS.imu, accel=accel))
+    f = _ekf(sensors, compiled=compiled)
+    meas, cmds = r.measurements, r.commands[:, :2]
+    f.start(meas[0])
+    for i in range(1, 60):
+        f.step(meas[i], cmds[i - 1])
+    d = f.diagnostics()
+    want = np.concatenate([d["x"], np.ravel(d["P"])])
+    rows = np.zeros((3, N + N * N))
+    f.state_into(rows, 2)
+    flat = np.zeros(N + N * N)
+    f.state_into(flat)
+    raw = bytearray(8 * (N + N * N))
+    f.state_into(raw)
+    assert rows[2].tobytes() == flat.tobytes() == bytes(raw) == want.tobytes()
+    assert not rows[:2].any()
+    assert (d["P"][TH, TH] > f.P[TH, TH]) == (tilt_bias > 0.0)
+
+
 @pytest.mark.parametrize("mag", [1.5e308, 1e3])
 def test_absurd_finite_encoder_readings_are_rejected_without_resets_on_both_paths(mag):
     """The robot at rest, its encoders reading ±``mag`` rad from step 6 on, the sign flipping
@@ -723,7 +751,7 @@ def test_absurd_finite_encoder_readings_are_rejected_without_resets_on_both_path
 @pytest.mark.parametrize("w, s2, lo, hi", [(0.0, 1.0, 0.5, 1.5), (2.0, 1.0, 0.5, 1.5), (0.0, 4e-6, 0.003, 0.008),
                                            (0.01, 1e-4, -0.002, 0.003), (-0.004, 1e-8, -0.0026, 0.0026)])
 def test_truncated_measurement_gives_the_truncated_normals_moments(w, s2, lo, hi):
-    """The pseudo-measurement of EKFEstimator._keep_inside: a scalar Kalman update with it
+    """The pseudo-measurement of SensorFrontEnd.keep_inside: a scalar Kalman update with it
     gives the mean and variance of N(w, s2) truncated to [lo, hi] (scipy's truncnorm)."""
     from scipy.stats import truncnorm
     from estimation.ekf import truncated_measurement

@@ -3,7 +3,7 @@ accelerometer spikes. Closed-loop runs on the PyBullet twin with the default sen
 fixed seeds, θ0 = 0.2 rad, 5 s (as benchmarks/estimator_accuracy.py, section B); the figures
 measured when the tests were written are in each docstring.
 
-* Latency: :meth:`estimation.ekf.EKFEstimator._watch_latency` must log the change within
+* Latency: :meth:`estimation.ekf_frontend.SensorFrontEnd.store` (the latency watch) must log the change within
   :data:`DETECT_WITHIN` of it and re-align, so that a gyro that falls 20 ms behind (5 ms
   before) no longer topples the robot (before: 0/10 balanced).
 * Accelerometer spikes: each is to be caught at the sample (before: a median 8 of 22 spiked IMU

@@ -14,11 +14,12 @@ The plant is closed when the run ends, fallen or not.
 """
 from __future__ import annotations
 
-import sys
-
 import numpy as np
 
+from estimation.consistency import RunningConsistency, TruthConstants, measurable
+from twin.plant.base import TwinConfig
 from twin.registry import build_plant
+from twin.sim.loop import ClosedLoop
 from twin.sim.recorder import Recorder
 from twin.sim.runs import COMMAND_UNITS, Run
 from twin.sim.spec import RunSpec
@@ -32,8 +33,6 @@ def build_loop(spec: RunSpec, controller=None, estimator=None):
     ``controller``/``estimator``: objects already built for ``spec`` (default: built here,
     :meth:`RunSpec.build_controller` and :meth:`RunSpec.build_estimator`); a spec without a
     controller gives a loop stepped with commands."""
-    from twin.sim.loop import ClosedLoop
-
     made = spec.build_plugins(controller is None and spec.controller is not None, estimator is None)
     estimator = made.get("estimator", estimator)
     controller = made.get("controller", controller)
@@ -49,8 +48,6 @@ def build_loop(spec: RunSpec, controller=None, estimator=None):
 def config_of(spec: RunSpec):
     """The :class:`~twin.plant.bullet.TwinConfig` a run of ``spec`` records: the plant object's
     own, if it has one (a BulletTwin, an AnalyticPlant), else ``spec.plant``."""
-    from twin.plant.base import TwinConfig
-
     own = getattr(spec.plant_model, "config", None) if not isinstance(spec.plant_model, str) else None
     return own if isinstance(own, TwinConfig) else spec.plant
 
@@ -115,8 +112,9 @@ def simulate(spec: RunSpec, progress=None, controller=None, estimator=None) -> R
 
 
 def consistency_meter(loop, spec: RunSpec, diagnosed: bool = False):
-    """(meter, feed) for a run of the built-in EKF on simulated sensors, whose state truth the
-    twin knows; (None, None) for any other run. ``meter`` an
+    """(meter, feed) for a run on simulated sensors of an estimator that reports the EKF's states
+    (:func:`estimation.consistency.measurable`: the built-in EKF, or one's own that reports the same
+    layout), whose state truth the twin knows; (None, None) for any other run. ``meter`` an
     :class:`estimation.consistency.RunningConsistency`, ``feed(result, diagnostics)`` to call
     after every control instant is recorded (``diagnostics`` the EKF's, when the run logs them,
     else None: then the state is written by the filter's core into the meter's block,
@@ -125,12 +123,9 @@ def consistency_meter(loop, spec: RunSpec, diagnosed: bool = False):
 
     Memory: a block of :data:`estimation.consistency.SUM_BLOCK` rows (1.3 MB of x and P), not
     the run: an hour-long run costs no more than a minute's."""
-    ekf = sys.modules.get("estimation.ekf")  # not imported: the estimator is no EKF
     est = loop.estimator
-    if ekf is None or not isinstance(est, ekf.EKFEstimator) or loop.sensors is None or spec.sensing.true is None:
+    if loop.sensors is None or spec.sensing.true is None or not measurable(est):
         return None, None
-    from estimation.consistency import RunningConsistency, TruthConstants
-
     drawn, sensors = loop.sensor_truth(), spec.sensing.true
     constants = TruthConstants(tuple(drawn["gyro_scale"]), tuple(drawn["accel_scale"]), tuple(drawn["encoder_phase"]),
                                tuple(sensors.imu.position), float(config_of(spec).params.r),
@@ -142,7 +137,7 @@ def consistency_meter(loop, spec: RunSpec, diagnosed: bool = False):
         def feed(res, d):
             add(res.truth, res.gyro_bias, np.concatenate([d["x"], np.ravel(d["P"])]), d["nis"], d["nis_dof"], d["lag"])
     else:
-        into = est.core.state_into  # the core is the run's from start() (reset) on
+        into = est.state_into  # bound to the run's filter core from start() (reset) on
 
         def feed(res, d):
             add(res.truth, res.gyro_bias, into, est.last_nis, est.last_dof, est.lag)
