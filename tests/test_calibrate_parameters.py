@@ -14,7 +14,7 @@ from twin.params import PARAMETER_DOCS
 def test_every_plant_and_motor_parameter_names_a_field_of_its_model():
     motor_fields = {f.name for f in dataclasses.fields(DCMotorParams)}
     for p in PARAMETERS.values():
-        assert p.group in ("plant", "motor", "imu") and p.unit and p.doc
+        assert p.group in ("plant", "motor", "imu", "current") and p.unit and p.doc
         if p.group == "plant":
             assert p.name in PARAMETER_DOCS and PARAMETER_DOCS[p.name][0] == p.unit, p
         if p.group == "motor":

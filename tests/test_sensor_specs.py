@@ -132,8 +132,10 @@ def _scenario(tmp_path, text: str, overrides=()):
 
 
 def _spy_loops(monkeypatch) -> list:
-    """Every twin.sim.loop.ClosedLoop the runner builds, kept for inspection."""
+    """Every twin.sim.loop.ClosedLoop the runner builds, kept for inspection (replaced where the
+    engine looks it up: twin.sim.loop, and twin.sim.simulate where it imports the class by name)."""
     import twin.sim.loop
+    import twin.sim.simulate
 
     loops = []
 
@@ -143,6 +145,8 @@ def _spy_loops(monkeypatch) -> list:
             loops.append(self)
 
     monkeypatch.setattr(twin.sim.loop, "ClosedLoop", Spy)
+    if hasattr(twin.sim.simulate, "ClosedLoop"):
+        monkeypatch.setattr(twin.sim.simulate, "ClosedLoop", Spy)
     return loops
 
 

@@ -164,11 +164,20 @@ class Estimator(Protocol):
         filter (``kalman2``) its accelerometer-angle update's; the complementary filter has
         no covariance and no hook.
 
+    Sensor channels beyond the IMU and encoders (:mod:`twin.sensors.types`: the motor current,
+    ``measurement["motor_current"]`` (left, right) A, or ``measurement.channels``) reach every
+    estimator in ``measurement.extra`` when the run or the log has them; an estimator that does
+    not read them is unaffected, one that reads a channel the run lacks gets None.
+
     Attributes
     ----------
     reads_truth : bool, optional
         True only for reference estimators that read ``measurement.truth`` (the ground
         truth, attached for them alone); a real estimator never sees it.
+    channels : tuple of str, optional
+        The channels it cannot do without beyond gyro, accel and encoders (e.g.
+        ``("motor_current",)``): a run whose sensors, or a log that, lack one is refused in one
+        line naming it.
     """
 
     def start(self, measurement: Measurement) -> Sequence[float]: ...
@@ -237,6 +246,11 @@ class Plant(Protocol):
         absent: the commands, delivered exactly.
     push_force : (3,) N
         Mean external push force over the last period, world axes; absent: none.
+    motor_current : (2,) A
+        The motors' armature current (left, right) at :attr:`truth`'s instant, what the
+        ``motor_current`` sensor samples; absent: the drive model's current for the duty
+        held over the last period and the shaft speed now
+        (:func:`twin.actuators.dc_motor.steady_current`, exact without inductance).
     trusted : bool
         True: the loop does not check the truth this plant returns at every step (the
         built-ins', finite and well formed by construction; a check costs a few µs a step);

@@ -26,6 +26,10 @@ adds the electrical lag; its time constant L/R (0.3 ms for 1 mH) is shorter than
 physics step, which is why the default leaves it off; when on, the twin integrates the
 current exactly per physics step (slower).
 
+The current the motor draws at an instant (what a shunt amplifier measures,
+:mod:`twin.sensors.motor_current`) is :func:`steady_current` of the duty held and the shaft
+speed then (the current itself, per physics step, with inductance).
+
 Defaults: a 12 V brushed motor sized for this robot: 1.2 N·m stall torque per wheel
 (gravity needs m_b g l sin 0.5 ≈ 0.75 N·m in total to hold the body at 0.5 rad), 35 rad/s
 no-load speed (1.4 m/s on r = 4 cm), so k_t = k_e = 0.343 N·m/A, R = 3.43 Ω, stall
@@ -102,6 +106,16 @@ class DCMotorParams:
 
 
 DEFAULT_MOTOR = DCMotorParams()
+
+
+def steady_current(params: DCMotorParams, duty, omega):
+    """The armature current in A for a PWM ``duty`` in [−1, 1] at shaft speed ``omega`` (rad/s,
+    relative to the body), without inductance: i = (d V_s − k_e ω) / R, signed (positive drives
+    the wheel forward); elementwise for numpy arrays. The torque is k_t i
+    (:meth:`MotorDriver.torque_at`). With the stall torque τ_s and the no-load speed ω_0 at the
+    supply V_s this is i = τ_s (d ω_0 − ω) / V_s: a current measures the torque in N·m directly,
+    where the duty alone gives it only through the motor's figures."""
+    return (duty * params.supply_voltage - params.k_t * omega) / params.resistance
 
 
 class MotorDriver:

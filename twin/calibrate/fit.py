@@ -4,7 +4,14 @@ Unknowns: the chosen parameters (:mod:`twin.calibrate.parameters`) and, per wind
 (:mod:`twin.calibrate.windows`), its start state θ, θ̇, ψ̇, α̇ and the two encoder offsets (ψ and
 α do not enter the dynamics). Residuals: each reading minus the model's
 (:mod:`twin.calibrate.readings` along :func:`twin.calibrate.model.step_windows`), divided by the
-reading's white-noise σ, so that the cost is a χ² for white noise.
+reading's white-noise σ, so that the cost is a χ² for white noise. Where the log holds the motor
+current (``Windows.current``), its samples join them: the model's current at the end of each
+period is :func:`twin.actuators.dc_motor.steady_current` of that period's duty and the shaft
+speed then, i = τ_s (d ω_0 − ω) / V_s. A current measures the torque in N·m (τ = k_t i), which
+the duty gives only through the motor's figures: with it the stall torque τ_s and the no-load
+speed ω_0 are read off the drive directly, no longer traded against the body's mass and
+inertias (τ_s) or the drive's damping d_b (ω_0). Without the channel the residuals are exactly
+the IMU's and the encoders'.
 
 Solver: :func:`scipy.optimize.least_squares` (trust-region reflective, ``x_scale="jac"``) with
 the Jacobian's sparsity given (a window's residuals depend on the parameters and its own six
@@ -30,6 +37,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.sparse import lil_matrix
 
+from twin.actuators.dc_motor import steady_current
 from twin.calibrate.model import step_windows
 from twin.calibrate.parameters import PARAMETERS
 from twin.calibrate.readings import encoder_angles, imu_readings
@@ -40,6 +48,7 @@ PLANT_NAMES = ("m_b", "l", "n_yb", "n_zb", "d_b", "d_w")
 MOTOR_NAMES = ("stall_torque", "no_load_speed")
 SENSOR_NAMES = ("gyro_bias_x", "gyro_bias_y", "gyro_bias_z", "accel_bias_x", "gyro_scale_y", "gyro_scale_z",
                 "accel_scale_x", "accel_scale_z")
+CURRENT_NAMES = ("current_offset_l", "current_offset_r")  # the current sensor's offsets (A), with the channel
 STATE_COLUMNS = (0, 1, 3, 5)  # θ, θ̇, ψ̇, α̇ of a window's start state are fitted; ψ, α stay the EKF's
 CLUSTER_S = 1.0  # s of log per cluster of the sandwich covariance and the bootstrap (0: each window its own)
 TOLERANCE = 1e-8  # scipy's xtol, ftol, gtol: relative changes well below the intervals (about 1e-3)
@@ -81,7 +90,7 @@ class Plant:
     def values(self, p) -> dict:
         """Every parameter's value (absolute SI) for the fitted vector ``p``; the others at the
         log's model (sensor constants at zero)."""
-        v = {n: self.base(n) for n in PLANT_NAMES + SENSOR_NAMES}
+        v = {n: self.base(n) for n in PLANT_NAMES + SENSOR_NAMES + CURRENT_NAMES}
         if self.motor is not None:
             v.update({n: self.base(n) for n in MOTOR_NAMES})
         v.update({n: x for n, x in self.fixed.items() if n in v})
@@ -120,16 +129,25 @@ class Plant:
 
         return replace(self.motor, stall_torque=v["stall_torque"], no_load_speed=v["no_load_speed"])
 
-    def predict(self, w: Windows, v: dict, S: np.ndarray, offsets: np.ndarray):
+    def predict(self, w: Windows, v: dict, S: np.ndarray, offsets: np.ndarray, current: bool = False):
         """(imu (W, N, 5), encoder angles (W, N + 1, 2)) of windows ``w`` from full start states
-        ``S`` (W, 6) and encoder offsets (W, 2), for parameter values ``v``."""
-        X = step_windows(S, w.drive, self.robot(v), self.motors(v), self.physics_rate, self.control_rate,
+        ``S`` (W, 6) and encoder offsets (W, 2), for parameter values ``v``; with ``current``, a
+        third: the motor current (W, N, 2) A at the end of each period (None where the windows have
+        no current or the drive is not a duty through DC motors)."""
+        motor = self.motors(v)
+        X = step_windows(S, w.drive, self.robot(v), motor, self.physics_rate, self.control_rate,
                          drive_is_duty=w.streams.drive_is_duty)
         imu = imu_readings(X, 1.0 / self.control_rate, self.position, self.model.r, self.model.g,
                            (v["gyro_bias_x"], v["gyro_bias_y"], v["gyro_bias_z"]),
                            (0.0, v["gyro_scale_y"], v["gyro_scale_z"]), (v["accel_bias_x"], 0.0),
                            (v["accel_scale_x"], v["accel_scale_z"]))
-        return imu, encoder_angles(X, self.b_r, offsets)
+        angles = encoder_angles(X, self.b_r, offsets)
+        if not current:
+            return imu, angles
+        cur = motor_current(X, w, motor, self.b_r)
+        if cur is not None:  # the sensor's offsets (its gain error is left at 1: see windows.streams)
+            cur = cur + np.array([v["current_offset_l"], v["current_offset_r"]])
+        return imu, angles, cur
 
 
 @dataclass
@@ -156,8 +174,20 @@ class Fit:
         return np.sum(self.residuals ** 2, axis=1)
 
 
+def motor_current(X, w: Windows, motor, b_r: float):
+    """(W, N, 2) A: the motors' current at the end of each period of states X (W, N + 1, 6) under
+    that period's duty (``w.drive``), left and right; None without a current channel or motors."""
+    if w.current is None or motor is None or not w.streams.drive_is_duty:
+        return None
+    th_d, ps_d, al_d = X[:, 1:, 1], X[:, 1:, 3], X[:, 1:, 5]
+    return np.stack([steady_current(motor, w.drive[..., 0], ps_d - b_r * al_d - th_d),
+                     steady_current(motor, w.drive[..., 1], ps_d + b_r * al_d - th_d)], axis=-1)
+
+
 def residual_count(w: Windows) -> int:
-    return w.periods * 5 + (w.periods + 1) * 2
+    """Residuals per window: 5 IMU channels per period, 2 encoders per instant, and with a current
+    channel 2 currents per period."""
+    return w.periods * 5 + (w.periods + 1) * 2 + (0 if w.current is None else w.periods * 2)
 
 
 def _unpack(plant: Plant, w: Windows, z: np.ndarray):
@@ -170,13 +200,23 @@ def _unpack(plant: Plant, w: Windows, z: np.ndarray):
 
 
 def residuals(plant: Plant, w: Windows, p, S, offsets) -> np.ndarray:
-    """(W, R): the readings' misfit in σ units, IMU periods first, then encoder instants."""
+    """(W, R): the readings' misfit in σ units, IMU periods first, then encoder instants, then
+    (with a current channel) the motor currents per period."""
     v = plant.values(p)
-    imu, ang = plant.predict(w, v, S, offsets)
+    if w.current is None:
+        imu, ang = plant.predict(w, v, S, offsets)
+        cur = None
+    else:
+        imu, ang, cur = plant.predict(w, v, S, offsets, current=True)
     s = w.streams
     ri = (imu - w.imu) / s.imu_sigma
     re = (ang - w.angles) / s.encoder_sigma
-    return np.concatenate([ri.reshape(w.count, -1), re.reshape(w.count, -1)], axis=1)
+    parts = [ri.reshape(w.count, -1), re.reshape(w.count, -1)]
+    if w.current is not None:
+        # (no motors to compare with: the samples count as fitted exactly, so the residual count holds)
+        rc = np.zeros(w.current.shape) if cur is None else (cur - w.current) / s.current_sigma
+        parts.append(rc.reshape(w.count, -1))
+    return np.concatenate(parts, axis=1)
 
 
 def sparsity(k: int, W: int, R: int):
@@ -376,7 +416,7 @@ def correlation(C: np.ndarray) -> np.ndarray:
         return C / np.outer(sd, sd)
 
 
-__all__ = ["CLUSTER_S", "Fit", "Information", "MOTOR_NAMES", "PLANT_NAMES", "Plant", "SENSOR_NAMES", "bootstrap",
+__all__ = ["CLUSTER_S", "CURRENT_NAMES", "Fit", "Information", "MOTOR_NAMES", "PLANT_NAMES", "Plant", "SENSOR_NAMES", "bootstrap",
            "correlation", "covariance", "fit", "information", "residuals", "t_quantile"]
 
 

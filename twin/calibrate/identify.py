@@ -32,7 +32,9 @@ from twin.calibrate.parameters import PARAMETERS
 RELATIVE_HALF_WIDTH = 0.5
 SENSOR_HALF_WIDTH = {"gyro_bias_x": 0.005, "gyro_bias_y": 0.005, "gyro_bias_z": 0.005,  # rad/s
                      "accel_bias_x": 0.05,  # m/s²
-                     "gyro_scale_x": 0.01, "gyro_scale_y": 0.01, "gyro_scale_z": 0.01, "accel_scale_x": 0.01, "accel_scale_z": 0.01}
+                     "gyro_scale_x": 0.01, "gyro_scale_y": 0.01, "gyro_scale_z": 0.01, "accel_scale_x": 0.01, "accel_scale_z": 0.01,
+                     # A: about 3σ of an INA240-class channel's offset (twin.sensors.motor_current)
+                     "current_offset_l": 0.01, "current_offset_r": 0.01}
 # sensor constants that also take up a model error, so that their interval does not bound the
 # sensor's own value: the forward accelerometer's scale absorbs the forward-acceleration model's
 # error (the contact's effective rolling radius); on the twenty test robots its interval missed

@@ -24,6 +24,7 @@ from twin.calibrate.parameters import PARAMETERS
 from twin.calibrate.physical import substeps
 from twin.calibrate.robot import twin_lags
 from twin.errors import TwinError
+from twin.params import NOMINAL
 
 SCALE_RANGE = (0.2, 5.0)  # plant.scale's allowed factors (twin/scenarios/schema.py)
 
@@ -102,8 +103,6 @@ def calibration_toml(cal, params: dict, twin=None, geometry: tuple | None = None
     become [plant] scale (the robot brought into the twin's stepping). ``geometry``: the logs'
     (wheel radius m, half track m); the twin's wheels and track are Table III's, so a robot with
     others cannot be run by it (the file then says why, and has no [plant])."""
-    from twin.params import NOMINAL
-
     lines = ["# Written by 'twin calibrate'. 'twin run SCENARIO --plant calibration.toml' runs this robot:",
              "# [plant] and [sensors] replace the scenario's true plant and IMU latency; [calibration] is a record.", ""]
     lines += ["[calibration]", f"logs = {json.dumps(cal.logs)}",
@@ -207,6 +206,7 @@ def plant_overrides(path) -> list[str]:
 def write_figure(cal, params: dict, validation, path) -> None:
     """figure.png: the fit over the log's first seconds, the residuals, the intervals and the
     validation's prediction error over the horizon."""
+    # heavy: matplotlib, only when the figure is drawn
     from twin.outputs.report import load_matplotlib
 
     load_matplotlib(pyplot=True)  # signals held while its C++ modules load (an interrupt there broke them)
@@ -235,8 +235,13 @@ def write_figure(cal, params: dict, validation, path) -> None:
     r = f.residuals
     N = w.periods
     chans = ["gyro x", "gyro y", "gyro z", "accel x", "accel z"]
-    parts = [r[:, :N * 5].reshape(len(r), N, 5)[..., c].ravel() for c in range(5)] + [r[:, N * 5:].ravel()]
-    b.boxplot(parts, tick_labels=chans + ["encoders"], showfliers=False, whis=(2.5, 97.5))
+    E = N * 5 + (N + 1) * 2  # the encoders' residuals end here; the motor currents' (if any) follow
+    parts = [r[:, :N * 5].reshape(len(r), N, 5)[..., c].ravel() for c in range(5)] + [r[:, N * 5:E].ravel()]
+    labels = chans + ["encoders"]
+    if r.shape[1] > E and getattr(w, "current", None) is not None:
+        parts.append(r[:, E:].ravel())
+        labels.append("current")
+    b.boxplot(parts, tick_labels=labels, showfliers=False, whis=(2.5, 97.5))
     b.axhline(0.0, color="0.3", lw=0.8)
     for y in (-1.96, 1.96):
         b.axhline(y, color="C3", lw=0.8, ls="--")

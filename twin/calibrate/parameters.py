@@ -2,14 +2,17 @@
 
 One registry (:data:`PARAMETERS`): every name ``--parameters`` accepts, its SI unit, its group
 (``plant``: Table III, :class:`twin.params.RobotParams`; ``motor``: the driver and motors,
-:class:`twin.actuators.dc_motor.DCMotorParams`; ``imu``: the sensor's constants of the log), a
+:class:`twin.actuators.dc_motor.DCMotorParams`; ``imu``: the IMU's constants of the log;
+``current``: the motor current sensor's, fitted whenever the log holds that channel), a
 one-line description, and the fitted value's lower bound (the optimiser's box; physical
 parameters are positive). Values are absolute SI values, as ``report.json`` writes them.
 
 :data:`DEFAULT_PLANT` are fitted from any log; the yaw inertia ``n_zb`` only from a log that
 turns, and the motors' figures only from a log with the applied duty (``duty.csv``), where
 they are not confounded with the body's mass (research for issue 30: stall torque against the
-mass/inertia scale, correlation 1.00 from N·m commands).
+mass/inertia scale, correlation 1.00 from N·m commands). A log with the motor current
+(``motor_current.csv``) measures the torque itself: with it the motors' figures are fitted by
+default (tests/test_motor_current_calibration.py).
 """
 from __future__ import annotations
 
@@ -20,7 +23,7 @@ from twin.errors import TwinError
 
 @dataclass(frozen=True)
 class Parameter:
-    """A fittable parameter: ``name``, ``unit`` (SI), ``group`` ("plant", "motor" or "imu"),
+    """A fittable parameter: ``name``, ``unit`` (SI), ``group`` ("plant", "motor", "imu" or "current"),
     ``doc`` and ``lower`` (the smallest value the fit may take; None: unbounded)."""
 
     name: str
@@ -52,6 +55,9 @@ _ALL = (
     Parameter("accel_scale_z", "1", "imu", "accelerometer scale-factor error, vertical axis (its bias with it: "
               "the axis reads about g)", None),
     Parameter("imu_latency", "s", "imu", "the IMU's latency (whole control periods)"),
+    Parameter("current_offset_l", "A", "current", "motor current sensor's offset, left wheel (fitted whenever the "
+              "log holds the motor current)", None),
+    Parameter("current_offset_r", "A", "current", "motor current sensor's offset, right wheel", None),
 )
 PARAMETERS: dict[str, Parameter] = {p.name: p for p in _ALL}
 # parameters the model has but no log can show: `twin calibrate --list` leaves them out and says why

@@ -18,6 +18,13 @@ the procedure below (one log):
    from stage 1's estimate and windows.
 6. Intervals: :func:`twin.calibrate.fit.covariance` and the bootstrap over windows;
    identifiability (:mod:`twin.calibrate.identify`).
+
+A log with the motor current (:attr:`twin.logs.format.SensorLog.channels`) adds its samples to
+every stage's residuals (:func:`twin.calibrate.fit.residuals`) and the sensor's two offsets
+(:data:`twin.calibrate.fit.CURRENT_NAMES`) to every stage's parameters, and by default the
+motors' stall torque and no-load speed are fitted too: the current measures the torque, which
+tells them apart from the body's mass and from d_b (without it they are confounded, see
+:func:`default_names`). A log without the channel is calibrated exactly as before.
 """
 from __future__ import annotations
 
@@ -46,10 +53,13 @@ def default_names(logs) -> tuple[str, ...]:
     figures are not: the stall torque trades against the body's mass and inertias (only the wheels'
     fixed mass tells them apart; correlation 0.99 and more) and the no-load speed against d_b (both
     are damping of the joint). Fit them with ``--parameters`` once the body's mass is known (weighed
-    and entered in the log's [robot] table)."""
+    and entered in the log's [robot] table), or record the motor current: with it (``logs`` whose
+    streams all carry it) they are fitted by default, with the current sensor's offsets."""
     turns = any(float(np.nanmax(np.abs(s.estimates[:, 5]))) >= TURN_RATE for s in logs)
     plant = ("m_b", "l", "n_yb") + (("n_zb",) if turns else ()) + ("d_b", "d_w")
-    return plant + F.SENSOR_NAMES + ("imu_latency",)
+    current = bool(logs) and all(getattr(s, "current", None) is not None for s in logs)
+    return plant + (F.MOTOR_NAMES if current else ()) + F.SENSOR_NAMES + ("imu_latency",) + (
+        F.CURRENT_NAMES if current else ())
 
 
 
@@ -104,6 +114,14 @@ def calibrate(log_objs, names=None, physics_rate: float | None = None, seed: int
         physics_rate = float(log.scenario.data["rates"]["physics"]) if log.scenario is not None else 1000.0
     st = streams(log)
     all_names = tuple(names) if names is not None else default_names([st])
+    if st.current is not None:  # the current sensor's offsets are fitted with its samples, always
+        all_names = tuple(n for n in PARAMETERS if n in all_names or n in F.CURRENT_NAMES)
+    else:
+        dropped_current = [n for n in all_names if n in F.CURRENT_NAMES]
+        if dropped_current:
+            raise TwinError(f"--parameters {dropped_current[0]}: the log {log.path} holds no motor current (or no DC "
+                            f"motors to compare it with); allowed: the current sensor's offsets with a "
+                            f"motor_current stream only")
     max_turn = check_names(all_names, [st], log_objs)
     d0 = int(round(log.sensors.imu.latency * log.control_rate))
     w = cut(st, max(LATENCIES) if "imu_latency" in all_names else d0, periods)
@@ -112,7 +130,7 @@ def calibrate(log_objs, names=None, physics_rate: float | None = None, seed: int
                         f"a calibration needs at least {MIN_WINDOWS} ({MIN_WINDOWS * periods / log.control_rate:g} s "
                         f"of log while the robot moves)")
     cont = tuple(n for n in all_names if n != "imu_latency")
-    stage1 = tuple(n for n in cont if n in STAGE1)
+    stage1 = tuple(n for n in cont if n in STAGE1 or n in F.CURRENT_NAMES)
     say(f"{w.count} windows of {periods} periods; stage 1: {', '.join(stage1)}")
 
     def windows_for(d):
@@ -130,7 +148,7 @@ def calibrate(log_objs, names=None, physics_rate: float | None = None, seed: int
     d_first = d0 if ("imu_latency" not in all_names or d0 in LATENCIES) else 1
     # stage 0: the IMU's biases alone, the plant at the log's model; from the biases at zero the
     # first plant fit can fall into a far minimum (a body 80 % lighter, research for issue 30)
-    biases = tuple(n for n in stage1 if PARAMETERS[n].group == "imu")
+    biases = tuple(n for n in stage1 if PARAMETERS[n].group in ("imu", "current"))
     start1 = None
     if biases:
         f0 = F.fit(F.Plant(log, biases, physics_rate), windows_for(d_first))

@@ -15,7 +15,10 @@ estimate of the state at each instant (the windows' first guess), and keeps each
 row's own time (``imu_time``, ``encoder_time``): a jittered logger's rows lie up to a period
 before the instant they are slotted at, and the physical model takes them there
 (:func:`twin.calibrate.robot.row_timing`); :func:`cut` makes the windows for an IMU latency of
-whole periods. SI units: s, rad, rad/s, m/s².
+whole periods. Where the log holds the motor current (:attr:`twin.logs.format.SensorLog.channels`,
+``motor_current``), :func:`streams` puts it on the instants too and :func:`cut` gives each window
+its samples; a log without it gives windows without them, exactly as before. SI units: s, rad,
+rad/s, m/s², A.
 """
 from __future__ import annotations
 
@@ -24,7 +27,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from twin.calibrate.model import driver_duty
 from twin.errors import TwinError
+from twin.logs.replay import build_for, replay, schedule
 
 WINDOW_PERIODS = 20  # control periods per window: 0.1 s at 200 Hz
 FIRST_INSTANT = 1  # the windows start from the log's second control instant (see cut)
@@ -62,6 +67,12 @@ class Streams:
     imu_time: np.ndarray | None = None
     imu_prev_time: np.ndarray | None = None
     encoder_time: np.ndarray | None = None
+    # the motor current (n, 2) A, left and right, the sample arriving at t_k (NaN: none); None: the
+    # log has no such channel (or no DC motors to compare it with); its σ per sample (A) and latency
+    # (control periods)
+    current: np.ndarray | None = None
+    current_sigma: float = math.nan
+    current_latency: int = 0
 
 
 @dataclass
@@ -71,7 +82,8 @@ class Windows:
     ``starts`` (W,) the instants they start at; ``S0`` (W, 6) their first-guess start states;
     ``drive`` (W, N, 2); ``imu`` (W, N, 5): the reading of period j (the mean over
     [t_s+j, t_s+j+1]) in :data:`IMU_CHANNELS`; ``angles`` (W, N + 1, 2) the encoder angles at
-    t_s … t_s+N; ``imu_latency`` whole periods."""
+    t_s … t_s+N; ``imu_latency`` whole periods; ``current`` (W, N, 2) A the motor current
+    sampled at t_s+1 … t_s+N (the end of each period, under that period's duty), or None."""
 
     starts: np.ndarray
     S0: np.ndarray
@@ -80,6 +92,7 @@ class Windows:
     angles: np.ndarray
     imu_latency: int
     streams: Streams
+    current: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -97,7 +110,7 @@ class Windows:
     def subset(self, keep) -> "Windows":
         keep = np.asarray(keep)
         return Windows(self.starts[keep], self.S0[keep], self.drive[keep], self.imu[keep], self.angles[keep],
-                       self.imu_latency, self.streams)
+                       self.imu_latency, self.streams, None if self.current is None else self.current[keep])
 
 
 def streams(log, estimates=None) -> Streams:
@@ -105,8 +118,6 @@ def streams(log, estimates=None) -> Streams:
 
     ``estimates`` (n, 6): the state at each instant if already known (else the EKF is replayed
     on the log, :func:`twin.logs.replay.replay`)."""
-    from twin.logs.replay import build_for, replay, schedule
-
     # the readings of each instant gathered from the log's arrays by the replay's schedule (the very
     # values the estimator gets, twin.logs.replay.instants, with no Measurement object per instant)
     sched = schedule(log)
@@ -140,8 +151,6 @@ def streams(log, estimates=None) -> Streams:
         # N·m commands through a driver: the duty it set, from the estimated shaft speeds at each
         # update (the driver's own measurement is not in the log); the fit is then smooth in the
         # parameters (the driver's PWM rounding frozen), research for issue 30
-        from twin.calibrate.model import driver_duty
-
         b_r = log.model.b / log.model.r
         th_d, ps_d, al_d = estimates[:, 1], estimates[:, 3], estimates[:, 5]
         drive = np.column_stack([driver_duty(drive[:, 0], ps_d - b_r * al_d - th_d, log.motor),
@@ -160,9 +169,26 @@ def streams(log, estimates=None) -> Streams:
     a_sig = sens.imu.accel.white_sigma(dt)
     res = 2.0 * math.pi / log.counts_per_rev
     rate = log.control_rate
+    current, c_sig, c_lat = None, math.nan, 0
+    spec = sens.spec("motor_current") if log.motor is not None and is_duty else None
+    if spec is not None and "motor_current" in sched.extra:
+        # the samples on their instants, weighed by the white noise and the quantiser's step (the
+        # per-run offset and gain error are not fitted: at their defaults' size, 3 mA and 0.34 %,
+        # they bias a torque constant by a fraction of a per cent)
+        rows = sched.extra["motor_current"]
+        current = np.full((n, 2), np.nan)
+        on = rows >= 0
+        current[on] = log.channels["motor_current"].values[rows[on]]
+        c_sig = math.sqrt(spec.noise ** 2 + spec.resolution ** 2 / 12.0)
+        c_lat = int(round(spec.latency * rate))
+        if not c_sig > 0.0:  # a noiseless, unquantised channel: weighed as one part in 10⁶ of its range
+            c_sig = 1e-6 * spec.full_scale
+        rail = spec.full_scale - CLIP_SIGMAS * c_sig  # a clipped sample is no measurement of the current
+        current[np.abs(current) >= rail] = np.nan
     return Streams(t, gyro, accel, angles, np.asarray(drive, dtype=float), is_duty, estimates,
                    np.array([g_sig, g_sig, g_sig, a_sig, a_sig]), res / math.sqrt(12.0),
-                   int(round(sens.encoders.latency * rate)), rate, imu_time, imu_prev, enc_time)
+                   int(round(sens.encoders.latency * rate)), rate, imu_time, imu_prev, enc_time,
+                   current, c_sig, c_lat)
 
 
 def on_rows(s: Streams, log, drive_at) -> Streams | None:
@@ -212,9 +238,10 @@ def cut(s: Streams, imu_latency: int, periods: int = WINDOW_PERIODS, stride: int
     d, de = int(imu_latency), s.encoder_latency
     last = n - 1 - max(periods + d, periods + de)
     starts = np.arange(FIRST_INSTANT, last + 1, periods if stride is None else int(stride))
+    cur = None if s.current is None else np.empty((0, periods, 2))
     if len(starts) == 0:
         return Windows(starts, np.empty((0, 6)), np.empty((0, periods, 2)), np.empty((0, periods, 5)),
-                       np.empty((0, periods + 1, 2)), d, s)
+                       np.empty((0, periods + 1, 2)), d, s, cur)
     j = starts[:, None] + np.arange(periods)[None, :]
     imu = np.concatenate([s.gyro[j + 1 + d], s.accel[j + 1 + d][..., [0, 2]]], axis=-1)
     je = starts[:, None] + np.arange(periods + 1)[None, :] + de
@@ -222,8 +249,13 @@ def cut(s: Streams, imu_latency: int, periods: int = WINDOW_PERIODS, stride: int
     drive = s.drive[j]
     ok = np.isfinite(imu).all(axis=(1, 2)) & np.isfinite(angles).all(axis=(1, 2)) & np.isfinite(drive).all(axis=(1, 2))
     ok &= np.isfinite(s.estimates[starts]).all(axis=1)
+    if s.current is not None:  # the current sampled at the end of each period (its duty's), dc periods late
+        jc = j + 1 + s.current_latency
+        cur = s.current[np.minimum(jc, n - 1)]
+        ok &= np.isfinite(cur).all(axis=(1, 2)) & (jc[:, -1] < n)
     keep = np.flatnonzero(ok)
-    return Windows(starts[keep], s.estimates[starts[keep]].copy(), drive[keep], imu[keep], angles[keep], d, s)
+    return Windows(starts[keep], s.estimates[starts[keep]].copy(), drive[keep], imu[keep], angles[keep], d, s,
+                   None if cur is None else cur[keep])
 
 
 __all__ = ["CLIP_SIGMAS", "IMU_CHANNELS", "WINDOW_PERIODS", "Streams", "Windows", "cut", "on_rows", "streams"]

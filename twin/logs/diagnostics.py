@@ -26,6 +26,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from estimation.consistency import TruthConstants, nees_rows, truth_rows
 from twin.errors import PluginError
 from twin.logs.instants import instants_of
 
@@ -175,8 +176,6 @@ class DiagnosticsLog(Sequence):
         m = len(lags)
         if not m:
             return
-        from estimation.consistency import nees_rows
-
         i0 = len(self._nees)
         f = np.maximum.accumulate(np.maximum(np.arange(i0, i0 + m, dtype=np.int64) - np.array(lags, np.int64),
                                              self._f))
@@ -258,7 +257,6 @@ class _StateTruthRows:
     computes them for the whole run (elementwise: the same bits)."""
 
     def __init__(self, log, rows: np.ndarray):
-        from estimation.consistency import TruthConstants
 
         c, sensors, model = log.truth_constants, log.sensors, log.model
         self.constants = TruthConstants(tuple(c["gyro_scale"]), tuple(c["accel_scale"]), tuple(c["encoder_phase"]),
@@ -288,8 +286,6 @@ class _StateTruthRows:
 
     def states(self, f: np.ndarray) -> np.ndarray:
         """The 12 true states (m, 12) of instants ``f``; NaN at an instant without a truth row."""
-        from estimation.consistency import truth_rows
-
         r = self.rows[f]
         ok = r >= 0
         if not ok.all():

@@ -9,7 +9,14 @@ instability, turn-on bias, scale-factor error, full scale, bits or LSB), ``[enco
 ``[commands]`` (unit "N·m", "duty" or "V"; semantics "held" or "sampled"), ``[motor]`` (kind
 "dc" with twin.actuators.DCMotorParams figures, or "ideal"), ``[robot]`` (twin.params keys,
 SI), ``[truth]`` and ``[streams.NAME]`` (a stream of one's own: its file, its columns with their
-units). What it leaves out that has a default is named in :attr:`SensorLog.format_info`. The
+units). A stream named after a sensor type of :data:`twin.sensors.types.SENSOR_TYPES` (the motor
+current: ``[streams.motor_current]``, motor_current.csv, columns t, left, right in s, A, A) is
+that sensor's channel: its columns and units must be the channel's, its figures are in
+``[sensors.motor_current]`` (noise, offset, gain_error, resolution, full_scale in A or 1, rate Hz,
+latency s: :data:`twin.sensors.motor_current.KEYS`; the keys left out are the type's defaults, and
+``[sensors.NAME]`` alone declares the stream NAME.csv with the channel's columns), and the replay
+hands it to the estimators (``Measurement.extra``, ``meas["motor_current"]``) and calibration
+uses it (:attr:`SensorLog.channels`). What it leaves out that has a default is named in :attr:`SensorLog.format_info`. The
 IMU's readings are turned into body axes as they are read (:attr:`SensorLog.imu_rotation`).
 Version 1, below, is still read: its figures come from a scenario (default paper-exp1), and
 :attr:`SensorLog.format_info` spells out what was assumed.
@@ -114,14 +121,22 @@ from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from twin.errors import TwinError, shown
 from twin.inputs import inside, read_text, toml_loads
+from twin.actuators.dc_motor import DEFAULT_MOTOR, DCMotorParams
 from twin.logs.bounds import MAX_INSTANTS, MAX_MANIFEST_BYTES, MAX_STREAMS
+from twin.logs.streams import read_stream
+from twin.params import NOMINAL, PARAMETER_DOCS, RobotParams
+from twin.protocols import Targets
+from twin.registry import BuildContext
+from twin.sensors import SensorConfig
+from twin.sensors.specs import IMU_PRESETS, EncoderSpec, ImuSpec
+from twin.sensors.types import SENSOR_TYPES, extra_types, key_list
 
 FORMAT = "mtwip-sensor-log"
 VERSION = 2  # the version write_log writes
@@ -150,7 +165,7 @@ _KEYS = {"format", "version", "control_rate", "wheel_radius", "track", "encoder_
 # ---- version 2: every figure in log.toml (docs/reference/sensor-log.md) -------------------------------
 # top-level keys of a version-2 manifest; the tables below
 _KEYS_V2 = {"format", "version", "control_rate", "wheel_radius", "track", "initial_heading", "scenario", "set",
-            "source", "expect", "imu", "encoders", "commands", "motor", "robot", "truth", "units", "streams"}
+            "source", "expect", "imu", "encoders", "commands", "motor", "robot", "truth", "units", "streams", "sensors"}
 SAMPLINGS = ("mean", "point")
 SEMANTICS = ("held", "sampled")
 COMMAND_UNITS_V2 = ("N·m", "duty", "V")
@@ -277,6 +292,14 @@ class SensorLog:
     notes: tuple = ()  # what the reader could not apply as the log says, one line each
 
     @property
+    def channels(self) -> dict:
+        """The sensor channels beyond the IMU and encoders this log holds (:mod:`twin.sensors.types`):
+        channel name -> :class:`Stream` (``t`` s, ``values`` (n, c) in the channel's unit, NaN where
+        a row held none), e.g. ``"motor_current"`` (left, right in A); {} for none."""
+        names = {c.name for t in extra_types() for c in t.channels}
+        return {n: st for n, st in self.streams.items() if n in names}
+
+    @property
     def counts_per_rev(self) -> int:
         """Encoder counts per wheel revolution (a motor's counts times the gear ratio)."""
         return int(self.sensors.encoders.counts_per_rev)
@@ -288,9 +311,6 @@ class SensorLog:
 
     def context(self):
         """The :class:`twin.registry.BuildContext` an estimator is built with for this log."""
-        from twin.protocols import Targets
-        from twin.registry import BuildContext
-
         return BuildContext(self.control_rate, self.model, self.estimator_motor(), self.sensors, Targets(),
                             self.initial_heading)
 
@@ -307,8 +327,6 @@ class SensorLog:
         and with the current limit at the stall current: the model then hands τ_0 through
         unchanged (clipped to the stall torque, which |duty| ≤ 1 never reaches), and keeps the
         back-EMF slope c_e on the body-wheel damping, where it physically acts."""
-        from dataclasses import replace
-
         if self.command_unit not in ("duty", "V") or self.motor is None:
             return self.motor
         if not self.motor.back_emf_compensation and self.motor.current_limit is None:
@@ -490,8 +508,6 @@ def _keys_text(keys: dict, unit_for: str = "") -> str:
 
 def robot_keys() -> dict:
     """The ``[robot]`` keys: :data:`twin.params.PARAMETER_DOCS` but r and b (wheel_radius, track)."""
-    from twin.params import PARAMETER_DOCS
-
     return {k: v for k, v in PARAMETER_DOCS.items() if k not in ("r", "b")}
 
 
@@ -511,8 +527,6 @@ def motor_keys() -> dict:
 
 def _robot(robot, radius: float, track: float, where: str):
     """(the model the estimators assume, the keys not given: Table III's) from ``[robot]``."""
-    from twin.params import NOMINAL, RobotParams
-
     keys = robot_keys()
     listing = ", ".join(f"{k} ({u})" for k, (u, _) in keys.items())
     if not isinstance(robot, dict):
@@ -540,8 +554,6 @@ def _robot(robot, radius: float, track: float, where: str):
 def _dc_motor(table, base, where: str, skip: tuple = ()):
     """(the DC motor of ``[motor]``'s figures over ``base``'s (default the twin's default), the keys
     not given); the keys of ``skip`` are not figures."""
-    from twin.actuators.dc_motor import DEFAULT_MOTOR, DCMotorParams
-
     keys = motor_keys()
     listing = _keys_text(keys)
     if not isinstance(table, dict):
@@ -560,8 +572,6 @@ def _dc_motor(table, base, where: str, skip: tuple = ()):
 
 
 def _preset_name(gyro, accel) -> str | None:
-    from twin.sensors.specs import IMU_PRESETS
-
     for name, (g, a) in IMU_PRESETS.items():
         if g == gyro and a == accel:
             return name
@@ -639,8 +649,6 @@ def _whole_periods(latency: float, rate: float, key: str, notes: list) -> float:
 def _header_v2(root: Path, m: dict, where: str) -> _Header:
     """A version-2 manifest: every figure the estimators are built with is log.toml's (the keys
     it leaves out that have a default are listed in the header's ``info``)."""
-    from twin.sensors import SensorConfig
-
     unknown = sorted(set(m) - _KEYS_V2)
     if unknown:
         raise TwinError(f"{where}: unknown key {unknown[0]!r}; allowed: {', '.join(sorted(_KEYS_V2))}")
@@ -681,11 +689,13 @@ def _header_v2(root: Path, m: dict, where: str) -> _Header:
         raise TwinError(f"{where}: units must be a table, got {shown(units)}")
     _check_units(units, cunit, where)
     files, extra = _declared_streams(m.get("streams"), where, cunit)
+    specs = _sensor_channels(m, extra, where, rate, notes, assumed)
     scenario = _scenario_v2(root, m, where)
-    sensors = SensorConfig(imu=imu, encoders=encoders)
+    sensors = SensorConfig(imu=imu, encoders=encoders, extra=specs)
     if assumed:
         parts = [f"{k} {', '.join(v)}" for k, v in assumed.items()]
-        whose = {"robot": "Table III", "motor": "twin.actuators.DCMotorParams"}
+        whose = {"robot": "Table III", "motor": "twin.actuators.DCMotorParams",
+                 **{f"sensors.{t.name}": f"twin.sensors.types.SENSOR_TYPES[{t.name!r}]" for t in extra_types()}}
         text = (f"log format version 2; not in log.toml, so assumed: "
                 + "; ".join(f"{p} ({whose.get(k, imu_preset_of(m))}'s)" for p, k in zip(parts, assumed)))
     else:
@@ -693,6 +703,57 @@ def _header_v2(root: Path, m: dict, where: str) -> _Header:
     info = {"version": 2, "assumed": assumed, "text": text}
     return _Header(2, rate, heading, model, sensors, motor, scenario, cunit, semantics, sampling, rotation, files,
                    extra, info, notes)
+
+
+def _sensor_channels(m: dict, extra: dict, where: str, rate: float, notes: list, assumed: dict) -> tuple:
+    """The specs of the sensor channels a version-2 manifest holds beyond the IMU and encoders
+    (see the module docstring): ``[sensors.NAME]`` figures for a declared ``[streams.NAME]`` whose
+    NAME is a sensor type (its columns and units checked against the channel's), or alone (then
+    the stream NAME.csv with the channel's columns is declared here, in ``extra``)."""
+    table = m.get("sensors", {})
+    types = {t.name: t for t in extra_types()}
+    listing = ", ".join(f"[sensors.{n}]" for n in types)
+    if not isinstance(table, dict):
+        raise TwinError(f"{where}: sensors: {shown(table)}; allowed: tables {listing} (a sensor channel's figures)")
+    for name in table:
+        if name not in types:
+            core = " (the IMU's and encoders' figures are [imu] and [encoders])" if name in SENSOR_TYPES else ""
+            raise TwinError(f"{where}: sensors.{name}: not a sensor type{core}; allowed: {listing}")
+    specs = []
+    for name, t in types.items():
+        if name not in table and name not in extra:
+            continue
+        c = t.channels[0]
+        if name in extra:  # the declared stream: the channel's columns, in its unit
+            d = extra[name]
+            units = tuple(_SAME_UNIT.get(u, u) for u in d["units"])
+            if d["columns"] != c.columns or any(u != c.unit for u in units):
+                cols = ", ".join(f"{k} = \"{c.unit}\"" for k in c.columns)
+                raise TwinError(f"{where}: streams.{name}.columns: {', '.join(d['columns'])} in "
+                                f"{', '.join(d['units'])}; allowed: {{ t = \"s\", {cols} }} (the {name} channel's "
+                                f"columns, SI)")
+        else:  # [sensors.NAME] alone: the stream NAME.csv with the channel's columns
+            extra[name] = {"file": f"{name}.csv", "columns": c.columns, "units": (c.unit,) * len(c.columns),
+                           "latency": None, "description": t.doc}
+        figures = dict(table.get(name) or {})
+        if not isinstance(table.get(name, {}), dict):
+            raise TwinError(f"{where}: sensors.{name}: {shown(table[name])}; allowed: a table of {key_list(t)}")
+        lat = figures.get("latency", extra[name]["latency"])
+        if lat is not None and "latency" not in figures:
+            figures["latency"] = lat
+        spec = t.build(figures, where)
+        taken = _whole_periods(spec.latency, rate, f"sensors.{name}.latency", notes)
+        if taken != spec.latency:
+            spec = replace(spec, latency=taken)
+        try:  # (each row arrives at its t; the rate says how often the robot sampled)
+            spec.steps(rate)
+        except TwinError as exc:
+            raise TwinError(f"{where}: {exc}") from None
+        left = [k for k in t.keys if k not in figures and k != "rate"]
+        if left:
+            assumed[f"sensors.{name}"] = left
+        specs.append(spec)
+    return tuple(specs)
 
 
 def imu_preset_of(m: dict) -> str:
@@ -703,8 +764,6 @@ def imu_preset_of(m: dict) -> str:
 
 def _imu_v2(m: dict, where: str, rate: float, notes: list, assumed: dict):
     """(ImuSpec, sampling, rotation C or None) of ``[imu]``."""
-    from twin.sensors.specs import IMU_PRESETS, ImuSpec
-
     t = _table(m, "imu", where, IMU_KEYS)
     sampling = _choice(t, "imu.sampling", where, SAMPLINGS,
                        "mean over the interval since the previous sample, or the value at one instant")
@@ -784,8 +843,6 @@ def _orientation(t: dict, where: str):
 
 def _triad(table, base, where: str, name: str, rate: float):
     """(TriadSpec, the figures not given: ``base``'s) of ``[imu.gyro]`` or ``[imu.accel]``."""
-    from dataclasses import replace
-
     key, unit = f"imu.{name}", TRIAD_UNITS[name]
     t = _table({key: table}, key, where, TRIAD_KEYS, required=False, unit_for=unit) if table is not None else {}
 
@@ -851,8 +908,6 @@ def _triad(table, base, where: str, name: str, rate: float):
 
 def _encoders_v2(m: dict, where: str, rate: float, notes: list):
     """The EncoderSpec of ``[encoders]``: counts per wheel revolution (a motor's times the gear ratio)."""
-    from twin.sensors.specs import EncoderSpec
-
     t = _table(m, "encoders", where, ENCODER_KEYS)
     counts = t.get("counts_per_rev")
     if isinstance(counts, bool) or not isinstance(counts, int) or not 1 <= counts <= 10_000_000:
@@ -998,8 +1053,6 @@ def _scenario_v2(root: Path, m: dict, where: str):
 def _extra_stream(root: Path, where: str, name: str, decl: dict) -> Stream:
     """A declared stream of one's own (``[streams.NAME]``), read as the format's are: in time order,
     numbers or empty fields (NaN), within the bounds of :mod:`twin.logs.bounds`."""
-    from twin.logs.streams import read_stream
-
     path = root / decl["file"]
     cols = ("t",) + decl["columns"]
     groups = tuple((j, j + 1) for j in range(1, len(cols)))
@@ -1099,6 +1152,7 @@ def _scenario(root: Path, m: dict, where: str, counts: int, pos):
 def _load_named(root: Path, where: str, name, items, extra=()):
     """Scenario ``name`` (a built-in, or a .toml file beside log.toml) with ``items`` and then
     ``extra`` as --set items, or a one-line :class:`TwinError` naming log.toml's key."""
+    # only for a log that names a scenario: twin.scenarios imports this format back (a cycle at the top)
     from twin.scenarios import load_scenario
 
     beside = "a built-in name or the name of a .toml file beside log.toml (no directory: the log's own file)"
@@ -1126,8 +1180,6 @@ def _stream(root: Path, name: str, required: bool, integers: bool = False, need_
     The log's own file only: one that leads out of the log's directory (a symbolic link to
     another file) is refused before it is opened; read row by row within the bounds of
     :mod:`twin.logs.bounds` (:func:`twin.logs.streams.read_stream`)."""
-    from twin.logs.streams import read_stream
-
     path = root / (file or f"{name}.csv")
     cols = STREAMS[name]
     groups = {"imu": ((1, 4), (4, 7)), "encoders": ((1, 3),), "commands": ((1, 3),), "truth": ((1, 7),),
@@ -1191,7 +1243,12 @@ def write_log(run, out, scenario=None, initial_heading: float | None = None, sou
     ``initial_heading`` (rad): α at t = 0 as the run's estimator was told it (default: the
     scenario's ``initial.alpha``, else the truth's first α); ``source``: what wrote it (log.toml's
     free-text ``source``; a sweep's sample adds which sample it is). A run with DC motors also
-    gets duty.csv, the duty its drivers applied (``run.signal("duty_l")``, ``"duty_r"``)."""
+    gets duty.csv, the duty its drivers applied (``run.signal("duty_l")``, ``"duty_r"``). A run
+    with more sensor channels (:mod:`twin.sensors.types`: the motor current) gets one stream each,
+    ``<type>.csv`` (t and the channel's columns, each row a sample as it reached the estimator),
+    declared in log.toml's ``[streams.<type>]`` with its units and its figures in
+    ``[sensors.<type>]`` (version 2; a version-1 manifest cannot declare them, so they are left
+    out of it)."""
     if run.measurements is None or run.sensor_config is None:
         raise TwinError("a sensor log needs a run with simulated sensors (sensing is ideal here)")
     if getattr(run, "log_every", 1) != 1:
@@ -1219,6 +1276,7 @@ def write_log(run, out, scenario=None, initial_heading: float | None = None, sou
                 raise TwinError(f"the twin's encoder reading at t = {ms.t[i]:g} s is not a whole number of counts "
                                 f"(an encoder spike fault adds an angle): it cannot be written as counts")
             fh.write(f"{float(ms.t[i])!r},{c[0]},{c[1]}\n")
+    channel_lines = _write_channels(run, out) if version >= 2 else []
     ul, ur = run.signal("ul_cmd"), run.signal("ur_cmd")  # what the estimator was given (the commands)
     t = run.t
     with open(out / "commands.csv", "w", newline="", encoding="utf-8") as fh:
@@ -1277,13 +1335,45 @@ def write_log(run, out, scenario=None, initial_heading: float | None = None, sou
         lines += ["[robot]", *robot, f"n_xb = {float(p.n_xb)!r}", "", "[commands]", 'unit = "N·m"', ""]
     else:  # every figure the run's estimator was built with (the believed sensors: by default the true ones)
         lines += [*_manifest_v2(believed or sensors, getattr(cfg, "motor", None)), "[robot]", *robot,
-                  f"n_xb = {float(p.n_xb)!r}", ""]
+                  f"n_xb = {float(p.n_xb)!r}", "", *channel_lines]
     if state:  # the sensors' drawn constants and the plant's radius: the rest of the EKF's state truth
         vec = lambda v: "[" + ", ".join(repr(float(e)) for e in v) + "]"  # noqa: E731
         lines += ["[truth]", f"gyro_scale = {vec(st['gyro_scale'])}", f"accel_scale = {vec(st['accel_scale'])}",
                   f"encoder_phase = {vec(st['encoder_phase'])}", f"wheel_radius = {float(cfg.params.r)!r}", ""]
     (out / "log.toml").write_text("\n".join(lines), encoding="utf-8")
     return out
+
+
+def _write_channels(run, out: Path) -> list:
+    """Write each extra sensor channel of ``run`` (``run.measurements.extra``) as ``<type>.csv``
+    (its rows: the samples that reached the estimator, at the instant they did); the log.toml
+    lines declaring them (``[streams.<type>]`` with the units, ``[sensors.<type>]`` the figures of
+    the run's spec). A channel file of an earlier log in ``out`` that this run has not is removed."""
+    ms = run.measurements
+    have = getattr(ms, "extra", None) or {}
+    num = lambda v: repr(float(v))  # noqa: E731
+    lines = []
+    for t in extra_types():
+        c = t.channels[0]
+        path = out / f"{t.name}.csv"
+        spec = run.sensor_config.spec(t.name)
+        if c.name not in have or spec is None:
+            path.unlink(missing_ok=True)
+            continue
+        values, has = have[c.name]
+        with open(path, "w", newline="", encoding="utf-8") as fh:
+            fh.write(",".join(("t",) + c.columns) + "\n")
+            for i in np.flatnonzero(has):
+                fh.write(",".join([num(ms.t[i]), *(num(v) for v in values[i])]) + "\n")
+        cols = ", ".join(f'{k} = "{c.unit}"' for k in c.columns)
+        lines += [f"[streams.{t.name}]", f'file = "{t.name}.csv"', f'columns = {{ t = "s", {cols} }}',
+                  f"description = {_toml_str(t.doc)}", "", f"[sensors.{t.name}]"]
+        for k in t.keys:
+            v = getattr(spec, k)
+            if v is not None:
+                lines.append(f"{k} = {num(v)}")
+        lines.append("")
+    return lines
 
 
 def _manifest_v2(sensors, motor) -> list:

@@ -93,6 +93,7 @@ import numpy as np
 
 from twin.errors import TwinError
 from twin.logs.format import _preset_name, imu_preset_of, rows_times
+from twin.sensors.specs import IMU_PRESETS
 
 ORDER = 3  # the differences' order k: motion to order f^(k) Δt^k is removed (see the module docstring)
 MAD_SCALE = 1.482602218505602  # 1/Φ⁻¹(3/4): the MAD of N(0, σ²) is σ / 1.4826
@@ -357,8 +358,6 @@ def verdict(measured: float | None, se_rel: float | None, given: float) -> str:
 def datasheet_triads(log):
     """(gyro, accel) TriadSpec of the IMU part's datasheet (the preset a version-2 log names, or a
     version-1 log's scenario names; default MPU-6050), and the preset's name."""
-    from twin.sensors.specs import IMU_PRESETS
-
     # the part whose figures the log's are, whichever way it gave them; else the preset it names
     name = _preset_name(log.sensors.imu.gyro, log.sensors.imu.accel)
     if name is not None:

@@ -8,7 +8,11 @@ last command.
 A reading belongs to the first instant at or after its time (up to one microsecond of a period
 earlier counts as at it; a reading before t_0 belongs to t_0); several of one sensor at one
 instant: the last one is what arrives (as in the twin, where a newer sample supersedes one still
-on its way). The estimator gets ``start(m_0)``, then ``step(m_k, u_{k-1})`` with the command of
+on its way). A log's other sensor channels (:attr:`twin.logs.format.SensorLog.channels`: the motor
+current) are slotted the same way into each Measurement's ``extra`` (``meas["motor_current"]``): an
+estimator that reads a channel gets it, the others never look. An estimator that declares the
+channels it needs (``channels = ("motor_current",)``) is refused in one line on a log without
+them. The estimator gets ``start(m_0)``, then ``step(m_k, u_{k-1})`` with the command of
 the instant before (the torques applied over the period that just ended), so a log the twin
 wrote replays to the very estimates of its run.
 
@@ -66,17 +70,25 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from estimation.consistency import FilterRecord, StateTruth, monte_carlo as mc, nees
 from twin import limits as _limits
 from twin.errors import MAY_NOT_END, PluginError, TwinError, ends_process, raised_text
 from twin.logs.bounds import MAX_INSTANTS
+from twin.logs.checks import sign_checks
 from twin.logs.diagnostics import DiagnosticsLog, NeesRecord, normalised_innovation
+from twin.logs.diagnostics import monte_carlo as mc_arrays
 from twin.logs.format import SensorLog, read_log
 from twin.logs.instants import instants_of, rows_clock
+from twin.logs.noise import choose
+from twin.protocols import describe_object
+from twin.registry import build_estimator, is_import_path
 from twin.sensors import Measurement
+from twin.sensors.types import CORE_CHANNELS
+from twin.sim.recorder import filter_log_of  # the arrays Run.filter_log holds, built the same way
 
 INSTANT_TOLERANCE = 1e-6  # of a control period: a reading this much after an instant counts as at it
 NEES_START = 0.5  # s after the first instant: the EKF's start-up transient of the encoder zeros is left out
@@ -116,6 +128,7 @@ class Schedule:
     encoders: np.ndarray
     command: np.ndarray
     rows: bool = False
+    extra: dict = field(default_factory=dict)  # channel name -> (N,) the row of its stream arriving at each (−1: none)
 
 
 def schedule(log: SensorLog) -> Schedule:
@@ -170,7 +183,8 @@ def schedule(log: SensorLog) -> Schedule:
     ei = last_at(log.encoders_t, log.has_counts)
     # the command in force at instant k: the last row at or before it
     ci = np.searchsorted(log.commands_t, t + INSTANT_TOLERANCE / rate, side="right") - 1
-    return Schedule(t, gi, ai, ei, np.clip(ci, 0, None), on_rows)
+    extra = {name: last_at(st.t, np.isfinite(st.values).all(axis=1)) for name, st in log.channels.items()}
+    return Schedule(t, gi, ai, ei, np.clip(ci, 0, None), on_rows, extra)
 
 
 CHUNK = 4096  # control instants whose Measurements are made at a time: a replay holds no list of them
@@ -232,6 +246,15 @@ def _chunk(log: SensorLog, sched: Schedule, a: int, b: int, integral=None) -> tu
     ts = sched.t[a:b].tolist()
     ms = [Measurement(ts[j], tuple(g[j]) if hg[j] else None, tuple(acc[j]) if ha[j] else None,
                       (e[j][0] * res, e[j][1] * res) if he[j] else None) for j in range(b - a)]
+    if sched.extra:  # the log's other channels, by name (Measurement.extra)
+        chans = log.channels
+        cols = {}
+        for name, rows in sched.extra.items():
+            r = rows[a:b]
+            vals = chans[name].values[np.maximum(r, 0)].tolist() if len(chans[name].values) else [None] * (b - a)
+            cols[name] = (vals, (r >= 0).tolist())
+        ms = [m._replace(extra={n: tuple(v[j]) if h[j] else None for n, (v, h) in cols.items()})
+              for j, m in enumerate(ms)]
     return ts, ms, period_commands(log, sched, a, b, integral).tolist()
 
 
@@ -261,11 +284,15 @@ def replay(log: SensorLog, estimator, name: str = "", diagnostics: bool = False)
 def _replay(log: SensorLog, estimator, name: str, diag) -> Replay:
     """:func:`replay`, the diagnostics appended to ``diag`` (a list, or a DiagnosticsLog made
     here for ``diag = "arrays"``; None: not asked for)."""
-    from twin.protocols import describe_object
-
     sched = schedule(log)
     n = len(sched.t)
     who = name or describe_object(estimator)
+    needed = [c for c in getattr(estimator, "channels", ()) or () if c not in CORE_CHANNELS and c not in log.channels]
+    if needed:
+        have = ", ".join(log.channels) or "none"
+        raise PluginError(f"estimator {who} needs the {needed[0]} channel, which the log {log.path} does not hold "
+                          f"(its extra channels: {have}); allowed: a log with [streams.{needed[0]}] "
+                          f"(twin run --log-sensors with [sensors.{needed[0]}])")
     if diag == "arrays":
         diag = DiagnosticsLog(who, log, sched.t)
     out = np.empty((n, 6))
@@ -321,8 +348,6 @@ def _checked(est, who: str, t: float):
 def build_for(log: SensorLog, kind: str, params: dict | None = None):
     """Estimator ``kind`` of the registry built for ``log``'s rate, model, motors and sensors
     (with the scenario's ``sensors.estimator_params`` when the log's scenario names that kind)."""
-    from twin.registry import build_estimator
-
     sc = log.scenario
     if params is None and sc is not None and sc.data["sensors"]["estimator"] == kind:
         params = sc.data["sensors"]["estimator_params"] or None
@@ -418,7 +443,6 @@ def consistency(r: Replay, log: SensorLog | None = None, start: float = NEES_STA
     else:
         rec = filter_record(log, r) if log is not None else None
         if rec is not None and rec.truth is not None:
-            from estimation.consistency import nees
 
             e, t, dim = nees(rec), rec.t, int(rec.filter_log["x"].shape[1])
     if e is not None:
@@ -486,7 +510,6 @@ def state_truth(log: SensorLog, t: np.ndarray):
     at the first instant."""
     if log.truth is None or log.truth_state is None or log.truth_constants is None:
         return None
-    from estimation.consistency import StateTruth
 
     k = instants_of(log, t, log.truth_t)
     on = (k >= 0) & (k < len(t)) & np.isclose(t[np.clip(k, 0, len(t) - 1)], log.truth_t, atol=1e-9, rtol=0)
@@ -512,9 +535,6 @@ def filter_record(log: SensorLog | None, r: Replay):
     instant, s) with ``log``'s state truth (None if it has none), or None unless the estimator
     reported the EKF's ``x``, ``P`` and ``lag`` at every instant and they were kept (a replay
     of :func:`replay` with ``diagnostics``; :func:`replay_logs` keeps the NEES instead)."""
-    from estimation.consistency import FilterRecord
-    from twin.sim.recorder import filter_log_of  # the arrays Run.filter_log holds, built the same way
-
     if isinstance(r.diagnostics, DiagnosticsLog):
         return None
     ds = r.diagnostics
@@ -537,9 +557,6 @@ def monte_carlo(records, start: float = NEES_START) -> dict | None:
     with no instant where every record has its NEES.
     The records may also be :class:`twin.logs.diagnostics.NeesRecord` s (what :func:`replay_logs`
     keeps: the NEES of each instant), all of one kind."""
-    from estimation.consistency import monte_carlo as mc
-    from twin.logs.diagnostics import monte_carlo as mc_arrays
-
     recs = [x for x in records if x is not None and (isinstance(x, NeesRecord) or x.truth is not None)]
     if len(recs) < 2:
         return None
@@ -562,8 +579,6 @@ def replay_logs(paths, kinds, noise: str = "log") -> dict:
     "datasheet"; ``noise`` of each log's entry says which, per triad, and why."""
     from dataclasses import replace
 
-    from twin.logs.checks import sign_checks
-    from twin.logs.noise import choose
 
     doc, replays, records = {"logs": {}}, {}, {k: [] for k in kinds}
     for p in paths:
@@ -669,16 +684,19 @@ def estimator_notes(log: SensorLog, kinds, tuned: bool = False) -> list:
 
 
 def streams_entry(log: SensorLog) -> dict:
-    """replay.json's ``streams``: each stream log.toml declares beyond the format's, as read."""
+    """replay.json's ``streams``: each stream log.toml declares beyond the format's, as read; a
+    sensor channel's (:attr:`SensorLog.channels`) is handed to every estimator (``used_by``: "channel")."""
     out = {}
+    channels = log.channels
     for name, st in log.streams.items():
         n = len(st.t)
+        use = ("a sensor channel: handed to the estimators (Measurement.extra), for those that read it"
+               if name in channels else "read and checked; no estimator uses it")
         out[name] = {"file": st.file, "rows": n, "columns": dict(zip(st.columns, st.units)),
                      "t_first_s": float(st.t[0]) if n else None, "t_last_s": float(st.t[-1]) if n else None,
-                     "latency_s": st.latency, "used_by": [],
+                     "latency_s": st.latency, "used_by": ["channel"] if name in channels else [],
                      "text": f"stream {name} ({st.file}): {n} rows, "
-                             + ", ".join(f"{c} [{u}]" for c, u in zip(st.columns, st.units))
-                             + ": read and checked; no estimator uses it"}
+                             + ", ".join(f"{c} [{u}]" for c, u in zip(st.columns, st.units)) + f": {use}"}
     return out
 
 
@@ -738,8 +756,8 @@ def replay_logs_contained(paths, kinds, noise: str = "log") -> dict:
     estimator is a user's plugin (``package.module:attribute``): its exit, its crash, its threads
     and its processes end with the replay, which then ends with one line naming it. Built-in
     estimators alone replay here. The same numbers either way."""
+    # only for plugin estimators, each replayed in a process of its own
     from twin.containment import Task, run_contained
-    from twin.registry import is_import_path
 
     plugins = tuple(("estimator", k) for k in kinds if is_import_path(k))
     if not plugins:
@@ -801,6 +819,7 @@ def write_figure(doc: dict, replays: dict, path, confidence: float = 0.95, which
     from matplotlib.figure import Figure
     from scipy.stats import chi2
 
+    # heavy: matplotlib comes with the figure module, only when a figure is drawn
     from twin.outputs.figure import DPI, PNG_COMPRESSION
 
     first = list(doc["logs"])[which]

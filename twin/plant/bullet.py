@@ -354,6 +354,13 @@ class BulletTwin:
         """The body's centre of mass in the body frame (x forward, y left, z up from the axle), m."""
         return self._com_local
 
+    @property
+    def motor_current(self) -> tuple[float, float] | None:
+        """(i_l, i_r) A: the motors' armature current now, where the twin integrates it (motors with
+        inductance); None otherwise, where the current follows the duty and the shaft speed at once
+        (:func:`twin.actuators.dc_motor.steady_current`, what a motor-current sensor then reads)."""
+        return self._current if self._lagged else None
+
     # ---- stepping ----------------------------------------------------------------------
     def step(self, ul: float, ur: float) -> GroundTruth:
         """Apply the torque commands ``ul``, ``ur`` (N·m) for one control period.

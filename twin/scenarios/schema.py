@@ -22,7 +22,9 @@ from twin.controllers.mamdani import DEFAULT_FOU, P_E_RANGE
 from twin.fuzzy.mamdani import TYPE_REDUCERS
 from twin.errors import TwinError, shown
 from twin.params import PARAMETER_DOCS
+from twin.registry import check_kind
 from twin.sensors.specs import IMU_PRESETS
+from twin.sensors.types import extra_types
 
 REQUIRED = object()
 
@@ -176,6 +178,22 @@ def _triad(unit: str, absent: str) -> Key:
     })
 
 
+def _sensor_type(t) -> Key:
+    """[sensors.<type>] of a sensor type beyond the IMU and encoders (:data:`twin.sensors.types.
+    SENSOR_TYPES`: the motor current): its keys from the type's table, each absent by default (the
+    type's own default); the sensor is on when ``enabled = true``, or when any other key is given
+    without ``enabled = false``. Left out of a run's record while absent."""
+    keys = {"enabled": Key("bool", None, nullable=True, recorded_at_default=False,
+                           doc=f"simulate the {t.name} sensor ({t.doc}); absent: on if any other "
+                               f"[sensors.{t.name}] key is given")}
+    for name, k in t.keys.items():
+        unit = "" if k.unit == "1" else k.unit
+        default = "the control rate" if k.default is None else f"{k.default:.6g}{' ' + unit if unit else ''}"
+        keys[name] = Key(k.kind, None, k.lo, k.hi, k.lo_open, k.unit, doc=f"{k.doc}; absent: {default}",
+                         nullable=True, recorded_at_default=False)
+    return Key("table", recorded_at_default=False, doc=t.doc, keys=keys)
+
+
 def _believed_triad(unit: str) -> Key:
     return _triad(unit, "as believed.imu's preset, or (without it) as the true sensor")
 
@@ -283,6 +301,7 @@ SCHEMA: dict[str, Key] = {
                                 "must lie in the body's box; absent: (0, 0, 0.1)"),
         "gyro": _triad("rad/s", "the preset's"),
         "accel": _triad("m/s²", "the preset's"),
+        **{t.name: _sensor_type(t) for t in extra_types()},
         "believed": Key("table", recorded_at_default=False,
                         doc="the specification the estimator believes (its Q and R); absent: the true one",
                         keys={
@@ -423,8 +442,6 @@ def parse_value(v, key: Key, path: str):
             raise ScenarioError(f"{path}: names repeat in {shown(list(v))}; allowed: each at most once")
         return tuple(v)
     if k in ("kind", "kinds"):
-        from twin.registry import check_kind
-
         items = [v] if k == "kind" else v
         if k == "kinds" and (not isinstance(v, (list, tuple)) or not v):
             raise ScenarioError(f"{path}: must be a non-empty list of {key.role} kinds, got {shown(v)}")
@@ -440,6 +457,7 @@ def parse_value(v, key: Key, path: str):
             raise ScenarioError(f"{path}: a kind is repeated in {shown(list(items))}; allowed: each at most once")
         return v if k == "kind" else tuple(items)
     if k == "expect":
+        # only for [expect]: twin.scenarios.expectations imports this schema (a cycle at the top)
         from twin.scenarios.expectations import parse_expect
 
         try:
@@ -451,8 +469,6 @@ def parse_value(v, key: Key, path: str):
         if not isinstance(v, dict):
             raise ScenarioError(f"{path}: must be a table of keyword arguments, got {shown(v)}")
         if key.role:  # one table of keyword arguments per kind: [controller.params.KIND]
-            from twin.registry import check_kind
-
             for kind, table in v.items():
                 try:
                     check_kind(key.role, kind)

@@ -4,9 +4,11 @@ and the believed one the estimator is built with.
 True: the preset ``sensors.imu`` (:data:`twin.sensors.specs.IMU_PRESETS`) with the figures
 of ``[sensors.gyro]`` and ``[sensors.accel]`` replacing its own, mounted at
 ``sensors.imu_position``, at ``sensors.imu_rate`` and ``sensors.imu_latency``; the encoders
-and faults. Believed (``[sensors.believed]``): the true specification, or the preset
-``believed.imu``, with the figures of ``[sensors.believed.gyro]`` / ``[...accel]``
-replacing those; rate, latency, mounting point, encoders and faults are the true ones.
+and faults; the sensors beyond them (:data:`twin.sensors.types.SENSOR_TYPES`: the motor current)
+that ``[sensors.<type>]`` turns on (:func:`extra_specs`). Believed (``[sensors.believed]``): the
+true specification, or the preset ``believed.imu``, with the figures of
+``[sensors.believed.gyro]`` / ``[...accel]`` replacing those; rate, latency, mounting point,
+encoders, faults and the extra sensors are the true ones.
 
 :func:`problems` finds what the schema's per-key ranges cannot: a full scale the noise
 would saturate (:meth:`~twin.sensors.specs.TriadSpec.range_problem`) and a mounting point
@@ -16,8 +18,11 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+from twin.errors import TwinError
+from twin.plant.urdf import body_box
 from twin.sensors import Dropout, LatencyChange, SensorConfig, Spikes, Stuck
 from twin.sensors.specs import DEFAULT_IMU, IMU_PRESETS, EncoderSpec, ImuSpec, TriadSpec
+from twin.sensors.types import extra_types
 
 TRIADS = ("gyro", "accel")
 
@@ -58,12 +63,28 @@ def _faults(data: dict) -> tuple:
     return tuple(out)
 
 
+def extra_specs(s: dict) -> tuple:
+    """The specs of the sensors beyond the IMU and encoders that the validated ``[sensors]``
+    table ``s`` turns on: ``[sensors.<type>]`` with ``enabled = true``, or with any figure given
+    and ``enabled`` absent; () when none (the default). A figure that the type's spec refuses
+    (a resolution above the full scale, say) is one line naming the key."""
+    out = []
+    for t in extra_types():
+        table = s.get(t.name) or {}
+        figures = {k: v for k, v in table.items() if k != "enabled" and v is not None}
+        on = table.get("enabled")
+        if on is False or (on is None and not figures):
+            continue
+        out.append(t.build(figures))
+    return tuple(out)
+
+
 def _config(data: dict, triads) -> SensorConfig:
     s = data["sensors"]
     position = DEFAULT_IMU.position if s["imu_position"] is None else tuple(s["imu_position"])
     imu = ImuSpec(gyro=triads[0], accel=triads[1], position=position, rate=s["imu_rate"], latency=s["imu_latency"])
     return SensorConfig(imu=imu, encoders=EncoderSpec(s["encoder_counts"], s["encoder_latency"]),
-                        faults=_faults(data))
+                        faults=_faults(data), extra=extra_specs(s))
 
 
 def true_config(data: dict) -> SensorConfig | None:
@@ -94,9 +115,24 @@ def problems(data: dict, params) -> str | None:
             problem = triad.range_problem(s["imu_rate"])
             if problem:
                 return f"{where}.{t}.full_scale: {problem}"
+    try:
+        specs = extra_specs(s)
+    except TwinError as exc:
+        return str(exc)
+    rate = data["rates"]["control"]
+    for spec in specs:
+        try:
+            spec.steps(rate)
+        except TwinError as exc:
+            return f"{exc}; allowed with rates.control = {rate:g} Hz"
+    plant = data.get("plant") or {}
+    needs_motor = [t.name for t in extra_types() if t.needs == "motor" and any(isinstance(x, t.spec) for x in specs)]
+    if needs_motor and (plant.get("motor") == "ideal" or plant.get("model") == "analytic"):
+        why = 'plant.motor = "ideal"' if plant.get("motor") == "ideal" else 'plant.model = "analytic"'
+        return (f"sensors.{needs_motor[0]}: needs DC motors, and {why} drives the wheels with ideal torque sources "
+                f"(no motor current); allowed: plant.motor = \"dc\" on the bullet plant, or no "
+                f"[sensors.{needs_motor[0]}]")
     if s["imu_position"] is not None:
-        from twin.plant.urdf import body_box
-
         lo, hi = body_box(params)
         p = tuple(s["imu_position"])
         if not all(a - 1e-12 <= v <= b + 1e-12 for v, a, b in zip(p, lo, hi)):

@@ -12,6 +12,14 @@ t = 0 the robot stood still, so the first readings are of that rest state
 Randomness. One generator per run, split with ``Generator.spawn`` into independent
 streams for the gyro, the accelerometer, the encoders' count phases and each sensor's
 fault draws, so adding a fault does not change the noise.
+
+More sensors (``SensorConfig.extra``: the types of :data:`twin.sensors.types.SENSOR_TYPES`
+beyond the IMU and encoders, e.g. the motor current) are read on the same clock, each with its
+own latency queue, into ``Measurement.extra``. Each gets one more child of the run's
+generator, spawned after the six above and in the order of ``extra``: ``spawn`` numbers a
+generator's children (the SeedSequence's ``spawn_key``, 0, 1, …) and draws nothing from its
+stream, so the six children, and every reading drawn from them, are the same with or without
+the extra sensors (tests/test_sensor_channels.py checks it); with none, nothing is spawned.
 """
 from __future__ import annotations
 
@@ -23,19 +31,24 @@ from typing import NamedTuple
 
 import numpy as np
 
-from twin.errors import TwinError
+from twin.errors import TwinError, shown
+from twin.sensors.channels import whole_steps as _whole
 from twin.sensors.faults import FAULT_TYPES, Dropout, LatencyChange, Spikes, Stuck
 from twin.sensors.noise import TriadNoise
 from twin.sensors.specs import DEFAULT_ENCODERS, DEFAULT_IMU, EncoderSpec, ImuSpec
+from twin.sensors.types import CORE_CHANNELS, SENSOR_TYPES, type_of
 
 
 @dataclass(frozen=True)
 class SensorConfig:
-    """IMU, encoders and the faults to inject."""
+    """IMU, encoders and the faults to inject; ``extra`` the specs of more sensors, at most one
+    per type of :data:`twin.sensors.types.SENSOR_TYPES` (e.g.
+    :class:`~twin.sensors.motor_current.MotorCurrentSpec`), none by default."""
 
     imu: ImuSpec = DEFAULT_IMU
     encoders: EncoderSpec = DEFAULT_ENCODERS
     faults: tuple = ()
+    extra: tuple = ()
 
     def __post_init__(self):
         if not isinstance(self.imu, ImuSpec):
@@ -46,6 +59,26 @@ class SensorConfig:
         if faults is None or not all(isinstance(f, FAULT_TYPES) for f in faults):
             raise TwinError(f"faults must be a list of Dropout, Stuck, Spikes or LatencyChange, got {self.faults!r}")
         object.__setattr__(self, "faults", faults)
+        extra = tuple(self.extra) if isinstance(self.extra, (list, tuple)) else None
+        if extra is None:
+            raise TwinError(f"extra must be a list of sensor specifications, got {shown(self.extra)}")
+        kinds = [type_of(spec).name for spec in extra]  # (a one-line error for anything else)
+        twice = sorted({k for k in kinds if kinds.count(k) > 1})
+        if twice:
+            raise TwinError(f"extra has two {twice[0]} sensors; allowed: one of each type")
+        object.__setattr__(self, "extra", extra)
+
+    def spec(self, name: str):
+        """The spec of sensor type ``name`` in :attr:`extra`, or None (it is off)."""
+        for s in self.extra:
+            if type_of(s).name == name:
+                return s
+        return None
+
+    @property
+    def channels(self) -> tuple:
+        """The names of the channels these sensors give (the core three, then the extra ones')."""
+        return CORE_CHANNELS + tuple(c.name for s in self.extra for c in type_of(s).channels)
 
     def steps(self, control_rate: float) -> tuple[int, int, int]:
         """(control steps per IMU sample, IMU latency steps, encoder latency steps); a
@@ -61,16 +94,9 @@ class SensorConfig:
         for f in self.faults:
             if isinstance(f, LatencyChange):
                 latency_steps(f.latency, control_rate, "LatencyChange latency")
+        for spec in self.extra:  # each extra sensor's rate and latency fit the control period
+            spec.steps(control_rate)
         return every, d_imu, d_enc
-
-
-def _whole(x: float, message: str) -> int:
-    if not math.isfinite(x):  # a rate of 5e-324 Hz: the ratio overflows
-        raise TwinError(message)
-    k = round(x)
-    if abs(x - k) > 1e-9 * max(1.0, abs(x)):
-        raise TwinError(message)
-    return int(k)
 
 
 def latency_steps(latency: float, control_rate: float, what: str) -> int:
@@ -80,13 +106,40 @@ def latency_steps(latency: float, control_rate: float, what: str) -> int:
 
 
 class Measurement(NamedTuple):
-    """What reached the estimator at control instant ``t`` (s); None: nothing new."""
+    """What reached the estimator at control instant ``t`` (s); None: nothing new.
+
+    Channels by name (:mod:`twin.sensors.types`): ``meas["motor_current"]`` or
+    ``meas.channels`` (a dict of every channel the run has, core and extra); a channel the run
+    does not have reads as None, as one that gave nothing new at ``t``. An integer index is the
+    tuple's, as ever."""
 
     t: float
     gyro: tuple | None  # rad/s, body axes (x forward, y along the axle to the left, z up the body)
     accel: tuple | None  # m/s², specific force, body axes
     encoders: tuple | None  # rad, (left, right) wheel angle relative to the body since power-up
     truth: object = None  # the GroundTruth at t, attached only for estimators with reads_truth = True
+    extra: dict | None = None  # the other channels' readings (name -> tuple, None: nothing new); None: none
+
+    @property
+    def channels(self) -> dict:
+        """Every channel's reading at ``t`` by name: gyro, accel, encoders, then :attr:`extra`'s."""
+        out = {"gyro": self.gyro, "accel": self.accel, "encoders": self.encoders}
+        if self.extra:
+            out.update(self.extra)
+        return out
+
+    def __getitem__(self, key):
+        if isinstance(key, str):
+            if key in CORE_CHANNELS:
+                return getattr(self, key)
+            extra = self.extra
+            if extra is not None and key in extra:
+                return extra[key]
+            if any(c.name == key for t in SENSOR_TYPES.values() for c in t.channels):
+                return None  # a channel this run does not have
+            raise KeyError(f"no sensor channel {key!r}; channels: "
+                           f"{', '.join(c.name for t in SENSOR_TYPES.values() for c in t.channels)}")
+        return tuple.__getitem__(self, key)
 
 
 class _Channel:
@@ -223,6 +276,15 @@ class SensorSuite:
                                  quantum=1.0 / self.counts_per_rad),
         }
         self.last_gyro_bias = self.gyro.bias
+        # the extra sensors: (type, reader, its latency queue), each reader on a child of its own,
+        # spawned after the six above (none spawned without extra sensors: see the module docstring)
+        self.extra = []
+        for spec in config.extra:
+            t = type_of(spec)
+            reader = t.reader(spec, self.control_rate, rng.spawn(1)[0])
+            name = t.channels[0].name if len(t.channels) == 1 else t.name
+            queue = _Channel(name, reader.latency, (), None, reader.every * T, T, getattr(reader, "clip", None))
+            self.extra.append((t, reader, queue))
 
     def encoder_counts(self, q_l: float, q_r: float) -> tuple[int, int]:
         """Counts since power-up for wheel angles relative to the body ``q_l``, ``q_r`` (rad)."""
@@ -243,6 +305,11 @@ class SensorSuite:
         ch = self.channels["encoders"]
         for j in range(-ch.latency, 0):
             ch.produce(j, (0.0, 0.0))
+        for t, reader, queue in self.extra:  # at rest: zero truth (no current, say) before t = 0
+            rest = tuple((0.0,) * len(c.columns) for c in t.channels)
+            for j in range(-queue.latency, 0):
+                if j % reader.every == 0:
+                    queue.produce(j, reader.sample(rest))
 
     def _imu_sample(self, name: str, k: int, true) -> None:
         noise = self.gyro if name == "gyro" else self.accel
@@ -250,12 +317,14 @@ class SensorSuite:
             self.last_gyro_bias = noise.bias
         self.channels[name].produce(k, noise.sample(*true))
 
-    def read(self, k: int, gyro, accel, q_l: float, q_r: float) -> Measurement:
+    def read(self, k: int, gyro, accel, q_l: float, q_r: float, sources=None) -> Measurement:
         """Sample what is due at control step ``k`` and return what arrives then.
 
         ``gyro``, ``accel``: the true IMU readings at t_k (from
         :func:`twin.sensors.imu.imu_kinematics`; ignored on steps without an IMU sample);
-        ``q_l``, ``q_r``: the wheels' angles relative to the body (rad).
+        ``q_l``, ``q_r``: the wheels' angles relative to the body (rad); ``sources``
+        (:class:`twin.sensors.channels.Sources`): what the extra sensors' truth is taken from
+        (needed only with extra sensors).
         """
         if self._q0 is None:
             raise TwinError("call SensorSuite.start before reading the sensors")
@@ -266,15 +335,31 @@ class SensorSuite:
         res = 1.0 / self.counts_per_rad
         self.channels["encoders"].produce(k, (cl * res, cr * res))
         ch = self.channels
+        if not self.extra:
+            return Measurement(k / self.control_rate, ch["gyro"].deliver(k), ch["accel"].deliver(k),
+                               ch["encoders"].deliver(k))
+        extra = {}
+        for t, reader, queue in self.extra:
+            if k % reader.every == 0:
+                queue.produce(k, reader.sample(t.truth(sources)))
+            got = queue.deliver(k)
+            for j, c in enumerate(t.channels):
+                extra[c.name] = None if got is None else got[j]
         return Measurement(k / self.control_rate, ch["gyro"].deliver(k), ch["accel"].deliver(k),
-                           ch["encoders"].deliver(k))
+                           ch["encoders"].deliver(k), None, extra)
 
     def truth(self) -> dict:
         """The constants this run drew: scale factors (1), turn-on biases, encoder phases (counts)."""
-        return {"gyro_scale": tuple(self.gyro.scale), "accel_scale": tuple(self.accel.scale),
-                "gyro_turn_on_bias": tuple(self.gyro.turn_on), "accel_turn_on_bias": tuple(self.accel.turn_on),
-                "encoder_phase": self.encoder_phase}
+        out = {"gyro_scale": tuple(self.gyro.scale), "accel_scale": tuple(self.accel.scale),
+               "gyro_turn_on_bias": tuple(self.gyro.turn_on), "accel_turn_on_bias": tuple(self.accel.turn_on),
+               "encoder_phase": self.encoder_phase}
+        for _, reader, _ in self.extra:  # an extra sensor's drawn constants (the current's offsets, gains)
+            out.update(reader.truth())
+        return out
 
     def fault_counts(self) -> dict:
         """Per sensor: samples produced, dropped, stuck, spiked, superseded."""
-        return {name: dict(ch.counts) for name, ch in self.channels.items()}
+        out = {name: dict(ch.counts) for name, ch in self.channels.items()}
+        for _, _, queue in self.extra:
+            out[queue.name] = dict(queue.counts)
+        return out

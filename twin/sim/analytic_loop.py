@@ -15,12 +15,18 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from twin.controllers.cascade import build_cascade
 from twin.controllers.lmi import BalanceDesign, design_balance_gains
 from twin.errors import TwinError
 from twin.experiments import PAPER_EXPERIMENTS, Experiment
 from twin.limits import PluginLimits
 from twin.params import NOMINAL, RobotParams
+from twin.plant.analytic import STATE_NAMES
+from twin.plant.analytic_plant import AnalyticPlant
+from twin.plant.base import TwinConfig
+from twin.sim.bullet_loop import simulate_twin
 from twin.sim.runs import Run
 from twin.timing import steps_per_control
 
@@ -42,18 +48,11 @@ def simulate(controller, experiment: Experiment, params: RobotParams = NOMINAL,
     ``limits``: the controller's wall-time and memory limits, as on the twin
     (:class:`twin.limits.PluginLimits`); None: none.
     """
-    from twin.sim.bullet_loop import simulate_twin
-    from twin.plant.analytic_plant import AnalyticPlant
-    from twin.plant.base import TwinConfig
-
     steps_per_control(physics_dt, control_dt)  # a whole number of physics steps: said first
     duration = experiment.duration if duration is None else float(duration)
     if not (math.isfinite(duration) and duration >= control_dt):
         raise TwinError(f"duration must be at least one control period ({control_dt:g} s), got {duration:g} s")
     if x0 is not None:
-        from twin.plant.analytic import STATE_NAMES
-        import numpy as np
-
         x = np.asarray(x0, dtype=float)
         if x.shape != (8,) or not np.all(np.isfinite(x)):
             raise TwinError(f"x0 must be 8 finite numbers {STATE_NAMES}, got shape {x.shape}")

@@ -26,6 +26,7 @@ from twin.sim.runs import (ACTUATION_NAMES, COMMAND_NAMES, COMMAND_UNITS, ESTIMA
                        PUSH_UNITS, TRUTH_NAMES, Run, TwinRun)
 from twin.sensors import SensorConfig
 from twin.sim.simulate import CHUNK, simulate
+from twin.sim.spec import InitialState, Logging, Plugin, RunSpec, Sensing
 
 __all__ = ["ACTUATION_NAMES", "COMMAND_NAMES", "COMMAND_UNITS", "ESTIMATE_NAMES", "ESTIMATE_UNITS", "PUSH_NAMES",
            "PUSH_UNITS", "Run", "TRUTH_NAMES", "TwinRun", "check_log_every", "simulate_twin"]
@@ -78,8 +79,6 @@ def simulate_twin(controller, experiment: Experiment, config: TwinConfig | None 
 
     The twin (the plant) is closed when the run ends, fallen or not.
     """
-    from twin.sim.spec import InitialState, Logging, Plugin, RunSpec, Sensing
-
     config = config if config is not None else TwinConfig()
     if plant is not None and not isinstance(plant, str):
         own = getattr(plant, "config", None)

@@ -44,7 +44,11 @@ Sensing. With a :class:`~twin.sensors.SensorConfig` the IMU and encoders are sim
 with their noise and faults, drawn from ``numpy.random.default_rng(SeedSequence(seed))``
 and nothing else; with ``sensors=None`` nothing is measured and each measurement
 carries only its time. An estimator that declares ``reads_truth = True`` (the ``ideal``
-reference) also gets the ground truth in ``measurement.truth``; no other does.
+reference) also gets the ground truth in ``measurement.truth``; no other does. The extra
+sensors of ``SensorConfig.extra`` (the motor current, :mod:`twin.sensors.types`) read what the
+plant reports at each instant (:class:`twin.sensors.channels.Sources`: its truth, the actuation
+of the period that just ended, the motors it drives its wheels through); a sensor that needs
+motors on a plant with ideal torque sources is a one-line error at :meth:`ClosedLoop.reset`.
 
 Contracts. The controller's output and the estimator's are checked at every step (here
 alone: every consumer runs this loop); a
@@ -72,6 +76,8 @@ from twin.plant.base import Actuation, GroundTruth, TwinConfig
 from twin.protocols import StepResult, Targets, describe_object, one_line
 from twin.registry import build_plant, check_plant, check_protocol
 from twin.sensors import ImuMotion, Measurement, SensorConfig, SensorSuite
+from twin.sensors.channels import Sources
+from twin.sensors.types import type_of
 
 _IDLE = "idle"
 
@@ -122,9 +128,17 @@ class ClosedLoop:
         self._foreign = self._given is not None and not getattr(self._given, "trusted", False)
         if sensors is not None:
             sensors.steps(control_rate)  # rates and latencies fit the control period: check first
+            if self._given is None:  # the PyBullet twin on config: its motors are config.motor
+                self._needs_check(self.config.motor, "bullet", sensors)
         if not isinstance(targets, Targets):
             raise TwinError(f"targets must be a twin.protocols.Targets(position, heading), got {targets!r}")
         check_protocol("estimator", describe_object(estimator), estimator)
+        needed = [c for c in getattr(estimator, "channels", ()) or ()
+                  if c not in (sensors.channels if sensors is not None else ())]
+        if needed:
+            raise PluginError(f"estimator {describe_object(estimator)} needs the {needed[0]} channel, which these "
+                              f"sensors do not give (channels: {', '.join(sensors.channels) if sensors else 'none'}); "
+                              f"allowed: sensors with it (a scenario's [sensors.{needed[0]}])")
         if controller is not None:
             check_protocol("controller", describe_object(controller), controller)
         self.estimator = estimator
@@ -147,6 +161,7 @@ class ClosedLoop:
         self.twin = None  # the plant of the current run
         self.suite: SensorSuite | None = None
         self._motion: ImuMotion | None = None  # the IMU's lever-arm kinematics of the current run
+        self._motor = None  # the motors of the current run's plant, for extra sensors that need them
         self.k = 0
         self.truth = self.measurement = self.estimate = None
         self.true_gyro_bias = None
@@ -181,6 +196,12 @@ class ClosedLoop:
         self._command = None
         self._last_command = (0.0, 0.0)
         tr = self.truth = tr
+        self._motor = None
+        if self.sensors is not None and self.sensors.extra:
+            # the motors the plant drives its wheels through (Plant.applies_motor), for a sensor that needs them
+            own = getattr(twin, "config", None)
+            self._motor = own.motor if getattr(twin, "applies_motor", False) and isinstance(own, TwinConfig) else None
+            self._needs_check(self._motor, describe_object(twin), self.sensors)
         if self.sensors is not None:
             self.suite = suite = SensorSuite(self.sensors, self.control_rate,
                                              np.random.default_rng(np.random.SeedSequence(self.seed)))
@@ -325,8 +346,22 @@ class ClosedLoop:
             self.true_gyro_bias = suite.gyro.bias
         else:
             self.true_gyro_bias = None
-        meas = suite.read(k, *motion.reading, tr.psi_l - tr.theta, tr.psi_r - tr.theta)
+        if suite.extra:  # what the extra sensors read: the plant's truth, the last period's actuation
+            src = Sources(self.twin, tr, self.actuation if k > 0 else None, self._motor)
+            meas = suite.read(k, *motion.reading, tr.psi_l - tr.theta, tr.psi_r - tr.theta, src)
+        else:
+            meas = suite.read(k, *motion.reading, tr.psi_l - tr.theta, tr.psi_r - tr.theta)
         return meas._replace(truth=tr) if self._attach_truth else meas
+
+    @staticmethod
+    def _needs_check(motor, plant: str, sensors: SensorConfig) -> None:
+        """A one-line error if an extra sensor needs what the plant lacks (motors, for the current)."""
+        for spec in sensors.extra:
+            t = type_of(spec)
+            if t.needs == "motor" and motor is None:
+                raise TwinError(f"[sensors.{t.name}] needs DC motors, and plant {plant} drives its wheels with ideal "
+                                f"torque sources (no motor current); allowed: a plant with DC motors (plant.motor = "
+                                f"\"dc\" on the bullet plant), or no [sensors.{t.name}]")
 
     # ---- contracts ----------------------------------------------------------------------------
     def _plant_step(self, plant, ul, ur):

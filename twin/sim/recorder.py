@@ -34,6 +34,7 @@ from operator import attrgetter, is_
 import numpy as np
 
 from twin.errors import TwinError
+from twin.sensors.types import type_of
 from twin.sim.runs import (ACTUATION_NAMES, ESTIMATE_NAMES, FULL_RATE_NAMES, PUSH_NAMES, TRUTH_NAMES, MeasurementLog,
                        Run)
 
@@ -73,6 +74,9 @@ class Recorder:
         N ≥ 1: keep control steps 0, N, 2N, … (and the metrics' signals at every step).
     diagnostics : bool
         Keep the estimator's ``diagnostics()`` given to :meth:`instant` (``Run.filter_log``).
+    channels : sequence of twin.sensors.channels.Channel
+        The extra channels the measurements carry (``Measurement.extra``: the motor current, say),
+        logged beside the core three (``MeasurementLog.extra``).
     chunk : int
         Control steps gathered before they move into the arrays.
 
@@ -81,7 +85,8 @@ class Recorder:
     """
 
     def __init__(self, steps: int, command_names=("ul_cmd", "ur_cmd"), *, measured: bool = True,
-                 with_truth: bool = False, log_every: int = 1, diagnostics: bool = False, chunk: int = CHUNK):
+                 with_truth: bool = False, log_every: int = 1, diagnostics: bool = False, chunk: int = CHUNK,
+                 channels=()):
         self.every = every = check_log_every(log_every)
         if diagnostics and every > 1:
             raise TwinError(f"the estimator's diagnostics need every control step, so log_every must be 1 with "
@@ -97,7 +102,7 @@ class Recorder:
         self.cmds = np.empty((k, len(self.command_names)))
         self.act = np.empty((k, len(ACTUATION_NAMES)))
         self.push = np.empty((k, len(PUSH_NAMES)))
-        self.meas = MeasurementLog.empty(k, with_truth) if measured else None
+        self.meas = MeasurementLog.empty(k, with_truth, channels) if measured else None
         self.bias = np.empty((k, 3)) if measured else None  # the gyro's true bias, NaN on steps without a sample
         self.full = {name: np.empty(self.steps) for name in FULL_RATE_NAMES} if every > 1 else None
         self._diag = [] if diagnostics else None
@@ -111,11 +116,13 @@ class Recorder:
     def for_loop(cls, loop, steps: int, *, log_every: int = 1, diagnostics: bool = False,
                  chunk: int = CHUNK) -> "Recorder":
         """A recorder for what ``loop`` (a :class:`twin.sim.loop.ClosedLoop`) publishes: its
-        controller's ``signals``, whether it has ``sensors``, and whether its estimator
-        ``reads_truth`` (public attributes, read once)."""
-        return cls(steps, ("ul_cmd", "ur_cmd") + tuple(loop.signals), measured=loop.sensors is not None,
+        controller's ``signals``, whether it has ``sensors`` (and which extra channels), and
+        whether its estimator ``reads_truth`` (public attributes, read once)."""
+        sensors = loop.sensors
+        channels = () if sensors is None else tuple(c for s in sensors.extra for c in type_of(s).channels)
+        return cls(steps, ("ul_cmd", "ur_cmd") + tuple(loop.signals), measured=sensors is not None,
                    with_truth=bool(getattr(loop.estimator, "reads_truth", False)), log_every=log_every,
-                   diagnostics=diagnostics, chunk=chunk)
+                   diagnostics=diagnostics, chunk=chunk, channels=channels)
 
     # ---- fed by the driver --------------------------------------------------------------------
     def instant(self, result, command, diagnostics=None) -> None:

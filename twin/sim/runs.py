@@ -44,26 +44,31 @@ class MeasurementLog(Sequence):
     NaN where nothing arrived at that step; ``has_gyro``, ``has_accel`` and ``has_encoders``
     (n,) bool say where something did (so a reading is never taken for a gap); ``truth``
     (n, 15) the ground truth attached to each measurement (``Measurement.truth``, for
-    estimators that read it), else None. ``log[i]`` is the Measurement the estimator got
+    estimators that read it), else None; ``extra`` the other channels (``Measurement.extra``,
+    :mod:`twin.sensors.types`) as name -> (values (n, c) in the channel's unit, NaN where
+    nothing arrived; has (n,) bool), else None. ``log[i]`` is the Measurement the estimator got
     (None for what did not arrive), ``log[a:b]`` a MeasurementLog, and a log equals another
     log or a list holding the same Measurements.
     """
 
-    __slots__ = ("t", "gyro", "accel", "encoders", "has_gyro", "has_accel", "has_encoders", "truth")
+    __slots__ = ("t", "gyro", "accel", "encoders", "has_gyro", "has_accel", "has_encoders", "truth", "extra")
     _BLOCK = 4096  # Measurements built at a time when iterating
 
-    def __init__(self, t, gyro, accel, encoders, has_gyro, has_accel, has_encoders, truth=None):
+    def __init__(self, t, gyro, accel, encoders, has_gyro, has_accel, has_encoders, truth=None, extra=None):
         self.t, self.gyro, self.accel, self.encoders = t, gyro, accel, encoders
         self.has_gyro, self.has_accel, self.has_encoders = has_gyro, has_accel, has_encoders
         self.truth = truth
+        self.extra = extra or None
 
     @classmethod
-    def empty(cls, n: int, with_truth: bool = False) -> "MeasurementLog":
+    def empty(cls, n: int, with_truth: bool = False, channels=()) -> "MeasurementLog":
         """A log of ``n`` steps to fill in with :meth:`put` (allocated, not yet written: a row
-        takes memory once it is put)."""
+        takes memory once it is put); ``channels`` the extra channels
+        (:class:`twin.sensors.channels.Channel`) it holds besides the core three."""
         return cls(np.empty(n), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 2)),
                    np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool),
-                   np.empty((n, len(TRUTH_NAMES))) if with_truth else None)
+                   np.empty((n, len(TRUTH_NAMES))) if with_truth else None,
+                   {c.name: (np.empty((n, len(c.columns))), np.zeros(n, bool)) for c in channels})
 
     def put(self, start: int, measurements) -> None:
         """Store ``measurements`` (Measurement objects) at rows ``start``, ``start`` + 1, …"""
@@ -72,35 +77,43 @@ class MeasurementLog(Sequence):
         self.t[rows] = [x.t for x in m]
         for name, values, has in (("gyro", self.gyro, self.has_gyro), ("accel", self.accel, self.has_accel),
                                   ("encoders", self.encoders, self.has_encoders)):
-            got = [getattr(x, name) for x in m]
-            where = [j for j, v in enumerate(got) if v is not None]
-            values[rows] = np.nan
-            has[rows] = False
-            if where:
-                values[start + np.array(where)] = [got[j] for j in where]
-                has[start + np.array(where)] = True
+            self._put(start, rows, [getattr(x, name) for x in m], values, has)
+        if self.extra:
+            for name, (values, has) in self.extra.items():
+                self._put(start, rows, [(x.extra or {}).get(name) for x in m], values, has)
         if self.truth is not None:
             self.truth[rows] = [x.truth for x in m]
+
+    @staticmethod
+    def _put(start, rows, got, values, has) -> None:
+        where = [j for j, v in enumerate(got) if v is not None]
+        values[rows] = np.nan
+        has[rows] = False
+        if where:
+            values[start + np.array(where)] = [got[j] for j in where]
+            has[start + np.array(where)] = True
 
     def __len__(self) -> int:
         return len(self.t)
 
     def _lists(self) -> tuple:
         """The columns as Python lists (floats, bools; None for no truth), to build Measurements from."""
+        extra = None if not self.extra else {k: (v.tolist(), h.tolist()) for k, (v, h) in self.extra.items()}
         return (self.t.tolist(), self.gyro.tolist(), self.accel.tolist(), self.encoders.tolist(),
                 self.has_gyro.tolist(), self.has_accel.tolist(), self.has_encoders.tolist(),
-                None if self.truth is None else self.truth.tolist())
+                None if self.truth is None else self.truth.tolist(), extra)
 
     @staticmethod
-    def _one(j: int, t, g, a, e, hg, ha, he, tr) -> Measurement:
+    def _one(j: int, t, g, a, e, hg, ha, he, tr, extra=None) -> Measurement:
         return Measurement(t[j], tuple(g[j]) if hg[j] else None, tuple(a[j]) if ha[j] else None,
-                           tuple(e[j]) if he[j] else None, None if tr is None else GroundTruth(*tr[j]))
+                           tuple(e[j]) if he[j] else None, None if tr is None else GroundTruth(*tr[j]),
+                           None if extra is None else {k: tuple(v[j]) if h[j] else None for k, (v, h) in extra.items()})
 
     def __getitem__(self, i):
         if isinstance(i, slice):
             return MeasurementLog(*(None if v is None else v[i] for v in (
                 self.t, self.gyro, self.accel, self.encoders, self.has_gyro, self.has_accel, self.has_encoders,
-                self.truth)))
+                self.truth)), None if not self.extra else {k: (v[i], h[i]) for k, (v, h) in self.extra.items()})
         n = len(self)
         i = operator.index(i)
         if i < 0:
@@ -115,19 +128,34 @@ class MeasurementLog(Sequence):
             for j in range(len(cols[0])):
                 yield self._one(j, *cols)
 
+    def channel(self, name: str) -> tuple:
+        """(values (n, c), has (n,)) of channel ``name`` (a core one or an extra one); a one-line
+        error naming the channels this log holds."""
+        if name in ("gyro", "accel", "encoders"):
+            return getattr(self, name), getattr(self, f"has_{name}")
+        if self.extra and name in self.extra:
+            return self.extra[name]
+        raise TwinError(f"no channel {name!r} in this log; channels: "
+                        f"{', '.join(('gyro', 'accel', 'encoders') + tuple(self.extra or ()))}")
+
     def __eq__(self, other):
         if isinstance(other, MeasurementLog):
             if len(self) != len(other) or (self.truth is None) != (other.truth is None):
+                return False
+            if set(self.extra or ()) != set(other.extra or ()):
                 return False
             pairs = [(self.t, other.t), (self.has_gyro, other.has_gyro), (self.has_accel, other.has_accel),
                      (self.has_encoders, other.has_encoders)]
             if self.truth is not None:
                 pairs.append((self.truth, other.truth))
+            triples = [(self.gyro, other.gyro, self.has_gyro), (self.accel, other.accel, self.has_accel),
+                       (self.encoders, other.encoders, self.has_encoders)]
+            for k, (v, h) in (self.extra or {}).items():
+                pairs.append((h, other.extra[k][1]))
+                triples.append((v, other.extra[k][0], h))
             if not all(np.array_equal(x, y) for x, y in pairs):
                 return False
-            return all(np.array_equal(x[h], y[h]) for x, y, h in ((self.gyro, other.gyro, self.has_gyro),
-                                                                  (self.accel, other.accel, self.has_accel),
-                                                                  (self.encoders, other.encoders, self.has_encoders)))
+            return all(np.array_equal(x[h], y[h]) for x, y, h in triples)
         if isinstance(other, (list, tuple)):
             return len(self) == len(other) and all(a == b for a, b in zip(self, other))
         return NotImplemented
@@ -135,8 +163,9 @@ class MeasurementLog(Sequence):
     __hash__ = None
 
     def __repr__(self) -> str:
+        more = "".join(f", {k} {int(h.sum())}" for k, (_, h) in (self.extra or {}).items())
         return (f"MeasurementLog({len(self)} steps, gyro {int(self.has_gyro.sum())}, accel {int(self.has_accel.sum())}, "
-                f"encoders {int(self.has_encoders.sum())} arrived)")
+                f"encoders {int(self.has_encoders.sum())}{more} arrived)")
 
 
 @dataclass
