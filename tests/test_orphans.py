@@ -213,7 +213,11 @@ def test_a_run_killed_while_it_simulates_takes_the_figure_worker_along(command, 
                 env={"TWIN_FIGURE_WORKER": "1"})
     # the plugin runs in a worker process of the command's (twin.containment)
     noted = c.watch(lambda c: _busy(c) and _named(c.noted, "figure_worker"))
-    assert len(_named(noted, "figure_worker")) == 1, noted
+    # one worker, started by the command; with a second CPU it forks the half that draws half the
+    # rows (twin.outputs.figure_worker._Half) as soon as it has matplotlib, so the half may be there too
+    workers = _named(noted, "figure_worker")
+    started = [pid for pid in workers if (process_stat(pid) or (None, None))[1] not in workers]
+    assert len(started) == 1 and len(workers) <= 2, noted
     code, _, err = c.kill(signal.SIGKILL)
     assert code == -signal.SIGKILL, err
     c.assert_nothing_left()

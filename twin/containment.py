@@ -47,8 +47,11 @@ import time
 from dataclasses import dataclass, field
 from time import perf_counter
 
-from twin import limits as _limits
+from twin import limits as _limits, registry
+from twin.controllers import design_cache
 from twin.errors import MAY_NOT_END, PluginError, TwinError
+from twin.registry import is_import_path
+from twin.workers import descendants, die_with_parent, process_stat
 
 PR_SET_CHILD_SUBREAPER = 36  # <linux/prctl.h>
 POLL_S = 0.05  # how often a watched worker's limits are read (s): a run overruns a limit by at most about this
@@ -68,8 +71,6 @@ def _worker_main(conn, status, parent: int, beside: list, cache_enabled: bool) -
     ``conn`` brings (``(fn, args, kwargs, progress)``) one at a time and send back
     ``("done", result, threads)`` or ``("raised", exception, threads)``, threads being how many
     threads beyond its own are alive after the task."""
-    from twin.workers import die_with_parent
-
     with contextlib.suppress(OSError):
         os.setpgid(0, 0)  # a group of its own: the terminal's Ctrl-C is the command's to handle
     die_with_parent(parent)
@@ -82,13 +83,9 @@ def _worker_main(conn, status, parent: int, beside: list, cache_enabled: bool) -
     _limits.STATUS = status
     _limits.PLUGIN_FAILURES = (Exception, SystemExit, KeyboardInterrupt)  # nobody else raises them here
     if beside:
-        from twin import registry
-
         for d in beside:
             registry.look_beside(d)
     if not cache_enabled:
-        from twin.controllers import design_cache
-
         design_cache.set_enabled(False)
     threads = threading.active_count()
     while True:
@@ -133,8 +130,6 @@ class WorkerDied(TwinError):
 
 
 def _is_plugin(kind) -> bool:
-    from twin.registry import is_import_path
-
     return is_import_path(kind)
 
 
@@ -210,9 +205,6 @@ class Worker:
 
     def __init__(self):
         import multiprocessing
-
-        from twin import registry
-        from twin.controllers import design_cache
 
         ctx = multiprocessing.get_context("spawn")
         self.status = ctx.RawArray("d", _limits.STATUS_SIZE)
@@ -314,8 +306,6 @@ class Worker:
 
     def resident(self) -> int | None:
         """The resident memory in bytes of the worker and every process descended from it."""
-        from twin.workers import descendants
-
         total = _limits.resident_of(self.pid)
         if total is None:
             return None
@@ -415,7 +405,6 @@ def _kill_descendants(pid: int) -> None:
     process that forks meanwhile leaves its child to the subreaper, seen on the next pass."""
     if not sys.platform.startswith("linux"):
         return
-    from twin.workers import descendants, process_stat
 
     for _ in range(50):
         found = descendants(pid)

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from time import perf_counter
 
 from twin.errors import PluginError, TwinError
+from twin.protocols import describe_object
 
 MEMORY_EVERY = 1  # control steps between two reads of the resident memory: every call (about 3 µs a read on Linux)
 MB = 1e6  # bytes: the limits' memory unit (SI megabyte)
@@ -237,13 +238,9 @@ class RunGuard:
                                          f"run's own log takes about 0.4 kB per control step)")
 
     def _who(self, role: str) -> str:
-        from twin.protocols import describe_object
-
         return f"{role} {describe_object(self.controller if role == 'controller' else self.estimator)}"
 
     def _run_of(self) -> str:
-        from twin.protocols import describe_object
-
         if self.estimator is None:  # the analytic loop: the controller reads the true state
             return f"the run of {self._who('controller')}"
         estimator = describe_object(self.estimator)

@@ -38,6 +38,8 @@ from typing import Any, Callable
 
 from twin import limits as _limits
 from twin.errors import MAY_NOT_END, PluginError, TwinError, ends_process, raised_text
+from twin.params import NOMINAL, RobotParams
+from twin.plant.base import TwinConfig
 from twin.protocols import (ACTUATION_NAMES, ESTIMATE_NAMES, PUSH_NAMES, TRUTH_NAMES, Targets, describe_object,
                             one_line, shown)
 
@@ -59,8 +61,6 @@ class Kind:
 
 
 def _nominal():
-    from twin.params import NOMINAL
-
     return NOMINAL
 
 
@@ -90,8 +90,6 @@ class BuildContext:
     options: dict = field(default_factory=dict)
 
     def __post_init__(self):
-        from twin.params import RobotParams
-
         if not isinstance(self.model, RobotParams):
             raise TwinError(f"BuildContext.model must be a twin.params.RobotParams (the model the controllers "
                             f"and the estimator assume; default the nominal one), got {shown(self.model)}")
@@ -100,6 +98,7 @@ class BuildContext:
         """The LMI balance design: ``design()``, or (None) the design store's default design on
         :attr:`model` (solved once per process, or read from the disk cache)."""
         if self.design is None:
+            # optional: the design store (and the LMI modules) only when no design was given
             from twin.controllers.designs import balance_design
 
             return balance_design(self.model)
@@ -107,8 +106,11 @@ class BuildContext:
 
 
 # ---- built-in controllers --------------------------------------------------------------------
+# Each factory imports its kind's code when that kind is built (optional dependencies: a run of
+# LQR does not load the fuzzy cascade, nor a run of a user's estimator the EKF).
 def _cascade(kind: str):
     def build(ctx: BuildContext, fou=None, type_reduction=None, psi_error_limit=None):
+        # optional: the fuzzy cascade's code only when a fuzzy controller is built
         from twin.controllers.cascade import build_cascade
         from twin.fuzzy.mamdani import TYPE_REDUCERS
 
@@ -126,7 +128,7 @@ def _cascade(kind: str):
 
 
 def _lqr(ctx: BuildContext, **params):
-    from twin.controllers.lqr import build_lqr
+    from twin.controllers.lqr import build_lqr  # optional: only when an LQR controller is built
 
     return build_lqr(ctx, **params)
 
@@ -152,6 +154,7 @@ def _needs_sensors(kind: str, ctx: BuildContext):
 
 
 def _ekf(ctx: BuildContext, compiled=None, **params):
+    # optional: the EKF's code only when an EKF is built
     from estimation.ekf import EKFEstimator
     from estimation.model import EstimatorModel
 
@@ -163,7 +166,7 @@ def _ekf(ctx: BuildContext, compiled=None, **params):
 
 def _baseline(kind: str):
     def build(ctx: BuildContext, **params):
-        from estimation.baselines import AngleBiasKalman, ComplementaryFilter
+        from estimation.baselines import AngleBiasKalman, ComplementaryFilter  # optional: only when built
 
         _needs_sensors(kind, ctx)
         cls = ComplementaryFilter if kind == "complementary" else AngleBiasKalman
@@ -172,7 +175,7 @@ def _baseline(kind: str):
 
 
 def _ideal(ctx: BuildContext):
-    from estimation.ideal import IdealEstimator
+    from estimation.ideal import IdealEstimator  # optional: only when built
 
     return IdealEstimator()
 
@@ -424,8 +427,6 @@ def build_plant(kind: str, config=None, theta0: float = 0.0, alpha0: float = 0.0
         raise PluginError(f"plant {shown(kind)}: parameters must be a table of keyword arguments, got {shown(params)}")
     params = dict(params or {})
     if config is None:
-        from twin.plant.base import TwinConfig
-
         config = TwinConfig()
     if not plugin and params:
         raise PluginError(f"plant {shown(kind)}: unknown parameter{'s' * (len(params) > 1)} "

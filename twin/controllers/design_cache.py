@@ -44,6 +44,8 @@ from pathlib import Path
 
 import numpy as np
 
+from twin.controllers import lmi_regions
+from twin.controllers.lmi import BalanceDesign, Certificate
 from twin.digests import dist_version
 from twin.interrupts import deferred_signals
 
@@ -234,8 +236,6 @@ def _load_array(doc, name: str) -> np.ndarray:
 
 
 def _parse(raw: bytes, key: str, inputs: dict, params):
-    from twin.controllers.lmi import BalanceDesign, Certificate
-
     try:
         doc = json.loads(raw.decode("utf-8"))
     except (UnicodeDecodeError, ValueError):
@@ -296,8 +296,6 @@ def _parse(raw: bytes, key: str, inputs: dict, params):
 def _check_design(d) -> None:
     """What the design claims, re-checked from its own numbers: a checksum only proves the
     file is as written, not that what was written is a working design."""
-    from twin.controllers import lmi_regions
-
     if not d.certificate.passed or d.certificate.lyapunov_margin <= 0 or min(d.certificate.lmi_margins.values()) <= 0:
         raise _Bad("its certificate did not pass")
     if not (d.peak_input <= d.rho) or not (d.slowest_vertex_pole < 0):

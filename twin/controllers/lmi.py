@@ -68,7 +68,7 @@ from types import MappingProxyType
 
 import numpy as np
 
-from twin.controllers import lmi_regions as regions
+from twin.controllers import lmi_center, lmi_regions as regions
 from twin.digests import design_digest
 from twin.errors import InfeasibleDesign, TwinError
 from twin.interrupts import deferred_signals
@@ -583,8 +583,6 @@ def _unique_point(models, decay_rate, damping, all_vertices, sol: "_ModelsSoluti
     Should it not be found (a numerical limit, near the edge of feasibility), the solver's
     own answer is used, with a one-line note: it is certified all the same, but its last
     digits depend on this machine's BLAS kernel."""
-    from twin.controllers import lmi_center
-
     try:
         ref = lmi_center.refine(models, decay_rate, damping, all_vertices, sol.Q, sol.N, sol.Y, sol.t, sol.T,
                                 epsilon, DEFAULT_SCALING)

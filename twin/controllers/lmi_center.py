@@ -67,6 +67,7 @@ from decimal import Decimal
 
 import numpy as np
 
+from twin.controllers import lmi_regions as regions
 from twin.errors import InfeasibleDesign
 
 KAPPA = 1e-2  # relative duality gap of the design's central point
@@ -378,8 +379,6 @@ def refine(models, decay_rate: float, damping: float, all_vertices: bool, Q, N, 
            T0) -> Refined:
     """The design's central point from a solver's answer (``Q, N, Y, t`` in z = T⁻¹ x), and
     its numbers for ε = ``epsilon``; raises InfeasibleDesign if it cannot be found."""
-    from twin.controllers import lmi_regions as regions
-
     prog, lay = regions.build_program(models, decay_rate, damping, T0, ROOM, "shared", all_vertices)
     center = central_point(prog, start_vector(lay, Q, N, Y, t, T, T0), lay.it, lay.iY)
     ctx = _CTX.copy()

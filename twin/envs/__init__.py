@@ -39,6 +39,7 @@ specified in :mod:`twin.envs.balance` and :mod:`twin.envs.track`; the shared beh
 in :mod:`twin.envs.base`. Bad arguments raise a one-line :class:`twin.errors.TwinError`.
 """
 from __future__ import annotations
+from twin.scenarios import load_scenario
 
 try:
     import gymnasium
@@ -61,8 +62,6 @@ _CLASSES = {"mtwip/Balance-v0": BalanceEnv, "mtwip/Track-v0": TrackEnv}
 def episode_steps(scenario) -> int:
     """Control steps of a whole episode of ``scenario`` (a built-in name or a ``.toml`` file):
     its ``duration`` over its control period, which must be a whole number."""
-    from twin.scenarios import load_scenario
-
     sc = load_scenario(str(scenario))
     rate = float(sc.data["rates"]["control"])
     steps = sc.duration * rate

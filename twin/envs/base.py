@@ -108,7 +108,18 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
+from twin.actuators.dc_motor import DEFAULT_MOTOR
 from twin.errors import TwinError
+from twin.plant.urdf import body_box
+from twin.registry import build_estimator, check_kind
+from twin.render.hud import draw_hud, HudState
+from twin.render.panels import draw_markers, from_start, PATH_STEP_M
+from twin.render.scene import check_size, resolve_renderer, Scene
+from twin.scenarios import load_scenario
+from twin.scenarios.schema import SCHEMA
+from twin.sim.simulate import build_loop
+from twin.sim.spec import Plugin
+from twin.sweep.sampling import sample_scenario
 
 OBS_MODES = ("estimate", "truth", "readings")
 ANGLE_LIMIT = 1.0e4  # rad: ψ, α and the encoders (4e2 m of travel at r = 4 cm; float32 keeps 1e-3 rad there)
@@ -182,10 +193,6 @@ class TwinEnv(gymnasium.Env):
                  randomize=False, render_mode: str | None = None, render_size=(640, 480),
                  renderer: str | None = None, hud: bool = True, max_torque: float | None = None,
                  reward_weights: dict | None = None, normalize_actions: bool = False):
-        from twin.registry import check_kind
-        from twin.render.scene import check_size, resolve_renderer
-        from twin.scenarios import load_scenario
-
         if obs not in OBS_MODES:
             raise TwinError(f"obs must be one of {', '.join(OBS_MODES)}, got {obs!r}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -255,8 +262,6 @@ class TwinEnv(gymnasium.Env):
     # ---- construction helpers ------------------------------------------------------------------
     def _parse_randomize(self, randomize) -> tuple[tuple[str, ...], bool]:
         """(sweep overrides, whether the level is drawn per episode)."""
-        from twin.scenarios.schema import SCHEMA
-
         if randomize is None or randomize is False:
             return (), False
         if randomize is True:
@@ -296,14 +301,11 @@ class TwinEnv(gymnasium.Env):
                     math.isfinite(max_torque) and max_torque > 0):
                 raise TwinError(f"max_torque must be a positive number of N·m, got {max_torque!r}")
             return float(max_torque)
-        from twin.actuators.dc_motor import DEFAULT_MOTOR  # the twin's motors when the config names none
 
         motor = self.config.motor if self.config.motor is not None else DEFAULT_MOTOR
         return float(min(motor.stall_torque, motor.k_t * motor.max_current))
 
     def _build_estimator(self, sc, context):
-        from twin.registry import build_estimator
-
         if self.estimator_kind == sc.estimator:
             return sc.build_estimator(context)
         try:
@@ -393,10 +395,6 @@ class TwinEnv(gymnasium.Env):
         and with ``randomize`` also ``root_seed``, ``sample``, ``level`` and
         ``sample_values`` (the sampled plant factors, tilt and pushes, units in the names).
         """
-        from twin.sim.simulate import build_loop
-        from twin.sim.spec import Plugin
-        from twin.sweep.sampling import sample_scenario
-
         super().reset(seed=seed)
         if options:
             raise TwinError(f"reset options are not supported, got {options!r}")
@@ -520,8 +518,6 @@ class TwinEnv(gymnasium.Env):
         return frame
 
     def _scene_for(self, config):
-        from twin.render.scene import Scene
-
         d = config.disturbances
         key = (config.params, config.ground, d.payload, d.com_offset)  # what the picture depends on
         scene = self._scene
@@ -541,10 +537,6 @@ class TwinEnv(gymnasium.Env):
         since through the axle's places at reset and when pictured, a centimetre apart at
         least; the targets), then the text and its key."""
         from types import SimpleNamespace
-
-        from twin.plant.urdf import body_box
-        from twin.render.hud import HudState, draw_hud
-        from twin.render.panels import PATH_STEP_M, draw_markers, from_start
 
         loop = self.loop
         ended, alarm = "", False

@@ -27,7 +27,9 @@ from pathlib import Path
 import gymnasium
 import numpy as np
 
+from twin.envs.base import TwinEnv
 from twin.errors import TwinError
+from twin.render.video import check_fps, check_video_path, frame_count, VideoInfo, VideoStream
 
 
 def capped_cubic_video_schedule(episode: int) -> bool:
@@ -42,8 +44,6 @@ class _Recording:
     """One episode's video being written (:class:`twin.render.video.VideoStream`) and its frame clock."""
 
     def __init__(self, path: Path, fps: float, rate: float):
-        from twin.render.video import VideoStream, frame_count
-
         self._frame_count = frame_count  # due() runs every control step: looked up once
         self.path = path
         self.fps = fps
@@ -67,8 +67,6 @@ class _Recording:
         return max(0, self._frame_count(k / self.rate, self.fps) - self.frames)  # frames at 0, 1/fps, … ≤ k / rate
 
     def finish(self, renderer: str):
-        from twin.render.video import VideoInfo
-
         st = self.stream
         if not st.close():  # nothing was rendered: no video
             return None
@@ -136,9 +134,6 @@ class RecordVideo(gymnasium.Wrapper, gymnasium.utils.RecordConstructorArgs):
 
     def __init__(self, env: gymnasium.Env, video_folder, episode_trigger=None, name_prefix: str = "rl-video",
                  fps: float | None = None):
-        from twin.envs.base import TwinEnv
-        from twin.render.video import check_fps
-
         gymnasium.utils.RecordConstructorArgs.__init__(self, video_folder=video_folder,
                                                        episode_trigger=episode_trigger, name_prefix=name_prefix,
                                                        fps=fps)
@@ -175,8 +170,6 @@ class RecordVideo(gymnasium.Wrapper, gymnasium.utils.RecordConstructorArgs):
         obs, info = self.env.reset(seed=seed, options=options)
         self.episode_id += 1
         if self.episode_trigger(self.episode_id):
-            from twin.render.video import check_video_path
-
             path = check_video_path(self.video_folder / f"{self.name_prefix}-episode-{self.episode_id}.mp4")
             self._rec = _Recording(path, self.fps, self.unwrapped.control_rate)
             self._guarded(self._capture, 0)

@@ -31,6 +31,7 @@ from pathlib import Path
 from twin.errors import TwinError, shown
 from twin.inputs import read_text, toml_loads
 from twin.logs.bounds import MAX_MANIFEST_BYTES
+from twin.scenarios.expectations import ALL, parse_expect, REPLAY_METRICS
 
 
 @dataclass(frozen=True)
@@ -60,8 +61,6 @@ def is_log_target(target) -> bool:
 
 def load_log_check(target) -> LogCheck:
     """The bounds of ``target`` (see the module docstring); a one-line error without any."""
-    from twin.scenarios.expectations import ALL, REPLAY_METRICS, parse_expect
-
     p = Path(target)
     file = p / "log.toml" if p.is_dir() else p
     try:
@@ -106,8 +105,6 @@ def load_log_check(target) -> LogCheck:
 def replay_metrics(entry: dict) -> dict:
     """The :data:`~twin.scenarios.expectations.REPLAY_METRICS` of one estimator's replay entry
     (``replay_logs``'s ``doc["logs"][path]["estimators"][kind]``); None where undefined."""
-    from twin.scenarios.expectations import REPLAY_METRICS
-
     errors, c = entry.get("errors") or {}, entry.get("consistency") or {}
     out = {k: errors.get(k) for k in REPLAY_METRICS if k.startswith(("theta_", "psi_", "alpha_"))}
     out["nis_per_dof"] = c.get("nis_per_dof")

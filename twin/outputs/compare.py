@@ -31,8 +31,10 @@ import numpy as np
 
 from twin.errors import TwinError
 from twin.inputs import json_loads
-from twin.outputs import golden
+from twin.outputs import golden, rundir
+from twin.outputs.fingerprint import differences
 from twin.outputs.golden import Departure, Trajectory, ends_text, first_departures, signals_text
+from twin.outputs.report import plot_comparison
 from twin.outputs.tolerances import Tolerances, known_signals
 
 _HEADER = re.compile(r"^(?P<name>.+) \[(?P<unit>[^\]]*)\]$")
@@ -79,8 +81,6 @@ def _load_golden(path: Path) -> Result:
 
 
 def _load_run(path: Path) -> Result:
-    from twin.outputs import rundir
-
     mfile = path / "metrics.json"
     if not mfile.is_file() and not (path / rundir.MANIFEST).is_file():
         raise TwinError(f"{path}: not a run directory of 'twin run' (no metrics.json)")
@@ -211,8 +211,6 @@ class Comparison:
 
 def compare(a: Result, b: Result, tolerances: Tolerances | None = None) -> Comparison:
     """A and B side by side (see the module docstring); a one-line error if they share no controller."""
-    from twin.outputs.fingerprint import differences
-
     tolerances = tolerances or Tolerances()
     common = [k for k in a.trajectories if k in b.trajectories]
     only_a = [k for k in a.trajectories if k not in b.trajectories]
@@ -380,8 +378,6 @@ def as_json(c: Comparison) -> dict:
 def figure(c: Comparison, path: Path) -> Path:
     """θ, the total wheel torque, dψ/dt and the distance over time, A solid and B dashed, a
     colour per controller, each one's first departure marked (a dotted vertical line)."""
-    from twin.outputs.report import plot_comparison
-
     series = []
     for cc in c.controllers:
         ta, tb = c.a.trajectories[cc.controller], c.b.trajectories[cc.controller]

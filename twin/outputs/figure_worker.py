@@ -40,6 +40,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from twin.errors import TwinError
+from twin.workers import die_with_parent, subprocess_env, subprocess_worker_init
 
 # NumPy and matplotlib are imported only where the drawing starts: `twin run` imports this
 # module before its own imports, to start the worker sooner (start_early)
@@ -59,8 +61,6 @@ def wanted() -> bool:
     if flag in ("0", "1"):
         return flag == "1"
     if flag:
-        from twin.errors import TwinError
-
         raise TwinError(f"TWIN_FIGURE_WORKER must be 1 (draw the figure in a worker), 0 (draw it here) or unset "
                         f"(decide by the free CPUs), got {flag!r}")
     try:
@@ -142,7 +142,6 @@ class FigureWorker:
 
     def __init__(self):
         self._stderr = tempfile.TemporaryFile()
-        from twin.workers import subprocess_env
 
         # no BLAS thread pool for a process that only draws (its start costs 60 ms here); it dies with this process
         env = subprocess_env({**os.environ, "OPENBLAS_NUM_THREADS": "1"})
@@ -269,8 +268,6 @@ class _Half:
             os.close(self._status)
             code = 2
             try:
-                from twin.workers import die_with_parent
-
                 die_with_parent(parent)  # the kernel's PDEATHSIG is not inherited across fork
                 code = self._draw(fig, status_w)
             finally:
@@ -280,7 +277,7 @@ class _Half:
 
     def _draw(self, fig, status_w: int) -> int:
         """The child: its half drawn from the payload the worker names."""
-        from twin.outputs.figure import _clipped, fill_figure, show_half
+        from twin.outputs.figure import _clipped, fill_figure, show_half  # heavy: matplotlib, in the worker alone
 
         with os.fdopen(self._to_child_r, "rb") as fh:
             line = fh.readline().strip()
@@ -343,12 +340,11 @@ def main() -> None:
     """The worker: the empty figure, then two processes waiting for the data (each to draw its
     half of the rows: :class:`_Half`); then the data, drawn and written, and the word
     (:data:`DONE`) on stdout."""
-    from twin.workers import subprocess_worker_init
-
     subprocess_worker_init()  # first: it goes with a killed parent at once, not when its imports end
     # Ctrl-C (SIGINT to the terminal's process group) is the command's to handle: it ends this worker
     # (EOF, or a kill) when it stops; a KeyboardInterrupt here only wrote a traceback for it to read
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # heavy: matplotlib, in the worker alone (the command's process never imports it for the figure)
     from twin.outputs.figure import _clipped, compose, fill_figure, new_figure, save_figure, save_pixels, show_half
 
     fig, axes = new_figure()

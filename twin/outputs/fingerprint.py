@@ -37,8 +37,12 @@ import platform
 import sys
 from pathlib import Path
 
+import twin
+from estimation import ekf_core
 # exact digests and versions, named here as before
 from twin.digests import design_digest, dist_version  # noqa: F401
+from twin.fuzzy import mamdani
+from twin.plant import bullet
 
 PACKAGES = ("numpy", "scipy", "pybullet", "cvxpy", "clarabel", "scs")
 _memo: dict | None = None
@@ -109,10 +113,6 @@ def _numpy_simd() -> dict:
 
 def kernels() -> dict:
     """Which optional compiled kernels run in this process ({name: True/False})."""
-    from estimation import ekf_core
-    from twin.fuzzy import mamdani
-    from twin.plant import bullet
-
     return {"fuzzy": mamdani.compiled_kernel_loaded(), "ekf": ekf_core.compiled_kernel_loaded(),
             "physics": bullet.compiled_kernel_loaded()}
 
@@ -121,8 +121,6 @@ def environment() -> dict:
     """This process's environment (see the module docstring); computed once, then a copy."""
     global _memo
     if _memo is None:
-        import twin
-
         _memo = {
             "project": {"name": "mtwip-twin", "version": twin.__version__, "commit": _commit()},
             "python": platform.python_version(),

@@ -46,6 +46,9 @@ from pathlib import Path
 import numpy as np
 
 from twin.errors import TwinError
+from twin.outputs import rundir
+from twin.outputs.fingerprint import kernels
+from twin.outputs.rundir import PARTIAL
 from twin.outputs.tolerances import BUILD_ATOL, BUILD_RTOL, Tolerances
 
 ATOL, RTOL = BUILD_ATOL, BUILD_RTOL  # the tolerance between builds (in each signal's SI unit; a fraction)
@@ -54,8 +57,6 @@ FORMAT = 2  # 2: the meta records the environment and the design digests (twin.o
 
 def build() -> str:
     """"compiled" if every optional kernel runs here, "pure" if none does, "mixed" otherwise."""
-    from twin.outputs.fingerprint import kernels
-
     built = list(kernels().values())
     return "compiled" if all(built) else "pure" if not any(built) else "mixed"
 
@@ -105,8 +106,6 @@ class Trajectory:
 
 def record(path: Path, traj: Trajectory, meta: dict) -> Path:
     """Store ``traj`` (with ``meta``: scenario, controller, seed, ...) at ``path``, compressed."""
-    from twin.outputs.rundir import PARTIAL
-
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     info = {"format": FORMAT, "build": build(), "status": traj.status, **meta}
@@ -177,8 +176,6 @@ def load(path: Path) -> tuple[Trajectory, dict]:
     if "status" not in meta:
         raise TwinError(f"{not_ours} (its meta has no status)")
     if _in_record(path, meta):
-        from twin.outputs import rundir
-
         root = path.parents[2]
         rundir.finish_batch(root)  # a record killed while it committed: carried through first
         doc = rundir.read_manifest(root, (rundir.RECORD_COMMAND,), "golden directory", RECORD_AGAIN)

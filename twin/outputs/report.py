@@ -10,9 +10,10 @@ import numpy as np
 
 # FAULT_COLOUR and PUSH_COLOUR are named here too, where they always were
 from twin.outputs.figure import FAULT_COLOUR, PUSH_COLOUR, fill_figure, new_figure, save_figure  # noqa: F401
+from twin.outputs.rundir import deferred_signals
 from twin.registry import label as kind_label
-from twin.sim.runs import Run
 from twin.sensors.faults import fault_windows
+from twin.sim.runs import Run
 
 _COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:gray",
             "tab:olive", "tab:cyan")  # matplotlib's tab10, in the order the runs are given
@@ -31,7 +32,6 @@ def load_matplotlib(pyplot: bool = False) -> None:
     wanted = ("matplotlib.pyplot",) if pyplot else ("matplotlib.backends.backend_agg", "matplotlib.figure")
     if all(name in sys.modules for name in wanted):
         return
-    from twin.outputs.rundir import deferred_signals
 
     with deferred_signals():
         import matplotlib

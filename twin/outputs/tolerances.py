@@ -28,6 +28,7 @@ import re
 from dataclasses import dataclass
 
 from twin.errors import TwinError
+from twin.protocols import ACTUATION_NAMES, COMMAND_NAMES, ESTIMATE_NAMES, PUSH_NAMES, TRUTH_NAMES
 
 BUILD_ATOL = 1e-9  # in each signal's SI unit: four orders above the builds' disagreement
 BUILD_RTOL = 1e-9
@@ -98,8 +99,6 @@ class Tolerances:
 def known_signals(extra=()) -> tuple[str, ...]:
     """Every signal a twin run logs (truth, estimates, commands, actuation, pushes), then ``extra``
     (a controller's own, its ``signals`` attribute)."""
-    from twin.protocols import ACTUATION_NAMES, COMMAND_NAMES, ESTIMATE_NAMES, PUSH_NAMES, TRUTH_NAMES
-
     names = TRUTH_NAMES + ESTIMATE_NAMES + COMMAND_NAMES + tuple(extra) + ACTUATION_NAMES + PUSH_NAMES
     return tuple(dict.fromkeys(names))
 

@@ -22,6 +22,7 @@ import numpy as np
 from twin.errors import TwinError
 from twin.render.hud import CYAN, GREEN, MAGENTA, PATH, START_SHOWN_M, HudState, draw_hud, push_caption
 from twin.render.scene import Scene
+from twin.workers import subprocess_env, subprocess_worker_init
 
 _ERROR = b"ERROR: "
 
@@ -245,8 +246,6 @@ def _worker_main() -> None:
     import pickle
     import sys
 
-    from twin.workers import subprocess_worker_init
-
     subprocess_worker_init()  # first: it goes with a killed parent at once, not at its next frame's write
     out = os.fdopen(os.dup(1), "wb", buffering=1 << 20)
     os.dup2(2, 1)
@@ -286,7 +285,6 @@ class RemotePanel:
         self.n = len(times)
         self.wait = 0.0  # s this process waited for the worker's frames
         self.renderer = ""  # the worker's first message: read with the frames, so workers start together
-        from twin.workers import subprocess_env
 
         self._proc = subprocess.Popen([sys.executable, "-m", "twin.render.panels"], stdin=subprocess.PIPE,
                                       stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,

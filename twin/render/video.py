@@ -51,9 +51,15 @@ from pathlib import Path
 import numpy as np
 
 from twin.errors import TwinError
+from twin.plant.bullet import quiet_native_output
+from twin.plant.urdf import body_box
+from twin.registry import label as kind_label
 from twin.render.hud import plant_caption
+from twin.render.panels import panel_frames, RemotePanel
 from twin.render.scene import Camera, Scene, check_size, resolve_renderer
 from twin.sensors.faults import fault_windows
+from twin.sim.bullet_loop import TRUTH_NAMES, TwinRun
+from twin.sim.runs import ESTIMATE_NAMES
 
 CODECS = ("avc1", "vp09", "mp4v")  # tried in this order: H.264 by ffmpeg, then OpenCV's VP9 and MPEG-4
 H264_ENCODERS = ("libx264", "libopenh264")  # ffmpeg's H.264 encoders, preferred first
@@ -141,8 +147,6 @@ class _Track:
     """A run's log, sampled at frame times (clamped to the run: its last state is held)."""
 
     def __init__(self, run, label: str):
-        from twin.sim.bullet_loop import TRUTH_NAMES
-
         self.t = np.asarray(run.t, dtype=float)
         self.duration = float(self.t[-1] - self.t[0])
         self.cols = {name: np.asarray(run.truth[:, TRUTH_NAMES.index(name)], dtype=float) for name in _TRACK}
@@ -156,16 +160,12 @@ class _Track:
         self.start = (float(self.cols["x"][0]), float(self.cols["y"][0]), float(self.cols["alpha"][0]))
         self.box = None  # the body box's lowest and highest corners, m, body frame
         if run.config is not None:
-            from twin.plant.urdf import body_box
-
             self.box = body_box(run.config.params)
             self.r = run.config.params.r
         self.body_top = self.box[1][2] if self.box is not None else 0.2  # m above the axle
         # the estimator's θ, ψ, α, for the ghost (none with ideal sensing: it would be the body)
         self.est = {}
         if run.sensing != "ideal" and run.estimates is not None and self.box is not None:
-            from twin.sim.runs import ESTIMATE_NAMES
-
             self.est = {f"{n}_est": np.asarray(run.estimates[:, ESTIMATE_NAMES.index(f"{n}_est")], dtype=float)
                         for n in _GHOST}
         self.faults = fault_windows(getattr(run.sensor_config, "faults", ()))
@@ -193,8 +193,6 @@ class _Track:
 
 
 def _check_runs(runs) -> list:
-    from twin.sim.bullet_loop import TRUTH_NAMES, TwinRun
-
     if isinstance(runs, TwinRun):
         runs = [runs]
     elif isinstance(runs, (str, bytes)) or not isinstance(runs, Sequence):
@@ -370,8 +368,6 @@ def _open_opencv(path: Path, fps: float, size: tuple[int, int]):
     """A ``cv2.VideoWriter`` open on ``path`` with OpenCV's first codec of :data:`CODECS` that works."""
     import cv2
 
-    from twin.plant.bullet import quiet_native_output
-
     for fourcc in CODECS[1:]:
         with quiet_native_output():  # FFmpeg logs each codec it cannot open
             writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), fps, size)
@@ -525,8 +521,6 @@ class VideoStream:
 def _default_label(run, i: int) -> str:
     """The run's name as the figure and metrics.json give it (the registry's label: "IT2", "type-1",
     "LQR", a plugin's attribute), then the experiment's."""
-    from twin.registry import label as kind_label
-
     label = kind_label(run.controller) if run.controller else f"run {i + 1}"
     if run.experiment is not None and run.experiment.name:
         label += f"  {run.experiment.name}"
@@ -625,8 +619,6 @@ def render_video(runs, path, fps: float = 30, size=(640, 480),
         raise TwinError(f"camera must be a twin.render.Camera, got {camera!r}")
     renderer = resolve_renderer(renderer)
     path = check_video_path(path)
-
-    from twin.render.panels import RemotePanel, panel_frames
 
     tracks = [_Track(r, labels[i]) for i, r in enumerate(runs)]
     times = frame_times(max(tr.duration for tr in tracks), fps, slow)

@@ -40,6 +40,8 @@ import re
 from dataclasses import dataclass
 
 from twin.errors import TwinError
+from twin.outputs.tolerances import parse_table
+from twin.registry import check_kind
 
 # the metrics of twin.outputs.metrics.run_metrics that a bound may name, with their units
 METRICS = {
@@ -151,15 +153,11 @@ def parse_expect(table, path: str = "expect", metrics: dict = METRICS,  # noqa: 
     :data:`SEEDS` for the statistics over seeds (and ``pass_rate``). ``[expect.golden]`` holds
     tolerances, not bounds: validated here, read by :mod:`twin.verify.check`. A sensor log's
     ``[expect]`` names :data:`REPLAY_METRICS` and estimator kinds (``role`` "estimator")."""
-    from twin.registry import check_kind
-
     if not isinstance(table, dict):
         raise ExpectError(f"{path}: must be a table of bounds, e.g. fell = false, settling_time_s = \"<= 9\"")
     out: dict[str, list[Bound]] = {}
     for key, value in table.items():
         if key == GOLDEN:
-            from twin.outputs.tolerances import parse_table
-
             try:
                 parse_table(value, f"{path}.{GOLDEN}")
             except TwinError as exc:

@@ -32,6 +32,7 @@ from twin.registry import (PLANTS, BuildContext, build_controller, build_estimat
                            plant_motor, resolve)
 from twin.sim.recorder import check_log_every
 from twin.sensors import SensorConfig
+from twin.experiments import Experiment
 
 LOG_FORMATS = ("csv", "csv.gz")  # trajectory.csv, or the same text gzip-compressed
 
@@ -304,8 +305,6 @@ class RunSpec:
     @property
     def experiment(self):
         """The run's task as :class:`twin.sim.runs.Run` records it (:class:`twin.experiments.Experiment`)."""
-        from twin.experiments import Experiment
-
         t = self.targets
         return Experiment(self.name, self.description, theta0=self.initial.theta, p_d=t.position, alpha_d=t.heading,
                           duration=self.duration)

@@ -22,8 +22,10 @@ is killed by a :class:`twin.workers.Reaper`.
 from __future__ import annotations
 
 import os
-from twin.errors import TwinError
+from twin.containment import Task, Workers
 from twin.errors import PluginError
+from twin.errors import TwinError
+from twin.scenarios.contained import limits_of, names_of
 from twin.sweep.worker import SweepJob, assemble, crash_record, error_text, run_part
 from twin.workers import Reaper
 
@@ -45,9 +47,6 @@ def run_local(job: SweepJob, indices, workers: int, on_result, pool=None) -> Non
     overruns one is stopped from outside (its worker killed), and the sample's other
     controllers run on. A sample's record goes to ``on_result`` when all its controllers are done.
     ``pool``: the :class:`twin.containment.Workers` to use (None: one of ``workers``, ended here)."""
-    from twin.containment import Task, Workers
-    from twin.scenarios.contained import limits_of, names_of
-
     scenario = job.scenario()
     limits = limits_of(scenario)
     kinds = tuple(job.controllers)
@@ -82,8 +81,6 @@ _RAY_POOL: list = []  # a Ray worker's own contained worker, kept for its next t
 def run_sample_contained(job: SweepJob, index: int) -> dict:
     """Sample ``index``'s record, each controller's run in a contained worker of this process's
     (what a Ray task runs: the limits and containment of a local sweep, on the cluster's node)."""
-    from twin.containment import Workers
-
     if not _RAY_POOL:
         _RAY_POOL.append(Workers(1))
     got = []

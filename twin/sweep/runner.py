@@ -35,9 +35,15 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from twin.containment import run_contained, Task
 from twin.errors import TwinError
+from twin.logs.format import write_log
+from twin.outputs import report, rundir
+from twin.outputs.fingerprint import digests, record
 from twin.registry import check_kinds, is_import_path, label, plugin_dirs, uses_design
-from twin.scenarios.planning import plugin_roles
+from twin.scenarios.contained import involves_plugins, limits_of, plan_summary, Recipe
+from twin.scenarios.planning import plugin_roles, refuse_unused_params
+from twin.scenarios.runs import DesignDigest, simulate_scenario
 from twin.scenarios.scenario import Scenario
 from twin.sweep.backends import BACKENDS, default_workers, run_local, run_ray
 from twin.sweep.sampling import SAMPLES_VERSION, sample_scenario, value_columns
@@ -89,8 +95,6 @@ def sweep_controllers(scenario: Scenario, controllers=None, reference: str | Non
     """(kinds, reference): ``controllers`` (None: the scenario's ``controller.kinds``) checked,
     and the reference the paired statistics compare each other controller with (default:
     the last one listed)."""
-    from twin.scenarios.planning import refuse_unused_params
-
     kinds = check_kinds("controller", controllers if controllers is not None else scenario.controllers, "controllers")
     refuse_unused_params(scenario, kinds)
     reference = kinds[-1] if reference is None else reference
@@ -103,9 +107,6 @@ def sweep_plan(scenario: Scenario, kinds) -> dict:
     """Every controller and the estimator built once, before anything runs or is written (a
     plugin that cannot be built is one line): :func:`twin.scenarios.contained.plan_summary`, in a
     worker process if a user's plugin is involved (:mod:`twin.containment`), else here."""
-    from twin.containment import Task, run_contained
-    from twin.scenarios.contained import Recipe, involves_plugins, limits_of, plan_summary, plugin_roles
-
     if not involves_plugins(scenario, kinds):
         return plan_summary(scenario, kinds)
     return run_contained(Task(plan_summary, (Recipe.of(scenario), tuple(kinds)), limits=limits_of(scenario),
@@ -116,8 +117,6 @@ def preflight(scenario: Scenario, kinds, duration: float = 0.05, design=None) ->
     """Run the plugins among ``kinds`` (and a plugin estimator or plant) for ``duration`` s in a worker
     process, before anything is written: a plugin that breaks its contract at once is a
     one-line error rather than N failed samples."""
-    from twin.scenarios.runs import simulate_scenario
-
     plugins = [k for k in kinds if is_import_path(k)]
     if plugin_roles(scenario, ()) and not plugins:  # the estimator or the plant is a user's
         plugins = [kinds[0]]
@@ -159,7 +158,6 @@ def run_sweep(scenario: Scenario, draws: int, out: Path, scenario_arg: str | Non
     if design is None and any(uses_design(k) for k in kinds):
         design = scenario.design()
     preflight(scenario, kinds, design=design)
-    from twin.outputs import rundir
 
     levels = scenario.sweep["levels"]
     roles = plugin_roles(scenario, kinds)
@@ -257,10 +255,6 @@ def write_sample_logs(job: SweepJob, samples, records, out: Path) -> tuple[dict,
     """
     import json
 
-    from twin.logs.format import write_log
-    from twin.outputs import rundir
-    from twin.scenarios.runs import simulate_scenario
-
     sc = job.scenario()  # exactly what the workers ran: the sweep's limits and design
     logs, notes = {}, []
     for k in samples:
@@ -313,9 +307,6 @@ def environment_of(summary: dict, kinds, design) -> dict:
     controllers use (the LMI balance design ``design`` when one of them asks for it, and each
     controller's own ``design_digest()``, from :func:`sweep_plan`'s ``summary``: every sample's
     controllers are designed on the same nominal model)."""
-    from twin.outputs.fingerprint import digests, record
-    from twin.scenarios.runs import DesignDigest
-
     asked = summary["design"] is not None or design is not None
     return record(digests(design if asked else None, [(k, DesignDigest(summary["digests"].get(k))) for k in kinds]))
 
@@ -324,8 +315,7 @@ def write_report(out: Path, manifest: dict, records, scenario: Scenario, referen
     """``sweep.csv``, the summary and the figures of the finished ``records``; the paired
     statistics compare each controller with ``reference`` (default: the last; it is not part
     of the manifest, so a finished sweep can be reported against another reference)."""
-    from twin.outputs import report
-    from twin.sweep import figures, statistics
+    from twin.sweep import figures, statistics  # heavy: matplotlib and scipy, for the report alone
 
     out = Path(out)
     vcols = value_columns(scenario)

@@ -25,6 +25,7 @@ import numpy as np
 
 from twin.errors import TwinError
 from twin.params import NOMINAL, PARAMETER_DOCS, clip_inertia_factors
+from twin.plant.disturbances import random_pushes
 from twin.scenarios.scenario import Scenario
 
 # What sample k of a sweep is (its seed, sampled values and scenario) in this code: part of the
@@ -70,8 +71,6 @@ def value_columns(scenario: Scenario) -> list[str]:
 
 def sample_scenario(scenario: Scenario, root_seed: int, index: int) -> Sample:
     """Sample ``index`` of the sweep of ``scenario`` with root seed ``root_seed``."""
-    from twin.plant.disturbances import random_pushes
-
     sw = scenario.data["sweep"]
     levels = sw["levels"]
     if not (isinstance(index, int) and index >= 0):

@@ -28,6 +28,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 from scipy import stats
+from twin.registry import label
 
 FELL_STATUSES = ("fell", "diverged")
 
@@ -39,8 +40,6 @@ def default_label(name: str) -> str:
     registry alone knows the built-in kinds): "IT2", "type-1", "LQR" for the built-in "it2",
     "t1", "lqr"; for a plugin named by import path ("pkg.mod:MyController") the attribute
     after the ":" ("MyController"); otherwise ``name`` itself."""
-    from twin.registry import label  # imported when needed: the statistics themselves need no simulator
-
     return label(name) or name
 
 

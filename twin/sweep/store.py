@@ -31,6 +31,8 @@ from pathlib import Path
 
 from twin.errors import TwinError, shown
 from twin.inputs import json_loads
+from twin.outputs import rundir
+from twin.outputs.fingerprint import differences
 
 FORMAT = 2  # 1: before issue 26 (no configuration hash); read and upgraded
 ENV, RESUMED = "environment", "resumed_in"  # where the samples ran: recorded, not required to match
@@ -153,8 +155,6 @@ def write_atomically(path: Path, data: bytes) -> None:
 def refuse_others(out: Path) -> None:
     """One line if ``out`` is another command's output, or holds what no sweep wrote: a sweep
     used to write its store and report over a run's folder (and delete its sensor logs)."""
-    from twin.outputs import rundir
-
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise TwinError(f"{out}: exists and is not a directory; give a sweep directory")
@@ -173,8 +173,6 @@ class SweepStore:
     without the configuration hash), holding the directory until :meth:`close`."""
 
     def __init__(self, out: Path, manifest: dict):
-        from twin.outputs import rundir
-
         self.out = Path(out)
         self._fd = None
         self._held = contextlib.ExitStack()
@@ -226,7 +224,6 @@ class SweepStore:
         (once: each environment the sweep ran in is listed one time)."""
         if ENV not in manifest:
             return
-        from twin.outputs.fingerprint import differences
 
         here, first = manifest[ENV], old.get(ENV)  # first None: a sweep begun before environments were recorded
         resumed = list(old.get(RESUMED, []))

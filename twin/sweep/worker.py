@@ -12,6 +12,11 @@ from __future__ import annotations
 import os
 import time
 from dataclasses import dataclass
+from twin.errors import PluginError
+from twin.registry import use_plugin_dirs
+from twin.scenarios.runs import simulate_scenario
+from twin.scenarios.scenario import Scenario
+from twin.sweep.sampling import sample_scenario, success
 
 # Fault injection for the tests: sample numbers whose worker dies (os._exit) every time.
 CRASH_ENV = "TWIN_SWEEP_CRASH_SAMPLES"
@@ -33,9 +38,6 @@ class SweepJob:
     config: str = ""  # the configuration hash every record carries (twin.sweep.store.config_of)
 
     def scenario(self):
-        from twin.registry import use_plugin_dirs
-        from twin.scenarios.scenario import Scenario
-
         use_plugin_dirs(self.plugin_paths)
         sc = Scenario(self.data, self.source, self.overrides)
         return sc.adopt_design(self.design) if self.design is not None else sc
@@ -59,9 +61,6 @@ def run_part(job: SweepJob, index: int, kind: str) -> dict:
     ``wall_s``. What a local worker runs (:func:`twin.sweep.backends.run_local`): each
     controller of a sample apart, so that a run a limit stops from outside (its worker killed)
     costs the others nothing."""
-    from twin.scenarios.runs import simulate_scenario
-    from twin.sweep.sampling import sample_scenario, success
-
     if str(index) in os.environ.get(CRASH_ENV, "").split(","):
         os._exit(70)
     t0 = time.perf_counter()
@@ -96,8 +95,6 @@ def assemble(job: SweepJob, index: int, parts: dict) -> dict:
     error = "; ".join(f"{k}: {m}" for k, m in errors.items())
     wall = sum(p.get("wall_s", 0.0) for p in parts.values())
     if head is None:
-        from twin.sweep.sampling import sample_scenario
-
         head = _head(sample_scenario(job.scenario(), job.root_seed, index))
     record = _record(_Head(*head), runs, error, wall, job.config)
     if errors:
@@ -119,8 +116,6 @@ def over_a_limit(exc: BaseException) -> bool:
     """True if ``exc`` is a run stopped by one of the scenario's ``[limits]`` (twin.limits raises
     a PluginError saying "over limits.<key>"): a result of that controller on that sample (too
     slow, too hungry), unlike a broken contract, which the sweep reports as a failure."""
-    from twin.errors import PluginError
-
     return isinstance(exc, PluginError) and (getattr(exc, "limit", None) is not None or " over limits." in str(exc))
 
 
@@ -131,8 +126,6 @@ def error_text(exc: BaseException) -> str:
 
 def crash_record(job: SweepJob, index: int, why: str) -> dict:
     """The record of a sample whose worker died every time it ran it (or that the sweep stopped)."""
-    from twin.sweep.sampling import sample_scenario
-
     return _record(sample_scenario(job.scenario(), job.root_seed, index), {}, why, 0.0, job.config)
 
 

@@ -13,12 +13,22 @@ import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from twin.containment import run_contained, Task, Workers
 from twin.errors import TwinError
 from twin.logs.expect import replay_metrics
 from twin.logs.replay import replay_logs_contained
+from twin.outputs import golden as g
+from twin.outputs.fingerprint import differences
+from twin.outputs.golden import Trajectory
 from twin.outputs.rundir import MANIFEST, RECORD_COMMAND, FileBatch, kept, test_point
-from twin.scenarios.expectations import GOLDEN, evaluate, failed, parse_expect
 from twin.outputs.tolerances import Tolerances, known_signals, parse_table
+from twin.registry import check_kinds, is_import_path, label, plugin_dirs, use_plugin_dirs, uses_design
+from twin.scenarios import load_scenario
+from twin.scenarios.contained import involves_plugins, limits_of, names_of, plan_summary, plugin_roles, Recipe
+from twin.scenarios.expectations import GOLDEN, evaluate, failed, parse_expect
+from twin.scenarios.planning import plan as runs_of
+from twin.scenarios.runs import simulate_scenario
+from twin.scenarios.scenario import builtin_names, Scenario
 
 
 @dataclass(frozen=True)
@@ -40,10 +50,6 @@ def run_task(task: CheckTask) -> tuple[dict | None, str, object, dict | None]:
     """(metrics, "", trajectory or None, environment) of one run, or (None, error message, None,
     None) if it raised; the environment is the one it ran in, with its designs' digests
     (:func:`twin.outputs.fingerprint.record`)."""
-    from twin.registry import use_plugin_dirs
-    from twin.scenarios.runs import simulate_scenario
-    from twin.scenarios.scenario import Scenario
-
     use_plugin_dirs(task.plugin_paths)
     sc = Scenario({**task.data, "seed": task.seed}, task.source, task.overrides)
     if task.design is not None:
@@ -54,8 +60,6 @@ def run_task(task: CheckTask) -> tuple[dict | None, str, object, dict | None]:
         return None, f"{type(exc).__name__}: {' '.join(str(exc).split())}", None, None
     traj = None
     if task.trajectory:
-        from twin.outputs.golden import Trajectory
-
         traj = Trajectory.of(result.runs[0])
     return result.metrics[task.kind], "", traj, result.environment()
 
@@ -104,9 +108,6 @@ def collect(targets, overrides=()) -> tuple[list, list[str]]:
     """The scenarios named by ``targets`` (built-in names, .toml files, directories of .toml
     files), loaded with ``overrides``; files in a directory without an ``[expect]`` table are
     skipped (and listed), a scenario named on its own must have one."""
-    from twin.scenarios import load_scenario
-    from twin.scenarios.scenario import builtin_names
-
     scenarios, skipped = [], []
     if not targets:
         raise TwinError("twin check needs at least one SCENARIO, FILE or DIR (built-ins: "
@@ -143,11 +144,6 @@ def run_checks(scenarios, controllers=None, seeds: int = 1, workers: int = 1, pr
     compare each run with the one stored there (:mod:`twin.outputs.golden`), with ``tolerances``
     (a :class:`twin.outputs.tolerances.Tolerances`, the command line's) over each scenario's
     ``[expect.golden]``."""
-    from twin.containment import Task, run_contained
-    from twin.registry import check_kinds, plugin_dirs, uses_design
-    from twin.scenarios.contained import Recipe, involves_plugins, limits_of, plan_summary, plugin_roles
-    from twin.scenarios.planning import plan as runs_of
-
     if not (isinstance(seeds, int) and 1 <= seeds <= 10_000):
         raise TwinError(f"--seeds must be an integer from 1 to 10000, got {seeds!r}")
     if not (isinstance(workers, int) and 1 <= workers <= 1024):
@@ -211,8 +207,6 @@ def _refuse_truth_reader(sc, reads_truth: bool) -> None:
     passes on information no robot has: refused unless the scenario says it is a reference
     (``reference = true``). The built-in ``ideal`` estimator and ``sensing = "ideal"`` say so
     by their names."""
-    from twin.registry import is_import_path
-
     if not reads_truth or sc.data.get("reference") or sc.data["sensors"]["sensing"] == "ideal" \
             or not is_import_path(sc.estimator):
         return
@@ -235,8 +229,6 @@ def _record(batch, items, exit_status: int) -> int:
     """Store every run of ``items`` as a golden trajectory, as one unit (:class:`twin.outputs.rundir.FileBatch`):
     an interrupt or an error while they are written leaves the directory as it was; the
     number stored."""
-    from twin.outputs import golden as g
-
     try:
         with batch:
             for i, (sc, kind, seed, traj, metrics, env) in enumerate(items):
@@ -269,9 +261,6 @@ def _scenario_tolerances(sc, extra):
 
 def _golden(case: CaseResult, sc, kind: str, seed: int, traj, env, golden, tolerances) -> None:
     """Compare the run with its reference under ``golden`` (with ``tolerances``), if given."""
-    from twin.outputs import golden as g
-    from twin.outputs.fingerprint import differences
-
     if golden is None:
         return
     try:
@@ -306,9 +295,6 @@ def _run(tasks, workers: int, progress) -> list:
         for i, t in enumerate(tasks):
             done(i, run_task(t))
         return out
-    from twin.containment import Task, Workers
-    from twin.scenarios.contained import limits_of, names_of
-    from twin.scenarios.scenario import Scenario
 
     def contained(i):
         t = tasks[i]
@@ -348,16 +334,12 @@ def _run(tasks, workers: int, progress) -> list:
 
 def _involves_plugins(task: CheckTask) -> bool:
     """True if ``task``'s run runs a user's plugin (its controller or estimator is an import path)."""
-    from twin.registry import is_import_path
-
     s = task.data["sensors"]
     return is_import_path(task.kind) or (s["sensing"] != "ideal" and is_import_path(s["estimator"]))
 
 
 def format_table(result: CheckResult) -> str:
     """Each bound with its measured value (the worst over the seeds) and ok / FAIL, a line each."""
-    from twin.registry import label
-
     rows = []
     for case in result.cases:
         n = len(case.seeds)

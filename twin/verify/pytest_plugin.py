@@ -37,7 +37,7 @@ def pytest_configure(config):
         raise pytest.UsageError(f"--twin-seeds must be at least 1, got {config.getoption('twin_seeds')}")
     targets = config.getoption("twin_scenarios", [])
     if targets:
-        from twin.errors import TwinError
+        from twin.errors import TwinError  # optional: the twin loads only when its tests do
 
         try:
             config.stash[_SCENARIOS] = _scenarios(_expand(targets))
@@ -46,7 +46,7 @@ def pytest_configure(config):
 
 
 def _expand(targets) -> list[str]:
-    from twin.scenarios.scenario import builtin_names
+    from twin.scenarios.scenario import builtin_names  # optional: the twin loads only when its tests do
 
     names = []
     for t in targets:
@@ -77,7 +77,7 @@ def pytest_collection_modifyitems(session, config, items):
 
 
 def _scenarios(names):
-    from twin.verify.check import collect
+    from twin.verify.check import collect  # optional: the twin loads only when its tests do
 
     return collect(names)[0]
 
@@ -86,9 +86,9 @@ class TwinScenarioFile(pytest.File):
     """A ``twin_*.toml`` scenario file: one item per controller of ``controller.kinds``."""
 
     def collect(self):
-        from twin.errors import TwinError
-        from twin.logs.expect import is_log_target, load_log_check
-        from twin.scenarios import load_scenario
+        from twin.errors import TwinError  # optional: the twin loads only when its tests do
+        from twin.logs.expect import is_log_target, load_log_check  # optional: the twin loads only when its tests do
+        from twin.scenarios import load_scenario  # optional: the twin loads only when its tests do
 
         if is_log_target(self.path):  # log = "DIR": bounds on estimators replayed on a sensor log
             try:
@@ -122,8 +122,8 @@ class _CheckItem(pytest.Item):
     """A check whose failure report is the table of bounds and the failed ones (``_result()``)."""
 
     def runtest(self):
-        from twin.errors import TwinError
-        from twin.verify.testing import report
+        from twin.errors import TwinError  # optional: the twin loads only when its tests do
+        from twin.verify.testing import report  # optional: the twin loads only when its tests do
 
         try:
             result = self._result()
@@ -146,7 +146,7 @@ class TwinCheckItem(_CheckItem):
         self.scenario, self.kind = scenario, kind
 
     def _result(self):
-        from twin.verify.check import run_checks
+        from twin.verify.check import run_checks  # optional: the twin loads only when its tests do
 
         return run_checks([self.scenario], [self.kind], self.config.getoption("twin_seeds"), 1)
 
@@ -164,8 +164,7 @@ class TwinLogItem(_CheckItem):
     def _result(self):
         from dataclasses import replace
 
-        from twin.verify.check import run_log_checks
-        from twin.verify.check import CheckResult
+        from twin.verify.check import CheckResult, run_log_checks  # optional: the twin loads only when its tests do
 
         return CheckResult(run_log_checks([replace(self.check, kinds=(self.kind,))]))
 

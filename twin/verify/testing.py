@@ -17,6 +17,9 @@ plugin (:mod:`twin.verify.pytest_plugin`) turns scenario files into test items t
 """
 from __future__ import annotations
 
+from twin.errors import TwinError
+from twin.scenarios import load_scenario
+from twin.scenarios.scenario import Scenario
 from twin.verify.check import CheckResult, failure_lines, format_table, run_checks
 
 
@@ -25,11 +28,6 @@ def check(scenario, controller=None, estimator: str | None = None, seeds: int = 
     """Run ``scenario`` with ``controller`` (a kind, a list of kinds, or None: the scenario's
     ``controller.kinds``) and ``estimator`` (a kind; None: the scenario's) on ``seeds`` seeds,
     and judge the runs by its ``[expect]`` table, or by ``expect`` (a dict in the same form)."""
-    from twin.scenarios import load_scenario
-    from twin.scenarios.scenario import Scenario
-
-    from twin.errors import TwinError
-
     if expect is not None and not expect:
         raise TwinError("expect= is empty: give at least one bound, e.g. {'fell': False}")
     extra = list(overrides)
