@@ -128,3 +128,16 @@ def test_every_function_level_import_says_why(fig):
             if not any(w in comments for w in WHY):
                 silent.append(f"{a}:{line} → {b}")
     assert silent == []
+
+
+def test_no_class_over_500_lines():
+    """A class that grew past 500 lines holds more than one concern (the EKF did: 1,400 lines)."""
+    import ast
+
+    big = []
+    for mod, path in modules().items():
+        if path.suffix == ".py":
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                if isinstance(node, ast.ClassDef) and node.end_lineno - node.lineno + 1 > 500:
+                    big.append(f"{mod}.{node.name}: {node.end_lineno - node.lineno + 1} lines")
+    assert big == []
