@@ -50,7 +50,8 @@ COMMANDS = {
     "cache": "twin.commands.cache:cache", "calibrate": "twin.commands.calibrate:calibrate_command",
     "check": "twin.commands.check:check_command", "compare": "twin.commands.compare:compare_command",
     "design": "twin.commands.design:design", "kinds": "twin.commands.listing:kinds_command",
-    "replay": "twin.commands.replay:replay_command", "run": "twin.commands.run:run",
+    "replay": "twin.commands.replay:replay_command", "robots": "twin.commands.listing:robots_command",
+    "run": "twin.commands.run:run",
     "scenarios": "twin.commands.listing:scenarios_command", "surface": "twin.commands.surface:surface",
     "sweep": "twin.commands.sweep:sweep",
     # gave way to twin run: hidden, each says what replaced it
@@ -219,6 +220,7 @@ def main():
       twin replay runs/exp3/sensor-logs/it2 --estimator ekf,complementary
       twin calibrate runs/exp3/sensor-logs/it2 --out runs/calibration
       twin scenarios
+      twin robots
       twin kinds
       twin surface position --out runs/surfaces
       twin compare runs/before runs/after

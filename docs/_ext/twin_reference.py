@@ -97,6 +97,31 @@ def scenario_markdown() -> str:
     return "\n".join(out)
 
 
+def robot_markdown() -> str:
+    from twin.robots.robot import ROBOT_KEYS
+
+    out = []
+    for section, keys in ROBOT_KEYS.items():
+        out.append(f"## {'Top-level keys' if not section else f'`[{section}]`'}\n")
+        out.append("| key | unit | range | paper's robot | meaning |")
+        out.append("|---|---|---|---|---|")
+        for name, k in keys.items():
+            if k.kind in ("number", "integer", "vector3"):
+                span = f"{'(' if k.lo_open else '['}{k.lo:g}, {k.hi:g}]" + (" each" if k.kind == "vector3" else "")
+            elif k.kind == "choice":
+                span = ", ".join(k.choices)
+            else:
+                span = {"bool": "true/false", "text": "text"}.get(k.kind, "")
+            default = "derived" if k.default is None else (
+                "[" + ", ".join(f"{v:g}" for v in k.default) + "]" if isinstance(k.default, tuple) else
+                str(k.default).lower() if isinstance(k.default, bool) else
+                f"{k.default:g}" if isinstance(k.default, (int, float)) else k.default)
+            out.append(f"| {code(name)} | {cell(unit_text(k.unit) if k.unit else '')} | {cell(span)} | "
+                       f"{code(default) if default != '' else ''} | {cell(k.doc)} |")
+        out.append("")
+    return "\n".join(out)
+
+
 # ---- the metrics --------------------------------------------------------------------------------
 
 def metrics_markdown(replay: bool = False) -> str:
@@ -112,7 +137,8 @@ def metrics_markdown(replay: bool = False) -> str:
     return "\n".join(rows) + "\n"
 
 
-PAGES = {"cli.md": cli_markdown, "scenario-keys.md": scenario_markdown, "metrics.md": metrics_markdown,
+PAGES = {"cli.md": cli_markdown, "scenario-keys.md": scenario_markdown, "robot-keys.md": robot_markdown,
+         "metrics.md": metrics_markdown,
          "replay-metrics.md": lambda: metrics_markdown(replay=True)}
 
 

@@ -1,5 +1,5 @@
-"""``twin scenarios`` and ``twin kinds``: the built-in scenarios (or one's TOML to copy), and the
-controller, estimator and plant kinds."""
+"""``twin scenarios``, ``twin robots`` and ``twin kinds``: the built-in scenarios and robots (or
+one's TOML to copy), and the controller, estimator and plant kinds."""
 from __future__ import annotations
 
 import re
@@ -10,6 +10,7 @@ import click
 from twin.commands.common import Once
 from twin.errors import TwinError
 from twin.registry import CONTROLLERS, ESTIMATORS, PLANTS
+from twin.robots import builtin_robots, load_robot, robot_text
 from twin.scenarios import builtin_scenarios
 from twin.scenarios.scenario import BUILTIN_PACKAGE, builtin_names
 
@@ -61,3 +62,29 @@ def kinds_command():
         for name, kind in table.items():
             click.echo(f"  {name:{width}}  {kind.description}")
     click.echo("your own: package.module:attribute, a class or factory (see docs/howto/plugins.md)")
+
+
+@click.command("robots", cls=Once)
+@click.argument("name", required=False)
+def robots_command(name):
+    """List the built-in robots, a line each; with NAME, print that one's robot file to copy and edit.
+
+    A robot file (robot.toml) describes a robot in SI units: body, wheels, friction, drive, IMU,
+    encoders, control rate and the tilt at which it is lost; every key, its unit and range are
+    on the robot file reference page (docs/reference/robot-file.md).
+
+    \b
+    Examples:
+      twin robots
+      twin robots paper > my-robot.toml
+    """
+    if name is not None:
+        click.echo(robot_text(name), nl=False)
+        return
+    items = builtin_robots()
+    width = max(map(len, items))
+    for n, description in items.items():
+        r = load_robot(n)
+        p = r.params()
+        click.echo(f"{n:{width}}  {description} [body {p.m_b:g} kg, wheels r = {p.r * 100:g} cm, control "
+                   f"{r.control_rate:g} Hz]")

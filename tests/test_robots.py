@@ -1,0 +1,93 @@
+"""Robot files in absolute units (twin.robots): the keys, their units and ranges, the built-ins,
+what the twin makes of a robot (equation (1)'s parameters, the motors at the wheel, the IMU, the
+encoders), and one line for a robot no physics allows."""
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from twin.actuators import DEFAULT_MOTOR
+from twin.errors import TwinError
+from twin.params import NOMINAL
+from twin.robots import ROBOT_KEYS, Robot, builtin_names, builtin_robots, load_robot, robot_text
+from twin.sensors.specs import DEFAULT_ENCODERS, DEFAULT_IMU
+
+
+def test_the_paper_robot_is_the_twin_as_it_always_was():
+    r = load_robot("paper")
+    assert r.params() == NOMINAL and r.params()._n_xb_default  # the roll moment follows the pitch moment
+    assert r.motor() == DEFAULT_MOTOR and r.imu() == DEFAULT_IMU and r.encoders() == DEFAULT_ENCODERS
+    assert r.control_rate == 200.0 and r.fall_angle == 1.0
+    # a robot file that sets nothing is the paper's robot too
+    assert Robot.from_dict({}).params() == NOMINAL and Robot.from_dict({}).motor() == DEFAULT_MOTOR
+
+
+def test_every_key_has_a_unit_a_range_and_a_description():
+    for section, keys in ROBOT_KEYS.items():
+        for name, k in keys.items():
+            assert k.doc, (section, name)
+            if k.kind in ("number", "integer", "vector3"):
+                assert k.unit and k.lo < k.hi, (section, name)
+
+
+def test_the_built_ins_are_listed_and_load():
+    names = builtin_names()
+    assert "paper" in names and set(builtin_robots()) == set(names)
+    for n in names:
+        r = load_robot(n)
+        assert r.name == n and r.description and r.values[""]["sources"], n
+        assert r.max_hold_angle() > 0.05 and "[body]" in robot_text(n)
+
+
+def test_a_geared_drive_is_the_twins_motor_at_the_wheel():
+    """30:1 at 80 % efficiency: the wheel sees 24 times the stall torque, 1/30 of the no-load speed,
+    and the rotor's inertia 900 times larger in the wheel's; encoders on the motor count 30 times
+    per wheel turn."""
+    r = Robot.from_dict({"drive": {"stall_torque": 0.05, "no_load_speed": 600.0, "gear_ratio": 30.0,
+                                   "gear_efficiency": 0.8, "rotor_inertia": 1e-7},
+                         "encoders": {"counts_per_rev": 48, "on": "motor"}})
+    m = r.motor()
+    assert math.isclose(m.stall_torque, 0.05 * 30 * 0.8) and math.isclose(m.no_load_speed, 20.0)
+    assert math.isclose(r.params().n_wa, NOMINAL.n_wa + 900 * 1e-7)
+    assert r.encoders().counts_per_rev == 48 * 30
+
+
+def test_the_motor_may_be_given_by_its_constants():
+    r = Robot.from_dict({"drive": {"supply_voltage": 12.0, "resistance": 3.0, "torque_constant": 0.3}})
+    assert math.isclose(r.motor().stall_torque, 0.3 * 12 / 3) and math.isclose(r.motor().no_load_speed, 40.0)
+    with pytest.raises(TwinError, match="give stall_torque and no_load_speed, or resistance and torque_constant"):
+        Robot.from_dict({"drive": {"stall_torque": 1.0, "resistance": 3.0, "torque_constant": 0.3}})
+
+
+@pytest.mark.parametrize("data, says", [
+    ({"body": {"yaw_inertia": 0.01}}, "body.yaw_inertia: 0.01 kg·m² exceeds the sum of the other two moments"),
+    ({"wheels": {"inertia_axle": 0.002}}, "wheels.inertia_axle: 0.002 kg·m² exceeds twice inertia_diameter"),
+    ({"body": {"size": [0.08, 0.2, 0.1], "box_bottom": 0.1}}, "body.com_height: the centre of mass at 0.0622 m is "
+                                                                 "outside the body's box"),
+    ({"drive": {"stall_torque": 0.005}}, "drive.stall_torque: both motors give 0.01 N·m at the wheels"),
+    ({"body": {"mass": -1}}, "body.mass: -1 kg is out of range; allowed in (0, 1000] kg"),
+    ({"wheels": {"radius": "4 cm"}}, "wheels.radius: must be a number in m"),
+    ({"imu": {"part": "bno055"}}, "imu.part: must be one of mpu6050"),
+    ({"body": {"colour": "red"}}, "unknown key 'colour' in [body]; allowed: mass, com_height"),
+    ({"body": {"size": [0.08, 0.5, 0.2]}}, "body.size: the body's width 0.5 m exceeds the wheels' track 0.3 m"),
+    ({"encoders": {"counts_per_rev": 7, "on": "motor"}, "drive": {"gear_ratio": 2.5, "stall_torque": 1.0}},
+     "encoders on the motor give 17.5 counts per wheel revolution"),
+])
+def test_a_robot_no_physics_allows_is_one_line_naming_the_key(data, says):
+    with pytest.raises(TwinError) as err:
+        Robot.from_dict(data, "my.toml")
+    text = str(err.value)
+    assert text.startswith("my.toml: ") and says in text and "\n" not in text, text
+
+
+def test_a_robot_file_is_read_and_takes_its_files_name(tmp_path):
+    f = tmp_path / "tiny.toml"
+    f.write_text('[body]\nmass = 1.0\ncom_height = 0.05\n', encoding="utf-8")
+    r = load_robot(f)
+    assert r.name == "tiny" and r.params().m_b == 1.0 and r.params().r == NOMINAL.r
+    with pytest.raises(TwinError, match="no robot 'nowhere': neither a built-in"):
+        load_robot("nowhere")
+    (tmp_path / "bad.toml").write_text("[body\n", encoding="utf-8")
+    with pytest.raises(TwinError, match="bad.toml: not valid TOML"):
+        load_robot(tmp_path / "bad.toml")
