@@ -34,8 +34,8 @@ LAYERS = {
     "twin.fuzzy": 1, "twin.actuators": 1, "twin.sensors": 1,
     # the plants and the types every plant shares
     "twin.plant": 2,
-    # the contracts between the parts, the estimators, the paper's experiments
-    "twin.protocols": 3, "estimation": 4, "twin.experiments": 4,
+    # the contracts between the parts, the robots (in absolute units), the estimators, the paper's experiments
+    "twin.protocols": 3, "twin.robots": 3, "estimation": 4, "twin.experiments": 4,
     # controllers (their designs)
     "twin.controllers": 5,
     # the kinds: built-ins and users' plugins; the limits a run is held to

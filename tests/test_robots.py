@@ -91,3 +91,67 @@ def test_a_robot_file_is_read_and_takes_its_files_name(tmp_path):
     (tmp_path / "bad.toml").write_text("[body\n", encoding="utf-8")
     with pytest.raises(TwinError, match="bad.toml: not valid TOML"):
         load_robot(tmp_path / "bad.toml")
+
+
+# ---- a scenario's robot ------------------------------------------------------------------------------------
+
+HEAVIER = """name = "heavier"
+description = "the paper's robot with a 3 kg body, 100 Hz control and a 100 Hz IMU"
+[body]
+mass = 3.0
+[imu]
+rate = 100.0
+latency = 0.01
+[control]
+rate = 100.0
+[drive]
+stall_torque = 1.5
+"""
+
+
+def test_robot_paper_changes_nothing():
+    from twin.scenarios import load_scenario
+    from twin.workflows.run import run_scenario
+
+    plain = run_scenario(load_scenario("paper-exp1", ["duration=1"]), ("lqr",))
+    named = run_scenario(load_scenario("paper-exp1", ["duration=1", 'robot="paper"']), ("lqr",))
+    assert plain.metrics == named.metrics
+    assert (plain.runs[0].column_chunks().__next__() == named.runs[0].column_chunks().__next__()).all()
+    assert "robot" not in named.scenario.record()  # recorded only where it is not the paper's
+
+
+def test_a_scenarios_robot_is_its_model_its_plant_its_drive_and_its_sensors_defaults(tmp_path):
+    from twin.scenarios import load_scenario
+
+    (tmp_path / "heavier.toml").write_text(HEAVIER, encoding="utf-8")
+    (tmp_path / "s.toml").write_text('base = "paper-exp1"\nrobot = "heavier.toml"\n[plant.scale]\nm_b = 1.1\n',
+                                     encoding="utf-8")
+    sc = load_scenario(str(tmp_path / "s.toml"))
+    assert sc.data["rates"]["control"] == 100.0 and sc.data["sensors"]["imu_rate"] == 100.0
+    assert sc.data["sensors"]["imu_latency"] == 0.01 and sc.data["robot"] == str((tmp_path / "heavier.toml").resolve())
+    config = sc.twin_config()
+    assert config.params.m_b == pytest.approx(3.0 * 1.1) and config.control_rate == 100.0  # scale: of its figures
+    assert config.motor.stall_torque == 1.5
+    spec = sc.run_specs(("lqr",))[0]
+    assert spec.model.m_b == 3.0 and spec.model == sc.robot.params()  # the controllers' nominal model
+    # a key the scenario gives stays its own
+    own = load_scenario(str(tmp_path / "s.toml"), ["rates.control=200", "sensors.imu_rate=200",
+                                                   "sensors.imu_latency=0.005"])
+    assert own.data["rates"]["control"] == 200.0 and own.data["sensors"]["imu_rate"] == 200.0
+
+
+def test_twin_run_takes_a_robot_by_name_or_file(tmp_path):
+    from click.testing import CliRunner
+
+    from twin.cli import main
+
+    (tmp_path / "heavier.toml").write_text(HEAVIER, encoding="utf-8")
+    r = CliRunner().invoke(main, ["run", "paper-exp1", "--robot", str(tmp_path / "heavier.toml"), "--controller",
+                                  "lqr", "--duration", "1", "--no-video", "--out", str(tmp_path / "out")])
+    assert r.exit_code == 0, r.output
+    import json
+
+    doc = json.loads((tmp_path / "out" / "metrics.json").read_text(encoding="utf-8"))
+    assert doc["scenario"]["robot"].endswith("heavier.toml") and doc["scenario"]["rates"]["control"] == 100.0
+    r = CliRunner().invoke(main, ["run", "paper-exp1", "--robot", "nowhere", "--no-video"])
+    assert r.exit_code == 2 and "robot: no robot 'nowhere'" in r.output

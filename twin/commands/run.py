@@ -45,11 +45,14 @@ from twin.workflows.run import RunJob, title
               metavar="CALIBRATION.toml",
               help="Run the robot 'twin calibrate' fitted: the file's [plant] and [sensors] replace the scenario's "
                    "true plant scale and IMU latency (before any --set).")
+@click.option("--robot", default=None, metavar="NAME|FILE",
+              help="The robot: a built-in's name ('twin robots') or a robot file (robot.toml); sets the scenario's "
+                   "robot key (not with --set robot=...).")
 @limit_options("")
 @no_cache_option
 @contained
 def run(scenario, controller, seed, duration, overrides, out, video, sample, log_every, log_format, log_sensors,
-        plant_file, step_limit, run_limit, memory_limit, no_cache):
+        plant_file, robot, step_limit, run_limit, memory_limit, no_cache):
     """Run a scenario on the PyBullet twin: trajectory, metrics, figure and video.
 
     SCENARIO is a built-in name (see 'twin scenarios') or a scenario .toml file. Writes
@@ -78,6 +81,7 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample, log
       twin run paper-exp3 --sample 17 --seed 0 --no-video   # replay a sweep's sample 17
       twin run paper-exp2 --duration 3600 --log-every 20 --log-format csv.gz --no-video   # an hour at 10 Hz
       twin run paper-exp3 --plant runs/calibration/calibration.toml   # the robot 'twin calibrate' fitted
+      twin run paper-exp1 --robot my-robot.toml   # your robot (see 'twin robots')
     """
     # first: the figure's worker imports matplotlib while the scenario loads and the runs simulate
     # (started here, or as twin.cli loaded when it is the process's command, not when the
@@ -86,7 +90,7 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample, log
     try:
         every = log_every_of(log_every)
         with RunJob.prepare(scenario, controller, seed, duration, limit_overrides(overrides, step_limit, run_limit,
-                            memory_limit), out, sample, plant_file) as job:
+                            memory_limit), out, sample, plant_file, robot) as job:
             if job.picked is not None:
                 p = job.picked
                 click.echo(f"sample {p.index} of a sweep (root seed {job.root_seed}): level λ = {p.level:g}, "

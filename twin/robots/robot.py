@@ -12,7 +12,9 @@ torque constant, at the supply voltage) with the gear between motor and wheel (r
 and the rotor's inertia. The twin's motor model (:class:`twin.actuators.DCMotorParams`) acts at the
 wheel with one constant k_t = k_e: the wheel sees ``ratio × efficiency`` times the motor's stall
 torque and ``1 / ratio`` of its no-load speed, and the rotor's inertia reflected through the gear
-(``ratio² × rotor_inertia``) adds to the wheel's axle inertia. With an efficiency below 1 the
+(``ratio² × rotor_inertia``) adds to the wheel's axle inertia (and its diameter inertia is raised
+to half the axle's where it would otherwise fall below: a rigid body cannot have less; the twin's
+wheel is then a thin disc, which over-states its yaw inertia by at most that half). With an efficiency below 1 the
 twin's armature current is then ``efficiency`` times the motor's (its torque is right).
 """
 from __future__ import annotations
@@ -232,9 +234,13 @@ class Robot:
     def params(self) -> RobotParams:
         """The robot as equation (1)'s parameters (the rotor's inertia reflected into the wheel's)."""
         b, w, f, d = self.values["body"], self.values["wheels"], self.values["friction"], self.values["drive"]
-        reflected = d["gear_ratio"] ** 2 * d["rotor_inertia"]
+        n_wa = w["inertia_axle"] + d["gear_ratio"] ** 2 * d["rotor_inertia"]
+        # a rigid wheel's axle moment is at most twice its diameter moment: where the reflected rotor
+        # would pass that, the wheel is taken as a thin disc of the moment (the rotor turns with the
+        # wheel about the axle; about a diameter it adds what a disc would)
+        n_wd = max(w["inertia_diameter"], 0.5 * n_wa)
         n_xb, n_yb, n_zb = b["roll_inertia"], b["pitch_inertia"], b["yaw_inertia"]
-        return RobotParams(m_w=w["mass"], m_b=b["mass"], n_wa=w["inertia_axle"] + reflected, n_wd=w["inertia_diameter"],
+        return RobotParams(m_w=w["mass"], m_b=b["mass"], n_wa=n_wa, n_wd=n_wd,
                            n_yb=n_yb, n_zb=n_zb, r=w["radius"], b=0.5 * w["track"], l=b["com_height"], d_b=f["drive"],
                            d_w=f["ground"], n_xb=n_xb, g=NOMINAL.g)
 
@@ -328,7 +334,7 @@ def builtin_names() -> list[str]:
 def robot_text(name: str) -> str:
     """A built-in robot's file, to print, copy and edit."""
     if name not in builtin_names():
-        raise TwinError(f"no built-in robot {name!r}; built-ins: {', '.join(builtin_names())}")
+        raise TwinError(f"no built-in robot {shown(name)}; built-ins: {', '.join(builtin_names())}")
     return resources.files(BUILTIN_PACKAGE).joinpath(f"{name}.toml").read_text(encoding="utf-8")
 
 
@@ -348,8 +354,8 @@ def load_robot(name_or_path) -> Robot:
     else:
         path = Path(text_name)
         if path.suffix != ".toml" or not path.is_file():
-            raise TwinError(f"no robot {text_name!r}: neither a built-in ({', '.join(builtin_names())}) nor a .toml "
-                            f"file")
+            raise TwinError(f"no robot {shown(text_name)}: neither a built-in ({', '.join(builtin_names())}) nor a "
+                            f".toml file")
         source, stem = str(path), path.stem
         text = read_text(path, MAX_TOML_BYTES, "robot file")
     try:

@@ -20,11 +20,12 @@ from twin.errors import TwinError, shown
 from twin.experiments import Experiment
 from twin.inputs import MAX_TOML_BYTES, inside, read_text
 from twin.limits import PluginLimits
-from twin.params import NOMINAL
+from twin.params import NOMINAL, RobotParams
 from twin.plant.base import START_TOLERANCE, TwinConfig, start_clearance, start_problem, touch_angle
 from twin.plant.disturbances import Disturbances, Ground, Push
 from twin.plant.urdf import Payload, body_box
 from twin.registry import PLANTS, build_plant, look_beside, resolve
+from twin.robots import Robot, builtin_names as builtin_robot_names, load_robot
 from twin.scenarios.sensors import believed_config, problems, true_config
 from twin.sim.spec import InitialState, Logging, Plugin, RunSpec, Sensing
 from twin.scenarios.schema import (MAX_DEPTH, NAME_RULE, SCHEMA, ScenarioError, check_depth, key_text, lookup,
@@ -62,8 +63,19 @@ class Scenario:
     # the facts every run asks for are computed as it is made
     def __post_init__(self):
         for fact in ("name", "description", "duration", "seed", "controllers", "estimator", "plant_model",
-                     "changed_keys", "sets_nothing"):
+                     "changed_keys", "sets_nothing", "robot"):
             getattr(self, fact)
+
+    @cached_property
+    def robot(self) -> Robot:
+        """The robot (``robot``: a built-in's name or a robot file), whose figures are the nominal
+        model, the drive, the sensors' defaults and the rates (:mod:`twin.robots`)."""
+        try:
+            return load_robot(self.data.get("robot", "paper"))
+        except ScenarioError:
+            raise
+        except TwinError as exc:
+            raise self._error(f"robot: {exc}") from None
 
     @cached_property
     def name(self) -> str:
@@ -189,7 +201,8 @@ class Scenario:
                       targets=self.experiment().targets, duration=self.duration, seed=self.seed,
                       sensing=Sensing(self.sensor_config(), self.believed_sensor_config()),
                       design=self.design if design is None else design, options=self.cascade_options(),
-                      logging=Logging(), name=self.name, description=self.description, limits=self.plugin_limits())
+                      logging=Logging(), name=self.name, description=self.description, limits=self.plugin_limits(),
+                      model=self.robot.params())
         plugins = [None if k is None else Plugin(k, params.get(k)) for k in kinds]
         return [RunSpec(controller=c, label=k or "", **shared) for k, c in zip(kinds, plugins)]
 
@@ -214,10 +227,12 @@ class Scenario:
 
     def true_params(self):
 
-        return NOMINAL.perturbed(scale=self.data["plant"]["scale"])
+        return self.robot.params().perturbed(scale=self.data["plant"]["scale"])
 
     def twin_config(self):
-
+        """The :class:`twin.plant.base.TwinConfig` of the true plant: the robot's figures with
+        ``plant.scale`` applied, its drive (``plant.motor = "dc"``), rates, ground, disturbances and
+        the tilt at which it is lost."""
         d, p = self.data, self.data["plant"]
         ground = Ground(**d["ground"])
         pushes = tuple(Push(tuple(q["force"]), q["start"], q["duration"], tuple(q["point"]), q["frame"])
@@ -228,11 +243,12 @@ class Scenario:
         # analytic model's torque sources are ideal) has none, whatever plant.motor says; a plant of
         # one's own is not imported here (its code runs in a worker): it gets plant.motor's, and
         # registry.plant_motor says whether the controllers are told of them
-
         applies = p["model"] not in PLANTS or getattr(resolve("plant", p["model"])[0], "applies_motor", False)
-        kwargs = {} if p["motor"] == "dc" and applies else {"motor": None}
+        robot = self.robot
         return TwinConfig(params=self.true_params(), physics_rate=d["rates"]["physics"],
-                          control_rate=d["rates"]["control"], ground=ground, disturbances=dist, **kwargs)
+                          control_rate=d["rates"]["control"], ground=ground, disturbances=dist,
+                          motor=robot.motor() if p["motor"] == "dc" and applies else None,
+                          fall_angle=robot.fall_angle)
 
     def plugin_limits(self):
         """The scenario's ``[limits]`` as a :class:`twin.limits.PluginLimits`, or None if it sets none."""
@@ -257,16 +273,16 @@ class Scenario:
         """The LMI balance design (on the nominal model), from the design store
         (:mod:`twin.controllers.designs`: solved once per process and set of options, and
         taken from the on-disk cache when it has it, when cvxpy is never imported)."""
-        return solve_design(self.source, self.design_options())
+        return solve_design(self.source, self.design_options(), self.robot.params())
 
     def design_solver(self):
-        """:meth:`design` as a zero-argument callable of this scenario's design options alone."""
-        return partial(solve_design, self.source, self.design_options())
+        """:meth:`design` as a zero-argument callable of this scenario's design options and robot alone."""
+        return partial(solve_design, self.source, self.design_options(), self.robot.params())
 
     def adopt_design(self, design) -> "Scenario":
         """Use ``design`` (solved elsewhere for these design options) instead of solving it
         again: a sweep's workers take the design the sweep solved once."""
-        adopt(design, **self.design_options())
+        adopt(design, self.robot.params(), **self.design_options())
         return self
 
     def cascade_options(self) -> dict:
@@ -349,7 +365,7 @@ class Scenario:
         if touch >= MIN_CLEARANCE_RAD:
             return
         ok = [f / 100.0 for f in range(20, 501)
-              if touch_angle(params.replace(l=NOMINAL.l * f / 100.0)) >= MIN_CLEARANCE_RAD]
+              if touch_angle(params.replace(l=self.robot.params().l * f / 100.0)) >= MIN_CLEARANCE_RAD]
         allowed = f"from {ok[0]:g} to {ok[-1]:g}" if ok else "none with this robot's other parameters"
         raise self._error(f"plant.scale.l: the body's centre of mass at l = {params.l:.4g} m makes a body box "
                           f"(twin/plant/urdf.py) that reaches the floor at {touch:.2f} rad of tilt; allowed: a body "
@@ -406,11 +422,11 @@ def _defaults() -> dict:
     return validate({"name": "defaults"})
 
 
-def solve_design(source: str, options: dict):
-    """The LMI balance design of a scenario's ``[design]`` ``options`` (from ``source``), from the
-    design store; a one-line error naming the scenario's key."""
+def solve_design(source: str, options: dict, params: RobotParams = NOMINAL):
+    """The LMI balance design of a scenario's ``[design]`` ``options`` (from ``source``) on the
+    robot's model ``params``, from the design store; a one-line error naming the scenario's key."""
     try:
-        return balance_design(**options)
+        return balance_design(params, **options)
     except TwinError as exc:
         msg = str(exc)
         for flag, name in (("--epsilon", "design.epsilon"), ("--rho", "design.rho"),
@@ -581,6 +597,38 @@ def _with_bases(raw: dict, source: str, path: Path | None, chain: tuple = (), wi
     return merged({k: v for k, v in parent.items() if k != "name"}, {k: v for k, v in raw.items() if k != BASE_KEY})
 
 
+# scenario keys a robot sets, with what it sets them to (those the scenario gives stay its own)
+ROBOT_SET = {
+    ("rates", "control"): lambda r: r.control_rate,
+    ("sensors", "imu"): lambda r: r.values["imu"]["part"],
+    ("sensors", "imu_position"): lambda r: r.imu().position,
+    ("sensors", "imu_rate"): lambda r: r.imu().rate,
+    ("sensors", "imu_latency"): lambda r: r.imu().latency,
+    ("sensors", "encoder_counts"): lambda r: r.encoders().counts_per_rev,
+    ("sensors", "encoder_latency"): lambda r: r.encoders().latency,
+}
+
+
+def _take_robot(data: dict, raw: dict, path: Path | None, where: str) -> None:
+    """The scenario's ``robot`` loaded (a file relative to the scenario file, as an absolute path
+    in ``data``), and each key of :data:`ROBOT_SET` the scenario does not give set to the robot's
+    figure where it differs from what the key's absence means (the paper's robot changes nothing)."""
+    name = data["robot"]
+    if name not in builtin_robot_names() and path is not None and not Path(name).is_absolute():
+        beside = path.parent / name
+        if beside.is_file():
+            data["robot"] = name = str(beside.resolve())
+    try:
+        robot = load_robot(name)
+    except TwinError as exc:
+        raise ScenarioError(f"{where}: robot: {exc}") from None
+    paper = load_robot("paper")
+    for (table, key), figure in ROBOT_SET.items():
+        given = isinstance(raw.get(table), dict) and key in raw[table]
+        if not given and figure(robot) != figure(paper):
+            data[table][key] = figure(robot)
+
+
 def load_scenario(name_or_path: str, overrides=(), *, within=None) -> Scenario:
     """A built-in scenario by name, or a scenario file, with ``--set`` ``overrides`` applied;
     validated and checked (:meth:`Scenario.check`). A file may start from another scenario
@@ -616,6 +664,7 @@ def load_scenario(name_or_path: str, overrides=(), *, within=None) -> Scenario:
         if extra:
             raise ScenarioError(f"{where}: faults[{i}].{extra[0]}: a {data['faults'][i]['kind']} fault has no "
                                 f"{extra[0]!r}; allowed: {', '.join(sorted(relevant[data['faults'][i]['kind']]))}")
+    _take_robot(data, raw, None if source.startswith("built-in") else Path(str(name_or_path)), where)
     scenario = Scenario(data, where, overrides)
     for i, f in enumerate(data["faults"]):
         if f["kind"] == "latency" and not latency_given[i]:

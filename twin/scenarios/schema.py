@@ -210,6 +210,10 @@ SCHEMA: dict[str, Key] = {
                      doc="true: a reference run, not a test of an estimator: an estimator plugin that reads the "
                          "ground truth (reads_truth = True) is then allowed under twin check, which refuses it "
                          "otherwise"),
+    "robot": Key("str", "paper", recorded_at_default=False,
+                 doc="the robot: a built-in's name ('twin robots') or a robot file (.toml, relative to the scenario "
+                     "file); the keys below that it sets (rates.control, the IMU's and the encoders') take its "
+                     "figures unless the scenario gives them, and plant.scale's factors are of its figures"),
     "initial": Key("table", keys={
         "theta": _f(0.48, -0.99, 0.99, "rad", doc="body pitch (inside the fall limit of 1 rad)"),
         "alpha": _f(0.0, -math.pi, math.pi, "rad", doc="heading"),
