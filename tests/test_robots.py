@@ -155,3 +155,34 @@ def test_twin_run_takes_a_robot_by_name_or_file(tmp_path):
     assert doc["scenario"]["robot"].endswith("heavier.toml") and doc["scenario"]["rates"]["control"] == 100.0
     r = CliRunner().invoke(main, ["run", "paper-exp1", "--robot", "nowhere", "--no-video"])
     assert r.exit_code == 2 and "robot: no robot 'nowhere'" in r.output
+
+
+def test_a_robots_body_box_is_the_one_drawn_collided_with_and_checked():
+    """The Balboa's box (8 mm above the floor, its centre of mass 14 mm above the axle): Table III's
+    rule would centre a 12 cm box on the centre of mass, 6 mm into the floor at the start."""
+    from twin.plant.base import TwinConfig, touch_angle
+    from twin.plant.urdf import body_box, robot_urdf
+    from twin.scenarios import load_scenario
+
+    robot = load_robot("balboa")
+    corners = robot.body_corners()
+    assert corners == ((-0.02, -0.0485, -0.03), (0.02, 0.0485, 0.08)) and load_robot("paper").body_corners() is None
+    p = robot.params()
+    assert touch_angle(p) < 0.05 < 0.3 < touch_angle(p, corners)  # the rule's box starts in the floor
+    urdf = robot_urdf(p, body=corners)
+    assert '<collision><origin xyz="0.0 0.0 0.025" rpy="0 0 0"/><geometry><box size="0.04 0.097 0.11"/>' in urdf
+    sc = load_scenario("paper-exp1", ["duration=1", 'robot="balboa"'])
+    config = sc.twin_config()
+    assert config.body == corners and body_box(config.params, config.body) == corners
+    assert config.control_rate == 100.0 and config.fall_angle == 1.22
+    with pytest.raises(TwinError, match=r"^body must be the box's \(lowest, highest\) corners"):
+        TwinConfig(body=((0, 0, 0.1), (0.1, 0.1, 0.0)))
+
+
+def test_a_robot_whose_box_reaches_the_floor_is_one_line_naming_the_robot(tmp_path):
+    from twin.scenarios import load_scenario
+
+    (tmp_path / "low.toml").write_text('[body]\nsize = [0.08, 0.2, 0.2]\nbox_bottom = -0.035\n', encoding="utf-8")
+    with pytest.raises(TwinError) as err:
+        load_scenario("paper-exp1", [f'robot="{tmp_path / "low.toml"}"'])
+    assert "robot: the body's box (the robot file's body.size and body.box_bottom) reaches the floor at" in str(err.value)

@@ -546,7 +546,7 @@ class TwinEnv(gymnasium.Env):
             ended = f"END at {loop.t:.2f} s"
         label = f"{self.spec.id if self.spec is not None else type(self).__name__}  {sc.name}"
         bgr = np.ascontiguousarray(frame[:, :, ::-1])
-        box = body_box(config.params)
+        box = body_box(config.params, config.body)
         track = SimpleNamespace(p_d=targets.position, alpha_d=targets.heading, r=config.params.r, box=box,
                                 body_top=box[1][2], start=self._start)
         last = self._path[-1]

@@ -93,6 +93,10 @@ class TwinConfig:
         leaves unresolved, and the robot's rocking rectifies that slip into a yaw and
         position creep (0.08 rad per 100 s at α = 0.1 rad; see
         docs/investigations/yaw-creep.md); 1e-14 removes it for about 20 % more time.
+    body : ((x, y, z), (x, y, z)) m, or None
+        The body box's lowest and highest corners from the axle midpoint (body frame), drawn
+        and collided with (a robot file's ``size`` and ``box_bottom``); None: Table III's drawing
+        rule (:func:`twin.plant.urdf.body_box`).
     """
 
     params: RobotParams = NOMINAL
@@ -104,6 +108,7 @@ class TwinConfig:
     fall_angle: float = 1.0
     solver_iterations: int = 50
     solver_residual_threshold: float = 1e-14
+    body: tuple | None = None
 
     def __post_init__(self):
         if not isinstance(self.params, RobotParams):
@@ -122,6 +127,14 @@ class TwinConfig:
         if k > 1000:
             raise TwinError(f"the control period is {k} physics steps; at most 1000 are allowed "
                             f"(raise control_rate or lower physics_rate)")
+        if self.body is not None:
+            ok = isinstance(self.body, (tuple, list)) and len(self.body) == 2 and all(
+                isinstance(c, (tuple, list)) and len(c) == 3 and all(_is_number(v) and abs(v) <= 10.0 for v in c)
+                for c in self.body)
+            if not ok or not all(self.body[0][i] < self.body[1][i] for i in range(3)):
+                raise TwinError(f"body must be the box's (lowest, highest) corners, 3 numbers each in m within ±10 m, "
+                                f"the lowest below the highest, or None, got {self.body!r}")
+            object.__setattr__(self, "body", tuple(tuple(float(v) for v in c) for c in self.body))
         if not (_is_number(self.fall_angle) and 0.05 <= self.fall_angle <= 1.5):
             raise TwinError(f"fall_angle must be in [0.05, 1.5] rad, got {self.fall_angle!r}")
         if not (isinstance(self.solver_iterations, int) and not isinstance(self.solver_iterations, bool)
@@ -205,7 +218,7 @@ START_TOLERANCE = 1e-9  # m: a part this far into the floor at the start is on i
 
 
 def start_clearance(params: RobotParams, ground: Ground, theta0: float, alpha0: float = 0.0, position=(0.0, 0.0),
-                    payload: Payload | None = None) -> dict[str, float]:
+                    payload: Payload | None = None, body=None) -> dict[str, float]:
     """How far each part of the robot starts above the floor, along its normal, in m.
 
     ``"wheels"``: the lower wheel's lowest point (0 by construction: they stand on the
@@ -222,7 +235,7 @@ def start_clearance(params: RobotParams, ground: Ground, theta0: float, alpha0: 
     def height(p) -> float:  # the floor plane passes through the origin
         return dot(tuple(pos[i] + R[i][0] * p[0] + R[i][1] * p[1] + R[i][2] * p[2] for i in range(3)), n)
 
-    lo, hi = body_box(params)
+    lo, hi = body_box(params, body)
     out = {"wheels": min(height((0.0, s * params.b, 0.0)) for s in (-1.0, 1.0)) - params.r,
            "body": min(height((x, y, z)) for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2]))}
     if payload is not None:
@@ -231,9 +244,9 @@ def start_clearance(params: RobotParams, ground: Ground, theta0: float, alpha0: 
 
 
 def start_problem(params: RobotParams, ground: Ground, theta0: float, alpha0: float = 0.0, position=(0.0, 0.0),
-                  payload: Payload | None = None) -> str | None:
+                  payload: Payload | None = None, body=None) -> str | None:
     """The first part of :func:`start_clearance` that starts in the floor, as one line, or None."""
-    for part, clearance in start_clearance(params, ground, theta0, alpha0, position, payload).items():
+    for part, clearance in start_clearance(params, ground, theta0, alpha0, position, payload, body).items():
         if clearance < -START_TOLERANCE:
             what = {"wheels": "the wheels reach", "body": "the body's box reaches",
                     "payload": f"the payload (a {100 * PAYLOAD_SIZE:g} cm cube at {_point(payload.position)} m, body "
@@ -247,10 +260,15 @@ def _point(p) -> str:
     return "(" + ", ".join(f"{v:g}" for v in p) + ")"
 
 
-def touch_angle(params: RobotParams) -> float:
-    """Smallest pitch (rad) at which the body box can reach a level floor."""
-    h = body_height(params)
-    corners = [(sx * 0.5 * BODY_DEPTH, params.l + sz * 0.5 * h) for sx in (-1, 1) for sz in (-1, 1)]
+def touch_angle(params: RobotParams, body=None) -> float:
+    """Smallest pitch (rad) at which the body box (``body``: the robot's own corners, see
+    :class:`TwinConfig`; None: Table III's rule) can reach a level floor."""
+    if body is None:  # as it always was computed
+        h = body_height(params)
+        corners = [(sx * 0.5 * BODY_DEPTH, params.l + sz * 0.5 * h) for sx in (-1, 1) for sz in (-1, 1)]
+    else:
+        lo, hi = body_box(params, body)
+        corners = [(x, z) for x in (lo[0], hi[0]) for z in (lo[2], hi[2])]
     for i in range(1, 158):
         th = 0.01 * i
         if any(params.r + (-x * math.sin(th) + z * math.cos(th)) <= 0.0 for x, z in corners):

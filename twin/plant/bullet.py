@@ -217,7 +217,8 @@ class BulletTwin:
         self._start = (theta0, alpha0, (x0, y0))
         # a part inside the floor would be thrown out of it by the solver (the body), or carried
         # through it (the payload, a point mass): no robot can start so
-        problem = start_problem(config.params, config.ground, theta0, alpha0, (x0, y0), config.disturbances.payload)
+        problem = start_problem(config.params, config.ground, theta0, alpha0, (x0, y0), config.disturbances.payload,
+                                config.body)
         if problem:
             raise TwinError(problem)
         p = config.params
@@ -247,7 +248,7 @@ class BulletTwin:
                          restitution=0.0)
 
         d = config.disturbances
-        self.urdf = robot_urdf(p, d.payload, d.com_offset)
+        self.urdf = robot_urdf(p, d.payload, d.com_offset, body=config.body)
         pos, quat = initial_pose(p, g, theta0, alpha0, x0, y0)
         fd, path = tempfile.mkstemp(suffix=".urdf", prefix="mtwip-")
         try:
@@ -280,7 +281,7 @@ class BulletTwin:
         self._pushes = d.pushes
         self._com_local = (d.com_offset[0], d.com_offset[1], p.l + d.com_offset[2])
         # the body can reach the floor only when tilted this far (pitching on the slope, or rolling)
-        self._contact_check_angle = max(0.0, min(touch_angle(p) - abs(g.slope) - 0.15, 0.6))
+        self._contact_check_angle = max(0.0, min(touch_angle(p, config.body) - abs(g.slope) - 0.15, 0.6))
         # below this |θ| + |φ| (an upper bound of the tilt) a finite state needs no closer look
         self._quiet_angle = min(self._contact_check_angle, config.fall_angle)
 

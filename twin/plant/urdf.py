@@ -75,10 +75,13 @@ def body_width(params: RobotParams) -> float:
     return max(0.02, 2.0 * params.b - WHEEL_WIDTH - 2.0 * WHEEL_CLEARANCE)
 
 
-def body_box(params: RobotParams) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
-    """The body box's (lowest, highest) corner in m, body frame from the axle midpoint: x within
-    ±BODY_DEPTH/2, y within ±body_width/2, z within l ± body_height/2 (a centre-of-mass offset
-    does not move it)."""
+def body_box(params: RobotParams, box=None) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    """The body box's (lowest, highest) corner in m, body frame from the axle midpoint: ``box`` where
+    the robot gives one (a robot file's size and box_bottom, :attr:`twin.plant.base.TwinConfig.body`),
+    else Table III's drawing rule: x within ±BODY_DEPTH/2, y within ±body_width/2, z within l ±
+    body_height/2 (a centre-of-mass offset does not move it)."""
+    if box is not None:
+        return tuple(map(tuple, box))
     h, w = body_height(params), body_width(params)
     return (-0.5 * BODY_DEPTH, -0.5 * w, params.l - 0.5 * h), (0.5 * BODY_DEPTH, 0.5 * w, params.l + 0.5 * h)
 
@@ -111,7 +114,7 @@ UNIT_CUBE_OBJ = "".join(
 
 
 def robot_urdf(params: RobotParams = NOMINAL, payload: Payload | None = None,
-               com_offset=(0.0, 0.0, 0.0), name: str = "mtwip", box_mesh: str | None = None) -> str:
+               com_offset=(0.0, 0.0, 0.0), name: str = "mtwip", box_mesh: str | None = None, body=None) -> str:
     """URDF text of the robot with parameters ``params``.
 
     Parameters
@@ -128,12 +131,20 @@ def robot_urdf(params: RobotParams = NOMINAL, payload: Payload | None = None,
         box *visual* with, scaled to its size, instead of URDF's box primitive: PyBullet's
         OpenGL renderer shades its box primitive with normals that leave a dark triangle
         across each face. For pictures only; collision shapes stay boxes.
+    body : ((x, y, z), (x, y, z)), optional
+        The body box's lowest and highest corners in m from the axle midpoint (a robot's own,
+        :func:`body_box`); None: Table III's drawing rule.
     """
     off = _check_offset(com_offset)
     if payload is not None and not isinstance(payload, Payload):
         raise TwinError(f"payload must be a Payload(mass, position), got {payload!r}")
     p = params
-    h, w = body_height(p), body_width(p)
+    if body is None:  # Table III's rule, as it always was drawn
+        size, centre = (BODY_DEPTH, body_width(p), body_height(p)), f"0 0 {_f(p.l)}"
+    else:
+        lo, hi = body_box(p, body)
+        size = tuple(hi[i] - lo[i] for i in range(3))
+        centre = _xyz(tuple(0.5 * (hi[i] + lo[i]) for i in range(3)))
     com = (off[0], off[1], p.l + off[2])
     spoke = (0.7 * p.r, 0.2 * WHEEL_WIDTH + 0.002, 0.12 * p.r)
 
@@ -152,8 +163,8 @@ def robot_urdf(params: RobotParams = NOMINAL, payload: Payload | None = None,
         '  ' + _rgba("payload", PAYLOAD_COLOUR),
         '  <link name="body">',
         '    ' + _inertial(p.m_b, com, p.n_xb, p.n_yb, p.n_zb),
-        f'    <visual><origin xyz="0 0 {_f(p.l)}" rpy="0 0 0"/><geometry>{box((BODY_DEPTH, w, h))}</geometry><material name="body"/></visual>',
-        f'    <collision><origin xyz="0 0 {_f(p.l)}" rpy="0 0 0"/><geometry><box size="{_xyz((BODY_DEPTH, w, h))}"/></geometry></collision>',
+        f'    <visual><origin xyz="{centre}" rpy="0 0 0"/><geometry>{box(size)}</geometry><material name="body"/></visual>',
+        f'    <collision><origin xyz="{centre}" rpy="0 0 0"/><geometry><box size="{_xyz(size)}"/></geometry></collision>',
         '  </link>',
     ]
     for side, sign in (("left", 1.0), ("right", -1.0)):

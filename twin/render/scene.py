@@ -325,7 +325,7 @@ class Scene:
                     f.write(UNIT_CUBE_OBJ)
                 path = os.path.join(tmp, "robot.urdf")
                 with open(path, "w") as f:
-                    f.write(robot_urdf(p, d.payload, d.com_offset, box_mesh=cube))
+                    f.write(robot_urdf(p, d.payload, d.com_offset, box_mesh=cube, body=self.config.body))
                 self.robot = c.loadURDF(path, _FAR_AWAY, (0.0, 0.0, 0.0, 1.0), useFixedBase=True)
             # PyBullet's base position is the body's centre of mass (its inertial frame)
             self._com_local = np.array((d.com_offset[0], d.com_offset[1], p.l + d.com_offset[2]))

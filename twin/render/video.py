@@ -160,7 +160,7 @@ class _Track:
         self.start = (float(self.cols["x"][0]), float(self.cols["y"][0]), float(self.cols["alpha"][0]))
         self.box = None  # the body box's lowest and highest corners, m, body frame
         if run.config is not None:
-            self.box = body_box(run.config.params)
+            self.box = body_box(run.config.params, run.config.body)
             self.r = run.config.params.r
         self.body_top = self.box[1][2] if self.box is not None else 0.2  # m above the axle
         # the estimator's θ, ψ, α, for the ghost (none with ideal sensing: it would be the body)

@@ -284,6 +284,16 @@ class Robot:
         p = self.params()
         return BODY_DEPTH, body_width(p), body_height(p)
 
+    def body_corners(self):
+        """The body box's (lowest, highest) corners in m from the axle midpoint, where the file gives
+        ``body.size`` or ``body.box_bottom``; None: Table III's drawing rule (the paper's robot)."""
+        b = self.values["body"]
+        if b["size"] is None and b["box_bottom"] is None:
+            return None
+        depth, width, height = self.body_size()
+        bottom = b["box_bottom"] if b["box_bottom"] is not None else b["com_height"] - 0.5 * height
+        return (-0.5 * depth, -0.5 * width, bottom), (0.5 * depth, 0.5 * width, bottom + height)
+
     def max_hold_angle(self) -> float:
         """rad: the largest tilt at which both motors' stall torque holds the body against gravity
         (π/2 if they hold it lying down)."""

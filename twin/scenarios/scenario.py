@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import copy
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property, lru_cache, partial
 from importlib import resources
 from pathlib import Path
@@ -248,7 +248,7 @@ class Scenario:
         return TwinConfig(params=self.true_params(), physics_rate=d["rates"]["physics"],
                           control_rate=d["rates"]["control"], ground=ground, disturbances=dist,
                           motor=robot.motor() if p["motor"] == "dc" and applies else None,
-                          fall_angle=robot.fall_angle)
+                          fall_angle=robot.fall_angle, body=robot.body_corners())
 
     def plugin_limits(self):
         """The scenario's ``[limits]`` as a :class:`twin.limits.PluginLimits`, or None if it sets none."""
@@ -309,8 +309,7 @@ class Scenario:
                                       f"(duration = {d['duration']:g} s); allowed: [0, {d['duration']:g}) s")
 
         def sensors():
-
-            problem = problems(d, self.true_params())
+            problem = problems(d, self.true_params(), self.robot.body_corners())
             if problem:
                 raise self._error(problem)
             config = self.sensor_config()
@@ -327,10 +326,10 @@ class Scenario:
                 raise self._error(f"{where}: {exc}") from None
 
         config = self.twin_config()  # validated just above
-        limit = min(touch_angle(config.params), config.fall_angle) - 0.01
+        limit = min(touch_angle(config.params, config.body), config.fall_angle) - 0.01
         theta0 = d["initial"]["theta"]
         if abs(theta0) >= limit:
-            self._check_body_clears_floor(config.params)  # the body's size is to blame, not the tilt
+            self._check_body_clears_floor(config.params, config.body)  # the body's size is to blame, not the tilt
             raise self._error(f"initial.theta: {theta0:g} rad does not start on the wheels: this robot's body touches "
                               f"the floor (or passes the fall limit) at {limit + 0.01:.2f} rad; allowed: |θ0| < "
                               f"{limit:.2f} rad")
@@ -345,7 +344,7 @@ class Scenario:
         payload = config.disturbances.payload
         if payload is None:
             return
-        lo, hi = body_box(config.params)
+        lo, hi = body_box(config.params, config.body)
         pos = payload.position
         gap = max(max(lo[i] - pos[i], pos[i] - hi[i], 0.0) for i in range(3))
         if gap <= PAYLOAD_REACH:
@@ -356,14 +355,18 @@ class Scenario:
                           f"the body box; allowed: within {PAYLOAD_REACH:g} m of it ({allowed} m, body frame from "
                           f"the axle, for this plant)")
 
-    def _check_body_clears_floor(self, params) -> None:
+    def _check_body_clears_floor(self, params, body=None) -> None:
         """Where the initial tilt does not start on the wheels and the body box (its height follows
         l, twin.plant.urdf.body_height) clears the floor by less than MIN_CLEARANCE_RAD of tilt, the
         body's size is to blame: the error names plant.scale.l with the range that clears it (it
         blamed initial.theta, issue 31)."""
-        touch = touch_angle(params)
+        touch = touch_angle(params, body)
         if touch >= MIN_CLEARANCE_RAD:
             return
+        if body is not None:  # the robot's own box: its file is to blame
+            raise self._error(f"robot: the body's box (the robot file's body.size and body.box_bottom) reaches the "
+                              f"floor at {touch:.2f} rad of tilt; allowed: a box that clears the floor to "
+                              f"{MIN_CLEARANCE_RAD:g} rad")
         ok = [f / 100.0 for f in range(20, 501)
               if touch_angle(params.replace(l=self.robot.params().l * f / 100.0)) >= MIN_CLEARANCE_RAD]
         allowed = f"from {ok[0]:g} to {ok[-1]:g}" if ok else "none with this robot's other parameters"
@@ -390,21 +393,19 @@ class Scenario:
     def _check_start(self, config) -> None:
         """Every part of the robot starts above the floor (:func:`twin.plant.bullet.start_problem`):
         a payload below it, or a body pitched into a slope, is refused, naming the key."""
-        from dataclasses import replace
-
-
         d = self.data
         i = d["initial"]
         args = (config.params, config.ground, i["theta"], i["alpha"], (i["x"], i["y"]))
         payload = config.disturbances.payload
-        problem = start_problem(*args, payload)
+        problem = start_problem(*args, payload, config.body)
         if problem is None:
             return
-        clearance = start_clearance(*args, payload)
+        clearance = start_clearance(*args, payload, config.body)
         if clearance.get("payload", 0.0) < -START_TOLERANCE:
             # the clearance is linear in the payload's z: the lowest z that starts above the floor
             x, y, _ = payload.position
-            c0, c1 = (start_clearance(*args, replace(payload, position=(x, y, z)))["payload"] for z in (0.0, 1.0))
+            c0, c1 = (start_clearance(*args, replace(payload, position=(x, y, z)), config.body)["payload"]
+                      for z in (0.0, 1.0))
             z_min = -c0 / (c1 - c0)
             hint = (f"a payload_position whose z is at least {z_min:.3g} m here (x = {x:g}, y = {y:g} m)"
                     if z_min <= 0.5 else "a payload_position above the floor")

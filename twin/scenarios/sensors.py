@@ -105,7 +105,7 @@ def believed_config(data: dict) -> SensorConfig | None:
     return _config(data, believed_triads(s))
 
 
-def problems(data: dict, params) -> str | None:
+def problems(data: dict, params, body=None) -> str | None:
     """The first sensor problem as ``"key: what is wrong; allowed: ..."``, or None.
 
     ``params``: the true plant's :class:`~twin.params.RobotParams` (its body box holds the IMU)."""
@@ -133,7 +133,7 @@ def problems(data: dict, params) -> str | None:
                 f"(no motor current); allowed: plant.motor = \"dc\" on the bullet plant, or no "
                 f"[sensors.{needs_motor[0]}]")
     if s["imu_position"] is not None:
-        lo, hi = body_box(params)
+        lo, hi = body_box(params, body)
         p = tuple(s["imu_position"])
         if not all(a - 1e-12 <= v <= b + 1e-12 for v, a, b in zip(p, lo, hi)):
             box = ", ".join(f"{c} in [{a:.4g}, {b:.4g}]" for c, a, b in zip("xyz", lo, hi))
