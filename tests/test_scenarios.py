@@ -17,6 +17,8 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+
+from twin.robots import load_robot
 from click.testing import CliRunner
 
 from twin.cli import main
@@ -26,7 +28,8 @@ from twin.scenarios import ScenarioError, builtin_names, load_scenario
 from twin.workflows.run import run_scenario
 from twin.scenarios.scenario import parse_override
 
-BUILTINS = ("paper-exp1", "paper-exp2", "paper-exp3", "push-recovery", "sensor-faults", "slope-payload")
+BUILTINS = ("balboa-exp3", "paper-exp1", "paper-exp2", "paper-exp3", "push-recovery", "rmp220-exp3", "sensor-faults",
+            "slope-payload")
 METRIC_KEYS = ("fell", "settling_time_s", "theta_rms_rad", "oscillation_peak_to_peak_rad", "final_position_error_m",
                "final_heading_error_rad", "iae_theta", "control_effort", "max_abs_torque_nm",
                "estimator_theta_rmse_rad", "rejected_measurements")
@@ -197,7 +200,7 @@ def test_scenarios_name_prints_the_toml_to_copy(tmp_path):
     copy = tmp_path / "mine.toml"
     copy.write_text(stdout, encoding="utf-8")
     assert load_scenario(str(copy)).data["targets"]["position"] == 0.7  # a valid scenario as it stands
-    assert_one_line_error(*twin("scenarios", "nope"), "no built-in scenario 'nope'; built-ins: paper-exp1")
+    assert_one_line_error(*twin("scenarios", "nope"), "no built-in scenario 'nope'; built-ins: " + ", ".join(BUILTINS))
 
 
 def test_a_rerun_removes_the_outputs_it_does_not_write_again(tmp_path):
@@ -276,14 +279,15 @@ def test_every_builtin_loads_and_validates(name):
     assert sc.data["targets"]["position"] == raw.get("targets", {}).get("position")
     assert sc.data["targets"]["heading"] == raw.get("targets", {}).get("heading")
     assert len(sc.data["pushes"]) == len(raw.get("pushes", [])) and len(sc.data["faults"]) == len(raw.get("faults", []))
-    assert sc.data["rates"] == {"physics": 1000.0, "control": 200.0}
+    robot = load_robot(raw.get("robot", "paper"))  # a robot's rates; the paper's: Table III's 200 Hz
+    assert sc.robot is robot and sc.data["rates"] == {"physics": 1000.0, "control": robot.control_rate}
     assert sc.data["sensors"]["sensing"] == "estimated" and sc.data["sensors"]["estimator"] == "ekf"
     params = sc.true_params()
     for pname, factor in raw.get("plant", {}).get("scale", {}).items():
-        assert getattr(params, pname) == pytest.approx(factor * getattr(NOMINAL, pname))
+        assert getattr(params, pname) == pytest.approx(factor * getattr(robot.params(), pname))
     # building everything again works (check() is idempotent)
     assert sc.check() is sc
-    assert sc.sensor_config() is not None and sc.twin_config().control_rate == 200.0
+    assert sc.sensor_config() is not None and sc.twin_config().control_rate == robot.control_rate
 
 
 def test_scenarios_command_lists_each_builtin_on_one_line():

@@ -77,7 +77,7 @@ class BuildContext:
     ``targets`` the run's :class:`~twin.protocols.Targets`; ``alpha0`` the initial heading
     in rad; ``design`` a zero-argument callable returning the LMI balance design
     (:class:`~twin.controllers.lmi.BalanceDesign`, solved on first use); ``options`` the
-    scenario's fuzzy-cascade options (``fou``, ``type_reduction``, ``psi_error_limit``).
+    scenario's controllers' options (``fou``, ``type_reduction``, ``psi_error_limit``, and for another robot than the paper's ``universes`` and ``rho``: see :meth:`twin.scenarios.Scenario.cascade_options`).
     """
 
     control_rate: float = 200.0
@@ -109,13 +109,14 @@ class BuildContext:
 # Each factory imports its kind's code when that kind is built (optional dependencies: a run of
 # LQR does not load the fuzzy cascade, nor a run of a user's estimator the EKF).
 def _cascade(kind: str):
-    def build(ctx: BuildContext, fou=None, type_reduction=None, psi_error_limit=None):
+    def build(ctx: BuildContext, fou=None, type_reduction=None, psi_error_limit=None, universes=None):
         # optional: the fuzzy cascade's code only when a fuzzy controller is built
         from twin.controllers.cascade import build_cascade
         from twin.fuzzy.mamdani import TYPE_REDUCERS
 
         o = dict(ctx.options)
-        for name, value in (("fou", fou), ("type_reduction", type_reduction), ("psi_error_limit", psi_error_limit)):
+        for name, value in (("fou", fou), ("type_reduction", type_reduction), ("psi_error_limit", psi_error_limit),
+                            ("universes", universes)):
             if value is not None:
                 o[name] = value
         # checked here, not only where used: a loop that a run leaves off must not hide a bad value
@@ -136,9 +137,9 @@ def _lqr(ctx: BuildContext, **params):
 CONTROLLERS: dict[str, Kind] = {
     "it2": Kind("it2", "IT2", "the paper's IT2 fuzzy cascade: IT2 PDC balance (LMI gains), IT2 Mamdani position "
                 "and direction controllers, BMM type reduction", _cascade("it2"), uses_design=True,
-                parameters=("fou", "type_reduction", "psi_error_limit")),
+                parameters=("fou", "type_reduction", "psi_error_limit", "universes")),
     "t1": Kind("t1", "type-1", "the type-1 fuzzy cascade of the same structure and gains", _cascade("t1"),
-               uses_design=True, parameters=("fou", "type_reduction", "psi_error_limit")),
+               uses_design=True, parameters=("fou", "type_reduction", "psi_error_limit", "universes")),
     "lqr": Kind("lqr", "LQR", "LQR on the linearised nominal model (TS rule 1), Bryson's rule; LQR heading loop",
                 _lqr, parameters=("psi_error_limit", "state_scales", "input_scale", "yaw_state_scales",
                                   "yaw_input_scale", "control_period")),

@@ -32,6 +32,7 @@ from typing import NamedTuple
 
 from twin.controllers.balance import PDCBalanceController
 from twin.controllers.mamdani import DEFAULT_FOU, ScaledFLS, direction_controller, position_controller
+from twin.controllers.robot_settings import UNIVERSES
 from twin.errors import TwinError
 from twin.params import NOMINAL, RobotParams
 from twin.protocols import Targets
@@ -108,14 +109,19 @@ class FuzzyCascade:
 
 def build_cascade(kind: str, design, targets: Targets = Targets(), params: RobotParams = NOMINAL,
                   fou: float = DEFAULT_FOU, type_reduction: str = "bmm",
-                  psi_error_limit: float = DEFAULT_PSI_ERROR_LIMIT) -> FuzzyCascade:
+                  psi_error_limit: float = DEFAULT_PSI_ERROR_LIMIT, universes=None, rho=None) -> FuzzyCascade:
     """The IT2 (``kind="it2"``) or type-1 (``"t1"``) cascade with the balance gains of
     ``design`` (a :class:`~twin.controllers.lmi.BalanceDesign`), on the model ``params``.
 
     The position and direction controllers are built for the loops ``targets`` closes
-    (a target of None leaves that loop off, as the paper's experiments 1 and 2 do).
+    (a target of None leaves that loop off, as the paper's experiments 1 and 2 do), with the
+    ranges ``universes`` gives (names of :data:`twin.controllers.robot_settings.UNIVERSES`;
+    each absent one Table I's). ``rho`` (the design's torque bound) is the design's already.
     """
+    u = {**{k: v for k, (v, _) in UNIVERSES.items()}, **(universes or {})}
     balance = PDCBalanceController(design.gains, kind)
-    position = position_controller(kind, fou, type_reduction) if targets.position is not None else None
-    direction = direction_controller(kind, fou, type_reduction) if targets.heading is not None else None
+    position = position_controller(kind, fou, type_reduction, (u["position_error"], u["pitch_rate"], u["lean"])) \
+        if targets.position is not None else None
+    direction = direction_controller(kind, fou, type_reduction, u["turn_torque"],
+                                     (u["heading_error"], u["turn_rate"])) if targets.heading is not None else None
     return FuzzyCascade(balance, position, direction, params.r, psi_error_limit)

@@ -442,7 +442,10 @@ def build_lqr(context=None, **params) -> LQRController:
 
     ``context`` (optional), a :class:`twin.registry.BuildContext` or any object with some
     of its attributes: ``model`` (the design model, RobotParams), ``control_rate`` (Hz,
-    the sampled design's period is its inverse) and ``options["psi_error_limit"]`` (rad).
+    the sampled design's period is its inverse) and ``options``: ``psi_error_limit`` (rad),
+    ``rho`` (N·m: the balance input's Bryson scale, the LMI design's torque bound) and
+    ``universes`` (the direction FLS's ``heading_error`` rad, ``turn_rate`` rad/s and
+    ``turn_torque`` N·m: the yaw loop's Bryson scales), each absent one the default.
     Explicit keyword arguments take precedence.
     """
     kwargs = {}
@@ -455,9 +458,17 @@ def build_lqr(context=None, **params) -> LQRController:
             if not (isinstance(rate, (int, float)) and not isinstance(rate, bool) and math.isfinite(rate) and rate > 0):
                 raise TwinError(f"control_rate must be a positive finite number in Hz, got {rate!r}")
             kwargs["control_period"] = 1.0 / float(rate)
-        limit = (getattr(context, "options", None) or {}).get("psi_error_limit")
-        if limit is not None:
-            kwargs["psi_error_limit"] = limit
+        options = getattr(context, "options", None) or {}
+        if options.get("psi_error_limit") is not None:
+            kwargs["psi_error_limit"] = options["psi_error_limit"]
+        if options.get("rho") is not None:  # the LMI design's torque bound, set for the robot
+            kwargs["input_scale"] = options["rho"]
+        u = options.get("universes") or {}  # the direction FLS's ranges, set for the robot
+        if "heading_error" in u or "turn_rate" in u:
+            kwargs["yaw_state_scales"] = (u.get("heading_error", YAW_STATE_SCALES[0]),
+                                          u.get("turn_rate", YAW_STATE_SCALES[1]))
+        if "turn_torque" in u:
+            kwargs["yaw_input_scale"] = u["turn_torque"]
     kwargs.update(params)
     return LQRController(**kwargs)
 

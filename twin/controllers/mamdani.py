@@ -102,16 +102,29 @@ def table_ii_fls(kind: str = "it2", fou: float = DEFAULT_FOU, type_reduction: st
     return MamdaniFLS(part, part, OUTPUT_CENTRES, RULE_INDEX, type_reduction=type_reduction, m=m, n=n)
 
 
-def position_controller(kind: str = "it2", fou: float = DEFAULT_FOU, type_reduction: str = "bmm") -> ScaledFLS:
-    """θ_off (rad) = F(p_e (m), θ̇ (rad/s)), Table I ranges ±3 m, ±4 rad/s, ±π/40 rad."""
-    return ScaledFLS(table_ii_fls(kind, fou, type_reduction), (P_E_RANGE, THETA_DOT_RANGE), THETA_OFF_RANGE,
-                     name=f"{kind} position")
+def _ranges(ranges, n: int, what: str) -> tuple:
+    if not (isinstance(ranges, (tuple, list)) and len(ranges) == n
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+                    for v in ranges)):
+        raise TwinError(f"{what} must be {n} positive finite numbers, got {ranges!r}")
+    return tuple(float(v) for v in ranges)
+
+
+def position_controller(kind: str = "it2", fou: float = DEFAULT_FOU, type_reduction: str = "bmm",
+                        ranges=(P_E_RANGE, THETA_DOT_RANGE, THETA_OFF_RANGE)) -> ScaledFLS:
+    """θ_off (rad) = F(p_e (m), θ̇ (rad/s)); ``ranges`` (p_e m, θ̇ rad/s, θ_off rad), by default
+    Table I's ±3 m, ±4 rad/s, ±π/40 rad."""
+    p_e, theta_dot, theta_off = _ranges(ranges, 3, "the position controller's ranges (m, rad/s, rad)")
+    return ScaledFLS(table_ii_fls(kind, fou, type_reduction), (p_e, theta_dot), theta_off, name=f"{kind} position")
 
 
 def direction_controller(kind: str = "it2", fou: float = DEFAULT_FOU, type_reduction: str = "bmm",
-                         u_alpha_max: float = DEFAULT_U_ALPHA_MAX) -> ScaledFLS:
-    """u_α (N·m per wheel) = F(α_e (rad), α̇_e (rad/s)), ranges ±1 rad, ±1 rad/s, ±u_alpha_max."""
+                         u_alpha_max: float = DEFAULT_U_ALPHA_MAX,
+                         ranges=(ALPHA_E_RANGE, ALPHA_DOT_E_RANGE)) -> ScaledFLS:
+    """u_α (N·m per wheel) = F(α_e (rad), α̇_e (rad/s)); input ``ranges`` (rad, rad/s), by
+    default Table I's ±1 rad, ±1 rad/s; output ±u_alpha_max."""
     if not (isinstance(u_alpha_max, (int, float)) and math.isfinite(u_alpha_max) and u_alpha_max > 0):
         raise TwinError(f"u_alpha_max must be a positive torque in N·m, got {u_alpha_max!r}")
-    return ScaledFLS(table_ii_fls(kind, fou, type_reduction), (ALPHA_E_RANGE, ALPHA_DOT_E_RANGE), float(u_alpha_max),
+    alpha_e, alpha_dot = _ranges(ranges, 2, "the direction controller's input ranges (rad, rad/s)")
+    return ScaledFLS(table_ii_fls(kind, fou, type_reduction), (alpha_e, alpha_dot), float(u_alpha_max),
                      name=f"{kind} direction")

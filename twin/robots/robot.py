@@ -245,6 +245,20 @@ class Robot:
                            n_yb=n_yb, n_zb=n_zb, r=w["radius"], b=0.5 * w["track"], l=b["com_height"], d_b=f["drive"],
                            d_w=f["ground"], n_xb=n_xb, g=NOMINAL.g)
 
+    def model(self, motors: bool = True) -> RobotParams:
+        """The model the controllers and the estimator assume (kg, m, kg·m², N·m·s/rad): :meth:`params`,
+        and with ``motors`` (the twin drives the wheels through this robot's drive) a driver that
+        does not compensate the back-EMF adds the motor's electrical damping k_t k_e / R (at the
+        wheel) to the drive's friction ``d_b``: the torque a duty gives then falls with the wheel's
+        speed relative to the body exactly as viscous friction between them does, and a design
+        that ignored it would ask for torque the drive does not give. A compensating driver (the
+        paper's) cancels it: its model is :meth:`params` itself."""
+        p = self.params()
+        m = self.motor()
+        if not motors or m.back_emf_compensation:
+            return p
+        return p.replace(d_b=p.d_b + m.electrical_damping)
+
     def motor(self) -> DCMotorParams:
         """Each side's drive as the twin's motor model at the wheel (see the module docstring)."""
         d = self.values["drive"]

@@ -15,7 +15,9 @@ from functools import cached_property, lru_cache, partial
 from importlib import resources
 from pathlib import Path
 
+from twin.controllers import robot_settings
 from twin.controllers.designs import adopt, balance_design
+from twin.controllers.lmi import DEFAULT_RHO
 from twin.errors import TwinError, shown
 from twin.experiments import Experiment
 from twin.inputs import MAX_TOML_BYTES, inside, read_text
@@ -202,7 +204,7 @@ class Scenario:
                       sensing=Sensing(self.sensor_config(), self.believed_sensor_config()),
                       design=self.design if design is None else design, options=self.cascade_options(),
                       logging=Logging(), name=self.name, description=self.description, limits=self.plugin_limits(),
-                      model=self.robot.params())
+                      model=self.model())
         plugins = [None if k is None else Plugin(k, params.get(k)) for k in kinds]
         return [RunSpec(controller=c, label=k or "", **shared) for k, c in zip(kinds, plugins)]
 
@@ -224,6 +226,11 @@ class Scenario:
         i = self.data["initial"]
         return build_plant(self.plant_model, self.twin_config(), i["theta"], i["alpha"], (i["x"], i["y"]),
                            self.data["plant"]["params"])
+
+    def model(self):
+        """The model the controllers and the estimator assume: the robot's (:meth:`twin.robots.Robot.model`,
+        with its drive's back-EMF damping where the twin drives the wheels through it), not the true plant."""
+        return self.robot.model(motors=self.twin_config().motor is not None)
 
     def true_params(self):
 
@@ -273,21 +280,29 @@ class Scenario:
         """The LMI balance design (on the nominal model), from the design store
         (:mod:`twin.controllers.designs`: solved once per process and set of options, and
         taken from the on-disk cache when it has it, when cvxpy is never imported)."""
-        return solve_design(self.source, self.design_options(), self.robot.params())
+        return solve_design(self.source, self.design_options(), self.model())
 
     def design_solver(self):
         """:meth:`design` as a zero-argument callable of this scenario's design options and robot alone."""
-        return partial(solve_design, self.source, self.design_options(), self.robot.params())
+        return partial(solve_design, self.source, self.design_options(), self.model())
 
     def adopt_design(self, design) -> "Scenario":
         """Use ``design`` (solved elsewhere for these design options) instead of solving it
         again: a sweep's workers take the design the sweep solved once."""
-        adopt(design, self.robot.params(), **self.design_options())
+        adopt(design, self.model(), **self.design_options())
         return self
 
     def cascade_options(self) -> dict:
+        """The controllers' options (``fou``, ``type_reduction``, ``psi_error_limit``; the Mamdani
+        ``universes`` and the LQR's input scale ``rho``, N·m, where they are not the paper's)."""
         c = self.data["controller"]
-        return {"fou": c["fou"], "type_reduction": c["type_reduction"], "psi_error_limit": c["psi_error_limit"]}
+        options = {"fou": c["fou"], "type_reduction": c["type_reduction"], "psi_error_limit": c["psi_error_limit"]}
+        universes = {k: v for k, v in c["universes"].items() if v != robot_settings.UNIVERSES[k][0]}
+        if universes:
+            options["universes"] = universes
+        if self.data["design"]["rho"] != DEFAULT_RHO:
+            options["rho"] = self.data["design"]["rho"]
+        return options
 
     def check(self) -> "Scenario":
         """Build everything once: errors that involve several keys surface here, named."""
@@ -607,6 +622,11 @@ ROBOT_SET = {
     ("sensors", "imu_latency"): lambda r: r.imu().latency,
     ("sensors", "encoder_counts"): lambda r: r.encoders().counts_per_rev,
     ("sensors", "encoder_latency"): lambda r: r.encoders().latency,
+    # the controllers' settings the robot implies (twin.controllers.robot_settings)
+    ("design", "rho"): lambda r: robot_settings.design_settings(r)["rho"],
+    ("design", "decay_rate"): lambda r: robot_settings.design_settings(r)["decay_rate"],
+    **{("controller", "universes", name): (lambda r, name=name: robot_settings.universes(r)[name])
+       for name in robot_settings.UNIVERSES},
 }
 
 
@@ -624,10 +644,13 @@ def _take_robot(data: dict, raw: dict, path: Path | None, where: str) -> None:
     except TwinError as exc:
         raise ScenarioError(f"{where}: robot: {exc}") from None
     paper = load_robot("paper")
-    for (table, key), figure in ROBOT_SET.items():
-        given = isinstance(raw.get(table), dict) and key in raw[table]
-        if not given and figure(robot) != figure(paper):
-            data[table][key] = figure(robot)
+    for keys, figure in ROBOT_SET.items():
+        given, into = raw, data
+        for key in keys[:-1]:
+            given = given.get(key) if isinstance(given, dict) else None
+            into = into[key]
+        if not (isinstance(given, dict) and keys[-1] in given) and figure(robot) != figure(paper):
+            into[keys[-1]] = figure(robot)
 
 
 def load_scenario(name_or_path: str, overrides=(), *, within=None) -> Scenario:

@@ -19,6 +19,7 @@ from twin.controllers.lmi import (DEFAULT_ALL_VERTICES, DEFAULT_DAMPING, DEFAULT
                                   DEFAULT_UNCERTAIN, MIN_EPSILON)
 from twin.controllers.lmi_regions import UNCERTAIN_PARAMETERS
 from twin.controllers.mamdani import DEFAULT_FOU, P_E_RANGE
+from twin.controllers.robot_settings import UNIVERSES
 from twin.fuzzy.mamdani import TYPE_REDUCERS
 from twin.errors import TwinError, shown
 from twin.params import PARAMETER_DOCS
@@ -238,6 +239,18 @@ SCHEMA: dict[str, Key] = {
                        "membership functions vanish at 0.5)"),
         "type_reduction": Key("str", "bmm", choices=TYPE_REDUCERS, doc="BMM (the paper), Nie–Tan or exact Karnik–Mendel"),
         "psi_error_limit": _f(DEFAULT_PSI_ERROR_LIMIT, 0.0, 100.0, "rad", lo_open=True, doc="clip of the wheel-angle error"),
+        "universes": Key("table", recorded_at_default=False, doc=(
+            "the Mamdani position and direction controllers' ranges (each input and output is "
+            "normalised by its range; beyond it the sets saturate); absent: Table I's, scaled to the "
+            "scenario's robot (twin.controllers.robot_settings)"), keys={
+            name: Key("float", default, 0.0, 1e6, True, unit, recorded_at_default=False, doc=doc)
+            for (name, (default, unit)), doc in zip(UNIVERSES.items(), (
+                "position error p_e = p − p_d of the position controller",
+                "body pitch rate θ̇, the position controller's second input",
+                "lean θ_off, the position controller's output (the balance controller's offset)",
+                "heading error α_e = α − α_d of the direction controller",
+                "heading rate α̇_e, the direction controller's second input",
+                "turning torque u_α per wheel, the direction controller's output"))}),
     }),
     "design": Key("table", keys={
         "epsilon": _f(DEFAULT_EPSILON, MIN_EPSILON, 10.0, "1", doc="radius of the certified initial states (Lemma 2)"),
