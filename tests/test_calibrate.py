@@ -21,6 +21,7 @@ from twin.calibrate.identify import assess
 from twin.calibrate.run import TURN_RATE, calibrate
 from twin.errors import TwinError
 from twin.logs.format import read_log
+from twin.robots import load_robot, robot_text
 
 QUICK = "m_b,l,n_yb,n_zb,d_b,d_w,gyro_bias_x,gyro_bias_y,gyro_bias_z"
 
@@ -30,8 +31,10 @@ def logs(tmp_path_factory):
     """An 8 s paper-exp1 log (balance only: it never turns) with the plant 10 % heavier, and a
     3 s one (too short to calibrate from)."""
     d = tmp_path_factory.mktemp("calibrate")
+    # a robot file of one's own (the paper's figures, under another name): the log carries it
+    (d / "mine.toml").write_text(robot_text("paper").replace('name = "paper"', 'name = "mine"'), encoding="utf-8")
     r = _twin("run", "paper-exp1", "--controller", "it2", "--duration", "8", "--no-video", "--log-sensors",
-              "--set", "plant.scale={m_b = 1.1, l = 1.05}", "--out", str(d / "exp1"))
+              "--robot", str(d / "mine.toml"), "--set", "plant.scale={m_b = 1.1, l = 1.05}", "--out", str(d / "exp1"))
     assert r.returncode == 0, r.stderr
     r = _twin("run", "paper-exp1", "--controller", "it2", "--duration", "3", "--no-video", "--log-sensors",
               "--out", str(d / "short"))
@@ -95,6 +98,51 @@ def test_the_calibration_runs_as_the_twins_plant(calibrated, tmp_path):
               str(out / "calibration.toml"), "--set", "plant.scale.m_b=1.3", "--out", str(tmp_path / "run2"))
     assert r.returncode == 0, r.stderr
     assert json.loads((tmp_path / "run2" / "metrics.json").read_text())["scenario"]["plant"]["scale"]["m_b"] == 1.3
+
+
+def test_the_fitted_robot_file_round_trips(calibrated, logs, tmp_path):
+    """robot file → twin run --log-sensors → twin calibrate → robot.toml: its identified figures
+    hold the true plant's (the robot file's × plant.scale) within their intervals, what the log does
+    not identify is the input robot's and says so, and a run of the fitted robot (no mismatch
+    left) matches the original run."""
+    out, stdout = calibrated
+    assert "robot.toml" in stdout.splitlines()[-1]
+    text = (out / "robot.toml").read_text()
+    fitted, mine = load_robot(out / "robot.toml"), load_robot(logs[0].parent.parent.parent / "mine.toml")
+    assert fitted.name == "mine-fitted"
+    doc = json.loads((out / "report.json").read_text())["parameters"]
+    truth = {"m_b": 2.58 * 1.1, "l": 0.0622 * 1.05, "n_yb": 0.00128, "d_b": 0.001, "d_w": 0.01}
+    where = {"m_b": ("body", "mass"), "l": ("body", "com_height"), "n_yb": ("body", "pitch_inertia"),
+             "d_b": ("friction", "drive"), "d_w": ("friction", "ground")}
+    identified = [n for n in truth if doc[n]["identifiable"]]
+    assert {"m_b", "l", "n_yb"} <= set(identified)
+    for n in identified:
+        lo, hi = doc[n]["ci95"]
+        assert lo <= truth[n] <= hi, (n, truth[n], lo, hi)
+        assert fitted.values[where[n][0]][where[n][1]] == pytest.approx(doc[n]["value"], rel=1e-5)
+    # n_zb: fitted, not identified (the log never turns): the input robot's, said so
+    assert fitted.values["body"]["yaw_inertia"] == mine.values["body"]["yaw_inertia"]
+    assert any(line.startswith("yaw_inertia = ") and "not identified" in line for line in text.splitlines())
+    # the wheels and drive: not fitted, the input robot's
+    assert fitted.values["wheels"] == mine.values["wheels"] and fitted.params().r == mine.params().r
+    # the gyro's constant biases: identified axes are the fitted ones
+    assert list(fitted.values["imu"]["gyro_bias"]) == pytest.approx(
+        [doc[f"gyro_bias_{a}"]["value"] for a in "xyz"], rel=1e-5)
+    # the fitted robot runs as the robot that wrote the log does (the true plant as a robot file:
+    # the controllers are designed for each robot's own figures, so neither run has a mismatch)
+    true_file = tmp_path / "truth.toml"
+    true_file.write_text(robot_text("paper").replace("mass = 2.58 ", f"mass = {2.58 * 1.1!r} ")
+                         .replace("com_height = 0.0622 ", f"com_height = {0.0622 * 1.05!r} "), encoding="utf-8")
+    assert load_robot(true_file).params().m_b == pytest.approx(2.58 * 1.1)
+    for robot, name in ((true_file, "truth"), (out / "robot.toml", "fitted")):
+        r = _twin("run", "paper-exp1", "--controller", "it2", "--duration", "8", "--no-video", "--robot",
+                  str(robot), "--set", "plant.scale={}", "--out", str(tmp_path / name))
+        assert r.returncode == 0, r.stderr
+    a, b = (json.loads((tmp_path / n / "metrics.json").read_text())["runs"]["it2"] for n in ("truth", "fitted"))
+    assert a["fell"] is b["fell"] is False
+    assert abs(a["settling_time_s"] - b["settling_time_s"]) <= 0.05, (a["settling_time_s"], b["settling_time_s"])
+    assert b["iae_theta"] == pytest.approx(a["iae_theta"], rel=0.05)
+    assert b["theta_rms_rad"] == pytest.approx(a["theta_rms_rad"], rel=0.05)
 
 
 @pytest.mark.parametrize("text, says", [

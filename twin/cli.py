@@ -50,6 +50,7 @@ COMMANDS = {
     "cache": "twin.commands.cache:cache", "calibrate": "twin.commands.calibrate:calibrate_command",
     "check": "twin.commands.check:check_command", "compare": "twin.commands.compare:compare_command",
     "design": "twin.commands.design:design", "kinds": "twin.commands.listing:kinds_command",
+    "linearize": "twin.commands.linearize:linearize",
     "replay": "twin.commands.replay:replay_command", "robots": "twin.commands.listing:robots_command",
     "run": "twin.commands.run:run",
     "scenarios": "twin.commands.listing:scenarios_command", "surface": "twin.commands.surface:surface",

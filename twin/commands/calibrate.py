@@ -40,8 +40,10 @@ def calibrate_command(logs, parameters, held_out, seed, model_kind, out, list_):
     95 % intervals, correlations and a warning for each parameter the logs do not excite. The
     twin's parameters that reproduce that robot (its stepping differs) go to calibration.toml.
     --validate compares the nominal and the calibrated robot on held-out logs and says whether
-    their parameters are the calibrated robot's. Writes report.json, calibration.toml (for 'twin
-    run SCENARIO --plant calibration.toml') and figure.png into --out.
+    their parameters are the calibrated robot's. Writes report.json, robot.toml (the fitted robot,
+    complete: the logs' own robot with every identified figure replaced, each with its interval;
+    for 'twin run SCENARIO --robot robot.toml'), calibration.toml (the paper's robot scaled, for
+    'twin run SCENARIO --plant calibration.toml') and figure.png into --out.
 
     \b
     Examples:
@@ -49,7 +51,7 @@ def calibrate_command(logs, parameters, held_out, seed, model_kind, out, list_):
       twin calibrate runs/exp3/sensor-logs/it2 --out runs/calibration
       twin calibrate robot/log1 robot/log2 --validate robot/log3 --out runs/calibration
       twin calibrate runs/exp3/sensor-logs/it2 --parameters m_b,l,n_yb,d_b,d_w --validate runs/exp3b/sensor-logs/it2
-      twin run paper-exp3 --plant runs/calibration/calibration.toml
+      twin run paper-exp3 --robot runs/calibration/robot.toml
     """
     if list_:
         for name, p in PARAMETERS.items():
@@ -77,7 +79,10 @@ def calibrate_command(logs, parameters, held_out, seed, model_kind, out, list_):
             click.echo(f"  {v['log']} calibrated alone: {'the same robot' if sr['consistent'] else 'NOT the same robot'}"
                        f" by its parameters ({zs}; |z| < {sr['z_limit']:g})")
     limit = c.twin_why
-    if limit:
+    if limit and c.robot is not None:
+        click.echo(f"  note: calibration.toml has no [plant] (the paper's robot scaled cannot be this one: {limit}); "
+                   f"robot.toml is the robot: twin run SCENARIO --robot {out}/robot.toml")
+    elif limit:
         click.echo(f"  warning: the twin cannot run this robot: {limit}; calibration.toml records it, without "
                    f"[plant]")
     if twin is not None and twin["values"] is None:
@@ -92,4 +97,5 @@ def calibrate_command(logs, parameters, held_out, seed, model_kind, out, list_):
         click.echo(f"  warning: {line}")
     click.echo(f"  {doc['method']['windows']} windows fitted ({len(c.cal.dropped)} left out), residual σ "
                f"{doc['method']['residual_sigma']:.3g}, {c.cal.wall_s:.1f} s")
-    click.echo(f"wrote {out}/: report.json, calibration.toml, figure.png, {rundir.MANIFEST}")
+    robot = "robot.toml, " if c.robot is not None else ""
+    click.echo(f"wrote {out}/: report.json, {robot}calibration.toml, figure.png, {rundir.MANIFEST}")

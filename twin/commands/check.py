@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from twin.commands.common import (Once, SweepBar, complete_kinds, complete_scenario, contained, counted,
-                                  limit_options, limit_overrides, tolerance_options, tolerances)
+                                  limit_options, limit_overrides, robot_option, with_robot, tolerance_options, tolerances)
 from twin.verify.check import failure_lines, format_table, write_junit
 from twin.workflows.check import check
 
@@ -29,9 +29,10 @@ from twin.workflows.check import check
               help="Compare every run with the golden trajectory stored under DIR; report where it departs.")
 @tolerance_options("the golden trajectories (with --golden)")
 @limit_options(" in every scenario checked")
+@robot_option("every scenario runs")
 @contained
 def check_command(targets, controller, seeds, workers, overrides, junit, record, golden, atol, rtol, tolerance, step_limit,
-          run_limit, memory_limit):
+          run_limit, memory_limit, robot):
     """Check scenarios against their [expect] bounds: exit 0 if all hold, 1 if any fails.
 
     Runs every scenario, controller and seed (in parallel on local cores) and prints each
@@ -53,8 +54,8 @@ def check_command(targets, controller, seeds, workers, overrides, junit, record,
     """
     bar = SweepBar("runs")
     try:
-        result = check(targets, controller, seeds, workers, limit_overrides(overrides, step_limit, run_limit,
-                       memory_limit), record, golden, tolerances(atol, rtol, tolerance), bar.update,
+        result = check(targets, controller, seeds, workers, with_robot(limit_overrides(overrides, step_limit, run_limit,
+                       memory_limit), robot), record, golden, tolerances(atol, rtol, tolerance), bar.update,
                        lambda f: click.echo(f"  skipped {f}: no [expect] table"))
     finally:
         bar.close()

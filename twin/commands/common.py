@@ -3,8 +3,10 @@ shell completion, the options of limits, tolerances and the design cache, progre
 stderr, and how numbers and counts are printed."""
 from __future__ import annotations
 
+import json
 import sys
 import tomllib
+from pathlib import Path
 
 import click
 from click.shell_completion import CompletionItem
@@ -137,6 +139,27 @@ def limit_options(where: str, run_default: str = ""):
                                   f"limits.{key}). Default: {default}.")(f)
         return f
     return decorate
+
+
+def robot_option(what: str):
+    """``--robot NAME|FILE``: the robot ``what`` runs (the scenarios' ``robot`` key)."""
+    return click.option("--robot", default=None, metavar="NAME|FILE",
+                        help=f"The robot {what}: a built-in's name ('twin robots') or a robot file (robot.toml); "
+                             f"sets the scenario's robot key (not with --set robot=...).")
+
+
+def with_robot(overrides, robot: str | None) -> tuple:
+    """``overrides`` (the --set items), after ``robot=...`` if ``--robot`` was given; one line if
+    ``--set robot=...`` is given too. A file is named by its absolute path (a worker process, or a
+    scenario file elsewhere, finds it all the same)."""
+    overrides = tuple(overrides)
+    if robot is None:
+        return overrides
+    if any(str(o).partition("=")[0].strip() == "robot" for o in overrides):
+        raise TwinError("--robot and --set robot=... both name the robot; give one of them")
+    path = Path(robot)
+    value = str(path.resolve()) if path.suffix == ".toml" and path.is_file() else robot
+    return (f"robot={json.dumps(value)}",) + overrides
 
 
 def limit_overrides(overrides, step_limit, run_limit, memory_limit) -> tuple:

@@ -8,21 +8,24 @@ import click
 import numpy as np
 
 from twin.commands.common import Once, no_cache_option
-from twin.controllers import lmi, lmi_regions
+from twin.controllers import lmi, lmi_regions, robot_settings
 from twin.controllers.balance import PDCBalanceController
 from twin.controllers.designs import balance_design
 from twin.controllers.lmi import decay_along_theta
 from twin.errors import TwinError
 from twin.outputs.report import write_json
+from twin.robots import load_robot
 
 
 def design_options(f):
     f = click.option("--max-gain", type=float, default=None,
                      help="Upper bound on each gain's spectral norm ‖G_i‖.")(f)
-    f = click.option("--decay-rate", type=float, default=lmi.DEFAULT_DECAY_RATE, show_default=True,
-                     help="Guaranteed decay rate of ‖x‖ on the TS model, 1/s.")(f)
-    f = click.option("--rho", type=float, default=lmi.DEFAULT_RHO, show_default=True,
-                     help="Bound on the total wheel torque |ul + ur|, N·m (Lemma 2).")(f)
+    f = click.option("--decay-rate", type=float, default=None,
+                     help=f"Guaranteed decay rate of ‖x‖ on the TS model, 1/s [default: the robot's; the paper's "
+                          f"robot {lmi.DEFAULT_DECAY_RATE:g}].")(f)
+    f = click.option("--rho", type=float, default=None,
+                     help=f"Bound on the total wheel torque |ul + ur|, N·m (Lemma 2) [default: the robot's; the "
+                          f"paper's robot {lmi.DEFAULT_RHO:g}].")(f)
     f = click.option("--epsilon", type=float, default=lmi.DEFAULT_EPSILON, show_default=True,
                      help="Radius of the certified set of initial states ‖x0‖ ≤ ε (Lemma 2).")(f)
     f = click.option("--damping", type=float, default=lmi.DEFAULT_DAMPING, show_default=True,
@@ -49,8 +52,11 @@ def format_uncertain(box) -> str:
               help="cvxpy solver (default Clarabel, SCS as fallback).")
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Write the design as JSON (gains, P, solve time, ε, ρ, decay rate, certificate).")
+@click.option("--robot", default="paper", show_default=True, metavar="NAME|FILE",
+              help="The robot designed for: a built-in's name ('twin robots') or a robot file; its model, and the "
+                   "torque bound and decay rate it implies (docs/explanation/paper-method.md, 'Another robot').")
 @no_cache_option
-def design(epsilon, rho, decay_rate, max_gain, damping, uncertain, all_vertices, solver, out, no_cache):
+def design(epsilon, rho, decay_rate, max_gain, damping, uncertain, all_vertices, solver, out, robot, no_cache):
     """Design the IT2 PDC balance gains by LMIs (paper Lemmas 1–2 plus a decay rate).
 
     Prints G1, G2 for the state [θ, θ̇, ψ, ψ̇] (u = Σ m_i G_i x, the total wheel torque
@@ -65,8 +71,16 @@ def design(epsilon, rho, decay_rate, max_gain, damping, uncertain, all_vertices,
       twin design
       twin design --decay-rate 2 --damping 0.5 --uncertain m_b=0.2,l=0.15 --rho 3 --out gains.json
       twin design --decay-rate 3 --damping 0 --uncertain none --pdc-mixes    # the nominal design
+      twin design --robot balboa    # for another robot (its model, torque bound and decay rate)
     """
-    d = balance_design(epsilon=epsilon, rho=rho, decay_rate=decay_rate, max_gain=max_gain,
+    r = load_robot(robot)
+    implied = robot_settings.design_settings(r)
+    rho = implied["rho"] if rho is None else rho
+    decay_rate = implied["decay_rate"] if decay_rate is None else decay_rate
+    if r.name != "paper":
+        damping_note = "" if r.motor().back_emf_compensation else " (with its drive's back-EMF damping)"
+        click.echo(f"robot {r.name}: its model{damping_note}; ρ = {rho:g} N·m, decay rate {decay_rate:g} 1/s")
+    d = balance_design(r.model(), epsilon=epsilon, rho=rho, decay_rate=decay_rate, max_gain=max_gain,
                        solver=solver.upper() if solver else None, damping=damping,
                        uncertain=parse_uncertain(uncertain), all_vertices=all_vertices)
     print_design(d)

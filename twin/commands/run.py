@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from twin.commands.common import (Once, Progress, complete_kinds, complete_scenario, contained, echo_plugins, fmt,
-                                  limit_options, limit_overrides, no_cache_option)
+                                  limit_options, limit_overrides, no_cache_option, robot_option, with_robot)
 from twin.errors import TwinError
 from twin.outputs import figure_worker
 from twin.outputs.report import estimator_line
@@ -45,9 +45,7 @@ from twin.workflows.run import RunJob, title
               metavar="CALIBRATION.toml",
               help="Run the robot 'twin calibrate' fitted: the file's [plant] and [sensors] replace the scenario's "
                    "true plant scale and IMU latency (before any --set).")
-@click.option("--robot", default=None, metavar="NAME|FILE",
-              help="The robot: a built-in's name ('twin robots') or a robot file (robot.toml); sets the scenario's "
-                   "robot key (not with --set robot=...).")
+@robot_option("to run")
 @limit_options("")
 @no_cache_option
 @contained
@@ -89,8 +87,8 @@ def run(scenario, controller, seed, duration, overrides, out, video, sample, log
     figure = figure_worker.take_early() or figure_worker.start()
     try:
         every = log_every_of(log_every)
-        with RunJob.prepare(scenario, controller, seed, duration, limit_overrides(overrides, step_limit, run_limit,
-                            memory_limit), out, sample, plant_file, robot) as job:
+        with RunJob.prepare(scenario, controller, seed, duration, with_robot(limit_overrides(
+                overrides, step_limit, run_limit, memory_limit), robot), out, sample, plant_file) as job:
             if job.picked is not None:
                 p = job.picked
                 click.echo(f"sample {p.index} of a sweep (root seed {job.root_seed}): level λ = {p.level:g}, "

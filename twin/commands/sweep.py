@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from twin.commands.common import (Once, SweepBar, complete_kinds, complete_scenario, contained, counted,
-                                  echo_plugins, limit_options, limit_overrides)
+                                  echo_plugins, limit_options, limit_overrides, robot_option, with_robot)
 from twin.errors import TwinError
 from twin.outputs import rundir
 from twin.registry import label
@@ -44,9 +44,10 @@ from twin.workflows.sweep import SweepJob, failure
                    "writes.")
 @limit_options(" for each controller's run of a sample",
                 "the scenario's, else 60 s + 10 × the simulated time in s (210 s for 15 s)")
+@robot_option("to sweep around (the uncertainty is drawn around its figures)")
 @contained
 def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overrides, out, controller, reference,
-          log_sensors, step_limit, run_limit, memory_limit):
+          log_sensors, step_limit, run_limit, memory_limit, robot):
     """Monte Carlo sweep: controllers compared on sampled plants, noise, tilts and pushes.
 
     The scenario's [sweep] table says what is sampled (see docs/howto/sweeps.md). Each sample's
@@ -72,8 +73,8 @@ def sweep(scenario, draws, workers, backend, ray_address, seed, duration, overri
     """
     if ray_address is not None and backend != "ray":
         raise TwinError("--ray-address needs --backend ray")
-    job = SweepJob.prepare(scenario, draws, seed, duration, limit_overrides(overrides, step_limit, run_limit,
-                           memory_limit), out, controller, reference, sample_numbers(log_sensors))
+    job = SweepJob.prepare(scenario, draws, seed, duration, with_robot(limit_overrides(overrides, step_limit, run_limit,
+                           memory_limit), robot), out, controller, reference, sample_numbers(log_sensors))
     out, levels = job.out, job.levels
     click.echo(title(job.scenario))
     echo_plugins(job.summary["plugins"])

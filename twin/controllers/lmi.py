@@ -707,6 +707,23 @@ _REGION_SOLVERS = ("CLARABEL", "SCS")
 _QUICK_ITERS = {"CLARABEL": 80, "SCS": 5000}
 
 
+def input_scale(params: RobotParams) -> float:
+    """s (N·m per unit of the SDP's input): the power of two nearest NOMINAL's input gain over
+    ``params``' (the balance model's θ̈ per N·m at upright, |B1[1]|); 1 for the paper's robot."""
+    ratio = abs(local_gain(NOMINAL)) / abs(local_gain(params))
+    return 2.0 ** round(math.log2(ratio))
+
+
+def _scaled(models, s: float) -> list:
+    """``models`` with the input in units of ``s`` N·m (each B times s); as they are for s = 1."""
+    return models if s == 1.0 else [(A, [Bi * s for Bi in B]) for A, B in models]
+
+
+def local_gain(params: RobotParams) -> float:
+    """θ̈ per N·m of u at upright (1/(kg·m²)): the balance model's B1[1]."""
+    return -(params.m11 + params.m12) / (params.m11 * params.m22 - params.m12 * params.m12)
+
+
 def _design_region(params, epsilon, rho, decay_rate, max_gain, solver, damping, box, all_vertices) -> BalanceDesign:
     """The design with a damping ratio and/or a parameter box: the SDP of
     :mod:`twin.controllers.lmi_regions`, solved directly by Clarabel (SCS as fallback),
@@ -717,7 +734,12 @@ def _design_region(params, epsilon, rho, decay_rate, max_gain, solver, damping, 
                         f"allowed: {', '.join(_REGION_SOLVERS)}")
     solver = solver.upper() if solver else None
     plants = regions.box_params(params, box)  # may raise: a corner no rigid body can be
-    models = regions.models_of(plants)
+    # the input in units of s N·m (u = s v), s a power of two that brings the model's input
+    # gain to the paper robot's order: a 60 kg robot's B is 1e-3 of the paper's, and the SDP,
+    # well scaled for the paper's, then stalls at a numerical limit. Exact in floating point
+    # (s = 1 for any robot within a factor √2 of the paper's), and the design is the same.
+    s = input_scale(params)
+    models = _scaled(regions.models_of(plants), s)
     import scipy.sparse  # noqa: F401 (imported before the clock starts, as cvxpy is for the nominal design)
 
     try:
@@ -730,17 +752,19 @@ def _design_region(params, epsilon, rho, decay_rate, max_gain, solver, damping, 
         _explain_region(params, box, decay_rate, damping, solver, sol, all_vertices)
     found = _unique_point(models, decay_rate, damping, all_vertices, sol, epsilon)
     elapsed = time.perf_counter() - t0
-    gains, Px1 = found.gains, found.P * epsilon**2
-    _check_rho_and_gain(found.peak, gains, epsilon, rho, decay_rate, max_gain, sol.solver, damping, box)
-    cert = _verify_models(models, found.solution, 1.0, rho / epsilon, decay_rate, damping, all_vertices)
+    gains, Px1 = found.gains, found.P * epsilon**2  # in v = u / s
+    if s != 1.0:
+        found = dataclasses.replace(found, gains=found.gains * s, peak=found.peak * s)
+    _check_rho_and_gain(found.peak, found.gains, epsilon, rho, decay_rate, max_gain, sol.solver, damping, box)
+    cert = _verify_models(models, found.solution, 1.0, rho / s / epsilon, decay_rate, damping, all_vertices)
     if not cert.passed:  # pragma: no cover - the ε = 1 solution passed and peak <= ρ was checked
         raise InfeasibleDesign(f"the design failed the independent check ({cert.summary()}); relax rho")
     if box:
-        samples = regions.models_of(regions.sample_params(params, box))
+        samples = _scaled(regions.models_of(regions.sample_params(params, box)), s)
         cert = dataclasses.replace(cert, sampled_margin=_sampled_margin(samples, gains, Px1, decay_rate, damping,
                                                                         all_vertices),
                                    sampled_plants=len(samples))
-    A, B = models[0]
+    A, B = regions.models_of([params])[0]
     return _design(params, A, B, found, epsilon, rho, decay_rate, max_gain, elapsed, sol.solver,
                    cert, damping=damping, uncertain=box, all_vertices=all_vertices)
 
@@ -837,11 +861,13 @@ def _explain_region(params, box, decay_rate, damping, solver, why, all_vertices=
     solver = solver or "CLARABEL"
     nominal = regions.models_of([params])
 
+    s = input_scale(params)  # as the design scales its input
+
     def feasible(models, a, z) -> bool:
-        return _feasible(models, a, z, solver, all_vertices)
+        return _feasible(_scaled(models, s), a, z, solver, all_vertices)
 
     def certified(models, a, z) -> bool:
-        return not isinstance(_certified_models(models, a, z, solver, all_vertices), str)
+        return not isinstance(_certified_models(_scaled(models, s), a, z, solver, all_vertices), str)
 
     if box and feasible(nominal, decay_rate, damping):
         _explain_box(params, box, decay_rate, damping, why, feasible, certified)

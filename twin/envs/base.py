@@ -103,12 +103,12 @@ import math
 import shlex
 from dataclasses import replace
 from os import PathLike
+from pathlib import Path
 
 import gymnasium
 import numpy as np
 from gymnasium import spaces
 
-from twin.actuators.dc_motor import DEFAULT_MOTOR
 from twin.errors import TwinError
 from twin.plant.urdf import body_box
 from twin.registry import build_estimator, check_kind
@@ -169,6 +169,9 @@ class TwinEnv(gymnasium.Env):
     normalize_actions : bool
         False (default): the action is (ul, ur) in N·m, Box [−τ_max, τ_max]². True:
         Box [−1, 1]², the torques as fractions of τ_max (module docstring).
+    robot : str or path or None
+        A built-in robot's name (``twin robots``) or a robot file: the scenario's ``robot``
+        (its dimensions, drive, sensors and rates); None: the scenario's own.
 
     Attributes
     ----------
@@ -192,7 +195,7 @@ class TwinEnv(gymnasium.Env):
     def __init__(self, scenario=None, overrides=(), obs: str = "estimate", estimator: str | None = None,
                  randomize=False, render_mode: str | None = None, render_size=(640, 480),
                  renderer: str | None = None, hud: bool = True, max_torque: float | None = None,
-                 reward_weights: dict | None = None, normalize_actions: bool = False):
+                 reward_weights: dict | None = None, normalize_actions: bool = False, robot=None):
         if obs not in OBS_MODES:
             raise TwinError(f"obs must be one of {', '.join(OBS_MODES)}, got {obs!r}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -214,6 +217,12 @@ class TwinEnv(gymnasium.Env):
 
         self._sweep_overrides, self._level_draw = self._parse_randomize(randomize)
         self.randomize = randomize not in (False, None)
+        if robot is not None:  # the scenario's robot key, as twin run --robot sets it
+            if not isinstance(robot, (str, PathLike)):
+                raise TwinError(f"robot must be a built-in robot's name or a robot file (.toml), got {robot!r}")
+            path = Path(robot)
+            named = str(path.resolve()) if path.suffix == ".toml" and path.is_file() else str(robot)
+            overrides = (f"robot={json.dumps(named)}",) + tuple(overrides)
         self.overrides = tuple(overrides) + self._sweep_overrides
         self._scenario_arg = str(scenario)
         self.scenario = sc = load_scenario(self._scenario_arg, self.overrides)
@@ -302,7 +311,8 @@ class TwinEnv(gymnasium.Env):
                 raise TwinError(f"max_torque must be a positive number of N·m, got {max_torque!r}")
             return float(max_torque)
 
-        motor = self.config.motor if self.config.motor is not None else DEFAULT_MOTOR
+        # ideal torque sources (plant.motor = "ideal"): the bound of the robot's drive they stand in for
+        motor = self.config.motor if self.config.motor is not None else self.scenario.robot.motor()
         return float(min(motor.stall_torque, motor.k_t * motor.max_current))
 
     def _build_estimator(self, sc, context):

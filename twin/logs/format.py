@@ -135,7 +135,7 @@ from twin.params import NOMINAL, PARAMETER_DOCS, RobotParams
 from twin.protocols import Targets
 from twin.registry import BuildContext
 from twin.sensors import SensorConfig
-from twin.sensors.specs import IMU_PRESETS, EncoderSpec, ImuSpec
+from twin.sensors.specs import IMU_PRESETS, EncoderSpec, ImuSpec, preset_name
 from twin.sensors.types import SENSOR_TYPES, extra_types, key_list
 
 FORMAT = "mtwip-sensor-log"
@@ -571,13 +571,6 @@ def _dc_motor(table, base, where: str, skip: tuple = ()):
     return motor, [k for k in keys if k not in figures and k != "current_limit"]
 
 
-def _preset_name(gyro, accel) -> str | None:
-    for name, (g, a) in IMU_PRESETS.items():
-        if g == gyro and a == accel:
-            return name
-    return None
-
-
 def _v1_assumed(m: dict, sensors, motor) -> dict:
     """What a version-1 log leaves unsaid and the reader took from its scenario: ``{"version": 1,
     "assumed": {...}, "text": one line}``."""
@@ -585,7 +578,7 @@ def _v1_assumed(m: dict, sensors, motor) -> dict:
     name = m.get("scenario", "paper-exp1")
     items = m.get("set", [])
     source = f"scenario {name}" + (f" with {', '.join(items)}" if items else "")
-    preset = _preset_name(imu.gyro, imu.accel)
+    preset = preset_name(imu.gyro, imu.accel)
 
     def triad(t):
         return {"noise_density": t.noise_density, "bias_random_walk": t.bias_random_walk,
@@ -1326,8 +1319,13 @@ def write_log(run, out, scenario=None, initial_heading: float | None = None, sou
         if name is None:  # a file of one's own: copied beside the log, so the log stands alone
             (out / "scenario.toml").write_bytes(Path(src).read_bytes())
             name = "scenario.toml"
+        overrides = list(scenario.overrides)
+        robot_file = scenario.data.get("robot", "paper")
+        if Path(robot_file).suffix == ".toml":  # a robot file of one's own: copied beside the log too
+            (out / "robot.toml").write_bytes(Path(robot_file).read_bytes())
+            overrides = [o for o in overrides if o.partition("=")[0].strip() != "robot"] + ['robot="robot.toml"']
         lines += [f"scenario = {_toml_str(name)}",
-                  "set = [" + ", ".join(_toml_str(o) for o in scenario.overrides) + "]"]
+                  "set = [" + ", ".join(_toml_str(o) for o in overrides) + "]"]
         believed = scenario.believed_sensor_config()
     robot = [f"{k} = {float(getattr(p, k))!r}" for k in p.__dataclass_fields__ if k not in ("r", "b", "n_xb")]
     lines += [f"source = {_toml_str(source)}", ""]

@@ -92,7 +92,8 @@ from statistics import NormalDist
 import numpy as np
 
 from twin.errors import TwinError
-from twin.logs.format import _preset_name, imu_preset_of, rows_times
+from twin.logs.format import imu_preset_of, rows_times
+from twin.sensors.specs import preset_name
 from twin.sensors.specs import IMU_PRESETS
 
 ORDER = 3  # the differences' order k: motion to order f^(k) Δt^k is removed (see the module docstring)
@@ -359,7 +360,7 @@ def datasheet_triads(log):
     """(gyro, accel) TriadSpec of the IMU part's datasheet (the preset a version-2 log names, or a
     version-1 log's scenario names; default MPU-6050), and the preset's name."""
     # the part whose figures the log's are, whichever way it gave them; else the preset it names
-    name = _preset_name(log.sensors.imu.gyro, log.sensors.imu.accel)
+    name = preset_name(log.sensors.imu.gyro, log.sensors.imu.accel)
     if name is not None:
         pass
     elif log.version >= 2:

@@ -20,9 +20,11 @@ twin's armature current is then ``efficiency`` times the motor's (its torque is 
 from __future__ import annotations
 
 import functools
+import hashlib
+import json
 import math
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 
@@ -121,6 +123,16 @@ ROBOT_KEYS: dict[str, dict[str, Key]] = {
         "rate": Key("Hz", 0.0, 1e5, _I.rate, "the IMU's sample rate (a divisor of the control rate)"),
         "latency": Key("s", 0.0, 1.0, _I.latency, "from a sample to its arrival (whole control periods)",
                        lo_open=False),
+        # the device's own constants, where known (a calibration's, or measured on the bench):
+        # every run then has them, instead of values drawn from the part's spreads
+        "gyro_bias": Key("rad/s", -10.0, 10.0, None, "the gyro's constant bias, x y z, where known (default: "
+                         "drawn per run from the part's turn-on spread)", lo_open=False, kind="vector3"),
+        "gyro_scale": Key("1", -0.5, 0.5, None, "the gyro's scale-factor errors s, x y z (reading = (1 + s) × "
+                          "rate), where known (default: drawn per run)", lo_open=False, kind="vector3"),
+        "accel_bias": Key("m/s²", -50.0, 50.0, None, "the accelerometer's constant bias, x y z, where known "
+                          "(default: drawn per run)", lo_open=False, kind="vector3"),
+        "accel_scale": Key("1", -0.5, 0.5, None, "the accelerometer's scale-factor errors, x y z, where known "
+                           "(default: drawn per run)", lo_open=False, kind="vector3"),
     },
     "encoders": {
         "counts_per_rev": Key("counts", 4, 10_000_000, DEFAULT_ENCODERS.counts_per_rev, "quadrature counts per "
@@ -232,6 +244,14 @@ class Robot:
     def description(self) -> str:
         return self.values[""]["description"]
 
+    @functools.cached_property
+    def digest(self) -> str:
+        """SHA-256 of every figure the twin uses (name, description and sources left out): two
+        robots with one digest run the same, whatever their files' layout, comments or names."""
+        figures = {k: v for k, v in self.values.items() if k != ""}
+        text = json.dumps(figures, sort_keys=True, separators=(",", ":"), default=list)
+        return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
     def params(self) -> RobotParams:
         """The robot as equation (1)'s parameters (the rotor's inertia reflected into the wheel's)."""
         b, w, f, d = self.values["body"], self.values["wheels"], self.values["friction"], self.values["drive"]
@@ -263,14 +283,19 @@ class Robot:
         """Each side's drive as the twin's motor model at the wheel (see the module docstring)."""
         d = self.values["drive"]
         n, eta = d["gear_ratio"], d["gear_efficiency"]
+        # the twin's current is efficiency × the motor's (module docstring): so is its limit, or a
+        # binding limit would give 1 / efficiency times the torque the real drive gives
+        limit = None if d["current_limit"] is None else d["current_limit"] * eta
         return DCMotorParams(supply_voltage=d["supply_voltage"], stall_torque=d["stall_torque"] * n * eta,
-                             no_load_speed=d["no_load_speed"] / n, current_limit=d["current_limit"],
+                             no_load_speed=d["no_load_speed"] / n, current_limit=limit,
                              pwm_bits=d["pwm_bits"], dead_band=d["dead_band"], inductance=d["inductance"],
                              back_emf_compensation=d["back_emf_compensation"])
 
     def imu(self) -> ImuSpec:
         i = self.values["imu"]
         gyro, accel = IMU_PRESETS[i["part"]]
+        gyro = replace(gyro, bias=i["gyro_bias"], scale=i["gyro_scale"])
+        accel = replace(accel, bias=i["accel_bias"], scale=i["accel_scale"])
         return ImuSpec(gyro=gyro, accel=accel, position=i["position"], rate=i["rate"], latency=i["latency"])
 
     def encoders(self) -> EncoderSpec:

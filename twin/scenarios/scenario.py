@@ -622,6 +622,9 @@ ROBOT_SET = {
     ("sensors", "imu_latency"): lambda r: r.imu().latency,
     ("sensors", "encoder_counts"): lambda r: r.encoders().counts_per_rev,
     ("sensors", "encoder_latency"): lambda r: r.encoders().latency,
+    # the IMU's own constants, where the robot file knows them
+    **{("sensors", triad, key): (lambda r, name=f"{triad}_{key}": r.values["imu"][name])
+       for triad in ("gyro", "accel") for key in ("bias", "scale")},
     # the controllers' settings the robot implies (twin.controllers.robot_settings)
     ("design", "rho"): lambda r: robot_settings.design_settings(r)["rho"],
     ("design", "decay_rate"): lambda r: robot_settings.design_settings(r)["decay_rate"],
@@ -630,16 +633,20 @@ ROBOT_SET = {
 }
 
 
-def _take_robot(data: dict, raw: dict, path: Path | None, where: str) -> None:
-    """The scenario's ``robot`` loaded (a file relative to the scenario file, as an absolute path
-    in ``data``), and each key of :data:`ROBOT_SET` the scenario does not give set to the robot's
-    figure where it differs from what the key's absence means (the paper's robot changes nothing)."""
+def _take_robot(data: dict, raw: dict, path: Path | None, where: str, within: Path | None = None) -> None:
+    """The scenario's ``robot`` loaded (a file relative to the scenario file, or for a built-in
+    scenario to ``within``, as an absolute path in ``data``), and each key of :data:`ROBOT_SET` the
+    scenario does not give set to the robot's figure where it differs from what the key's absence
+    means (the paper's robot changes nothing). ``within`` (a sensor log's directory): a robot
+    file must lie in it (the log carries its robot as robot.toml)."""
     name = data["robot"]
-    if name not in builtin_robot_names() and path is not None and not Path(name).is_absolute():
-        beside = path.parent / name
-        if beside.is_file():
-            data["robot"] = name = str(beside.resolve())
+    if name not in builtin_robot_names() and not Path(name).is_absolute():
+        base = path.parent if path is not None else within
+        if base is not None and (base / name).is_file():
+            data["robot"] = name = str((base / name).resolve())
     try:
+        if within is not None and name not in builtin_robot_names():
+            inside(Path(name), within, "robot file")
         robot = load_robot(name)
     except TwinError as exc:
         raise ScenarioError(f"{where}: robot: {exc}") from None
@@ -688,7 +695,7 @@ def load_scenario(name_or_path: str, overrides=(), *, within=None) -> Scenario:
         if extra:
             raise ScenarioError(f"{where}: faults[{i}].{extra[0]}: a {data['faults'][i]['kind']} fault has no "
                                 f"{extra[0]!r}; allowed: {', '.join(sorted(relevant[data['faults'][i]['kind']]))}")
-    _take_robot(data, raw, None if source.startswith("built-in") else Path(str(name_or_path)), where)
+    _take_robot(data, raw, None if source.startswith("built-in") else Path(str(name_or_path)), where, within)
     scenario = Scenario(data, where, overrides)
     for i, f in enumerate(data["faults"]):
         if f["kind"] == "latency" and not latency_given[i]:

@@ -156,14 +156,23 @@ FAULT = {
     "latency": _f(0.0, 0.0, 1.0, "s", doc="latency: the new latency"),
 }
 
-def _triad(unit: str, absent: str) -> Key:
+def _triad(unit: str, absent: str, known: bool = True) -> Key:
     """[sensors.gyro] / [sensors.accel] (and under [sensors.believed]): overrides of the preset's
-    figures, in SI units; each absent key is ``absent``'s figure."""
+    figures, in SI units; each absent key is ``absent``'s figure. ``known``: with the device's own
+    constants (``bias``, ``scale``: the true sensor's, where known; a robot file's sets them)."""
     def new(kind, lo, hi, u, doc, lo_open=False):
         return Key(kind, None, lo, hi, lo_open, u, doc=f"{doc}; absent: {absent}", nullable=True,
                    recorded_at_default=False)
 
-    return Key("table", recorded_at_default=False, keys={
+    constants = {} if not known else {
+        "bias": Key("vec3", None, -1e3, 1e3, unit=unit, nullable=True, recorded_at_default=False,
+                    doc="the device's own constant bias, x y z, where known: every run has it instead of a "
+                        "drawn turn-on bias; absent: drawn per run"),
+        "scale": Key("vec3", None, -0.5, 0.5, unit="1", nullable=True, recorded_at_default=False,
+                     doc="the device's own scale-factor errors, x y z, where known (instead of draws); absent: "
+                         "drawn per run"),
+    }
+    return Key("table", recorded_at_default=False, keys={**constants, 
         "noise_density": new("float", 0.0, 1e3, f"{unit}/√Hz",
                              "white noise density (per-sample σ = density·√rate)"),
         "bias_random_walk": new("float", 0.0, 1e3, f"{unit}/√s", "bias random walk K (the bias moves K·√Δt per "
@@ -196,7 +205,7 @@ def _sensor_type(t) -> Key:
 
 
 def _believed_triad(unit: str) -> Key:
-    return _triad(unit, "as believed.imu's preset, or (without it) as the true sensor")
+    return _triad(unit, "as believed.imu's preset, or (without it) as the true sensor", known=False)
 
 
 SCHEMA: dict[str, Key] = {

@@ -45,6 +45,12 @@ class TriadNoise:
         self.rng = rng
         self.turn_on = [float(v) for v in spec.turn_on_bias * rng.standard_normal(3)]
         self.scale = [float(v) for v in spec.scale_factor_error * rng.standard_normal(3)]
+        # the device's own constants where known: drawn all the same, so that every later draw of
+        # the run (drift, noise) is the one it would be without them
+        if spec.bias is not None:
+            self.turn_on = [float(v) for v in spec.bias]
+        if spec.scale is not None:
+            self.scale = [float(v) for v in spec.scale]
         tau = spec.bias_correlation_time
         K = spec.bias_random_walk
         if tau is None:

@@ -149,6 +149,12 @@ class TriadSpec:
         Range ±full_scale; readings beyond it saturate.
     bits : int
         ADC resolution; LSB = full_scale / 2^(bits−1).
+    bias : (3,) unit or None
+        The device's own constant bias, where known (a calibration's): every run has it
+        instead of one drawn from ``turn_on_bias`` (the draw is still made: the other draws
+        stay the same).
+    scale : (3,) 1 or None
+        Its scale-factor errors, where known, instead of draws from ``scale_factor_error``.
     name, unit : str
         For messages only: "gyro", "rad/s"; "accelerometer", "m/s²".
     """
@@ -162,9 +168,18 @@ class TriadSpec:
     bits: int = 16
     name: str = field(default="sensor", compare=False)
     unit: str = field(default="", compare=False)
+    bias: tuple | None = None  # unit, x y z: the device's own constant bias, where known (instead of a draw)
+    scale: tuple | None = None  # 1, x y z: its scale-factor errors, where known (instead of a draw)
 
     def __post_init__(self):
         o = self.name
+        for n, hi in (("bias", 1e3), ("scale", 0.5)):
+            v = getattr(self, n)
+            if v is not None:
+                if not (isinstance(v, (tuple, list)) and len(v) == 3):
+                    raise TwinError(f"{o} {n} must be 3 numbers (x y z) or absent, got {v!r}")
+                object.__setattr__(self, n, tuple(bounded_number(o, f"{n}[{i}]", x, -hi, hi, "")
+                                                  for i, x in enumerate(v)))
         for n, hi in (("noise_density", 1e3), ("bias_random_walk", 1e3), ("turn_on_bias", 1e3),
                       ("scale_factor_error", 0.5)):
             object.__setattr__(self, n, bounded_number(o, n, getattr(self, n), 0.0, hi, ""))
@@ -284,3 +299,11 @@ class EncoderSpec:
 
 DEFAULT_IMU = ImuSpec()
 DEFAULT_ENCODERS = EncoderSpec()
+
+
+def preset_name(gyro: TriadSpec, accel: TriadSpec) -> str | None:
+    """The name of the preset of :data:`IMU_PRESETS` whose figures these are, or None."""
+    for name, (g, a) in IMU_PRESETS.items():
+        if g == gyro and a == accel:
+            return name
+    return None

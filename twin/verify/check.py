@@ -234,7 +234,8 @@ def _record(batch, items, exit_status: int) -> int:
             for i, (sc, kind, seed, traj, metrics, env) in enumerate(items):
                 relative = g.path_for(".", sc.name, kind, seed).as_posix()
                 g.record(batch.temp(relative), traj, {"scenario": sc.name, "source": sc.source, "controller": kind,
-                                                      "seed": seed, "metrics": metrics, "environment": env})
+                                                      "seed": seed, "metrics": metrics, "environment": env,
+                                                      "robot": robot_record(sc)})
                 if i == 0:
                     test_point("record")
             return batch.commit(exit_status)
@@ -259,6 +260,12 @@ def _scenario_tolerances(sc, extra):
     return tol
 
 
+def robot_record(sc) -> dict:
+    """The scenario's robot as a golden file records it: its name and :attr:`twin.robots.Robot.digest`
+    (a reference made for another robot, or the same robot's changed figures, then says so)."""
+    return {"name": sc.robot.name, "digest": sc.robot.digest}
+
+
 def _golden(case: CaseResult, sc, kind: str, seed: int, traj, env, golden, tolerances) -> None:
     """Compare the run with its reference under ``golden`` (with ``tolerances``), if given."""
     if golden is None:
@@ -270,8 +277,12 @@ def _golden(case: CaseResult, sc, kind: str, seed: int, traj, env, golden, toler
     else:
         here = g.build()
         dep = g.compare(traj, ref, meta.get("build") == here and here != "mixed", tolerances)
-        if dep is not None:  # say whether the environment or a design changed, or neither did
-            dep = replace(dep, environment=tuple(differences(env, meta.get("environment"))))
+        if dep is not None:  # say whether the environment, a design or the robot changed, or none did
+            robot, theirs = robot_record(sc), meta.get("robot")
+            moved = [] if theirs is None or theirs == robot else [
+                f"robot {robot['name']} {robot['digest'][:12]}, the reference's {theirs.get('name')} "
+                f"{str(theirs.get('digest'))[:12]}"]
+            dep = replace(dep, environment=tuple(differences(env, meta.get("environment")) + moved))
         case.golden[seed] = dep
 
 

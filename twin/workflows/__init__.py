@@ -10,6 +10,7 @@ arguments, calls one of these and prints what it returns; a program calls them t
 :mod:`twin.workflows.replay`       estimators replayed on sensor logs (``twin replay``)
 :mod:`twin.workflows.calibrate`    a robot calibrated from its logs (``twin calibrate``)
 :mod:`twin.workflows.compare`      two results side by side (``twin compare``)
+:mod:`twin.workflows.linearize`    a robot's linearised model as JSON (``twin linearize``)
 =================================  ====================================================
 
 Each module is imported only by the command that uses it (they import the engine, NumPy and

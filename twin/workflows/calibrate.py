@@ -1,13 +1,14 @@
 """``twin calibrate``: a robot's physical parameters (and the twin that runs it) fitted to its
 sensor logs (:mod:`twin.calibrate`), into a directory written as a unit: report.json,
-calibration.toml, figure.png and the manifest."""
+robot.toml (the fitted robot, complete: :mod:`twin.calibrate.robot_file`), calibration.toml,
+figure.png and the manifest."""
 from __future__ import annotations
 
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-from twin.calibrate import identify, output
+from twin.calibrate import identify, output, robot_file
 from twin.calibrate.parameters import parse_names
 from twin.calibrate.robot import same_geometry, to_twin, validate_physical
 from twin.calibrate.run import TURN_RATE, calibrate as fit_logs, model_for
@@ -22,8 +23,8 @@ class Calibration:
     """What a calibration found: ``cal`` (the fit, :mod:`twin.calibrate.run`), ``params`` (each
     parameter's value, 95 % interval, unit and whether the logs identify it), ``warnings``,
     ``validation`` (per held-out log, or None), ``twin`` (the twin's parameters that reproduce
-    a robot fitted by its physical equations, or None), ``doc`` (report.json) and ``toml``
-    (calibration.toml's text)."""
+    a robot fitted by its physical equations, or None), ``doc`` (report.json), ``toml``
+    (calibration.toml's text) and ``robot`` (robot.toml's: the fitted robot)."""
 
     cal: object
     params: dict
@@ -32,6 +33,7 @@ class Calibration:
     twin: dict | None
     doc: dict
     toml: str
+    robot: str | None  # None: the fitted figures make no robot the twin can run (a warning says why)
 
     @property
     def twin_why(self) -> str | None:
@@ -79,8 +81,17 @@ def calibrate(logs, parameters: str | None = None, held_out=(), seed: int = 0, m
         report.write_json(doc, path / "report.json")
         toml_text = output.calibration_toml(cal, params, twin, geometry=(read[0].model.r, read[0].model.b))
         (path / "calibration.toml").write_text(toml_text, encoding="utf-8")
+        try:
+            robot_text = robot_file.robot_text(robot_file.input_robot(log), params, [str(p) for p in logs], kind)
+        except robot_file.UnfitRobot as exc:  # the calibration stands: said, and in report.json
+            robot_text = None
+            warnings.append(str(exc))
+            doc["warnings"] = list(doc.get("warnings", [])) + [str(exc)]
+            report.write_json(doc, path / "report.json")
+        else:
+            (path / "robot.toml").write_text(robot_text, encoding="utf-8")
         output.write_figure(cal, params, val, path / "figure.png")
-    return Calibration(cal, params, warnings, val, twin, doc, toml_text)
+    return Calibration(cal, params, warnings, val, twin, doc, toml_text, robot_text)
 
 
 __all__ = ["Calibration", "calibrate"]

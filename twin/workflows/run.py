@@ -7,7 +7,6 @@ steps the command prints between (what will run, then the runs, then the table).
 from __future__ import annotations
 
 import contextlib
-import json
 import math
 import re
 from dataclasses import dataclass
@@ -35,16 +34,6 @@ def load(scenario: str, overrides=(), seed: int | None = None, duration: float |
             raise TwinError(f"--duration must be in (0, 3600] s, got {duration:g}")
         extra.append(f"duration={duration!r}")
     return load_scenario(scenario, extra)
-
-
-def robot_override(robot: str, overrides=()) -> str:
-    """``--robot NAME|FILE`` as the ``--set`` item it stands for (a file as its absolute path); one
-    line if ``--set robot=...`` is given too."""
-    if any(str(o).partition("=")[0].strip() == "robot" for o in overrides):
-        raise TwinError("--robot and --set robot=... both name the robot; give one of them")
-    path = Path(robot)
-    value = str(path.resolve()) if path.suffix == ".toml" and path.is_file() else robot
-    return f"robot={json.dumps(value)}"
 
 
 def title(sc: Scenario) -> str:
@@ -206,9 +195,7 @@ class RunJob:
     @classmethod
     def prepare(cls, scenario: str, controller: str | None = None, seed: int | None = None,
                 duration: float | None = None, overrides=(), out: Path | None = None, sample: int | None = None,
-                plant_file: Path | None = None, robot: str | None = None) -> "RunJob":
-        if robot is not None:
-            overrides = (robot_override(robot, overrides),) + tuple(overrides)
+                plant_file: Path | None = None) -> "RunJob":
         if plant_file is not None:
             # only with --plant: the calibration's modules are not loaded for every run
             from twin.calibrate.output import plant_overrides
