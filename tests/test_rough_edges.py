@@ -178,7 +178,7 @@ def test_a_base_file_is_found_beside_the_file_and_chains(tmp_path):
 
 
 @pytest.mark.parametrize("text, says", [
-    ('base = "paper-exp9"\n', "base: 'paper-exp9' is neither a built-in scenario nor a .toml file; allowed: paper-exp1"),
+    ('base = "paper-exp9"\n', "base: 'paper-exp9' is neither a built-in scenario nor a .toml file; allowed: balboa-exp3, paper-exp1"),
     ('base = "nowhere.toml"\n', "base: "),
     ('base = 3\n', "base: 3 is not a name; allowed: a built-in scenario's name"),
     ('base = "me.toml"\n', "the scenarios name each other in a cycle"),

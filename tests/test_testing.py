@@ -5,6 +5,8 @@ import textwrap
 
 import pytest
 
+from twin.scenarios import load_scenario
+
 from twin.errors import TwinError
 from twin.scenarios.scenario import builtin_names
 from twin.verify.testing import assert_expectations, check
@@ -80,7 +82,8 @@ def test_twin_scenarios_builtin_makes_an_item_per_scenario_and_controller(pytest
     result = pytester.runpytest_subprocess("-p", "no:cacheprovider", "--twin-scenarios", "builtin", "--collect-only",
                                            "-q")
     lines = [l for l in result.stdout.lines if l.startswith("twin:")]
-    assert sorted(lines) == sorted(f"twin:{n}::{k}" for n in builtin_names() for k in ("it2", "t1"))
+    assert sorted(lines) == sorted(f"twin:{n}::{k}" for n in builtin_names()
+                                   for k in load_scenario(n).data["controller"]["kinds"])
     run = pytester.runpytest_subprocess("-p", "no:cacheprovider", "--twin-scenarios", "builtin", "-k", "paper-exp1")
     run.assert_outcomes(passed=2)
 

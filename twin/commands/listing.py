@@ -65,9 +65,10 @@ def kinds_command():
 
 
 @click.command("robots", cls=Once)
-@click.argument("name", required=False)
+@click.argument("name", required=False, metavar="[NAME|FILE]")
 def robots_command(name):
-    """List the built-in robots, a line each; with NAME, print that one's robot file to copy and edit.
+    """List the built-in robots, a line each; with NAME, print that one's robot file to copy and
+    edit; with a robot FILE, check it and say what the twin makes of it.
 
     A robot file (robot.toml) describes a robot in SI units: body, wheels, friction, drive, IMU,
     encoders, control rate and the tilt at which it is lost; every key, its unit and range are
@@ -77,7 +78,11 @@ def robots_command(name):
     Examples:
       twin robots
       twin robots paper > my-robot.toml
+      twin robots my-robot.toml     # checked: one line naming the key if a figure is impossible
     """
+    if name is not None and name.endswith(".toml"):
+        describe_robot(load_robot(name))
+        return
     if name is not None:
         click.echo(robot_text(name), nl=False)
         return
@@ -88,3 +93,20 @@ def robots_command(name):
         p = r.params()
         click.echo(f"{n:{width}}  {description} [body {p.m_b:g} kg, wheels r = {p.r * 100:g} cm, control "
                    f"{r.control_rate:g} Hz]")
+
+
+def describe_robot(r) -> None:
+    """What the twin makes of robot ``r``: its figures in short, the drive at the wheel, and the
+    controllers' settings it implies (twin.controllers.robot_settings)."""
+    from twin.controllers import robot_settings  # only here: the listing of names needs no controllers
+
+    p, m = r.params(), r.motor()
+    click.echo(f"{r.name}: {r.description or '(no description)'} ({r.source})")
+    click.echo(f"  body {p.m_b:g} kg, centre of mass {p.l:g} m above the axle; wheels r = {p.r:g} m, track "
+               f"{2 * p.b:g} m; control {r.control_rate:g} Hz, lost at {r.fall_angle:g} rad")
+    click.echo(f"  drive at the wheel: stall {m.stall_torque:.4g} N·m, no load {m.no_load_speed:.4g} rad/s, "
+               f"peak {robot_settings.peak_torque(r):.4g} N·m per wheel; holds the body up to "
+               f"{r.max_hold_angle():.3g} rad; falls at λ = {robot_settings.fall_rate(p):.3g} 1/s when free")
+    d, u = robot_settings.design_settings(r), robot_settings.universes(r)
+    click.echo(f"  design: ρ = {d['rho']:g} N·m, decay rate {d['decay_rate']:g} 1/s; Mamdani ranges: "
+               + ", ".join(f"{k} {v:.3g} {robot_settings.UNIVERSES[k][1]}" for k, v in u.items()))

@@ -114,7 +114,7 @@ from twin.plant.urdf import body_box
 from twin.registry import build_estimator, check_kind
 from twin.render.hud import draw_hud, HudState
 from twin.render.panels import draw_markers, from_start, PATH_STEP_M
-from twin.render.scene import check_size, resolve_renderer, Scene
+from twin.render.scene import camera_mode, check_size, resolve_renderer, robot_scale, Scene
 from twin.scenarios import load_scenario
 from twin.scenarios.schema import SCHEMA
 from twin.sim.simulate import build_loop
@@ -533,7 +533,10 @@ class TwinEnv(gymnasium.Env):
         scene = self._scene
         if scene is None or key != self._scene_key:  # a scene is rebuilt for another robot or floor
             self._close_scene()
-            self._scene = Scene(config, self.render_size, self.renderer)
+            # the camera scaled to the robot's size (the paper's robot: the default camera, exactly)
+            scale = robot_scale(self.scenario.model(), config.body)
+            camera = None if scale == 1.0 else camera_mode("turning", scale=scale)
+            self._scene = Scene(config, self.render_size, self.renderer, camera)
             self._scene_key = key
         return self._scene
 

@@ -38,7 +38,7 @@ from twin.errors import TwinError
 from twin.outputs import report, rundir
 from twin.outputs.report import ZOOM_THETA0, push_windows, zoom_window  # the catch the figure zooms on
 from twin.render import render_video
-from twin.render.scene import camera_mode
+from twin.render.scene import camera_mode, robot_scale
 
 
 @dataclass(frozen=True)
@@ -193,8 +193,10 @@ def _video(result, out: Path, progress, every: int, control_rate: float, v: dict
     t0 = time.perf_counter()
     e = runs[0].experiment
     catch = catch_end(runs)
+    # the robot's size (its nominal figures: a mismatched true plant is the same robot, seen the same)
+    scale = robot_scale(runs[0].model_params, runs[0].config.body)
     camera = camera_mode(v["camera"], float(runs[0].signal("alpha")[0]), _extent(runs),
-                         None if e is None else e.alpha_d, catch)
+                         None if e is None else e.alpha_d, catch, scale)
     # the catch from a tilted start, the headline event (about 12 frames at real time), 4× slower
     result.video = render_video(runs, out / "video.mp4", fps=v["fps"], size=(v["width"], v["height"]), progress=cb,
                                 camera=camera, slow=None if catch is None else (catch, SLOW_CATCH))

@@ -30,15 +30,16 @@ import subprocess
 import sys
 import tempfile
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from twin.errors import TwinError
+from twin.params import NOMINAL
 from twin.interrupts import deferred_signals
 from twin.plant.base import TwinConfig, initial_pose
 from twin.plant.bullet import WHEEL_JOINTS, client_id, disconnect, quiet_native_output
-from twin.plant.urdf import UNIT_CUBE_OBJ, robot_urdf
+from twin.plant.urdf import UNIT_CUBE_OBJ, body_box, robot_urdf
 from twin.rotations import body_quaternion, matrix_rows
 
 RENDERERS = ("auto", "egl", "tiny")
@@ -206,8 +207,18 @@ CAMERA_MODES = ("follow", "turning", "fixed", "top")
 SWING_S = 1.5  # s: how long the follow camera takes to turn from the catch's side view to the run's bearing
 
 
+def robot_scale(params, body=None) -> float:
+    """The robot's height (wheel radius and the body box's top) over the paper robot's: 1 for the
+    paper's robot, exactly; what the cameras scale their distance and aim by, so that a robot of
+    any size fills the picture as the paper's does."""
+    def height(p, box):
+        return p.r + body_box(p, box)[1][2]
+
+    return height(params, body) / height(NOMINAL, None)
+
+
 def camera_mode(mode: str, alpha0: float = 0.0, extent=None, alpha_d: float | None = None,
-                catch_end: float | None = None) -> Camera:
+                catch_end: float | None = None, scale: float = 1.0) -> Camera:
     """The camera of ``video.camera`` = ``mode`` for a run starting at heading ``alpha0`` rad
     whose axle stays inside ``extent`` = (x_min, x_max, y_min, y_max) m (for "fixed"), with
     the heading target ``alpha_d`` rad (None: none).
@@ -225,6 +236,16 @@ def camera_mode(mode: str, alpha0: float = 0.0, extent=None, alpha_d: float | No
       see all of it, from the starting side, looking down 25°.
     * ``top``: follows the robot from above, its starting heading to the right.
     """
+    camera = _camera_mode(mode, alpha0, extent, alpha_d, catch_end)
+    if scale == 1.0:
+        return camera
+    # another robot's size: the same picture of it (the fixed camera's distance is the extent's already)
+    distance = camera.distance if mode == "fixed" else camera.distance * scale
+    return replace(camera, distance=max(distance, camera.distance if mode == "fixed" else 0.05),
+                   target_height=camera.target_height * scale)
+
+
+def _camera_mode(mode, alpha0, extent, alpha_d, catch_end) -> Camera:
     side = 25.0 + math.degrees(alpha0)  # the turning camera's bearing at the start
     if mode == "follow":
         middle = alpha0 if alpha_d is None else 0.5 * (alpha0 + alpha_d)

@@ -172,7 +172,7 @@ def _triad(unit: str, absent: str, known: bool = True) -> Key:
                      doc="the device's own scale-factor errors, x y z, where known (instead of draws); absent: "
                          "drawn per run"),
     }
-    return Key("table", recorded_at_default=False, keys={**constants, 
+    return Key("table", recorded_at_default=False, keys={
         "noise_density": new("float", 0.0, 1e3, f"{unit}/√Hz",
                              "white noise density (per-sample σ = density·√rate)"),
         "bias_random_walk": new("float", 0.0, 1e3, f"{unit}/√s", "bias random walk K (the bias moves K·√Δt per "
@@ -185,6 +185,7 @@ def _triad(unit: str, absent: str, known: bool = True) -> Key:
         "full_scale": new("float", 0.0, 1e6, unit, "range ±full_scale (at least 5 × the per-sample white noise)",
                           lo_open=True),
         "bits": new("int", 2, 32, "bits", "ADC resolution (LSB = full_scale / 2^(bits−1))"),
+        **constants,
     })
 
 
