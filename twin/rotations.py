@@ -64,3 +64,12 @@ def dot(a, b):
 
 
 __all__ = ["body_quaternion", "cross", "dot", "matrix_rows", "quat_from_matrix", "quat_multiply", "unit"]
+
+
+def mounting_matrix(roll: float, pitch: float, yaw: float):
+    """C (3 rows) with v_body = C v_imu for an IMU whose axes are the body's turned by ``yaw``
+    about z, then ``pitch`` about the new y, then ``roll`` about the newest x (rad): Rz Ry Rx."""
+    (cr, sr), (cp, sp), (cy, sy) = ((math.cos(v), math.sin(v)) for v in (roll, pitch, yaw))
+    return ((cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr),
+            (sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr),
+            (-sp, cp * sr, cp * cr))

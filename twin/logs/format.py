@@ -136,6 +136,7 @@ from twin.protocols import Targets
 from twin.registry import BuildContext
 from twin.sensors import SensorConfig
 from twin.sensors.specs import IMU_PRESETS, EncoderSpec, ImuSpec, preset_name
+from twin.rotations import mounting_matrix
 from twin.sensors.types import SENSOR_TYPES, extra_types, key_list
 
 FORMAT = "mtwip-sensor-log"
@@ -813,10 +814,7 @@ def _orientation(t: dict, where: str):
                             f"roll and yaw within ±π, pitch within ±π/2")
         if all(v == 0 for v in a):
             return None
-        (cr, sr), (cp, sp), (cy, sy) = ((math.cos(v), math.sin(v)) for v in a)
-        return ((cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr),
-                (sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr),
-                (-sp, cp * sr, cp * cr))
+        return mounting_matrix(*a)
     c = t["orientation_matrix"]
     if not (isinstance(c, list) and len(c) == 3 and all(isinstance(row, list) and len(row) == 3 for row in c)
             and all(_is_number(v) for row in c for v in row)):

@@ -120,6 +120,9 @@ ROBOT_KEYS: dict[str, dict[str, Key]] = {
                     choices=tuple(IMU_PRESETS)),
         "position": Key("m", -10.0, 10.0, _I.position, "the IMU's sensing point from the axle midpoint: x forward, "
                         "y left, z up", kind="vector3"),
+        "orientation": Key("rad", -math.pi, math.pi, None, "how it is mounted: roll, pitch, yaw of its axes in the "
+                           "body's (yaw about z, then pitch about the new y, then roll; default: the body's axes)",
+                           lo_open=False, kind="vector3"),
         "rate": Key("Hz", 0.0, 1e5, _I.rate, "the IMU's sample rate (a divisor of the control rate)"),
         "latency": Key("s", 0.0, 1.0, _I.latency, "from a sample to its arrival (whole control periods)",
                        lo_open=False),
@@ -296,7 +299,8 @@ class Robot:
         gyro, accel = IMU_PRESETS[i["part"]]
         gyro = replace(gyro, bias=i["gyro_bias"], scale=i["gyro_scale"])
         accel = replace(accel, bias=i["accel_bias"], scale=i["accel_scale"])
-        return ImuSpec(gyro=gyro, accel=accel, position=i["position"], rate=i["rate"], latency=i["latency"])
+        return ImuSpec(gyro=gyro, accel=accel, position=i["position"], rate=i["rate"], latency=i["latency"],
+                       orientation=i["orientation"] or (0.0, 0.0, 0.0))
 
     def encoders(self) -> EncoderSpec:
         """The encoders in counts per wheel revolution (on the motor: times the gear ratio)."""

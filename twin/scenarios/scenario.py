@@ -618,6 +618,7 @@ ROBOT_SET = {
     ("rates", "control"): lambda r: r.control_rate,
     ("sensors", "imu"): lambda r: r.values["imu"]["part"],
     ("sensors", "imu_position"): lambda r: r.imu().position,
+    ("sensors", "imu_orientation"): lambda r: r.values["imu"]["orientation"],
     ("sensors", "imu_rate"): lambda r: r.imu().rate,
     ("sensors", "imu_latency"): lambda r: r.imu().latency,
     ("sensors", "encoder_counts"): lambda r: r.encoders().counts_per_rev,

@@ -323,6 +323,10 @@ SCHEMA: dict[str, Key] = {
         "imu": Key("str", "mpu6050", choices=tuple(IMU_PRESETS), recorded_at_default=False,
                    doc="the IMU part whose datasheet figures the gyro and accelerometer take (see "
                        "twin/sensors/specs.py); [sensors.gyro] and [sensors.accel] override single figures"),
+        "imu_orientation": Key("vec3", None, -math.pi, math.pi, unit="rad", nullable=True, recorded_at_default=False,
+                                doc="how the IMU is mounted: [roll, pitch, yaw] of its axes in the body's (yaw about "
+                                    "z, then pitch about the new y, then roll about the newest x; pitch within "
+                                    "±π/2): its errors act along its own axes; absent: the body's axes"),
         "imu_position": Key("vec3", None, -1.0, 1.0, unit="m", nullable=True, recorded_at_default=False,
                             doc="IMU sensing point, body frame from the axle midpoint (x forward, y left, z up); "
                                 "must lie in the body's box; absent: (0, 0, 0.1)"),

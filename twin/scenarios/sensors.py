@@ -82,7 +82,9 @@ def extra_specs(s: dict) -> tuple:
 def _config(data: dict, triads) -> SensorConfig:
     s = data["sensors"]
     position = DEFAULT_IMU.position if s["imu_position"] is None else tuple(s["imu_position"])
-    imu = ImuSpec(gyro=triads[0], accel=triads[1], position=position, rate=s["imu_rate"], latency=s["imu_latency"])
+    orientation = (0.0, 0.0, 0.0) if s["imu_orientation"] is None else tuple(s["imu_orientation"])
+    imu = ImuSpec(gyro=triads[0], accel=triads[1], position=position, rate=s["imu_rate"], latency=s["imu_latency"],
+                  orientation=orientation)
     return SensorConfig(imu=imu, encoders=EncoderSpec(s["encoder_counts"], s["encoder_latency"]),
                         faults=_faults(data), extra=extra_specs(s))
 

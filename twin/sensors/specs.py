@@ -252,7 +252,11 @@ class ImuSpec:
     ``position`` (m) is the sensing point in the body frame relative to the axle
     midpoint: x forward, y left, z up along the body (the default is on the body's
     centre line, 10 cm above the axle, near the top of the nominal body). The axes
-    are the body's. ``rate`` (Hz) must divide the control rate; ``latency`` (s) must be
+    are the body's unless ``orientation`` (rad: roll, pitch, yaw; the IMU's axes are the body's
+    turned by yaw about z, then pitch about the new y, then roll about the newest x, as a sensor
+    log's ``[imu] orientation``) says how it is mounted: its noise, biases, scale errors and
+    range act along its own axes, and the readings are given in the body's axes (as a robot's
+    firmware, or the log reader, turns them). ``rate`` (Hz) must divide the control rate; ``latency`` (s) must be
     a whole number of control periods.
     """
 
@@ -261,11 +265,18 @@ class ImuSpec:
     position: tuple[float, float, float] = (0.0, 0.0, 0.10)
     rate: float = 200.0
     latency: float = 0.005
+    orientation: tuple[float, float, float] = (0.0, 0.0, 0.0)  # rad: roll, pitch, yaw of its axes in the body's
 
     def __post_init__(self):
         if not isinstance(self.gyro, TriadSpec) or not isinstance(self.accel, TriadSpec):
             raise TwinError("imu gyro and accel must be TriadSpec instances")
         object.__setattr__(self, "position", body_point("imu position", self.position))
+        o = self.orientation
+        if not (isinstance(o, (tuple, list)) and len(o) == 3):
+            raise TwinError(f"imu orientation must be [roll, pitch, yaw] in rad, got {o!r}")
+        object.__setattr__(self, "orientation", tuple(
+            bounded_number("imu", f"orientation[{i}]", v, -b, b, "rad")
+            for i, (v, b) in enumerate(zip(o, (math.pi, 0.5 * math.pi, math.pi)))))
         object.__setattr__(self, "rate", bounded_number("imu", "rate", self.rate, 0.0, 1e5, "Hz", True))
         object.__setattr__(self, "latency", bounded_number("imu", "latency", self.latency, 0.0, 1.0, "s"))
         for triad in (self.gyro, self.accel):

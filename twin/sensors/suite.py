@@ -32,6 +32,7 @@ from typing import NamedTuple
 import numpy as np
 
 from twin.errors import TwinError, shown
+from twin.rotations import mounting_matrix
 from twin.sensors.channels import whole_steps as _whole
 from twin.sensors.faults import FAULT_TYPES, Dropout, LatencyChange, Spikes, Stuck
 from twin.sensors.noise import TriadNoise
@@ -276,6 +277,8 @@ class SensorSuite:
                                  quantum=1.0 / self.counts_per_rad),
         }
         self.last_gyro_bias = self.gyro.bias
+        o = config.imu.orientation  # an IMU mounted turned: its errors act along its own axes
+        self._mount = None if o == (0.0, 0.0, 0.0) else np.array(mounting_matrix(*o))
         # the extra sensors: (type, reader, its latency queue), each reader on a child of its own,
         # spawned after the six above (none spawned without extra sensors: see the module docstring)
         self.extra = []
@@ -315,7 +318,13 @@ class SensorSuite:
         noise = self.gyro if name == "gyro" else self.accel
         if name == "gyro":
             self.last_gyro_bias = noise.bias
-        self.channels[name].produce(k, noise.sample(*true))
+        if self._mount is None:
+            self.channels[name].produce(k, noise.sample(*true))
+            return
+        # the sensor's axes: v_imu = Cᵀ v_body; its reading turned back into the body's axes
+        C = self._mount
+        read = noise.sample(*(C.T @ np.asarray(true, dtype=float)))
+        self.channels[name].produce(k, tuple(float(v) for v in C @ np.asarray(read, dtype=float)))
 
     def read(self, k: int, gyro, accel, q_l: float, q_r: float, sources=None) -> Measurement:
         """Sample what is due at control step ``k`` and return what arrives then.
@@ -348,10 +357,23 @@ class SensorSuite:
         return Measurement(k / self.control_rate, ch["gyro"].deliver(k), ch["accel"].deliver(k),
                            ch["encoders"].deliver(k), None, extra)
 
+    def gyro_bias_body(self):
+        """The gyro's bias now (rad/s), in the body's axes (what an estimator of the body's rates
+        sees: the sensor's own bias turned by its mounting)."""
+        b = self.gyro.bias
+        return b if self._mount is None else tuple(float(v) for v in self._mount @ np.asarray(b, dtype=float))
+
     def truth(self) -> dict:
-        """The constants this run drew: scale factors (1), turn-on biases, encoder phases (counts)."""
-        out = {"gyro_scale": tuple(self.gyro.scale), "accel_scale": tuple(self.accel.scale),
-               "gyro_turn_on_bias": tuple(self.gyro.turn_on), "accel_turn_on_bias": tuple(self.accel.turn_on),
+        """The constants this run drew: scale factors (1), turn-on biases, encoder phases (counts),
+        in the body's axes (for an IMU mounted turned: its biases turned, and of its scale errors
+        the diagonal of C S Cᵀ, the part along each body axis; the rest couples the axes)."""
+        gs, as_, gb, ab = self.gyro.scale, self.accel.scale, self.gyro.turn_on, self.accel.turn_on
+        if self._mount is not None:
+            C = self._mount
+            gs, as_ = (tuple(float(v) for v in np.diag(C @ np.diag(s) @ C.T)) for s in (gs, as_))
+            gb, ab = (tuple(float(v) for v in C @ np.asarray(b, dtype=float)) for b in (gb, ab))
+        out = {"gyro_scale": tuple(gs), "accel_scale": tuple(as_),
+               "gyro_turn_on_bias": tuple(gb), "accel_turn_on_bias": tuple(ab),
                "encoder_phase": self.encoder_phase}
         for _, reader, _ in self.extra:  # an extra sensor's drawn constants (the current's offsets, gains)
             out.update(reader.truth())

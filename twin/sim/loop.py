@@ -343,7 +343,7 @@ class ClosedLoop:
         if k % suite.every == 0:
             if k > 0:
                 motion.update(self.twin.kinematics)
-            self.true_gyro_bias = suite.gyro.bias
+            self.true_gyro_bias = suite.gyro_bias_body()
         else:
             self.true_gyro_bias = None
         if suite.extra:  # what the extra sensors read: the plant's truth, the last period's actuation
