@@ -147,7 +147,7 @@ def _interrupt(out: Path, sig, env=None) -> subprocess.Popen:
     cmd = [sys.executable, "-m", "twin.cli", "sweep", "paper-exp2", "--samples", str(DRAWS), *SETS, "--out", str(out),
            "--workers", "1"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
-                            env={**os.environ, **(env or {})}, cwd=out.parent)
+                            env={**os.environ, "PYTHONFAULTHANDLER": "1", **(env or {})}, cwd=out.parent)
     deadline = time.monotonic() + 120
     while len([line for line in _lines(out) if line.endswith("\n")]) < 2:
         assert proc.poll() is None, proc.communicate()
@@ -156,9 +156,13 @@ def _interrupt(out: Path, sig, env=None) -> subprocess.Popen:
     os.killpg(proc.pid, sig)
     try:  # its output read while it ends (a full pipe would hold it up), and shown if it does not
         out_s, err_s = proc.communicate(timeout=60)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        out_s, err_s = proc.communicate()
+    except subprocess.TimeoutExpired:  # where it stands, in every thread (faulthandler), then killed
+        os.kill(proc.pid, signal.SIGABRT)
+        try:
+            out_s, err_s = proc.communicate(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out_s, err_s = proc.communicate()
         pytest.fail(f"the sweep had not ended 60 s after {signal.Signals(sig).name}: {err_s[-3000:]}")
     proc.stdout, proc.stderr = io.StringIO(out_s), io.StringIO(err_s)  # read by the tests as before
     return proc

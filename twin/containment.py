@@ -50,6 +50,7 @@ from time import perf_counter
 from twin import limits as _limits, registry
 from twin.controllers import design_cache
 from twin.errors import MAY_NOT_END, PluginError, TwinError
+from twin.interrupts import deferred_signals
 from twin.registry import is_import_path
 from twin.workers import descendants, die_with_parent, process_stat
 
@@ -422,7 +423,14 @@ class Workers:
     """Up to ``width`` workers running :class:`Task` s: :meth:`run` hands out tasks as workers
     come free and calls ``on_outcome`` with each :class:`Outcome` in the command's process. A
     worker that died or was killed is replaced for the next task; every worker is killed when
-    the block ends, however it ends (an interrupt included)."""
+    the block ends, however it ends (an interrupt included).
+
+    Every worker the pool started and has not killed is in :attr:`idle` or :attr:`busy` at
+    every moment (in both while it moves from one to the other), since an interrupt (SIGINT,
+    SIGTERM raised as :class:`~twin.interrupts.Interrupted`) may land between any two
+    statements: a worker that an interrupt left in neither list was never killed, and the
+    command, at its exit, waited for it forever (multiprocessing joins the processes it
+    started; the worker, idle on its pipe, never ends by itself while its parent lives)."""
 
     def __init__(self, width: int = 1):
         self.width = max(1, int(width))
@@ -436,16 +444,32 @@ class Workers:
         self.close()
 
     def close(self) -> None:
-        for w in self.idle + self.busy:
-            w.kill()
-        self.idle, self.busy = [], []
+        # signals held while the workers die: an interrupt here (on a normal way out) would leave the
+        # rest alive; it is raised once they are gone
+        with deferred_signals():
+            for w in self.idle + self.busy:
+                w.kill()
+            self.idle, self.busy = [], []
+
+    def _new(self) -> Worker:
+        """A new worker, listed in :attr:`busy` as it starts (signals held meanwhile: none is
+        raised between its start and its listing)."""
+        with deferred_signals():
+            w = Worker()
+            self.busy.append(w)
+        return w
 
     def _worker(self) -> Worker:
+        """A free worker, now in :attr:`busy`: an idle one that is alive, else a new one."""
         while self.idle:
-            w = self.idle.pop()
+            w = self.idle[-1]
             if w.alive:
+                self.busy.append(w)  # listed as busy before it leaves idle
+                self.idle.pop()
                 return w
-        return Worker()
+            w.kill()  # died idle: its pipe closed, the process collected
+            self.idle.pop()
+        return self._new()
 
     def start(self, task: Task) -> None:
         """Give ``task`` to a free worker (a new one if none is idle); at most ``width`` at once."""
@@ -453,12 +477,21 @@ class Workers:
             raise RuntimeError("no worker is free")
         w = self._worker()
         try:
-            w.submit(task)
-        except (OSError, ValueError):  # it died idle: a new one
-            w.kill()
-            w = Worker()
-            w.submit(task)
-        self.busy.append(w)
+            try:
+                w.submit(task)
+            except (OSError, ValueError):  # it died idle: a new one
+                self._drop(w)
+                w = self._new()
+                w.submit(task)
+        except BaseException:  # not sent (it does not pickle), or cut while sent (an interrupt): that worker ends
+            self._drop(w)
+            raise
+
+    def _drop(self, w: Worker) -> None:
+        """Kill busy worker ``w`` and unlist it (killed before it leaves the list)."""
+        w.kill()
+        if w in self.busy:
+            self.busy.remove(w)
 
     def wait(self, timeout: float | None = None) -> list[Outcome]:
         """The outcomes that are ready, waiting up to ``timeout`` s (None: until one is, or a
@@ -481,9 +514,9 @@ class Workers:
             outcome = w.poll(now)
             if outcome is None:
                 continue
-            self.busy.remove(w)
             if w.alive:
-                self.idle.append(w)
+                self.idle.append(w)  # listed as idle before it leaves busy
+            self.busy.remove(w)
             out.append(outcome)
         return out
 
