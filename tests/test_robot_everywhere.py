@@ -163,3 +163,24 @@ def test_an_imu_mounted_turned_errs_along_its_own_axes():
     # and from a robot file, through the scenario
     sc = load_scenario("paper-exp1", ["robot=paper", "sensors.imu_orientation=[0.0, 0.3, 0.0]"])
     assert sc.sensor_config().imu.orientation == (0.0, 0.3, 0.0)
+
+
+def test_a_sweep_draws_around_the_robots_own_figures(tmp_path):
+    """twin sweep --robot: the sampled plant.scale is a factor of the robot's figures, and the
+    sample replays (twin run --sample) as the robot it was."""
+    out = tmp_path / "sweep"
+    code, stdout, err = _twin("sweep", "balboa-exp3", "--robot", "balboa", "--samples", "1", "--workers", "1",
+                              "--controller", "lqr", "--set", "duration=0.5", "--set", "sweep.levels=[0.3]",
+                              "--out", str(out))
+    assert code == 0, err
+    import csv
+
+    row = next(csv.DictReader((out / "sweep.csv").open()))
+    code, stdout, err = _twin("run", "balboa-exp3", "--robot", "balboa", "--sample", "0", "--controller", "lqr",
+                              "--set", "duration=0.5", "--set", "sweep.levels=[0.3]", "--no-video",
+                              "--out", str(tmp_path / "sample"))
+    assert code == 0, err
+    doc = json.loads((tmp_path / "sample" / "metrics.json").read_text())
+    assert doc["scenario"]["robot"] == "balboa"
+    assert doc["scenario"]["plant"]["scale"]["m_b"] == pytest.approx(float(row["factor_m_b"]))
+    assert float(row["factor_m_b"]) != 1.06  # drawn, around the robot's own mass
