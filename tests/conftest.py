@@ -1,6 +1,13 @@
 import os
 
-import pytest
+# One BLAS thread in each test process (and the commands the tests start, which inherit it):
+# the suite runs a process per core (pytest-xdist), and OpenBLAS's own threads, one per core in
+# each process, then fight over the cores, spinning while they wait (the two calibration files
+# took 85 s instead of 55 s side by side). Set before the workers import numpy; results are the
+# same bytes either way (the refactor hashes and golden files hold under it).
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import pytest  # noqa: E402
 
 from twin.controllers.lmi import design_balance_gains
 
