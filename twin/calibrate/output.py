@@ -165,8 +165,13 @@ def calibration_toml(cal, params: dict, twin=None, geometry: tuple | None = None
     return "\n".join(lines)
 
 
+def six_digits(v: float) -> float:
+    """``v`` to six significant digits: what a fit knows, without its floating-point tail."""
+    return float(f"{float(v):.6g}")
+
+
 def _num(v: float) -> str:
-    return repr(float(f"{float(v):.6g}"))
+    return repr(six_digits(v))
 
 
 def plant_overrides(path) -> list[str]:

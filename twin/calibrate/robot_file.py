@@ -17,9 +17,9 @@ wheels, the body's box, the encoders, the rates) is the input robot's, said in t
 from __future__ import annotations
 
 import json
-import math
 import tomllib
 
+from twin.calibrate.output import six_digits
 from twin.errors import TwinError
 from twin.robots import ROBOT_KEYS, Robot, load_robot
 from twin.sensors.specs import preset_name
@@ -90,7 +90,7 @@ def fitted_values(base: Robot, params: dict) -> tuple[dict, dict]:
             n = d["gear_ratio"]
             value, lo, hi, unit = value * n, lo * n, hi * n, "rad/s at the motor"
         if e["identifiable"]:
-            values[where[0]][where[1]] = _sig(value)
+            values[where[0]][where[1]] = six_digits(value)
             notes[where] = f"fitted: 95 % [{_g(lo)}, {_g(hi)}] {unit}"
         else:
             notes[where] = (f"not identified by the logs (fit {_g(value)}, 95 % [{_g(lo)}, {_g(hi)}] {unit}): the "
@@ -107,12 +107,12 @@ def fitted_values(base: Robot, params: dict) -> tuple[dict, dict]:
             if e is None:
                 said.append(f"{AXES[i]} not fitted ({kept})")
             elif e["identifiable"]:
-                vector[i] = _sig(e["value"])
+                vector[i] = six_digits(e["value"])
                 said.append(f"{AXES[i]} 95 % [{_g(e['ci95'][0])}, {_g(e['ci95'][1])}]")
             elif known is not None:
                 said.append(f"{AXES[i]} not identified: the input robot's")
             else:
-                vector[i] = _sig(e["value"])
+                vector[i] = six_digits(e["value"])
                 said.append(f"{AXES[i]} not identified: the fit's estimate, 95 % [{_g(e['ci95'][0])}, "
                             f"{_g(e['ci95'][1])}]")
         values["imu"][key] = tuple(vector)
@@ -169,11 +169,6 @@ def _toml(v) -> str:
     if isinstance(v, int):
         return str(v)
     return repr(float(v))
-
-
-def _sig(v: float) -> float:
-    """Six significant digits: what a fit knows, without its floating-point tail."""
-    return float(f"{float(v):.6g}") if math.isfinite(v) else v
 
 
 def _g(v: float) -> str:

@@ -3,10 +3,8 @@ shell completion, the options of limits, tolerances and the design cache, progre
 stderr, and how numbers and counts are printed."""
 from __future__ import annotations
 
-import json
 import sys
 import tomllib
-from pathlib import Path
 
 import click
 from click.shell_completion import CompletionItem
@@ -157,9 +155,9 @@ def with_robot(overrides, robot: str | None) -> tuple:
         return overrides
     if any(str(o).partition("=")[0].strip() == "robot" for o in overrides):
         raise TwinError("--robot and --set robot=... both name the robot; give one of them")
-    path = Path(robot)
-    value = str(path.resolve()) if path.suffix == ".toml" and path.is_file() else robot
-    return (f"robot={json.dumps(value)}",) + overrides
+    from twin.robots import robot_item  # only with --robot: the listings and cache commands need no robots
+
+    return (robot_item(robot),) + overrides
 
 
 def limit_overrides(overrides, step_limit, run_limit, memory_limit) -> tuple:

@@ -73,7 +73,7 @@ from twin.digests import design_digest
 from twin.errors import InfeasibleDesign, TwinError
 from twin.interrupts import deferred_signals
 from twin.params import NOMINAL, RobotParams
-from twin.plant.ts_model import rule1_weight, ts_matrices
+from twin.plant.ts_model import local_model, rule1_weight, ts_matrices
 
 DEFAULT_EPSILON = 0.5  # ‖x0‖ bound of the certified region (mixed units of x); covers θ0 = 0.48 rad
 DEFAULT_RHO = 2.0  # N·m: bound on |u| = |ul + ur| (1 N·m per wheel)
@@ -710,18 +710,15 @@ _QUICK_ITERS = {"CLARABEL": 80, "SCS": 5000}
 def input_scale(params: RobotParams) -> float:
     """s (N·m per unit of the SDP's input): the power of two nearest NOMINAL's input gain over
     ``params``' (the balance model's θ̈ per N·m at upright, |B1[1]|); 1 for the paper's robot."""
-    ratio = abs(local_gain(NOMINAL)) / abs(local_gain(params))
-    return 2.0 ** round(math.log2(ratio))
+    def gain(p):  # θ̈ per N·m of u at upright, 1/(kg·m²): the upright rule's B[1]
+        return abs(float(local_model(p, 1.0)[1][1, 0]))
+
+    return 2.0 ** round(math.log2(gain(NOMINAL) / gain(params)))
 
 
 def _scaled(models, s: float) -> list:
     """``models`` with the input in units of ``s`` N·m (each B times s); as they are for s = 1."""
     return models if s == 1.0 else [(A, [Bi * s for Bi in B]) for A, B in models]
-
-
-def local_gain(params: RobotParams) -> float:
-    """θ̈ per N·m of u at upright (1/(kg·m²)): the balance model's B1[1]."""
-    return -(params.m11 + params.m12) / (params.m11 * params.m22 - params.m12 * params.m12)
 
 
 def _design_region(params, epsilon, rho, decay_rate, max_gain, solver, damping, box, all_vertices) -> BalanceDesign:

@@ -47,6 +47,7 @@ from twin.controllers.lmi import DEFAULT_DECAY_RATE, DEFAULT_RHO
 from twin.controllers.mamdani import (ALPHA_DOT_E_RANGE, ALPHA_E_RANGE, DEFAULT_U_ALPHA_MAX, P_E_RANGE,
                                       THETA_DOT_RANGE, THETA_OFF_RANGE)
 from twin.params import RobotParams
+from twin.plant.ts_model import local_model
 from twin.robots import load_robot
 
 # the Mamdani controllers' universes: scenario key (controller.universes.NAME) → (Table I's value, unit)
@@ -62,8 +63,9 @@ DRIVE_SHARE = 0.25  # of the drive's acceleration (lean) and of a wheel's peak t
 
 
 def fall_rate(params: RobotParams) -> float:
-    """λ in 1/s: the rate at which the upright body falls with its wheels free, without friction."""
-    return math.sqrt(params.m11 * params.g_b / (params.m11 * params.m22 - params.m12 * params.m12))
+    """λ in 1/s: the rate at which the upright body falls with its wheels free, without friction
+    (√A[1, 0] of the upright rule of the balance model)."""
+    return math.sqrt(float(local_model(params, 1.0)[0][1, 0]))
 
 
 def peak_torque(robot) -> float:
@@ -87,6 +89,21 @@ def _paper():
     return load_robot("paper")  # read once per process (a built-in)
 
 
+_MEMO: dict = {}  # (rule, robot digest) → settings: a scenario asks for each key of them apart
+
+
+def _once(rule):
+    def settings(robot) -> dict[str, float]:
+        key = (rule.__name__, robot.digest)
+        if key not in _MEMO:
+            _MEMO[key] = rule(robot)
+        return dict(_MEMO[key])
+
+    settings.__name__, settings.__doc__ = rule.__name__, rule.__doc__
+    return settings
+
+
+@_once
 def design_settings(robot) -> dict[str, float]:
     """``design.rho`` (N·m) and ``design.decay_rate`` (1/s) for ``robot`` (see the module's rules)."""
     paper = _paper()
@@ -94,6 +111,7 @@ def design_settings(robot) -> dict[str, float]:
             "decay_rate": _rounded(DEFAULT_DECAY_RATE * (fall_rate(robot.params()) / fall_rate(paper.params())))}
 
 
+@_once
 def universes(robot) -> dict[str, float]:
     """``controller.universes``: each of :data:`UNIVERSES` for ``robot`` (see the module's rules)."""
     paper = _paper()

@@ -103,7 +103,6 @@ import math
 import shlex
 from dataclasses import replace
 from os import PathLike
-from pathlib import Path
 
 import gymnasium
 import numpy as np
@@ -112,6 +111,7 @@ from gymnasium import spaces
 from twin.errors import TwinError
 from twin.plant.urdf import body_box
 from twin.registry import build_estimator, check_kind
+from twin.robots import robot_item
 from twin.render.hud import draw_hud, HudState
 from twin.render.panels import draw_markers, from_start, PATH_STEP_M
 from twin.render.scene import camera_mode, check_size, resolve_renderer, robot_scale, Scene
@@ -220,9 +220,7 @@ class TwinEnv(gymnasium.Env):
         if robot is not None:  # the scenario's robot key, as twin run --robot sets it
             if not isinstance(robot, (str, PathLike)):
                 raise TwinError(f"robot must be a built-in robot's name or a robot file (.toml), got {robot!r}")
-            path = Path(robot)
-            named = str(path.resolve()) if path.suffix == ".toml" and path.is_file() else str(robot)
-            overrides = (f"robot={json.dumps(named)}",) + tuple(overrides)
+            overrides = (robot_item(robot),) + tuple(overrides)
         self.overrides = tuple(overrides) + self._sweep_overrides
         self._scenario_arg = str(scenario)
         self.scenario = sc = load_scenario(self._scenario_arg, self.overrides)

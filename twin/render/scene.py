@@ -239,10 +239,9 @@ def camera_mode(mode: str, alpha0: float = 0.0, extent=None, alpha_d: float | No
     camera = _camera_mode(mode, alpha0, extent, alpha_d, catch_end)
     if scale == 1.0:
         return camera
-    # another robot's size: the same picture of it (the fixed camera's distance is the extent's already)
-    distance = camera.distance if mode == "fixed" else camera.distance * scale
-    return replace(camera, distance=max(distance, camera.distance if mode == "fixed" else 0.05),
-                   target_height=camera.target_height * scale)
+    # another robot's size: the same picture of it (the fixed camera stands back by the extent already)
+    distance = camera.distance if mode == "fixed" else max(0.05, camera.distance * scale)
+    return replace(camera, distance=distance, target_height=camera.target_height * scale)
 
 
 def _camera_mode(mode, alpha0, extent, alpha_d, catch_end) -> Camera:

@@ -5,6 +5,6 @@ drive, sensors, control rate, the tilt at which it is lost) and every command us
 :class:`~twin.robots.robot.Robot` is the validated robot and what the twin makes of it (the
 model of equation (1), the motors, the IMU and the encoders).
 """
-from twin.robots.robot import ROBOT_KEYS, Robot, builtin_names, builtin_robots, load_robot, robot_text
+from twin.robots.robot import ROBOT_KEYS, Robot, builtin_names, builtin_robots, load_robot, robot_item, robot_text
 
-__all__ = ["ROBOT_KEYS", "Robot", "builtin_names", "builtin_robots", "load_robot", "robot_text"]
+__all__ = ["ROBOT_KEYS", "Robot", "builtin_names", "builtin_robots", "load_robot", "robot_item", "robot_text"]

@@ -380,6 +380,15 @@ class Robot:
         self.encoders()
 
 
+def robot_item(robot) -> str:
+    """``--robot NAME|FILE`` (or an environment's ``robot=``) as the scenario's ``--set`` item:
+    a robot file by its absolute path (a worker process, or a scenario file elsewhere, finds it
+    all the same), a built-in by its name."""
+    path = Path(robot)
+    value = str(path.resolve()) if path.suffix == ".toml" and path.is_file() else str(robot)
+    return f"robot={json.dumps(value)}"
+
+
 def builtin_names() -> list[str]:
     """Names of the built-in robots, sorted."""
     return sorted(f.name[:-5] for f in resources.files(BUILTIN_PACKAGE).iterdir() if f.name.endswith(".toml"))
@@ -428,4 +437,4 @@ def load_robot(name_or_path) -> Robot:
 
 
 __all__ = ["HOLD_CHECK_ANGLE", "Key", "ROBOT_KEYS", "Robot", "builtin_names", "builtin_robots", "load_robot",
-           "robot_text"]
+           "robot_item", "robot_text"]

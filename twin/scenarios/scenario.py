@@ -230,6 +230,10 @@ class Scenario:
     def model(self):
         """The model the controllers and the estimator assume: the robot's (:meth:`twin.robots.Robot.model`,
         with its drive's back-EMF damping where the twin drives the wheels through it), not the true plant."""
+        return self._model
+
+    @cached_property
+    def _model(self):
         return self.robot.model(motors=self.twin_config().motor is not None)
 
     def true_params(self):
