@@ -40,6 +40,8 @@ LAYERS = {
     "twin.controllers": 5,
     # the kinds: built-ins and users' plugins; the limits a run is held to
     "twin.limits": 6, "twin.registry": 6,
+    # the controllers and estimators written as C, and that C run back in the loop (the export:DIR kinds)
+    "twin.export": 6,
     # the engine: one run from its specification
     "twin.sim": 7,
     # what a run leaves: files, figures, video; plugins run in a process of their own

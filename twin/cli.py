@@ -49,7 +49,7 @@ from twin.errors import TwinError  # noqa: E402
 COMMANDS = {
     "cache": "twin.commands.cache:cache", "calibrate": "twin.commands.calibrate:calibrate_command",
     "check": "twin.commands.check:check_command", "compare": "twin.commands.compare:compare_command",
-    "design": "twin.commands.design:design", "kinds": "twin.commands.listing:kinds_command",
+    "design": "twin.commands.design:design", "export": "twin.commands.export:export_command", "kinds": "twin.commands.listing:kinds_command",
     "linearize": "twin.commands.linearize:linearize",
     "replay": "twin.commands.replay:replay_command", "robots": "twin.commands.listing:robots_command",
     "run": "twin.commands.run:run",

@@ -43,6 +43,7 @@ from twin.plant.base import TwinConfig
 from twin.protocols import (ACTUATION_NAMES, ESTIMATE_NAMES, PUSH_NAMES, TRUTH_NAMES, Targets, describe_object,
                             one_line, shown)
 
+EXPORT_PREFIX = "export:"  # "export:DIR": the C of an export directory (twin export), compiled and run in the loop
 _IMPORT_PATH = re.compile(r"^[A-Za-z_][\w]*(\.[A-Za-z_][\w]*)*:[A-Za-z_][\w]*(\.[A-Za-z_][\w]*)*$")
 
 
@@ -243,16 +244,33 @@ def use_plugin_dirs(dirs) -> None:
 
 def is_import_path(kind: str) -> bool:
     """True for ``"package.module:attribute"``."""
-    return isinstance(kind, str) and bool(_IMPORT_PATH.match(kind))
+    return isinstance(kind, str) and bool(_IMPORT_PATH.match(kind)) and not is_export(kind)
+
+
+def is_export(kind) -> bool:
+    """True for ``"export:DIR"``: the controllers or the estimator of an export directory
+    (``twin export``), compiled with the host's C compiler and run in the twin's loop."""
+    return isinstance(kind, str) and kind.startswith(EXPORT_PREFIX) and len(kind) > len(EXPORT_PREFIX)
+
+
+def _exported(role: str, kind: str):
+    directory = kind[len(EXPORT_PREFIX):]
+
+    def build(ctx: BuildContext):
+        # optional: the export's loader (ctypes, the host's compiler) only for an export:DIR kind
+        from twin.export import sil
+
+        return (sil.build_controller if role == "controller" else sil.build_estimator)(directory, ctx)
+    return build
 
 
 def check_kind(role: str, kind) -> str:
     """``kind`` if it is a built-in name or a well-formed import path; else a one-line error."""
     table = _ROLES[role]
-    if isinstance(kind, str) and (kind in table or is_import_path(kind)):
+    if isinstance(kind, str) and (kind in table or is_import_path(kind) or (role != "plant" and is_export(kind))):
         return kind
     raise PluginError(f"{role} {shown(kind)} is neither a built-in ({', '.join(table)}) nor an import path "
-                      "'package.module:attribute'")
+                      "'package.module:attribute'" + ("" if role == "plant" else " nor an export 'export:DIR'"))
 
 
 def label(kind: str) -> str:
@@ -267,6 +285,8 @@ def resolve(role: str, kind: str) -> tuple[Callable, bool]:
     """(factory, is_plugin): the built-in's factory, or the imported attribute."""
     kind = check_kind(role, kind)
     table = _ROLES[role]
+    if is_export(kind):
+        return _exported(role, kind), False
     if kind in table:
         built_in = table[kind]
         if built_in.factory is not None:
@@ -350,7 +370,7 @@ def _build(role: str, kind: str, params: dict | None, context: BuildContext | No
     params = dict(params or {})
     context = context if context is not None else BuildContext()
     if not plugin:
-        allowed = _ROLES[role][kind].parameters
+        allowed = () if is_export(kind) else _ROLES[role][kind].parameters
         unknown = [p for p in params if p not in allowed]
         if unknown:
             raise PluginError(f"{role} {shown(kind)}: unknown parameter{'s' * (len(unknown) > 1)} "
@@ -367,7 +387,7 @@ def _build(role: str, kind: str, params: dict | None, context: BuildContext | No
     except PluginError:
         raise
     except TypeError as exc:
-        allowed = _ROLES[role][kind].parameters if not plugin else _parameters(factory)
+        allowed = (() if is_export(kind) else _ROLES[role][kind].parameters) if not plugin else _parameters(factory)
         raise PluginError(f"{role} {shown(kind)}: cannot be built with parameters {shown(params)} "
                           f"({one_line(exc)}); allowed parameters: {', '.join(allowed) or 'none'}") from None
     except TwinError as exc:

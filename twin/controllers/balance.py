@@ -46,6 +46,11 @@ class PDCBalanceController:
                 raise TwinError(f"t1_half_width must be a positive angle in rad, got {t1_half_width!r}")
             self._lo = self._up = hw
 
+    @property
+    def half_widths(self) -> tuple[float, float]:
+        """(lower, upper) half-widths in rad of the upright rule's membership of θ (equal for "t1")."""
+        return self._lo, self._up
+
     def weight(self, theta: float) -> float:
         """m1(θ), the weight of the upright rule (m2 = 1 − m1)."""
         a = abs(theta)
