@@ -48,7 +48,9 @@ pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"),
                                 reason="POSIX signals; the moment a handler is in place is read from /proc")
 
 RUN = ("run", "paper-exp3", "--set", "duration=2", "--controller", "it2", "--no-cache", "--no-video")
-MOMENTS = 64  # 1 - 0.95**64 = 96 %: a cause hit by 5 % of the moments shows up here
+# 1 - 0.95**32 = 81 %: a cause hit by 5 % of the moments shows up here (each known cause has its own test
+# above); TWIN_SIGNAL_MOMENTS=64 (96 %) for a thorough run, as before a change to the signal handling
+MOMENTS = int(os.environ.get("TWIN_SIGNAL_MOMENTS", "32"))
 SEED = 39
 BAD = ("Traceback", "panicked", "Exception ignored", "Fatal Python error", "Error in sys.excepthook")
 PROGRESS = re.compile(r"^\s+(run \S+|video)(\s|$)")  # the progress bar's label (no bar: stderr is not a terminal)

@@ -253,14 +253,34 @@ def is_export(kind) -> bool:
     return isinstance(kind, str) and kind.startswith(EXPORT_PREFIX) and len(kind) > len(EXPORT_PREFIX)
 
 
+def exported_kind(kind: str) -> str | None:
+    """For ``"export:DIR"``: the built-in controller kind the export was made from (its manifest's
+    ``controller``, e.g. ``"it2"``), None if DIR holds no readable export; None for any other kind."""
+    if not is_export(kind):
+        return None
+    import json  # only: an export's manifest, read for its controller's kind
+
+    try:
+        doc = json.loads((Path(kind[len(EXPORT_PREFIX):]) / "export.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    c = doc.get("controller") if isinstance(doc, dict) else None
+    return c if isinstance(c, str) else None
+
+
+def _export_parameters(role: str) -> tuple:
+    # the controllers' drive: "duty" (the C's driver law sets the PWM duties) or "torque" (the twin's does)
+    return ("drive",) if role == "controller" else ()
+
+
 def _exported(role: str, kind: str):
     directory = kind[len(EXPORT_PREFIX):]
 
-    def build(ctx: BuildContext):
+    def build(ctx: BuildContext, **params):
         # optional: the export's loader (ctypes, the host's compiler) only for an export:DIR kind
         from twin.export import sil
 
-        return (sil.build_controller if role == "controller" else sil.build_estimator)(directory, ctx)
+        return (sil.build_controller if role == "controller" else sil.build_estimator)(directory, ctx, **params)
     return build
 
 
@@ -370,7 +390,7 @@ def _build(role: str, kind: str, params: dict | None, context: BuildContext | No
     params = dict(params or {})
     context = context if context is not None else BuildContext()
     if not plugin:
-        allowed = () if is_export(kind) else _ROLES[role][kind].parameters
+        allowed = _export_parameters(role) if is_export(kind) else _ROLES[role][kind].parameters
         unknown = [p for p in params if p not in allowed]
         if unknown:
             raise PluginError(f"{role} {shown(kind)}: unknown parameter{'s' * (len(unknown) > 1)} "
@@ -387,7 +407,8 @@ def _build(role: str, kind: str, params: dict | None, context: BuildContext | No
     except PluginError:
         raise
     except TypeError as exc:
-        allowed = (() if is_export(kind) else _ROLES[role][kind].parameters) if not plugin else _parameters(factory)
+        allowed = (_export_parameters(role) if is_export(kind) else _ROLES[role][kind].parameters) if not plugin \
+            else _parameters(factory)
         raise PluginError(f"{role} {shown(kind)}: cannot be built with parameters {shown(params)} "
                           f"({one_line(exc)}); allowed parameters: {', '.join(allowed) or 'none'}") from None
     except TwinError as exc:
@@ -566,6 +587,6 @@ def parse_controllers(choice: str) -> tuple[str, ...]:
     return check_kinds("controller", (s.strip() for s in str(choice).split(",") if s.strip()), "--controller")
 
 
-__all__ = ["BuildContext", "CONTROLLERS", "ESTIMATORS", "Kind", "build_controller", "build_estimator", "build_estimator_for",
+__all__ = ["BuildContext", "CONTROLLERS", "ESTIMATORS", "EXPORT_PREFIX", "Kind", "exported_kind", "is_export", "build_controller", "build_estimator", "build_estimator_for",
            "look_beside",
            "check_kind", "check_kinds", "check_protocol", "is_import_path", "label", "parse_controllers", "provenance", "resolve"]

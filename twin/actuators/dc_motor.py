@@ -167,6 +167,17 @@ class MotorDriver:
         tau0 = self._kt * d * self._vs / self._R
         return d, saturated, tau0, tau0 - self._kt * self._kt * omega / self._R
 
+    def held(self, duty: float, omega: float) -> tuple[float, float]:
+        """(duty, τ_0, τ) for a duty a firmware computed (its own driver law, outside the twin):
+        the duty as the PWM peripheral holds it (clipped to [−1, 1] and quantised to the PWM
+        resolution, as a compare register does), τ_0 and τ at shaft speed ω as in :meth:`update`."""
+        if not (math.isfinite(duty) and math.isfinite(omega)):
+            raise TwinError(f"motor duty and shaft speed must be finite, got {duty!r}, {omega!r} rad/s")
+        d = 1.0 if duty > 1.0 else (-1.0 if duty < -1.0 else duty)
+        d = round(d * self._steps) / self._steps
+        tau0 = self._kt * d * self._vs / self._R
+        return d, tau0, tau0 - self._kt * self._kt * omega / self._R
+
     def torque_at(self, duty: float, omega: float) -> float:
         """Steady-state torque in N·m for a duty at shaft speed ω (no inductance)."""
         return self._kt * (duty * self._vs - self._kt * omega) / self._R

@@ -3,10 +3,11 @@ twin's controller or estimator (the ``export:DIR`` kinds of :mod:`twin.registry`
 
 :class:`ExportedController` calls the export's ``mtwip_control`` on the twin's estimate and
 returns the torques as the built-in controllers do; :class:`ExportedEstimator` feeds the sensor
-suite's readings (or a log's) to ``mtwip_estimator_start``/``mtwip_estimator_step``. The twin's
-motors' driver then turns the torques into duties with the shaft speed it simulates, as it does
-for every controller; the export's own duty law (``mtwip_motor_duty``, which the firmware feeds
-with the estimated shaft speed) is tested against the driver's apart.
+suite's readings (or a log's) to ``mtwip_estimator_start``/``mtwip_estimator_step``. By default
+the C's driver law then sets the PWM duties from the shaft speeds it estimates, as the firmware
+does, and those drive the twin's motors; with ``drive = "torque"`` the twin's driver turns the
+torques into duties with the true shaft speeds, as for every other controller, and a float64
+export's run is the Python path's bit for bit.
 
 The library is compiled once per content (the sources, the compiler and its flags) into the
 twin's cache directory (:func:`twin.controllers.design_cache.cache_dir`, ``export/``), so the
@@ -130,19 +131,36 @@ def load(directory) -> _Library:
     return lib
 
 
+DRIVES = ("duty", "torque")
+
+
 class ExportedController:
-    """An export's controllers as a :class:`twin.protocols.Controller`: ``(ul, ur, u, θ_off, u_α)``
-    in N·m, N·m, N·m, rad, N·m per wheel from the C ``mtwip_control``."""
+    """An export's controllers as a :class:`twin.protocols.Controller`, from the C ``mtwip_control``.
 
-    signals = ESTIMATE_SIGNALS
-    signal_units = {"u": "N·m", "theta_off": "rad", "u_alpha": "N·m"}
+    ``drive = "duty"`` (the firmware as a whole): the C's driver law (``mtwip_drive``) turns the
+    torques into the PWM duties with the shaft speeds it takes from the estimate, and those duties
+    drive the twin's motors (:attr:`drives_duty`); the output is ``(ul, ur, u, θ_off, u_α, duty_l,
+    duty_r, saturated_l, saturated_r)``. ``drive = "torque"``: ``(ul, ur, u, θ_off, u_α)`` (N·m, N·m,
+    N·m, rad, N·m per wheel), turned into duties by the twin's driver with the true shaft speeds, as
+    for every other controller: the run is then the Python path's, bit for bit (float64).
+    """
 
-    def __init__(self, directory):
+    def __init__(self, directory, drive: str = "duty"):
+        if drive not in DRIVES:
+            raise TwinError(f"drive must be one of {', '.join(DRIVES)}, got {drive!r}")
         self._c = load(directory)
         self.directory = self._c.directory
         self.manifest = self._c.manifest
-        self._control = self._c.lib.mtwip_control
+        self.drive = drive
+        self.drives_duty = drive == "duty"
+        self.signals = ESTIMATE_SIGNALS + (("duty_cmd_l", "duty_cmd_r", "saturated_cmd_l", "saturated_cmd_r")
+                                           if self.drives_duty else ())
+        self.signal_units = {"u": "N·m", "theta_off": "rad", "u_alpha": "N·m", "duty_cmd_l": "1", "duty_cmd_r": "1",
+                             "saturated_cmd_l": "bool", "saturated_cmd_r": "bool"}
+        lib = self._c.lib
+        self._control, self._drive = lib.mtwip_control, lib.mtwip_drive
         self._x, self._out = self._c.vec6(), self._c.vec5()
+        self._duty, self._sat = self._c.vec2(), (ctypes.c_uint8 * 2)()
         self._t = self._c.targets(_no_targets())
         self._for = None
 
@@ -168,7 +186,11 @@ class ExportedController:
         x[0], x[1], x[2], x[3], x[4], x[5] = estimate[:6]
         out = self._out
         self._control(x, ctypes.byref(self._t), out)
-        return out[0], out[1], out[2], out[3], out[4]
+        if not self.drives_duty:
+            return out[0], out[1], out[2], out[3], out[4]
+        duty, sat = self._duty, self._sat
+        self._drive(x, out, duty, sat)
+        return out[0], out[1], out[2], out[3], out[4], duty[0], duty[1], float(sat[0]), float(sat[1])
 
 
 def _no_targets():
@@ -232,9 +254,9 @@ class ExportedEstimator:
         return x[0], x[1], x[2], x[3], x[4], x[5]
 
 
-def build_controller(directory, context=None):
-    """The ``export:DIR`` controller kind's factory."""
-    return ExportedController(directory)
+def build_controller(directory, context=None, drive: str = "duty"):
+    """The ``export:DIR`` controller kind's factory (``drive``: see :class:`ExportedController`)."""
+    return ExportedController(directory, drive)
 
 
 def build_estimator(directory, context=None):

@@ -259,6 +259,7 @@ class BulletTwin:
             os.unlink(path)
         rob = self.robot
         self.motor = None if config.motor is None else MotorDriver(config.motor)
+        self._duties = None  # the next step's duties from a firmware (step_duties), else None
         self._motor_damping = 0.0 if config.motor is None else config.motor.electrical_damping
         self._lagged = config.motor is not None and config.motor.inductance > 0.0
         for link in range(-1, c.getNumJoints(rob)):
@@ -363,6 +364,20 @@ class BulletTwin:
         return self._current if self._lagged else None
 
     # ---- stepping ----------------------------------------------------------------------
+    def step_duties(self, duty_l: float, duty_r: float, ul: float, ur: float, saturated=(False, False)) -> GroundTruth:
+        """One control period with the PWM duties a firmware computed (in [−1, 1], held as the PWM
+        peripheral holds them: clipped and quantised to the drive's resolution), instead of the
+        twin's driver turning the torque commands ``ul``, ``ur`` (N·m, still checked and recorded)
+        into duties with the true shaft speed; ``saturated`` the firmware's own flags, recorded."""
+        if self.motor is None:
+            raise TwinError("this twin drives its wheels with ideal torque sources (plant.motor = \"ideal\"): it has "
+                            "no PWM duty to set; allowed: DC motors (plant.motor = \"dc\")")
+        self._duties = ((float(duty_l), bool(saturated[0])), (float(duty_r), bool(saturated[1])))
+        try:
+            return self.step(ul, ur)
+        finally:
+            self._duties = None
+
     def step(self, ul: float, ur: float) -> GroundTruth:
         """Apply the torque commands ``ul``, ``ur`` (N·m) for one control period.
 
@@ -394,7 +409,12 @@ class BulletTwin:
         w_l = tr[13] - tr[2]
         w_r = tr[14] - tr[2]
         motor = self.motor
-        if motor is None:
+        if self._duties is not None:  # a firmware's duties (step_duties): its own driver law ran outside
+            (dl, sl), (dr, sr) = self._duties
+            self._duties = None
+            dl, tau0_l, tq_l = motor.held(dl, w_l)
+            dr, tau0_r, tq_r = motor.held(dr, w_r)
+        elif motor is None:
             dl = dr = 0.0
             sl = sr = False
             tq_l, tq_r = tau0_l, tau0_r = float(ul), float(ur)

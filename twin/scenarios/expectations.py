@@ -8,7 +8,8 @@ The TOML form reads like the bound it states, one key per bound::
     "|final_position_error_m|" = "<= 0.02"    # m: |x| bounds the magnitude
     oscillation_peak_to_peak_rad = "<= 0.02"
 
-    [expect.lqr]                              # for one controller kind (quote an import path)
+    [expect.lqr]                              # for one controller kind (quote an import path); an
+                                              # "export:DIR" is held to its controller's (expect.it2 ...)
     settling_time_s = "<= 14"
 
     [expect.seeds]                            # over the seeds of 'twin check --seeds N'
@@ -41,7 +42,7 @@ from dataclasses import dataclass
 
 from twin.errors import TwinError
 from twin.outputs.tolerances import parse_table
-from twin.registry import check_kind
+from twin.registry import check_kind, exported_kind
 
 # the metrics of twin.outputs.metrics.run_metrics that a bound may name, with their units
 METRICS = {
@@ -238,7 +239,8 @@ def _stat(name: str, values: list[float], undefined: float = math.inf) -> float:
 
 def evaluate(bounds: dict[str, tuple[Bound, ...]], controller: str, runs: dict[int, dict]) -> list[Verdict]:
     """The verdicts of ``controller``'s runs (seed → :func:`twin.outputs.metrics.run_metrics` dict)."""
-    per_run = bounds.get(ALL, ()) + bounds.get(controller, ())
+    # an export's C is held to the bounds of the controller it was made from, unless it has its own
+    per_run = bounds.get(ALL, ()) + bounds.get(controller, bounds.get(exported_kind(controller), ()))
     over = bounds.get(SEEDS, ())
     out = []
     passed = 0

@@ -150,6 +150,8 @@ class ClosedLoop:
         self.control_dt = 1.0 / control_rate
         self.signals = tuple(getattr(controller, "signals", ())) if controller is not None else ()
         self._n_out = 2 + len(self.signals)
+        # a controller that computes the PWM duties itself (a firmware's driver law: Controller.drives_duty)
+        self._duty_at = self._duty_signals(controller, config if self._given is not None else None)
         self._attach_truth = bool(getattr(estimator, "reads_truth", False))
         if limits is not None and not isinstance(limits, PluginLimits):
             raise TwinError(f"limits must be a twin.limits.PluginLimits or None, got {limits!r}")
@@ -295,7 +297,15 @@ class ClosedLoop:
         elif command is not self._command:
             command = self._check_command(command, external=True)
         ul, ur = command[0], command[1]
-        if self._foreign:
+        if self._duty_at is not None and len(command) == self._n_out:  # the controller's own duties drive
+            i = self._duty_at
+            self._last_command = (ul, ur)
+            tr = self.truth = twin.step_duties(command[i], command[i + 1], ul, ur,
+                                               (command[i + 2] != 0.0, command[i + 3] != 0.0))
+            if self._foreign:
+                tr = self.truth = self._check_truth(tr, "step_duties", 1)
+            act, push = self.actuation, self.push_force
+        elif self._foreign:
             tr = self.truth = self._plant_step(twin, ul, ur)
             act, push = self.actuation, self.push_force
         else:
@@ -352,6 +362,24 @@ class ClosedLoop:
         else:
             meas = suite.read(k, *motion.reading, tr.psi_l - tr.theta, tr.psi_r - tr.theta)
         return meas._replace(truth=tr) if self._attach_truth else meas
+
+    @staticmethod
+    def _duty_signals(controller, plant) -> int | None:
+        """Where a controller that drives the duties itself (``drives_duty``) puts them in its output
+        (the index of ``duty_cmd_l``, followed by ``duty_cmd_r``, ``saturated_cmd_l``, ``saturated_cmd_r``),
+        or None; a one-line error for a plant that cannot take duties."""
+        if controller is None or not getattr(controller, "drives_duty", False):
+            return None
+        names = ("duty_cmd_l", "duty_cmd_r", "saturated_cmd_l", "saturated_cmd_r")
+        signals = tuple(getattr(controller, "signals", ()))
+        if signals[-4:] != names:
+            raise PluginError(f"controller {describe_object(controller)} drives the duties (drives_duty) but its "
+                              f"signals do not end with {', '.join(names)}")
+        if plant is not None and not callable(getattr(plant, "step_duties", None)):
+            raise TwinError(f"controller {describe_object(controller)} sets the motors' PWM duties itself, and plant "
+                            f"{describe_object(plant)} takes torques only (no step_duties); allowed: the PyBullet twin "
+                            f"with DC motors, or the controller driving torques")
+        return 2 + len(signals) - 4
 
     @staticmethod
     def _needs_check(motor, plant: str, sensors: SensorConfig) -> None:

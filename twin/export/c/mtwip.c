@@ -30,11 +30,17 @@ static void to_sample(const mtwip_config_t *c, const mtwip_readings_t *r, mtwip_
     m->has_encoder = r->encoder_valid != 0;
 }
 
+void mtwip_drive(const mtwip_real x[6], const mtwip_real torque[2], mtwip_real duty[2], uint8_t saturated[2]) {
+    /* each shaft's speed relative to the body, from the estimate: psi_dot -/+ (b/r) alpha_dot - theta_dot */
+    mtwip_real spin = MTWIP_B_OVER_R * x[5];
+    saturated[0] = mtwip_motor_duty(torque[0], x[3] - spin - x[1], &duty[0]);
+    saturated[1] = mtwip_motor_duty(torque[1], x[3] + spin - x[1], &duty[1]);
+}
+
 void mtwip_step(mtwip_state_t *state, const mtwip_readings_t *readings, const mtwip_targets_t *targets,
                 mtwip_outputs_t *outputs) {
     mtwip_sample_t sample;
     mtwip_real c[5], *x = outputs->estimate;
-    mtwip_real spin, omega_l, omega_r;
     to_sample(&state->config, readings, &sample);
     if (state->k == 0)
         mtwip_estimator_start(&state->estimator, &sample, x);
@@ -46,12 +52,7 @@ void mtwip_step(mtwip_state_t *state, const mtwip_readings_t *readings, const mt
     outputs->u = c[2];
     outputs->theta_off = c[3];
     outputs->u_alpha = c[4];
-    /* each shaft's speed relative to the body from the estimate: psi_dot -/+ (b/r) alpha_dot - theta_dot */
-    spin = MTWIP_B_OVER_R * x[5];
-    omega_l = x[3] - spin - x[1];
-    omega_r = x[3] + spin - x[1];
-    outputs->saturated[0] = mtwip_motor_duty(c[0], omega_l, &outputs->duty[0]);
-    outputs->saturated[1] = mtwip_motor_duty(c[1], omega_r, &outputs->duty[1]);
+    mtwip_drive(x, outputs->torque, outputs->duty, outputs->saturated);
     state->command[0] = c[0];
     state->command[1] = c[1];
     state->k++;

@@ -80,6 +80,9 @@ void mtwip_control(const mtwip_real estimate[6], const mtwip_targets_t *targets,
 /* the driver's law: duty in [-1, 1] for a torque command (N·m) at the shaft speed omega (rad/s,
    wheel relative to the body); returns 1 where the current limit or the supply cut it */
 uint8_t mtwip_motor_duty(mtwip_real torque, mtwip_real omega, mtwip_real *duty);
+/* the motors' duties for the torques commanded, each shaft's speed taken from the estimate
+   (psi_dot -/+ (b/r) alpha_dot - theta_dot): what mtwip_step does after mtwip_control */
+void mtwip_drive(const mtwip_real estimate[6], const mtwip_real torque[2], mtwip_real duty[2], uint8_t saturated[2]);
 /* sizeof(mtwip_state_t) and sizeof(mtwip_estimator_t) in bytes, for a host that holds them in its own memory */
 uint32_t mtwip_state_size(void);
 uint32_t mtwip_estimator_size(void);
