@@ -83,6 +83,12 @@ class Controller(Protocol):
         means none.
     signal_units : dict of str to str, optional
         The unit of each extra signal (for CSV headers); absent means "1".
+    drives_duty : bool, optional
+        True for a controller that also computes the motors' PWM duties itself (a firmware's
+        driver law, as an export's C does): its ``signals`` then end with ``duty_cmd_l``,
+        ``duty_cmd_r`` (each in [−1, 1]), ``saturated_cmd_l``, ``saturated_cmd_r`` (1.0 or 0.0),
+        and the loop hands those duties to the plant (``step_duties``) instead of its driver
+        turning the torques into duties. Absent or False: the torques are the command.
 
     Methods
     -------
@@ -255,6 +261,11 @@ class Plant(Protocol):
         True: the loop does not check the truth this plant returns at every step (the
         built-ins', finite and well formed by construction; a check costs a few µs a step);
         absent or False: it is checked, and a wrong one stops the run in one line.
+    step_duties(duty_l, duty_r, ul, ur, saturated) -> GroundTruth
+        One period with PWM duties (in [−1, 1]) a controller computed itself (``drives_duty``),
+        the torque commands ``ul``, ``ur`` (N·m) and the controller's ``saturated`` flags kept
+        for the record; the built-in PyBullet twin with DC motors has it. A controller that
+        drives duties on a plant without it is refused in one line.
     applies_motor : bool
         True: the plant drives its wheels through its configuration's ``motor``
         (:class:`~twin.actuators.DCMotorParams`), so the controllers and the estimator are
