@@ -50,7 +50,7 @@ COMMANDS = {
     "cache": "twin.commands.cache:cache", "calibrate": "twin.commands.calibrate:calibrate_command",
     "check": "twin.commands.check:check_command", "compare": "twin.commands.compare:compare_command",
     "design": "twin.commands.design:design", "export": "twin.commands.export:export_command", "kinds": "twin.commands.listing:kinds_command",
-    "linearize": "twin.commands.linearize:linearize",
+    "linearize": "twin.commands.linearize:linearize", "pil": "twin.commands.pil:pil_command",
     "replay": "twin.commands.replay:replay_command", "robots": "twin.commands.listing:robots_command",
     "run": "twin.commands.run:run",
     "scenarios": "twin.commands.listing:scenarios_command", "surface": "twin.commands.surface:surface",
