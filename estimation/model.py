@@ -43,7 +43,7 @@ MODEL_UNCERTAINTY = {"m_b": 0.3, "l": 0.15, "n_yb": 0.3, "d_b": 1.0, "d_w": 1.0}
 # (EstimatorModel.substeps): RK4 is stable up to h λ ≈ 2.8, and at h λ = 1 that mode is off by
 # about (h λ)⁵/120 < 1 % a step (the twin's robots at 200 Hz: h λ ≤ 0.51, one step)
 STIFF_STEP = 1.0
-_SENSITIVITY_STEP = 1e-4  # relative step of the central differences in sensitivity()
+SENSITIVITY_STEP = 1e-4  # relative step of the central differences in sensitivity()
 TH, THD, PS, PSD, AL, ALD = range(6)
 
 
@@ -163,10 +163,10 @@ class EstimatorModel:
         """(4, len(names)): how the synthetic IMU sample (ω_y, ω_z, f_x, f_z) of
         :meth:`synthetic_imu` moves per unit relative change of each parameter in ``names``
         (forward differences from ``base``, this model's sample at ``s``, computed if None; step
-        :data:`_SENSITIVITY_STEP`, a relative error of the result of about that size, which a
+        :data:`SENSITIVITY_STEP`, a relative error of the result of about that size, which a
         variance model does not notice); units of the sample per 1."""
         cache = self.__dict__.setdefault("_perturbed", {})
-        h = _SENSITIVITY_STEP
+        h = SENSITIVITY_STEP
         if base is None:
             base = self.synthetic_imu(s, command, periods)[0]
         out = np.empty((4, len(names)))

@@ -62,6 +62,8 @@ def kinds_command():
         for name, kind in table.items():
             click.echo(f"  {name:{width}}  {kind.description}")
     click.echo("your own: package.module:attribute, a class or factory (see docs/howto/plugins.md)")
+    click.echo("exported C: export:DIR, the controllers or the estimator 'twin export' wrote into DIR, compiled and "
+               "run in the loop (see docs/howto/export.md)")
 
 
 @click.command("robots", cls=Once)

@@ -32,7 +32,7 @@ LIBRARY = ("mtwip.h", "mtwip_params.h", "mtwip_estimator.h", "mtwip.c", "mtwip_c
 
 _MATH = ("SIN", "sin"), ("COS", "cos"), ("TAN", "tan"), ("ATAN2", "atan2"), ("SQRT", "sqrt"), ("FABS", "fabs"), \
     ("EXP", "exp"), ("LOG", "log"), ("FLOOR", "floor"), ("NEARBYINT", "nearbyint"), ("COPYSIGN", "copysign"), \
-    ("FMIN", "fmin"), ("FMAX", "fmax"), ("POW", "pow")
+    ("FMIN", "fmin"), ("FMAX", "fmax"), ("POW", "pow"), ("ERFC", "erfc"), ("HYPOT", "hypot")
 
 
 def static_text(name: str) -> str:

@@ -1,0 +1,1622 @@
+/* The twin's EKF (estimation/ekf.py EKFEstimator) as the twin runs it by default: the IMU-driven
+   step of the compiled kernel (estimation/_ekf.c advance), the coasting step where equation (1)
+   stands in for the IMU (estimation/ekf_filter.py Coasting), the sensor front end
+   (estimation/ekf_frontend.py), the fusion step's decisions (estimation/ekf_fusion.py), the
+   policies (estimation/ekf_policies.py: the gates, the accelerometer test, the truncation into an
+   unchanged count, the latency watch) and the forward prediction across the latency. Every sum runs
+   in the order of the path it ports (the kernel's C loops, or the Python path's ascending-index
+   products of estimation/detlinalg.py), so that the float64 build gives the twin's numbers bit for
+   bit when compiled without FMA contraction (-ffp-contract=off).
+
+   Copied by twin export as mtwip_estimator.c; the configuration (every number of the filter) is
+   generated in place of the marker below (twin/export/ekf.py). Only the default sampling is
+   ported (IMU rows the means over their period, commands held, a constant period). */
+#include <math.h>
+#include <stdint.h>
+#include <string.h>
+#include "mtwip.h"
+
+/* @MTWIP_EKF_CONFIG@ */
+
+#ifndef MTWIP_ERFC
+#if defined(MTWIP_FLOAT32) && MTWIP_FLOAT32
+#define MTWIP_ERFC erfcf
+#else
+#define MTWIP_ERFC erfc
+#endif
+#endif
+#ifndef MTWIP_POW
+#if defined(MTWIP_FLOAT32) && MTWIP_FLOAT32
+#define MTWIP_POW powf
+#else
+#define MTWIP_POW pow
+#endif
+#endif
+#ifndef MTWIP_HYPOT
+#if defined(MTWIP_FLOAT32) && MTWIP_FLOAT32
+#define MTWIP_HYPOT hypotf
+#else
+#define MTWIP_HYPOT hypot
+#endif
+#endif
+
+typedef mtwip_real real;
+typedef mtwip_ekf_model_t model_t;
+
+#define NX MTWIP_EKF_NX
+#define NA MTWIP_EKF_NA
+#define NK MTWIP_EKF_NK
+#define RING MTWIP_EKF_RING
+#define ZERO MTWIP_R(0.0)
+#define ONE MTWIP_R(1.0)
+#define HALF MTWIP_R(0.5)
+#define TWO MTWIP_R(2.0)
+#define EMPTY INT32_MIN
+
+enum { TH, PS, V, AL, BY, BZ, C0, SY, H0, SZ, SAX, SAZ };
+enum { ITH, ITHD, IPS, IPSD, IAL, IALD };
+enum { EKF_OK = 0, EKF_FAILED = 1 }; /* EKF_FAILED: where the Python path raises (a singular solve) */
+
+static const mtwip_ekf_config_t *const C = &mtwip_ekf_config;
+
+/* the rows of the strapdown step's F and noise map that are not the identity's, TH, AL, V, PS: their
+   index among them (−1: an identity row) */
+static const int ROW_OF[NX] = {0, 3, 2, 1, -1, -1, -1, -1, -1, -1, -1, -1};
+
+static real nan_value(void) { return (real)NAN; }
+
+static int finite_n(const real *v, int n) {
+    int i;
+    for (i = 0; i < n; i++)
+        if (!MTWIP_ISFINITE(v[i])) return 0;
+    return 1;
+}
+
+static int packed(int i, int j) { /* the upper triangle, by rows */
+    if (i > j) {
+        int t = i;
+        i = j;
+        j = t;
+    }
+    return i * NX - i * (i - 1) / 2 + (j - i);
+}
+
+/* a square as the Python path takes it, x ** 2: libm's pow, which differs from x * x in the last bit
+   for about one argument in a thousand (the kernel's C multiplies) */
+static real pow2(real a) { return MTWIP_POW(a, C->square); }
+
+/* ---- the model (estimation/model.py, twin/plant/analytic.py; the kernel's rhs, model_step, delivered).
+   py: the Python path's arithmetic (x ** 2), else the kernel's -------------------------------------- */
+static void rhs(const model_t *p, const real *s, real ul, real ur, real *d, int py) {
+    real th = s[0], thd = s[1], psd = s[3], ald = s[5];
+    real sn = MTWIP_SIN(th), cs = MTWIP_COS(th);
+    real drive = TWO * p->d_b * (thd - psd);
+    real u = ul + ur;
+    real rhs1 = p->m12 * (thd * thd + ald * ald) * sn - TWO * p->d_w * psd + drive + u + ZERO;
+    real rhs2 = p->n_bla * ald * ald * sn * cs + p->g_b * sn - drive - u + ZERO;
+    real mc = p->m12 * cs;
+    real det = p->m11 * p->m22 - (py ? pow2(mc) : mc * mc);
+    real yaw = -TWO * p->n_bla * ald * thd * sn * cs - p->m12 * ald * psd * sn - p->yaw_damping * ald +
+               p->b_r * (ur - ul) + ZERO;
+    d[0] = thd;
+    d[1] = (p->m11 * rhs2 - p->m12 * cs * rhs1) / det;
+    d[2] = psd;
+    d[3] = (p->m22 * rhs1 - p->m12 * cs * rhs2) / det;
+    d[4] = ald;
+    d[5] = yaw / (p->m33 + p->n_bla * sn * sn);
+}
+
+/* RK4 over `periods` control periods; inc (NULL: none): the increments of s summed on their own */
+static void model_step(const model_t *p, real *s, real tl, real tr, int periods, int py, real *inc) {
+    real k1[6], k2[6], k3[6], k4[6], y[6], dt = p->dt / (real)p->msub;
+    int n = periods * (int)p->msub, q, i;
+    for (q = 0; q < n; q++) {
+        rhs(p, s, tl, tr, k1, py);
+        for (i = 0; i < 6; i++) y[i] = s[i] + HALF * dt * k1[i];
+        rhs(p, y, tl, tr, k2, py);
+        for (i = 0; i < 6; i++) y[i] = s[i] + HALF * dt * k2[i];
+        rhs(p, y, tl, tr, k3, py);
+        for (i = 0; i < 6; i++) y[i] = s[i] + dt * k3[i];
+        rhs(p, y, tl, tr, k4, py);
+        for (i = 0; i < 6; i++) {
+            real d = (dt / MTWIP_R(6.0)) * (k1[i] + TWO * k2[i] + TWO * k3[i] + k4[i]);
+            s[i] = s[i] + d;
+            if (inc) inc[i] += d;
+        }
+    }
+}
+
+static real clip(real v, real lim) { return v > lim ? lim : (v < -lim ? -lim : v); }
+
+static void delivered(const model_t *p, const real *s, real ul, real ur, real *tl, real *tr) {
+    if (!p->has_motor) {
+        *tl = ul;
+        *tr = ur;
+        return;
+    }
+    ul = clip(ul, p->i_tau);
+    ur = clip(ur, p->i_tau);
+    if (p->compensates) {
+        real w = s[IPSD] - s[ITHD], h = p->b_r * s[IALD];
+        ul += p->c_e * (w - h);
+        ur += p->c_e * (w + h);
+    }
+    *tl = clip(ul, p->tau_max);
+    *tr = clip(ur, p->tau_max);
+}
+
+/* the IMU sample equation (1) predicts `periods` periods after s (true rates and specific force:
+   raw) and the variances the torque's uncertainty adds (gyro, accelerometer). py: the torque's
+   variance as the Python path makes it (its σ squared, EstimatorModel.synthetic_imu), else as the
+   kernel's synthetic (the variance itself). With the configuration's `increments` (the float32 build)
+   the sample is formed from the RK4 increments, not from differences of the states a period apart,
+   which in float32 lose the rates to rounding (α of a few rad differenced over 5 ms: 2.4e-5 rad/s) */
+static void synthetic_raw(const model_t *p, const real *s, const real *cmd, int periods, int py, real *raw,
+                          real *var) {
+    real s1[6], inc[6], tl, tr, var_tau;
+    int i;
+    real t, xi = p->xi, zi = p->zi, r = p->r;
+    real sn0, cs0, sn1, cs1, dx0, dz0, dx1, dz1, u0, w0, u1, w1, ald, Fx, Fz, mc, det, dthdd, dpsdd, a, b;
+    delivered(p, s, cmd[0], cmd[1], &tl, &tr);
+    memcpy(s1, s, sizeof s1);
+    for (i = 0; i < 6; i++) inc[i] = ZERO;
+    model_step(p, s1, tl, tr, periods, py, C->increments ? inc : NULL);
+    t = (real)periods * p->dt;
+    sn0 = MTWIP_SIN(s[ITH]);
+    cs0 = MTWIP_COS(s[ITH]);
+    sn1 = MTWIP_SIN(s1[ITH]);
+    cs1 = MTWIP_COS(s1[ITH]);
+    dx0 = xi * cs0 + zi * sn0;
+    dz0 = -xi * sn0 + zi * cs0;
+    dx1 = xi * cs1 + zi * sn1;
+    dz1 = -xi * sn1 + zi * cs1;
+    if (C->increments) { /* u1 − u0 = r Δψ̇ + Δθ̇ dz1 + θ̇0 (dz1 − dz0), w1 − w0 = −(Δθ̇ dx1 + θ̇0 (dx1 − dx0)) */
+        real hs = MTWIP_SIN(HALF * inc[ITH]), mid = HALF * (s[ITH] + s1[ITH]);
+        real dsn = TWO * MTWIP_COS(mid) * hs, dcs = -TWO * MTWIP_SIN(mid) * hs;
+        real ddx = xi * dcs + zi * dsn, ddz = -xi * dsn + zi * dcs;
+        (void)dx0;
+        (void)dz0;
+        ald = inc[IAL] / t;
+        Fx = (r * inc[IPSD] + inc[ITHD] * dz1 + s[ITHD] * ddz) / t - ald * ald * dx1;
+        Fz = -(inc[ITHD] * dx1 + s[ITHD] * ddx) / t + p->g;
+        raw[0] = inc[ITH] / t;
+    } else {
+        u0 = r * s[IPSD] + s[ITHD] * dz0;
+        w0 = -s[ITHD] * dx0;
+        u1 = r * s1[IPSD] + s1[ITHD] * dz1;
+        w1 = -s1[ITHD] * dx1;
+        ald = (s1[IAL] - s[IAL]) / t;
+        Fx = (u1 - u0) / t - ald * ald * dx1;
+        Fz = (w1 - w0) / t + p->g;
+        raw[0] = (s1[ITH] - s[ITH]) / t;
+    }
+    raw[2] = Fx * cs1 - Fz * sn1;
+    raw[3] = Fx * sn1 + Fz * cs1;
+    raw[1] = ald * MTWIP_COS(HALF * (s[ITH] + s1[ITH]));
+    mc = p->m12 * cs1;
+    det = p->m11 * p->m22 - (py ? pow2(mc) : mc * mc);
+    dthdd = -(p->m11 + p->m12 * cs1) / det;
+    dpsdd = (p->m22 + p->m12 * cs1) / det;
+    a = HALF * dthdd * t;
+    b = r * dpsdd + zi * dthdd;
+    if (py) { /* EstimatorModel.torque_sigma, squared */
+        real sl = MTWIP_SQRT(pow2(p->sigma_tau) + pow2(p->tol * tl));
+        real sr = MTWIP_SQRT(pow2(p->sigma_tau) + pow2(p->tol * tr));
+        var_tau = pow2(sl) + pow2(sr);
+        var[0] = pow2(a) * var_tau;
+        var[1] = pow2(b) * var_tau;
+    } else { /* the kernel's torque_var */
+        real al = p->tol * tl, ar = p->tol * tr;
+        var_tau = (p->sigma_tau * p->sigma_tau + al * al) + (p->sigma_tau * p->sigma_tau + ar * ar);
+        var[0] = a * a * var_tau;
+        var[1] = b * b * var_tau;
+    }
+}
+
+/* the model's sample as the sensor would read it with the state's scale factors and biases */
+static void scaled(const real *x, const real *raw, const real *var, real *smp, real *extra) {
+    smp[0] = (ONE + x[SY]) * raw[0] + x[BY];
+    smp[1] = (ONE + x[SZ]) * raw[1] + x[BZ];
+    smp[2] = (ONE + x[SAX]) * raw[2];
+    smp[3] = (ONE + x[SAZ]) * raw[3];
+    extra[0] = extra[1] = var[0];
+    extra[2] = extra[3] = var[1];
+}
+
+/* [θ, θ̇, ψ, ψ̇, α, α̇] of state x with the gyro's last two rates w, wp (StrapdownFilter.state6) */
+static void state6(const real *x, const real *w, const real *wp, real *s) {
+    real wy = MTWIP_R(1.5) * w[0] - HALF * wp[0], wz = MTWIP_R(1.5) * w[1] - HALF * wp[1];
+    real th = x[TH];
+    real thd = (wy - x[BY]) / (ONE + x[SY]);
+    real ald = (wz - x[BZ]) / ((ONE + x[SZ]) * MTWIP_COS(th));
+    real dz = -C->xi * MTWIP_SIN(th) + C->zi * MTWIP_COS(th);
+    s[0] = th;
+    s[1] = thd;
+    s[2] = x[PS];
+    s[3] = (x[V] - thd * dz) / C->r;
+    s[4] = x[AL];
+    s[5] = ald;
+}
+
+/* StrapdownFilter.synthetic of state x with gyro history w, wp */
+static void synthetic(const real *x, const real *w, const real *wp, const real *cmd, int py, real *smp, real *extra) {
+    real s[6], raw[4], var[2];
+    state6(x, w, wp, s);
+    synthetic_raw(&C->model, s, cmd, (int)C->every, py, raw, var);
+    scaled(x, raw, var, smp, extra);
+}
+
+/* ---- the strapdown step ------------------------------------------------------------------ */
+/* F's rows TH, AL, V, PS (the others are the identity's), the noise map's, and Q on them */
+typedef struct {
+    real F4[4][NX], L[4][4], Q4[4][4];
+} step_t;
+
+/* one strapdown step (StrapdownFilter.propagate and the kernel's propagate, which differ in one
+   product's association: py selects the Python one) */
+static void propagate(const real *x, const real *smp, const real *extra, int py, real *x1, step_t *st) {
+    real wy = smp[0], wz = smp[1], fx = smp[2], fz = smp[3];
+    real dt = C->dt, r = C->r, xi = C->xi, zi = C->zi;
+    real th = x[TH], v = x[V];
+    real q = ONE / (ONE + x[SY]), qz = ONE / (ONE + x[SZ]), qax = ONE / (ONE + x[SAX]), qaz = ONE / (ONE + x[SAZ]);
+    real thm = (wy - x[BY]) * q;
+    real th1 = th + dt * thm;
+    real thb = HALF * (th + th1);
+    real s0 = MTWIP_SIN(th), c0 = MTWIP_COS(th), s1 = MTWIP_SIN(th1), c1 = MTWIP_COS(th1);
+    real cb = MTWIP_COS(thb), tb = MTWIP_TAN(thb);
+    real ad = (wz - x[BZ]) * qz / cb;
+    real dx0 = xi * c0 + zi * s0, dz0 = -xi * s0 + zi * c0;
+    real dx1 = xi * c1 + zi * s1, dz1 = -xi * s1 + zi * c1;
+    real fxt = fx * qax, fzt = fz * qaz;
+    real Fx = c1 * fxt + s1 * fzt, Fz = -s1 * fxt + c1 * fzt;
+    real v1 = v + dt * (Fx + ad * ad * dx1);
+    real dth1[NX], dad[NX], dFx[NX], dv1[NX], ith1[4], iad[4], iFx[4], iv1[4], k, a2, a3, hv, var[4];
+    int j, a, b;
+    memcpy(x1, x, NX * sizeof(real));
+    x1[TH] = th1;
+    x1[AL] = x[AL] + dt * ad;
+    x1[V] = v1;
+    x1[PS] = x[PS] + (HALF * dt * (v + v1) - dx1 + dx0) / r;
+
+    for (j = 0; j < NX; j++) dth1[j] = ZERO;
+    dth1[TH] = ONE;
+    dth1[BY] = -dt * q;
+    dth1[SY] = py ? -(dt * (thm * q)) : -dt * thm * q;
+    ith1[0] = dt * q;
+    ith1[1] = ith1[2] = ith1[3] = ZERO;
+    k = ad * tb * HALF;
+    for (j = 0; j < NX; j++) dad[j] = k * ((j == TH ? ONE : ZERO) + dth1[j]);
+    dad[BZ] -= qz / cb;
+    dad[SZ] -= ad * qz;
+    iad[0] = k * ith1[0];
+    iad[1] = qz / cb;
+    iad[2] = iad[3] = ZERO;
+    for (j = 0; j < NX; j++) dFx[j] = Fz * dth1[j];
+    dFx[SAX] -= c1 * fxt * qax;
+    dFx[SAZ] -= s1 * fzt * qaz;
+    iFx[0] = Fz * ith1[0];
+    iFx[1] = ZERO;
+    iFx[2] = c1 * qax;
+    iFx[3] = s1 * qaz;
+    a2 = TWO * ad * dx1;
+    a3 = ad * ad * dz1;
+    for (j = 0; j < NX; j++) dv1[j] = (j == V ? ONE : ZERO) + dt * (dFx[j] + a2 * dad[j] + a3 * dth1[j]);
+    for (j = 0; j < 4; j++) iv1[j] = dt * (iFx[j] + a2 * iad[j] + a3 * ith1[j]);
+    for (j = 0; j < NX; j++) {
+        st->F4[0][j] = dth1[j];
+        st->F4[1][j] = (j == AL ? ONE : ZERO) + dt * dad[j];
+        st->F4[2][j] = dv1[j];
+        st->F4[3][j] = (j == PS ? ONE : ZERO) +
+                       (HALF * dt * ((j == V ? ONE : ZERO) + dv1[j]) - dz1 * dth1[j] + dz0 * (j == TH ? ONE : ZERO)) / r;
+    }
+    for (j = 0; j < 4; j++) {
+        st->L[0][j] = ith1[j];
+        st->L[1][j] = dt * iad[j];
+        st->L[2][j] = iv1[j];
+        st->L[3][j] = (HALF * dt * iv1[j] - dz1 * ith1[j]) / r;
+    }
+    var[0] = var[1] = C->g_var;
+    var[2] = var[3] = C->a_var;
+    for (j = 0; j < 4; j++) var[j] = (py ? var[j] : ONE * var[j]) + (extra ? extra[j] : ZERO);
+    for (a = 0; a < 4; a++)
+        for (b = 0; b < 4; b++) {
+            real s = ZERO;
+            for (j = 0; j < 4; j++) s += st->L[a][j] * var[j] * st->L[b][j];
+            st->Q4[a][b] = s;
+        }
+    hv = dt * (v1 - v) / r;
+    st->Q4[3][3] += hv * hv * C->trapezoid_var;
+}
+
+/* Q's entry (i, j): the 4 × 4 block, and the gyro biases' random walk */
+static real q_entry(const step_t *st, int i, int j) {
+    int a = ROW_OF[i], b = ROW_OF[j];
+    if (a >= 0 && b >= 0) return st->Q4[a][b];
+    if (i == j && (i == BY || i == BZ)) return C->bias_q;
+    return ZERO;
+}
+
+/* Pp = F P Fᵀ + Q (the kernel's and estimation.ekf_steps' cov_predict) */
+static void cov_predict(const step_t *st, const real *P, real *Pp) {
+    real A4[4][NX];
+    int a, i, j, k;
+    for (a = 0; a < 4; a++)
+        for (j = 0; j < NX; j++) {
+            real s = ZERO;
+            for (k = 0; k < NX; k++) s += st->F4[a][k] * P[k * NX + j];
+            A4[a][j] = s;
+        }
+    for (i = 0; i < NX; i++) {
+        const real *Ai = ROW_OF[i] >= 0 ? A4[ROW_OF[i]] : P + i * NX;
+        for (j = 0; j < NX; j++) {
+            real s;
+            if (ROW_OF[j] < 0)
+                s = Ai[j];
+            else {
+                const real *Fj = st->F4[ROW_OF[j]];
+                s = ZERO;
+                for (k = 0; k < NX; k++) s += Ai[k] * Fj[k];
+            }
+            Pp[i * NX + j] = s + q_entry(st, i, j);
+        }
+    }
+}
+
+/* ---- the encoders' measurement ----------------------------------------------------------- */
+typedef struct {
+    int dof;
+    real z[2], off[2], R[2], H[2][NX];
+} meas_t;
+
+/* wheel i's row of H: e = ψ − θ + c ∓ ((b/r)(α − α0) + h) */
+static void h_row(int i, real *h) {
+    real sgn = (real)(2 * i - 1);
+    int j;
+    for (j = 0; j < NX; j++) h[j] = ZERO;
+    h[PS] = h[C0] = ONE;
+    h[TH] = -ONE;
+    h[AL] = sgn * C->b_r;
+    h[H0] = sgn;
+}
+
+/* the innovation y = z − (off + H x), P Hᵀ and S = H P Hᵀ + R (the kernel's innovation) */
+static void innovation(const real *x, const real *P, const meas_t *em, real *y, real PHt[NX][2], real S[2][2]) {
+    int a, b, i, j;
+    for (a = 0; a < em->dof; a++) {
+        real hx = em->off[a];
+        for (j = 0; j < NX; j++) hx += em->H[a][j] * x[j];
+        y[a] = em->z[a] - hx;
+        for (i = 0; i < NX; i++) {
+            real s = ZERO;
+            for (j = 0; j < NX; j++) s += P[i * NX + j] * em->H[a][j];
+            PHt[i][a] = s;
+        }
+    }
+    for (a = 0; a < em->dof; a++)
+        for (b = 0; b < em->dof; b++) {
+            real s = ZERO;
+            for (i = 0; i < NX; i++) s += em->H[a][i] * PHt[i][b];
+            S[a][b] = s + (a == b ? em->R[a] : ZERO);
+        }
+}
+
+/* the encoders' measurement against the prior (x, P) with the gyro's rates w, and its NIS (NaN:
+   no count changed, dof 0); test: an unchanged count gives a row too (the IMU outlier test).
+   *zero_div: the NIS's divisor is 0 (where the Python path raises); py: the Python path's squares */
+static real encoder_fit(const real *enc, const real *last, real T, const real *x, const real *w, const real *P,
+                        int test, meas_t *em, int *zero_div, int py) {
+    real dlt = C->delta, b_r = C->b_r, r = C->r;
+    real th = x[TH];
+    real thd = (w[0] - x[BY]) / (ONE + x[SY]);
+    real dz = -C->xi * MTWIP_SIN(th) + C->zi * MTWIP_COS(th);
+    real wheel = (x[V] - thd * dz) / r - thd;
+    real spin = b_r * (w[1] - x[BZ]) / ((ONE + x[SZ]) * MTWIP_COS(th));
+    real e = ONE + dz / r;
+    real var_q = py ? P[V * NX + V] / pow2(r) + C->g_var * (pow2(e) + b_r * b_r)
+                    : P[V * NX + V] / (r * r) + C->g_var * (e * e + b_r * b_r);
+    real PHt[NX][2], S[2][2], y[2], det;
+    int i;
+    em->dof = 0;
+    if (zero_div) *zero_div = 0;
+    for (i = 0; i < 2; i++) {
+        int same = enc[i] == last[i], n;
+        real sgn = (real)(2 * i - 1), cap = dlt * dlt / MTWIP_R(12.0);
+        if (same && !test) continue;
+        n = em->dof++;
+        if (same) {
+            em->z[n] = enc[i];
+            em->off[n] = -sgn * b_r * C->alpha0;
+            em->R[n] = cap;
+        } else {
+            int up = enc[i] > last[i];
+            real d = MTWIP_FABS(wheel + sgn * spin) * T, R;
+            if (d > dlt) d = dlt;
+            if (!up) d = -d;
+            em->z[n] = up ? enc[i] - HALF * dlt : enc[i] + HALF * dlt;
+            em->off[n] = -sgn * b_r * C->alpha0 - HALF * d;
+            R = d * d / MTWIP_R(12.0) + var_q * T * T / MTWIP_R(3.0);
+            em->R[n] = R < cap ? R : cap;
+        }
+        h_row(i, em->H[n]);
+    }
+    if (em->dof == 0) return nan_value();
+    innovation(x, P, em, y, PHt, S);
+    if (em->dof == 1) {
+        if (zero_div && S[0][0] == ZERO) *zero_div = 1;
+        return y[0] * y[0] / S[0][0];
+    }
+    det = S[0][0] * S[1][1] - S[0][1] * S[1][0];
+    if (zero_div && det == ZERO) *zero_div = 1;
+    return (y[0] * (S[1][1] * y[0] - S[0][1] * y[1]) + y[1] * (-S[1][0] * y[0] + S[0][0] * y[1])) / det;
+}
+
+/* (I − K H)[i][k] of the kernel's update */
+static real ikh12(real K[NX][2], const meas_t *em, int i, int k) {
+    real s = i == k ? ONE : ZERO;
+    int a;
+    for (a = 0; a < em->dof; a++) s -= K[i][a] * em->H[a][k];
+    return s;
+}
+
+/* the kernel's Kalman update (Joseph form, the consider states' gain rows zeroed), in place:
+   (I − K H) P column by column, then its product with (I − K H)ᵀ row by row; −1 if S is not
+   positive */
+static int kalman_update(real *x, real *P, const meas_t *em, const uint8_t *consider) {
+    int m = em->dof, i, j, k, a, b;
+    real PHt[NX][2], S[2][2], Si[2][2], K[NX][2], y[2], tmp[NX], IKH[NX][NX];
+    innovation(x, P, em, y, PHt, S);
+    if (m == 1) {
+        if (!(S[0][0] > ZERO)) return -1;
+        Si[0][0] = ONE / S[0][0];
+    } else {
+        real det = S[0][0] * S[1][1] - S[0][1] * S[1][0];
+        if (!(det > ZERO)) return -1;
+        Si[0][0] = S[1][1] / det;
+        Si[1][1] = S[0][0] / det;
+        Si[0][1] = -S[0][1] / det;
+        Si[1][0] = -S[1][0] / det;
+    }
+    for (i = 0; i < NX; i++)
+        for (b = 0; b < m; b++) {
+            real s = ZERO;
+            for (a = 0; a < m; a++) s += PHt[i][a] * Si[a][b];
+            K[i][b] = consider[i] ? ZERO : s;
+        }
+    for (i = 0; i < NX; i++)
+        for (a = 0; a < m; a++) x[i] += K[i][a] * y[a];
+    /* I − K H once: each entry is the value ikh12 gives, so the products below are the kernel's, bit for bit */
+    for (i = 0; i < NX; i++)
+        for (k = 0; k < NX; k++) IKH[i][k] = ikh12(K, em, i, k);
+    for (j = 0; j < NX; j++) { /* A = (I − K H) P */
+        for (i = 0; i < NX; i++) {
+            real s = ZERO;
+            for (k = 0; k < NX; k++) s += IKH[i][k] * P[k * NX + j];
+            tmp[i] = s;
+        }
+        for (i = 0; i < NX; i++) P[i * NX + j] = tmp[i];
+    }
+    for (i = 0; i < NX; i++) { /* P = A (I − K H)ᵀ + K R Kᵀ */
+        for (j = 0; j < NX; j++) {
+            real s = ZERO;
+            for (k = 0; k < NX; k++) s += P[i * NX + k] * IKH[j][k];
+            for (a = 0; a < m; a++) s += K[i][a] * em->R[a] * K[j][a];
+            tmp[j] = s;
+        }
+        for (j = 0; j < NX; j++) P[i * NX + j] = tmp[j];
+    }
+    return 0;
+}
+
+/* (z, R) of the measurement whose update truncates the prior N(w, s2) to [lo, hi]; 0: nothing to do
+   (truncated_measurement) */
+static int truncated_measurement(real w, real s2, real lo, real hi, real gate, real *z, real *R) {
+    real s, a, b, sign = ONE, pa, pb, Z, mean, var, k;
+    if (!(s2 > ZERO) || (lo <= w && w < hi)) return 0;
+    s = MTWIP_SQRT(s2);
+    a = (lo - w) / s;
+    b = (hi - w) / s;
+    if (b <= ZERO) {
+        real t = a;
+        a = -b;
+        b = -t;
+        sign = -ONE;
+    }
+    if (a > gate) return 0;
+    pa = MTWIP_EXP(-HALF * a * a) / C->sqrt_2pi;
+    pb = MTWIP_EXP(-HALF * b * b) / C->sqrt_2pi;
+    Z = HALF * (MTWIP_ERFC(a / C->sqrt_2) - MTWIP_ERFC(b / C->sqrt_2));
+    if (!(Z > ZERO)) return 0;
+    mean = (pa - pb) / Z;
+    var = ONE + (a * pa - b * pb) / Z - mean * mean;
+    if (!(var > ZERO && var < ONE)) return 0;
+    k = ONE - var;
+    *z = w + sign * s * mean / k;
+    *R = s2 * var / k;
+    return 1;
+}
+
+/* ---- the filter's health --------------------------------------------------------------------- */
+static int healthy(const real *x, const real *P) {
+    int i;
+    for (i = 0; i < NX; i++)
+        if (!MTWIP_ISFINITE(x[i]) || !(P[i * NX + i] > ZERO)) return 0;
+    for (i = 0; i < NX * NX; i++)
+        if (!MTWIP_ISFINITE(P[i])) return 0;
+    return 1;
+}
+
+/* every pivot of W's LDLᵀ elimination (no pivoting) positive and finite; W (a copy of P) is overwritten */
+static int positive_definite(real *W) {
+    int i, j, k;
+    for (k = 0; k < NX; k++) {
+        real d = W[k * NX + k];
+        if (!(d > ZERO && MTWIP_ISFINITE(d))) return 0;
+        for (i = k + 1; i < NX; i++) {
+            real f = W[i * NX + k] / d;
+            for (j = k + 1; j < NX; j++) W[i * NX + j] -= f * W[k * NX + j];
+        }
+    }
+    return 1;
+}
+
+/* the state within its physical range (StrapdownFilter.in_range); W: P itself or a copy, overwritten */
+static int in_range(const real *x, real *W) {
+    return MTWIP_FABS(x[TH]) < C->tilt_limit && W[TH * NX + TH] < C->tilt_var_max && positive_definite(W);
+}
+
+static void symmetrise(real *P, int n) {
+    int i, j;
+    for (i = 0; i < n; i++)
+        for (j = i + 1; j < n; j++) {
+            real s = HALF * (P[i * n + j] + P[j * n + i]);
+            P[i * n + j] = P[j * n + i] = s;
+        }
+}
+
+static void keep_good(mtwip_estimator_t *e) {
+    int i, j;
+    memcpy(e->xg, e->x, sizeof e->xg);
+    for (i = 0; i < NX; i++)
+        for (j = i; j < NX; j++) e->Pg[packed(i, j)] = e->P[i * NX + j];
+    memcpy(e->wg, e->w, sizeof e->wg);
+    memcpy(e->wpg, e->w_prev, sizeof e->wpg);
+}
+
+/* the last good state, its covariance inflated */
+static void restore(mtwip_estimator_t *e) {
+    int i, j;
+    memcpy(e->x, e->xg, sizeof e->x);
+    for (i = 0; i < NX; i++)
+        for (j = 0; j < NX; j++) e->P[i * NX + j] = C->restore_inflation * e->Pg[packed(i, j)];
+    for (i = 0; i < NX; i++) e->P[i * NX + i] += C->restore_jitter;
+    memcpy(e->w, e->wg, sizeof e->w);
+    memcpy(e->w_prev, e->wpg, sizeof e->w_prev);
+}
+
+/* the core's set_state: a state written by the Python side is kept as good if it is healthy */
+static void push(mtwip_estimator_t *e) {
+    if (healthy(e->x, e->P)) keep_good(e);
+}
+
+/* ---- the prior and the re-initialisation --------------------------------------------------------- */
+/* StrapdownFilter.prior into e->x, e->P: from the accelerometer reading acc (NULL: none) */
+static void prior(mtwip_estimator_t *e, const real *acc, int moving) {
+    real theta0, var_theta, sc, diag[NX];
+    real *x = e->x, *P = e->P;
+    int i;
+    if (!acc) {
+        theta0 = ZERO;
+        var_theta = C->tilt_var_max;
+        sc = ZERO;
+    } else {
+        real fx = acc[0], fz = acc[2], g, gm;
+        theta0 = MTWIP_ATAN2(-fx, fz);
+        g = MTWIP_HYPOT(fx, fz);
+        sc = MTWIP_SIN(theta0) * MTWIP_COS(theta0);
+        gm = g < ONE ? ONE : g; /* max(g, 1.0) */
+        var_theta = C->a_var / pow2(gm) + TWO * sc * sc * C->a_sf;
+        if (moving) {
+            real dev = (g - C->model.g) / C->model.g, v = var_theta + dev * dev;
+            var_theta = C->tilt_var_max < v ? C->tilt_var_max : v;
+        }
+    }
+    for (i = 0; i < NX; i++) x[i] = ZERO;
+    x[TH] = x[C0] = theta0;
+    x[AL] = C->alpha0;
+    diag[TH] = var_theta;
+    diag[PS] = C->prior_tiny;
+    diag[V] = moving ? C->prior_v_var_moving : C->prior_tiny;
+    diag[AL] = C->prior_tiny;
+    diag[BY] = diag[BZ] = C->prior_bias_var;
+    diag[C0] = var_theta + C->prior_edge_var;
+    diag[SY] = diag[SZ] = C->prior_g_sf;
+    diag[H0] = C->prior_edge_var;
+    diag[SAX] = diag[SAZ] = C->prior_a_sf;
+    for (i = 0; i < NX * NX; i++) P[i] = ZERO;
+    for (i = 0; i < NX; i++) P[i * NX + i] = diag[i];
+    P[TH * NX + C0] = P[C0 * NX + TH] = var_theta;
+    for (i = TH; i <= C0; i += C0 - TH) {
+        P[i * NX + SAX] = P[SAX * NX + i] = -sc * C->a_sf;
+        P[i * NX + SAZ] = P[SAZ * NX + i] = sc * C->a_sf;
+    }
+}
+
+static const mtwip_ekf_slot_t *ring_get(const mtwip_ekf_slot_t *ring, int32_t key);
+
+/* Fusion.lost: re-initialised from the accelerometer at the filter's time (StrapdownFilter.reinitialise) */
+static void lost(mtwip_estimator_t *e) {
+    const mtwip_ekf_slot_t *s = ring_get(e->acc, e->at);
+    real a3[3];
+    const real *acc = e->has_last_a ? e->last_a : NULL;
+    real ps = e->x[PS], al = e->x[AL], pa = e->P[AL * NX + AL], *x = e->x, *P = e->P;
+    if (s) {
+        a3[0] = s->v[0];
+        a3[1] = ZERO;
+        a3[2] = s->v[1];
+        acc = a3;
+    }
+    prior(e, acc, 1);
+    if (MTWIP_ISFINITE(ps)) x[PS] = ps;
+    if (MTWIP_ISFINITE(al)) x[AL] = al;
+    P[AL * NX + AL] = pa > ZERO ? (C->heading_var_max < pa ? C->heading_var_max : pa) : C->heading_var_max;
+    if (e->has_last_enc) {
+        const real *enc = e->last_enc;
+        x[C0] = HALF * (enc[0] + enc[1]) - x[PS] + x[TH];
+        x[H0] = HALF * (enc[1] - enc[0]) - C->b_r * (x[AL] - C->alpha0);
+        P[H0 * NX + H0] += C->b_r * C->b_r * P[AL * NX + AL];
+        P[H0 * NX + AL] = P[AL * NX + H0] = -C->b_r * P[AL * NX + AL];
+    }
+    e->aug_on = 0;
+}
+
+/* ---- the queues ------------------------------------------------------------------------ */
+static int ring_index(int32_t key) {
+    int32_t i = key % RING;
+    return (int)(i < 0 ? i + RING : i);
+}
+
+static const mtwip_ekf_slot_t *ring_get(const mtwip_ekf_slot_t *ring, int32_t key) {
+    const mtwip_ekf_slot_t *s = &ring[ring_index(key)];
+    return s->key == key ? s : NULL;
+}
+
+static void ring_put(mtwip_ekf_slot_t *ring, int32_t key, real a, real b) {
+    mtwip_ekf_slot_t *s = &ring[ring_index(key)];
+    s->key = key;
+    s->v[0] = a;
+    s->v[1] = b;
+}
+
+/* the samples with a time after m move d sample times earlier (those landing at m or before are
+   dropped): SensorFrontEnd.latency_changed */
+static void ring_shift(mtwip_ekf_slot_t *ring, int32_t m, int32_t d) {
+    mtwip_ekf_slot_t moved[RING];
+    int n = 0, i;
+    for (i = 0; i < RING; i++)
+        if (ring[i].key != EMPTY && ring[i].key > m) {
+            moved[n++] = ring[i];
+            ring[i].key = EMPTY;
+        }
+    for (i = 0; i < n; i++)
+        if (moved[i].key - d > m) ring_put(ring, moved[i].key - d, moved[i].v[0], moved[i].v[1]);
+}
+
+static void command_of(const mtwip_estimator_t *e, int32_t key, real *u) {
+    const mtwip_ekf_slot_t *c = &e->cmd[ring_index(key)];
+    if (c->key == key) {
+        u[0] = c->v[0];
+        u[1] = c->v[1];
+    } else
+        u[0] = u[1] = ZERO;
+}
+
+/* ---- the latency watch (estimation.ekf_policies.LatencyWatch; its check, the kernel's watch_rho) ---- */
+#define WW MTWIP_EKF_WATCH_W
+#define WN MTWIP_EKF_WATCH_ALLOC
+
+static real watch_y(const mtwip_estimator_t *e, int i) { return e->wy[(e->w_head + i) % WN]; }
+
+static real watch_dk(const mtwip_estimator_t *e, int i) {
+    const real *u = e->wu;
+    int n = WN, h = e->w_head;
+    return ((u[(h + i + 3) % n] + u[(h + i + 2) % n]) - u[(h + i + 1) % n]) - u[(h + i) % n];
+}
+
+/* NumPy's pairwise sum of n <= 128 numbers */
+static real pairwise(const real *a, int n) {
+    real res, r[8];
+    int i, j;
+    if (n < 8) {
+        res = ZERO;
+        for (i = 0; i < n; i++) res += a[i];
+        return res;
+    }
+    for (j = 0; j < 8; j++) r[j] = a[j];
+    for (i = 8; i < n - (n % 8); i += 8)
+        for (j = 0; j < 8; j++) r[j] += a[i + j];
+    res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
+    for (; i < n; i++) res += a[i];
+    return res;
+}
+
+static void sort(real *a, int n) { /* insertion sort: the order statistics */
+    int i, j;
+    for (i = 1; i < n; i++) {
+        real v = a[i];
+        for (j = i; j > 0 && a[j - 1] > v; j--) a[j] = a[j - 1];
+        a[j] = v;
+    }
+}
+
+static real median_sorted(const real *a, int m) {
+    int k = m / 2;
+    return m % 2 ? a[k] : (a[k - 1] + a[k]) / TWO;
+}
+
+/* the correlations at latencies 0 … max_lag; the best (np.argmax: the first largest, the first NaN)
+   in *best with its ρ, the assumed latency's in *rho_assumed; 0 when fewer than half the window's
+   rows hold a measurement */
+static int watch_check(const mtwip_estimator_t *e, int assumed, int *best, real *rho_best, real *rho_assumed) {
+    real yy[WW], tmp[WW];
+    int16_t idx[WW];
+    int W = (int)C->watch_window, L = (int)C->watch_max_lag, n = W + L + 5, r0 = n - 1 - W, used = 0, j, l;
+    int have_nan = 0;
+    real med, lim, lo, hi, mean, syy = ZERO;
+    for (j = 0; j < W; j++) {
+        real y2 = (watch_y(e, r0 + j) - TWO * watch_y(e, r0 - 1 + j)) + watch_y(e, r0 - 2 + j);
+        if (MTWIP_ISFINITE(y2)) {
+            idx[used] = (int16_t)j;
+            yy[used++] = y2;
+        }
+    }
+    if (used < W / 2) return 0;
+    memcpy(tmp, yy, (size_t)used * sizeof(real));
+    sort(tmp, used);
+    med = median_sorted(tmp, used);
+    for (j = 0; j < used; j++) tmp[j] = MTWIP_FABS(yy[j] - med);
+    sort(tmp, used);
+    lim = C->watch_clip * C->mad_scale * median_sorted(tmp, used);
+    lo = med - lim;
+    hi = med + lim;
+    for (j = 0; j < used; j++) {
+        real v = yy[j] > lo ? yy[j] : lo;
+        yy[j] = v < hi ? v : hi;
+    }
+    mean = pairwise(yy, used) / (real)used;
+    for (j = 0; j < used; j++) yy[j] = yy[j] - mean;
+    for (j = 0; j < used; j++) syy += yy[j] * yy[j];
+    *best = 0;
+    for (l = 0; l <= L; l++) {
+        real zsum = ZERO, zmean, szy = ZERO, szz = ZERO, den, rho;
+        for (j = 0; j < used; j++) tmp[j] = watch_dk(e, L + 2 - l + idx[j]);
+        if (used == W)
+            zsum = pairwise(tmp, used);
+        else
+            for (j = 0; j < used; j++) zsum += tmp[j];
+        zmean = zsum / (real)used;
+        for (j = 0; j < used; j++) szy += (tmp[j] - zmean) * yy[j];
+        for (j = 0; j < used; j++) {
+            real z = tmp[j] - zmean;
+            szz += z * z;
+        }
+        den = MTWIP_SQRT(syy * szz);
+        rho = den > ZERO ? C->torque_sign * szy / den : C->torque_sign * szy / (real)INFINITY;
+        if (l == assumed) *rho_assumed = rho;
+        if (!have_nan) {
+            if (rho != rho) {
+                have_nan = 1;
+                *best = l;
+                *rho_best = rho;
+            } else if (l == 0 || rho > *rho_best) {
+                *best = l;
+                *rho_best = rho;
+            }
+        }
+    }
+    return 1;
+}
+
+/* LatencyWatch.filter_verdicts: the gyro samples the filter rejected since the last call are forgotten */
+static void watch_verdicts(mtwip_estimator_t *e, int32_t m, uint32_t outliers, int32_t latency) {
+    if (outliers != e->w_vn) {
+        int32_t len = e->w_len, j = e->w_vm + 1 > m - len ? e->w_vm + 1 : m - len;
+        for (; j <= m; j++) {
+            int32_t i = len - 1 - (e->w_k - (j + latency));
+            if (i >= 0 && i < len) e->wy[(e->w_head + i) % WN] = nan_value();
+        }
+    }
+    e->w_vm = m;
+    e->w_vn = outliers;
+}
+
+static void watch_gap(int32_t gaps[][2], int32_t *n, int32_t k, int32_t gap) {
+    if (*n == MTWIP_EKF_GAPS) {
+        memmove(gaps[0], gaps[1], (size_t)(MTWIP_EKF_GAPS - 1) * sizeof gaps[0]);
+        (*n)--;
+    }
+    gaps[*n][0] = k;
+    gaps[*n][1] = gap;
+    (*n)++;
+}
+
+/* LatencyWatch.observe: 1 with the new latency when a change is declared */
+static int watch_observe(mtwip_estimator_t *e, int32_t k, const real *gyro, int a_ok, const real *cmd,
+                         int32_t assumed, int usable, int32_t *found) {
+    int N = WN, best;
+    real rb = ZERO, ra = ZERO;
+    int32_t slot;
+    if (e->w_len < N)
+        slot = (e->w_head + e->w_len++) % N;
+    else {
+        slot = e->w_head;
+        e->w_head = (e->w_head + 1) % N;
+    }
+    e->wy[slot] = gyro && usable ? gyro[1] : nan_value();
+    e->wu[slot] = cmd[0] + cmd[1];
+    e->w_k = k;
+    if (gyro) {
+        if (k - e->w_last_g - 1 > 0) watch_gap(e->gaps_g, &e->n_gaps_g, k, k - e->w_last_g - 1);
+        e->w_last_g = k;
+    }
+    if (a_ok) {
+        if (k - e->w_last_a - 1 > 0) watch_gap(e->gaps_a, &e->n_gaps_a, k, k - e->w_last_a - 1);
+        e->w_last_a = k;
+    }
+    if (k % C->watch_every || e->w_len < N || e->w_hold_until > k) return 0;
+    if (!watch_check(e, (int)assumed, &best, &rb, &ra)) return 0;
+    if (best != assumed && rb >= C->watch_rho && rb - ra >= C->watch_margin) {
+        int32_t votes = e->w_votes_lag == best ? e->w_votes + 1 : 1;
+        e->w_votes_lag = best;
+        e->w_votes = votes;
+        if (votes >= C->watch_persist) {
+            *found = best;
+            return 1;
+        }
+    } else
+        e->w_votes_lag = e->w_votes = 0;
+    return 0;
+}
+
+/* LatencyWatch.accel_gapped: the accelerometer stopped arriving for delta samples when the gyro did */
+static int accel_gapped(const mtwip_estimator_t *e, int32_t delta) {
+    int i, j;
+    if (delta <= 0) return 0;
+    for (i = 0; i < e->n_gaps_a; i++) {
+        if (e->gaps_a[i][1] != delta) continue;
+        for (j = 0; j < e->n_gaps_g; j++) {
+            int32_t d = e->gaps_a[i][0] - e->gaps_g[j][0];
+            if (e->gaps_g[j][1] == delta && d <= 1 && d >= -1) return 1;
+        }
+    }
+    return 0;
+}
+
+/* SensorFrontEnd.latency_changed: the samples not yet used re-aligned */
+static void latency_changed(mtwip_estimator_t *e, int32_t k, int32_t m, int32_t latency) {
+    int32_t delta = latency - e->d_gyro, lag;
+    int acc = accel_gapped(e, delta);
+    if (delta) ring_shift(e->gyro, m, delta);
+    if (acc && delta) ring_shift(e->acc, m, delta);
+    e->d_gyro = latency;
+    if (acc) e->d_acc += delta;
+    lag = e->d_gyro > e->d_acc ? e->d_gyro : e->d_acc;
+    e->lag = lag > C->d_enc ? lag : C->d_enc;
+    e->w_votes_lag = e->w_votes = 0;
+    e->w_hold_until = k + C->watch_window;
+}
+
+/* ---- the sensor front end --------------------------------------------------------------- */
+/* SensorFrontEnd.store: screen and queue the readings of instant k (the filter at m) */
+static void store(mtwip_estimator_t *e, const mtwip_sample_t *s, int32_t k, int32_t m, const real *cmd, int watch) {
+    int g_ok = s->has_gyro && finite_n(s->gyro, 3), a_ok = s->has_accel && finite_n(s->accel, 3);
+    int e_ok = s->has_encoder && finite_n(s->encoder, 2), g_stale = 0;
+    if (g_ok || a_ok) {
+        int a_stale;
+        g_stale = C->stale_check[0] && g_ok && e->has_last_g && s->gyro[0] == e->last_g[0] &&
+                  s->gyro[1] == e->last_g[1] && s->gyro[2] == e->last_g[2];
+        a_stale = C->stale_check[1] && a_ok && e->has_last_a && s->accel[0] == e->last_a[0] &&
+                  s->accel[1] == e->last_a[1] && s->accel[2] == e->last_a[2];
+        if (g_stale || a_stale) {
+            /* stale: treated as missing (not queued) */
+        } else {
+            if (g_ok && k - e->d_gyro > m) ring_put(e->gyro, k - e->d_gyro, s->gyro[1], s->gyro[2]);
+            if (a_ok && k - e->d_acc > m) ring_put(e->acc, k - e->d_acc, s->accel[0], s->accel[2]);
+        }
+        if (g_ok) {
+            memcpy(e->last_g, s->gyro, sizeof e->last_g);
+            e->has_last_g = 1;
+        }
+        if (a_ok) {
+            memcpy(e->last_a, s->accel, sizeof e->last_a);
+            e->has_last_a = 1;
+        }
+    }
+    if (watch && C->watches && k > 0) {
+        int32_t found;
+        watch_verdicts(e, m, e->imu_outliers, e->d_gyro);
+        if (watch_observe(e, k, g_ok ? s->gyro : NULL, a_ok, cmd, e->d_gyro,
+                          g_ok && !g_stale && MTWIP_FABS(s->gyro[1]) < C->rails[0], &found))
+            latency_changed(e, k, m, found);
+    }
+    if (e_ok) {
+        if (-C->enc_range <= s->encoder[0] && s->encoder[0] <= C->enc_range && -C->enc_range <= s->encoder[1] &&
+            s->encoder[1] <= C->enc_range)
+            ring_put(e->enc, k - C->d_enc, s->encoder[0], s->encoder[1]);
+    }
+}
+
+static real span(int32_t a, int32_t b) { return (real)(b - a) * C->model.dt; }
+
+/* SensorFrontEnd.count_check */
+static void count_check(mtwip_estimator_t *e, int implausible) {
+    if (!implausible) {
+        e->still = 0;
+        return;
+    }
+    e->still++;
+    if (e->still >= C->max_rejects_in_row && !e->stuck) e->stuck = 1;
+}
+
+/* StrapdownFilter.rebase_encoders: the encoders' zeros c, h re-based onto reading enc */
+static void rebase_encoders(mtwip_estimator_t *e, const real *enc) {
+    real H[2][NX], HP[NX], S[2][2], y[2], off[2];
+    real *x = e->x, *P = e->P;
+    int a, b, i, j, k;
+    h_row(0, H[0]);
+    h_row(1, H[1]);
+    off[0] = C->b_r * C->alpha0;
+    off[1] = -C->b_r * C->alpha0;
+    for (a = 0; a < 2; a++) {
+        real s = ZERO;
+        for (j = 0; j < NX; j++) s += H[a][j] * x[j];
+        y[a] = enc[a] - (s + off[a]);
+        for (j = 0; j < NX; j++) { /* row a of H P */
+            real t = ZERO;
+            for (k = 0; k < NX; k++) t += H[a][k] * P[k * NX + j];
+            HP[j] = t;
+        }
+        for (b = 0; b < 2; b++) {
+            real t = ZERO;
+            for (j = 0; j < NX; j++) t += HP[j] * H[b][j];
+            S[a][b] = t + (a == b ? C->rebase_var : ZERO);
+        }
+    }
+    x[C0] += HALF * (y[0] + y[1]);
+    x[H0] += HALF * (y[1] - y[0]);
+    for (i = 0; i < NX; i++) P[C0 * NX + i] = P[i * NX + C0] = P[H0 * NX + i] = P[i * NX + H0] = ZERO;
+    P[C0 * NX + C0] = MTWIP_R(0.25) * (S[0][0] + S[1][1] + TWO * S[0][1]);
+    P[H0 * NX + H0] = MTWIP_R(0.25) * (S[0][0] + S[1][1] - TWO * S[0][1]);
+    if (e->aug_on) {
+        for (i = 0; i < NX; i++)
+            for (j = 0; j < NX; j++) e->aug[i * NA + j] = P[i * NX + j];
+        for (i = NX; i < NA; i++)
+            e->aug[C0 * NA + i] = e->aug[i * NA + C0] = e->aug[H0 * NA + i] = e->aug[i * NA + H0] = ZERO;
+    }
+    push(e);
+}
+
+/* SensorFrontEnd.screen_encoders: the reading of sample time m, or NULL (implausible, or stuck) */
+static const real *screen_encoders(mtwip_estimator_t *e, const real *enc, int32_t m) {
+    real T, limit, j0, j1, jump;
+    if (!enc) return NULL;
+    if (!e->has_last_enc) {
+        memcpy(e->last_enc, enc, sizeof e->last_enc);
+        e->has_last_enc = 1;
+        e->last_enc_m = m;
+        return enc;
+    }
+    if (e->stuck) {
+        if (enc[0] == e->last_enc[0] || enc[1] == e->last_enc[1]) return NULL;
+        e->stuck = 0;
+        e->still = 0;
+    }
+    T = span(e->last_enc_m, m);
+    limit = C->max_wheel_rate * T + TWO * C->delta;
+    j0 = MTWIP_FABS(enc[0] - e->last_enc[0]);
+    j1 = MTWIP_FABS(enc[1] - e->last_enc[1]);
+    jump = j1 > j0 ? j1 : j0;
+    if (jump <= limit) {
+        e->implausible = 0;
+        return enc;
+    }
+    e->implausible++;
+    if (e->implausible >= C->max_rejects_in_row) {
+        rebase_encoders(e, enc);
+        memcpy(e->last_enc, enc, sizeof e->last_enc);
+        e->last_enc_m = m;
+        e->implausible = 0;
+    }
+    return NULL;
+}
+
+/* ---- the accelerometer test (AccelOutlierTest) ------------------------------------------------- */
+static real pymax(real a, real b) { return b > a ? b : a; }
+static real pymin(real a, real b) { return b < a ? b : a; }
+
+static void accel_test(const mtwip_estimator_t *e, real *acc) {
+    acc[0] = C->imu_gate[1];
+    acc[1] = acc[2] = acc[3] = ZERO;
+    if (e->acc_n == 3) {
+        const real(*h)[2] = e->acc_hist;
+        acc[1] = pymax(pymin(h[0][0], h[1][0]), pymin(pymax(h[0][0], h[1][0]), h[2][0]));
+        acc[2] = pymax(pymin(h[0][1], h[1][1]), pymin(pymax(h[0][1], h[1][1]), h[2][1]));
+        acc[3] = e->acc_in_row < C->accel_max_in_row ? ONE : ZERO;
+    }
+}
+
+static void accel_seen(mtwip_estimator_t *e, const real *err, int outlier) {
+    if (err && MTWIP_ISFINITE(err[0]) && MTWIP_ISFINITE(err[1])) {
+        if (e->acc_n == 3) {
+            memmove(e->acc_hist[0], e->acc_hist[1], 2 * sizeof e->acc_hist[0]);
+            e->acc_n = 2;
+        }
+        e->acc_hist[e->acc_n][0] = err[0];
+        e->acc_hist[e->acc_n][1] = err[1];
+        e->acc_n++;
+    }
+    e->acc_in_row = outlier ? e->acc_in_row + 1 : 0;
+}
+
+/* ---- the keep-inside truncation (SensorFrontEnd.keep_inside; the kernel's keep_inside) ---------- */
+static int coast_update(mtwip_estimator_t *e, const meas_t *em);
+
+/* the truncated updates of the wheels whose count is unchanged and whose estimate has left it. coast:
+   the coasting step's augmented update (an error where the Python path raises), else the kernel's
+   update. Returns the updates made + 16 × the implausible wheels' mask, −1 if an update failed */
+static int keep_inside(mtwip_estimator_t *e, const real *enc, int coast) {
+    int n = 0, implausible = 0, i, j, k;
+    for (i = 0; i < 2; i++) {
+        meas_t em;
+        real w, s2 = ZERO, lo, hi, sgn = (real)(2 * i - 1);
+        if (enc[i] != e->last_enc[i]) continue;
+        em.dof = 1;
+        h_row(i, em.H[0]);
+        em.off[0] = -sgn * C->b_r * C->alpha0;
+        w = em.off[0];
+        for (j = 0; j < NX; j++) {
+            real t = ZERO;
+            w += em.H[0][j] * e->x[j];
+            for (k = 0; k < NX; k++) t += e->P[j * NX + k] * em.H[0][k];
+            s2 += em.H[0][j] * t;
+        }
+        lo = enc[i] - C->inside_half;
+        hi = enc[i] + C->inside_half;
+        if (s2 > ZERO && (w < lo ? lo - w : w - hi) > C->stuck_sigmas * MTWIP_SQRT(s2)) {
+            implausible |= 1 << i;
+            continue;
+        }
+        if (!truncated_measurement(w, s2, lo, hi, C->stuck_sigmas, &em.z[0], &em.R[0])) continue;
+        if (coast ? coast_update(e, &em) != EKF_OK : kalman_update(e->x, e->P, &em, e->consider) != 0) return -1;
+        n++;
+    }
+    return n + 16 * implausible;
+}
+
+/* ---- the IMU-driven step (the kernel's advance, and Fusion.imu_step_fused) ------------------------ */
+/* the IMU sample as the filter uses it (the kernel's imu_sample): 1 if an axis was saturated */
+static int imu_sample(const mtwip_estimator_t *e, const real *cmd, const real *acc, real *smp, real *extra,
+                      real *syn, real *syn_extra, int *acc_out, real *err) {
+    int any = 0, sat[4], have_syn = 0, j;
+    *acc_out = 0;
+    err[0] = err[1] = nan_value();
+    for (j = 0; j < 4; j++) any |= sat[j] = MTWIP_FABS(smp[j]) >= C->lim[j];
+    if (acc[0] > ZERO && !sat[2] && !sat[3]) {
+        const real *P = e->P;
+        real g = C->model.g, fx, fz, sx, sz, ex, ez, eg, sg;
+        synthetic(e->x, e->w, e->w_prev, cmd, 0, syn, syn_extra);
+        have_syn = 1;
+        fx = syn[2];
+        fz = syn[3];
+        sx = C->a_var + syn_extra[2] + g * g * P[TH * NX + TH] + fx * fx * P[SAX * NX + SAX];
+        sz = C->a_var + syn_extra[3] + fz * fz * P[SAZ * NX + SAZ];
+        err[0] = smp[2] - fx;
+        err[1] = smp[3] - fz;
+        ex = err[0] - acc[1];
+        ez = err[1] - acc[2];
+        eg = smp[0] - syn[0];
+        sg = C->gyro_extrapolation_samples * C->g_var + syn_extra[0];
+        *acc_out = acc[3] != ZERO && ex * ex / sx + ez * ez / sz > C->accel_variance_factor * acc[0] &&
+                   eg * eg / sg <= C->imu_gate[0];
+    }
+    if (!any && !*acc_out) return 0;
+    if (!have_syn) synthetic(e->x, e->w, e->w_prev, cmd, 0, syn, syn_extra);
+    for (j = 0; j < 4; j++)
+        if (sat[j] || (j >= 2 && *acc_out)) {
+            smp[j] = syn[j];
+            extra[j] = syn_extra[j];
+        }
+    return any;
+}
+
+/* one IMU-driven step with sample smp (ω_y, ω_z, f_x, f_z); enc NULL: no encoder sample. Returns 1
+   if the sample is an outlier (nothing changed: the caller coasts instead) */
+static int imu_step(mtwip_estimator_t *e, const real *smp_in, const real *enc, const real *cmd, int *acc_out,
+                    real *err) {
+    real smp[4], extra[4], syn[4], syn_extra[4], acc[4], x1[NX], Pp[NX * NX], nis = ZERO, T = ZERO;
+    step_t st;
+    meas_t em;
+    int saturated, has_enc = enc != NULL, enc_code = 0, ok = 1, inside = 0, dof, may_reject, j;
+    const real *last = e->last_enc;
+    memcpy(smp, smp_in, sizeof smp);
+    for (j = 0; j < 4; j++) extra[j] = ZERO;
+    accel_test(e, acc);
+    may_reject = e->in_row < C->max_rejects_in_row;
+    if (has_enc) T = span(e->last_enc_m, e->at);
+    saturated = imu_sample(e, cmd, acc, smp, extra, syn, syn_extra, acc_out, err);
+    propagate(e->x, smp, (saturated || *acc_out) ? extra : NULL, 0, x1, &st);
+    cov_predict(&st, e->P, Pp);
+    em.dof = 0;
+    if (has_enc) {
+        real eps = encoder_fit(enc, last, T, x1, smp, Pp, 1, &em, NULL, 0);
+        if (!(eps <= C->imu_gate[em.dof - 1])) { /* the alternative: the model's sample instead */
+            if (!saturated && !*acc_out) synthetic(e->x, e->w, e->w_prev, cmd, 0, syn, syn_extra);
+            propagate(e->x, syn, syn_extra, 0, x1, &st);
+            cov_predict(&st, e->P, Pp);
+            if (encoder_fit(enc, last, T, x1, syn, Pp, 1, &em, NULL, 0) <= C->gate[em.dof - 1]) return 1;
+            propagate(e->x, smp, (saturated || *acc_out) ? extra : NULL, 0, x1, &st); /* the sample's again */
+            cov_predict(&st, e->P, Pp);
+        }
+        em.dof = 0;
+    }
+    memcpy(e->x, x1, sizeof x1);
+    memcpy(e->P, Pp, sizeof Pp);
+    e->w_prev[0] = e->w[0];
+    e->w_prev[1] = e->w[1];
+    e->w[0] = smp[0];
+    e->w[1] = smp[1];
+    if (has_enc) nis = encoder_fit(enc, last, T, e->x, e->w, e->P, 0, &em, NULL, 0);
+    dof = em.dof;
+    if (has_enc) {
+        if (dof == 0)
+            enc_code = 1;
+        else if (!(nis <= C->gate[dof - 1]) && may_reject)
+            enc_code = 3;
+        else {
+            enc_code = (nis <= C->gate[dof - 1]) ? 2 : 4;
+            if (kalman_update(e->x, e->P, &em, e->consider)) ok = 0;
+        }
+        if (ok && enc_code != 3) {
+            inside = keep_inside(e, enc, 0);
+            if (inside < 0) {
+                ok = 0;
+                inside = 0;
+            }
+        }
+    }
+    symmetrise(e->P, NX);
+    if (ok && healthy(e->x, e->P)) {
+        memcpy(Pp, e->P, sizeof Pp); /* (the prior's buffer, free now: the range test's elimination) */
+        if (in_range(e->x, Pp))
+            keep_good(e);
+        else
+            ok = -1;
+    } else {
+        restore(e);
+        ok = 0;
+    }
+    /* Fusion.imu_step_fused: the kernel's decisions */
+    if (has_enc && (inside > 15 || e->still)) count_check(e, inside >> 4);
+    if (enc_code == 1)
+        e->last_enc_m = e->at;
+    else if (enc_code == 3)
+        e->in_row++;
+    else if (enc_code >= 2) {
+        e->in_row = 0;
+        memcpy(e->last_enc, enc, sizeof e->last_enc);
+        e->last_enc_m = e->at;
+    }
+    if (ok < 0) {
+        lost(e);
+        push(e);
+    }
+    return 0;
+}
+
+/* ---- the coasting step (estimation.ekf_filter.Coasting, the Python path's arithmetic) ------------- */
+/* J's nontrivial rows (TH, AL, V, PS: F + L D; ω_y, ω_z: D) at column l; the others are unit rows */
+static real j_entry(const step_t *st, real D[4][NA], int row, int l) {
+    real s = ZERO;
+    int i;
+    if (row >= 4) return D[row - 4][l];
+    for (i = 0; i < 4; i++) s += st->L[row][i] * D[i][l];
+    return (l < NX ? st->F4[row][l] : ZERO) + s;
+}
+
+/* row i of J: its index among the nontrivial rows (0..5), or −1 − the column of its 1 */
+static int j_kind(int i) {
+    if (i < NX) return ROW_OF[i] >= 0 ? ROW_OF[i] : -1 - i;
+    if (i < NX + 2) return 4 + (i - NX);
+    if (i < NX + 4) return -1 - (i - 2);
+    return -1 - i;
+}
+
+/* the coasting step's prediction with command cmd held; rail_v/rail_rep: the reading and which of its
+   axes the model stands in for (NULL: all four) */
+static int coast_predict(mtwip_estimator_t *e, const real *cmd, const real *rail_v, const uint8_t *rail_rep) {
+    real *Pa = e->aug, *x = e->x;
+    real s6[6], raw[4], rvar[2], syn[4], synx[4], Dp[4][MTWIP_EKF_NK_ALLOC], value[4], extra[4], x1[NX], z[16];
+    real at[4], D[4][NA], col[NA];
+    step_t st;
+    int fresh = !e->aug_on, rep[4], i, j, l;
+    if (fresh) {
+        for (i = 0; i < NA * NA; i++) Pa[i] = ZERO;
+        for (i = 0; i < NX; i++)
+            for (j = 0; j < NX; j++) Pa[i * NA + j] = e->P[i * NX + j];
+        for (i = 0; i < 4; i++) Pa[(NX + i) * NA + NX + i] = C->g_var;
+        for (i = 0; i < NK; i++) Pa[(NX + 4 + i) * NA + NX + 4 + i] = C->unc_var[i];
+        for (i = 0; i < NK; i++) e->dp[i] = ZERO;
+    }
+    for (i = 0; i < 4; i++) rep[i] = rail_rep ? rail_rep[i] : 1;
+    for (i = 0; i < 2; i++)
+        if (rep[i] && (fresh || !e->model_rate[i])) {
+            real dw = e->w[i] - e->w_prev[i];
+            Pa[(NX + 2 + i) * NA + NX + 2 + i] += dw * dw / MTWIP_R(3.0);
+        }
+    e->model_rate[0] = (uint8_t)rep[0];
+    e->model_rate[1] = (uint8_t)rep[1];
+    state6(x, e->w, e->w_prev, s6);
+    synthetic_raw(&C->model, s6, cmd, (int)C->every, 1, raw, rvar);
+    scaled(x, raw, rvar, syn, synx);
+    for (j = 0; j < NK; j++) { /* EstimatorModel.sensitivity: forward differences */
+        real hi[4], hv[2];
+        synthetic_raw(&C->perturbed[j], s6, cmd, (int)C->every, 1, hi, hv);
+        for (i = 0; i < 4; i++) Dp[i][j] = (hi[i] - raw[i]) / C->sens_step;
+    }
+    for (i = 0; i < 4; i++) {
+        real f = i == 0 ? ONE + x[SY] : i == 1 ? ONE + x[SZ] : i == 2 ? ONE + x[SAX] : ONE + x[SAZ];
+        for (j = 0; j < NK; j++) Dp[i][j] = rep[i] ? Dp[i][j] * f : ZERO;
+    }
+    for (i = 0; i < 4; i++) {
+        real s = ZERO;
+        for (j = 0; j < NK; j++) s += Dp[i][j] * e->dp[j];
+        value[i] = rep[i] ? syn[i] + s : rail_v[i];
+        extra[i] = rep[i] ? synx[i] : ZERO;
+    }
+    propagate(x, value, extra, 1, x1, &st);
+    memcpy(z, x, NX * sizeof(real));
+    z[NX] = e->w[0];
+    z[NX + 1] = e->w[1];
+    z[NX + 2] = e->w_prev[0];
+    z[NX + 3] = e->w_prev[1];
+    for (i = 0; i < 4; i++) at[i] = rep[i] ? syn[i] : ZERO;
+    for (i = 0; i < 4; i++)
+        for (l = 0; l < NA; l++) D[i][l] = ZERO;
+    for (j = 0; j < NX + 4; j++) { /* the sample by (x, ω, ω₋₁): forward differences */
+        real zp[16], smp[4], sx[4], az = MTWIP_FABS(z[j]), h;
+        if (j == PS || j == AL || j == C0 || j == H0) continue;
+        h = C->fd_step * (az > ONE ? az : ONE);
+        memcpy(zp, z, sizeof zp);
+        zp[j] += h;
+        synthetic(zp, zp + NX, zp + NX + 2, cmd, 1, smp, sx);
+        for (i = 0; i < 4; i++) D[i][j] = ((rep[i] ? smp[i] : ZERO) - at[i]) / h;
+    }
+    for (i = 0; i < 4; i++)
+        for (j = 0; j < NK; j++) D[i][NX + 4 + j] = Dp[i][j];
+    for (l = 0; l < NA; l++) { /* A = J Pa, column by column */
+        for (i = 0; i < NA; i++) {
+            int kind = j_kind(i);
+            if (kind < 0)
+                col[i] = Pa[(-1 - kind) * NA + l];
+            else {
+                real s = ZERO;
+                for (j = 0; j < NA; j++) s += j_entry(&st, D, kind, j) * Pa[j * NA + l];
+                col[i] = s;
+            }
+        }
+        for (i = 0; i < NA; i++) Pa[i * NA + l] = col[i];
+    }
+    for (i = 0; i < NA; i++) { /* Pa = A Jᵀ, row by row */
+        for (l = 0; l < NA; l++) {
+            int kind = j_kind(l);
+            if (kind < 0)
+                col[l] = Pa[i * NA + (-1 - kind)];
+            else {
+                real s = ZERO;
+                for (j = 0; j < NA; j++) s += Pa[i * NA + j] * j_entry(&st, D, kind, j);
+                col[l] = s;
+            }
+        }
+        for (l = 0; l < NA; l++) Pa[i * NA + l] = col[l];
+    }
+    for (i = 0; i < NX; i++)
+        for (j = 0; j < NX; j++) Pa[i * NA + j] += q_entry(&st, i, j);
+    Pa[NX * NA + NX] += rep[0] ? synx[0] : C->g_var;
+    Pa[(NX + 1) * NA + NX + 1] += rep[1] ? synx[1] : C->g_var;
+    memcpy(x, x1, sizeof x1);
+    for (i = 0; i < NX; i++)
+        for (j = 0; j < NX; j++) e->P[i * NX + j] = Pa[i * NA + j];
+    e->w_prev[0] = e->w[0];
+    e->w_prev[1] = e->w[1];
+    e->w[0] = value[0];
+    e->w[1] = value[1];
+    e->aug_on = 1;
+    return EKF_OK;
+}
+
+/* (I − Kg Ha)[i][l] of the augmented update (Ha: H's rows, zero beyond the 12 states) */
+static real ikh_aug(real Kg[NA][2], const meas_t *em, int i, int l) {
+    real kh = ZERO;
+    int a;
+    if (l >= NX) return i == l ? ONE : ZERO;
+    for (a = 0; a < em->dof; a++) kh += Kg[i][a] * em->H[a][l];
+    return (i == l ? ONE : ZERO) - kh;
+}
+
+/* Coasting.update: the augmented state's update (Joseph form, the consider states' gain rows zeroed),
+   the gain by Gaussian elimination with partial pivoting (detlinalg.solve); EKF_FAILED where that
+   finds S singular */
+static int coast_update(mtwip_estimator_t *e, const meas_t *em) {
+    real *Pa = e->aug, PHt[NA][2], S[2][2], Kg[NA][2], y[2], za[NA], row[NA], Rm[2][2];
+    int m = em->dof, i, j, a, b, k;
+    for (i = 0; i < NA; i++)
+        for (a = 0; a < m; a++) {
+            real s = ZERO;
+            for (j = 0; j < NX; j++) s += Pa[i * NA + j] * em->H[a][j];
+            PHt[i][a] = s;
+        }
+    for (a = 0; a < m; a++)
+        for (b = 0; b < m; b++) {
+            real s = ZERO;
+            for (i = 0; i < NX; i++) s += em->H[a][i] * PHt[i][b];
+            Rm[a][b] = a == b ? em->R[a] : ZERO;
+            S[a][b] = s + Rm[a][b];
+        }
+    if (m == 1) {
+        if (S[0][0] == ZERO || S[0][0] != S[0][0]) return EKF_FAILED;
+        for (i = 0; i < NA; i++) Kg[i][0] = PHt[i][0] / S[0][0];
+    } else {
+        int p = MTWIP_FABS(S[1][0]) > MTWIP_FABS(S[0][0]);
+        real r0[2], r1[2], f;
+        if (S[p][0] == ZERO || S[p][0] != S[p][0]) return EKF_FAILED;
+        r0[0] = S[p][0];
+        r0[1] = S[p][1];
+        r1[0] = S[1 - p][0];
+        r1[1] = S[1 - p][1];
+        f = r1[0] / r0[0];
+        if (f != ZERO) r1[1] -= f * r0[1];
+        if (r1[1] == ZERO || r1[1] != r1[1]) return EKF_FAILED;
+        for (i = 0; i < NA; i++) {
+            real b0 = PHt[i][p], b1 = PHt[i][1 - p], x1, s;
+            if (f != ZERO) b1 -= f * b0;
+            x1 = b1 / r1[1];
+            s = b0;
+            s -= r0[1] * x1;
+            Kg[i][0] = s / r0[0];
+            Kg[i][1] = x1;
+        }
+    }
+    for (i = 0; i < NX; i++)
+        if (e->consider[i]) Kg[i][0] = Kg[i][1] = ZERO;
+    for (a = 0; a < m; a++) {
+        real s = ZERO;
+        for (j = 0; j < NX; j++) s += em->H[a][j] * e->x[j];
+        y[a] = em->z[a] - (s + em->off[a]);
+    }
+    memcpy(za, e->x, NX * sizeof(real));
+    za[NX] = e->w[0];
+    za[NX + 1] = e->w[1];
+    za[NX + 2] = e->w_prev[0];
+    za[NX + 3] = e->w_prev[1];
+    for (i = 0; i < NK; i++) za[NX + 4 + i] = e->dp[i];
+    for (i = 0; i < NA; i++) {
+        real s = ZERO;
+        for (a = 0; a < m; a++) s += Kg[i][a] * y[a];
+        za[i] = za[i] + s;
+    }
+    for (j = 0; j < NA; j++) { /* A = (I − K H) Pa, column by column */
+        for (i = 0; i < NA; i++) {
+            real s = ZERO;
+            for (k = 0; k < NX; k++) s += ikh_aug(Kg, em, i, k) * Pa[k * NA + j];
+            if (i >= NX) s += Pa[i * NA + j];
+            row[i] = s;
+        }
+        for (i = 0; i < NA; i++) Pa[i * NA + j] = row[i];
+    }
+    for (i = 0; i < NA; i++) { /* Pa = A (I − K H)ᵀ + K R Kᵀ, row by row */
+        for (j = 0; j < NA; j++) {
+            real s = ZERO, t = ZERO;
+            for (k = 0; k < NX; k++) s += Pa[i * NA + k] * ikh_aug(Kg, em, j, k);
+            if (j >= NX) s += Pa[i * NA + j];
+            for (b = 0; b < m; b++) {
+                real kr = ZERO;
+                for (a = 0; a < m; a++) kr += Kg[i][a] * Rm[a][b];
+                t += kr * Kg[j][b];
+            }
+            row[j] = s + t;
+        }
+        for (j = 0; j < NA; j++) Pa[i * NA + j] = row[j];
+    }
+    symmetrise(Pa, NA);
+    memcpy(e->x, za, NX * sizeof(real));
+    for (i = 0; i < NX; i++)
+        for (j = 0; j < NX; j++) e->P[i * NX + j] = Pa[i * NA + j];
+    e->w[0] = za[NX];
+    e->w[1] = za[NX + 1];
+    e->w_prev[0] = za[NX + 2];
+    e->w_prev[1] = za[NX + 3];
+    for (i = 0; i < NK; i++) e->dp[i] = za[NX + 4 + i];
+    return EKF_OK;
+}
+
+/* Fusion.encoder_step after a coasting prediction */
+static int coast_encoders(mtwip_estimator_t *e, const real *enc) {
+    meas_t em;
+    real eps;
+    int zero_div, r;
+    if (!enc) return EKF_OK;
+    eps = encoder_fit(enc, e->last_enc, span(e->last_enc_m, e->at), e->x, e->w, e->P, 0, &em, &zero_div, 1);
+    if (em.dof == 0) { /* unchanged counts: the wheels are still inside them */
+        e->last_enc_m = e->at;
+        r = keep_inside(e, enc, 1);
+        if (r < 0) return EKF_FAILED;
+        count_check(e, r >> 4);
+        return EKF_OK;
+    }
+    if (zero_div) return EKF_FAILED;
+    if (!(eps <= C->gate[em.dof - 1])) { /* Fusion.passes */
+        if (e->in_row < C->max_rejects_in_row) {
+            e->in_row++;
+            return EKF_OK;
+        }
+    }
+    e->in_row = 0;
+    if (coast_update(e, &em) != EKF_OK) return EKF_FAILED;
+    r = keep_inside(e, enc, 1);
+    if (r < 0) return EKF_FAILED;
+    count_check(e, r >> 4);
+    memcpy(e->last_enc, enc, sizeof e->last_enc);
+    e->last_enc_m = e->at;
+    return EKF_OK;
+}
+
+/* Fusion.coast: equation (1) stands in for the IMU (rail: the reading and its censored axes) */
+static void coast(mtwip_estimator_t *e, const real *enc, const real *cmd, const real *rail_v, const uint8_t *rail_rep) {
+    int rc;
+    keep_good(e); /* the core's take_over: the state as it is now is the last good one */
+    rc = coast_predict(e, cmd, rail_v, rail_rep);
+    if (rc == EKF_OK) rc = coast_encoders(e, enc);
+    if (rc == EKF_OK) { /* Fusion.finish */
+        symmetrise(e->P, NX);
+        if (healthy(e->x, e->P)) {
+            int inside = in_range(e->x, e->P); /* (eliminates in P: P is the augmented block, symmetrised) */
+            int i, j;
+            for (i = 0; i < NX; i++)
+                for (j = 0; j < NX; j++) e->P[i * NX + j] = e->aug[i * NA + j];
+            symmetrise(e->P, NX);
+            if (!inside) lost(e);
+            keep_good(e);
+        } else {
+            restore(e);
+            e->aug_on = 0;
+        }
+    } else { /* where the Python path raises: EKFEstimator.step restores the last good state */
+        restore(e);
+        e->aug_on = 0;
+    }
+    push(e);
+}
+
+/* Fusion.advance: the step of sample time e->at with the IMU sample (gyro: ω_y, ω_z; accel: f_x, f_z;
+   NULL: none) */
+static void advance(mtwip_estimator_t *e, const real *gyro, const real *accel, const real *enc, const real *cmd) {
+    if (gyro) {
+        real v[4];
+        uint8_t rep[4];
+        int acc_out, j, railed = 0;
+        real err[2];
+        v[0] = gyro[0];
+        v[1] = gyro[1];
+        v[2] = accel[0];
+        v[3] = accel[1];
+        for (j = 0; j < 4; j++) {
+            rep[j] = MTWIP_FABS(v[j]) >= C->rails[j];
+            railed |= rep[j];
+        }
+        if (railed) { /* SensorFrontEnd.railed: the model stands in for the clipped axes */
+            accel_seen(e, NULL, 0);
+            coast(e, enc, cmd, v, rep);
+            return;
+        }
+        if (!imu_step(e, v, enc, cmd, &acc_out, err)) {
+            accel_seen(e, err, acc_out);
+            e->aug_on = 0; /* a real sample: ω is a reading again */
+            return;
+        }
+        accel_seen(e, err, acc_out);
+        e->imu_outliers++;
+    }
+    coast(e, enc, cmd, NULL, NULL);
+}
+
+/* ---- the interface ------------------------------------------------------------------------ */
+static void clear(mtwip_estimator_t *e) {
+    int i;
+    memset(e, 0, sizeof *e);
+    e->k = -1;
+    for (i = 0; i < RING; i++) e->gyro[i].key = e->acc[i].key = e->enc[i].key = e->cmd[i].key = EMPTY;
+    e->d_gyro = e->d_acc = C->d_imu;
+    e->lag = C->d_imu > C->d_enc ? C->d_imu : C->d_enc;
+}
+
+void mtwip_estimator_init(mtwip_estimator_t *e) { clear(e); }
+
+/* EKFEstimator.start: the first readings, the robot at rest. (The Python side refuses a start without
+   a finite gyro and accelerometer reading; here the accelerometer's absence leaves θ unknown in
+   (−π/2, π/2) and the gyro's takes the rates as 0.) */
+void mtwip_estimator_start(mtwip_estimator_t *e, const mtwip_sample_t *sample, mtwip_real estimate[6]) {
+    int acc_ok = sample->has_accel && finite_n(sample->accel, 3);
+    int gyro_ok = sample->has_gyro && finite_n(sample->gyro, 3);
+    int i;
+    real zero_cmd[2];
+    clear(e);
+    prior(e, acc_ok ? sample->accel : NULL, 0);
+    e->w[0] = e->w_prev[0] = gyro_ok ? sample->gyro[1] : ZERO;
+    e->w[1] = e->w_prev[1] = gyro_ok ? sample->gyro[2] : ZERO;
+    push(e);
+    e->k = 0;
+    e->m = 0;
+    zero_cmd[0] = zero_cmd[1] = ZERO;
+    store(e, sample, 0, 0, zero_cmd, 0);
+    if (sample->has_encoder && finite_n(sample->encoder, 2)) {
+        memcpy(e->last_enc, sample->encoder, sizeof e->last_enc);
+        e->has_last_enc = 1;
+        e->last_enc_m = -C->d_enc;
+    }
+    for (i = 0; i < NX; i++) e->consider[i] = C->untaught[i];
+    keep_good(e);
+    state6(e->x, e->w, e->w_prev, estimate);
+    memcpy(e->last_estimate, estimate, sizeof e->last_estimate);
+}
+
+/* EKFEstimator.step: the readings that arrived now and the torques (N m) commanded over the period
+   that just ended; the estimate predicted forward to now across the filter's lag */
+void mtwip_estimator_step(mtwip_estimator_t *e, const mtwip_sample_t *sample, const mtwip_real command[2],
+                          mtwip_real estimate[6]) {
+    mtwip_ekf_slot_t *slot;
+    real s[6], s0[6], u[2];
+    int32_t k, m, j;
+    int i, finite = 1;
+    if (e->k < 0) { /* (the Python side refuses a step before start) */
+        mtwip_estimator_start(e, sample, estimate);
+        return;
+    }
+    k = ++e->k;
+    slot = &e->cmd[ring_index(k - 1)];
+    slot->key = k - 1;
+    slot->v[0] = command[0];
+    slot->v[1] = command[1];
+    store(e, sample, k, e->m, command, 1);
+    for (m = e->m + C->every; m <= k - e->lag; m += C->every) {
+        const mtwip_ekf_slot_t *g, *a, *en;
+        const real *enc;
+        real t = (real)k / C->control_rate - (real)(k - m) * C->model.dt;
+        if (!e->holding && C->has_hold && t >= C->hold_from) {
+            e->holding = 1;
+            for (i = 0; i < NX; i++) e->consider[i] = C->consider[i];
+        }
+        e->at = m;
+        g = ring_get(e->gyro, m);
+        a = ring_get(e->acc, m);
+        en = ring_get(e->enc, m);
+        enc = screen_encoders(e, en ? en->v : NULL, m);
+        command_of(e, m - C->every, u);
+        advance(e, g && a ? g->v : NULL, g && a ? a->v : NULL, enc, u);
+        e->m = m;
+    }
+    /* the forward prediction across the lag (the kernel's forward) */
+    state6(e->x, e->w, e->w_prev, s0);
+    memcpy(s, s0, sizeof s);
+    for (j = e->m; j < k; j++) {
+        real tl, tr;
+        command_of(e, j, u);
+        delivered(&C->model, s, u[0], u[1], &tl, &tr);
+        model_step(&C->model, s, tl, tr, 1, 0, NULL);
+    }
+    for (i = 0; i < 6; i++) finite &= MTWIP_ISFINITE(s[i]) != 0;
+    if (!finite) {
+        memcpy(s, s0, sizeof s);
+        if (!finite_n(s, 6)) memcpy(s, e->last_estimate, sizeof s);
+    }
+    memcpy(e->last_estimate, s, sizeof s);
+    memcpy(estimate, s, sizeof s);
+}
