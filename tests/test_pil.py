@@ -265,3 +265,23 @@ def test_the_stack_tree_sums_frames_along_calls_and_tail_calls():
     assert pil.stack_tree(DISASSEMBLY, {}, "step")["path"][0] == ("step", 12 + 16 + 20, "binary")
     with pytest.raises(TwinError, match="mtwip_step is not in the image"):
         pil.stack_tree(DISASSEMBLY, {})
+
+
+@needs_tools
+def test_the_exported_ekf_and_it2_cascade_on_a_cortex_m4(tmp_path):
+    """The real thing: paper-exp3's IT2 cascade with the EKF, exported in float32, on the emulated
+    Cortex-M4F over a second of the twin's readings (what 'twin pil' does): flash ≤ 64 kB, RAM ≤
+    8 kB, every step under a tenth of the 5 ms period at 168 MHz; its duties are the host float32
+    build's, a PWM step apart at most on a few steps (the maths library's last bits)."""
+    from twin.workflows.export import export
+    from twin.workflows.pil import FLASH_BYTES, PERIOD_SHARE, RAM_BYTES, run_pil
+
+    export("paper-exp3", "it2", "ekf", "float32", tmp_path / "fw", seconds=0.05)
+    r = run_pil(tmp_path / "fw", seconds=1.0)
+    b, q, c = r["build"], r["qemu"], r["compare"]
+    assert r["steps"] == 201
+    assert b["library_flash"] <= FLASH_BYTES and b["ram_bytes"] <= RAM_BYTES, (b["library_flash"], b["ram_bytes"])
+    assert q["period_share"] <= PERIOD_SHARE, (q["instructions_max"], q["period_share"])
+    duty = c["fields"].get("duty")
+    assert duty is None or (duty["max_abs"] <= 1.0 / 1023 + 1e-6 and duty["steps"] <= 5), duty
+    assert "saturated" not in c["fields"]
