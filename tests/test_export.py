@@ -143,3 +143,36 @@ def test_bad_input_is_one_line(exports, tmp_path):
     r = _cli("run", "paper-exp3", "--controller", f"export:{bal}", "--duration", "0.1", "--no-video",
              "--out", str(tmp_path / "r"))
     assert r.exit_code == 2 and "has no position loop" in r.output, r.output
+
+
+def test_a_robot_log_replays_through_the_exported_estimator_as_through_the_python_one(exports, tmp_path):
+    """``twin replay LOG --estimator export:DIR``: the C estimator's estimates of a sensor log are the
+    Python one's, bit for bit (float64)."""
+    import csv
+
+    d = exports["it2-64"]
+    r = _cli("run", "paper-exp1", "--controller", "it2", "--set", "sensors.estimator=complementary", "--set",
+             "initial.theta=0.1", "--duration", "2", "--log-sensors", "--no-video", "--out", str(tmp_path / "run"))
+    assert r.exit_code == 0, r.output
+    r = _cli("replay", str(tmp_path / "run" / "sensor-logs" / "it2"), "--estimator", f"complementary,export:{d}",
+             "--out", str(tmp_path / "replay"))
+    assert r.exit_code == 0, r.output
+    rows = list(csv.reader((tmp_path / "replay" / "estimates.csv").open()))
+    by = {}
+    for row in rows[1:]:
+        by.setdefault(row[1], []).append(row[2:])
+    assert len(by["complementary"]) > 300 and by["complementary"] == by[f"export:{d}"]
+
+
+def test_check_and_golden_files_take_an_export(exports, tmp_path):
+    """A scenario file lists the export as a controller; ``twin check`` holds it to the bounds of the
+    controller it came from, records golden trajectories of it and compares against them."""
+    d = exports["it2-64"]
+    sc = tmp_path / "fw.toml"
+    sc.write_text(f'base = "paper-exp1"\nname = "fw"\nduration = 1.5\n[controller]\nkinds = ["export:{d}"]\n'
+                  '[expect]\nfell = false\n[expect.it2]\niae_theta = "<= 0.0001"\n')
+    r = _cli("check", str(sc), "--record", str(tmp_path / "gold"))
+    assert r.exit_code == 1 and "iae_theta <= 0.0001" in r.output, r.output  # it2's bound, applied to the C
+    sc.write_text(sc.read_text().replace('iae_theta = "<= 0.0001"', 'iae_theta = "<= 1"'))
+    r = _cli("check", str(sc), "--golden", str(tmp_path / "gold"))
+    assert r.exit_code == 0 and "matches" in r.output, r.output
