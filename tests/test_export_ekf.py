@@ -2,7 +2,8 @@
 estimates step for step on the readings and commands of a twin run (paper-exp3; sensor-faults
 through its gyro spikes, which the filter rejects and coasts over, and its 0.2 s IMU dropout); the
 float32 build compiles clean; the same estimator gives the same bytes; an option the C does not
-implement is refused in one line."""
+implement is refused in one line; the arithmetic arranged for speed (the structural zeros left out, the
+median by selection) gives the plain loops' bits in both precisions."""
 from __future__ import annotations
 
 import ctypes
@@ -178,3 +179,301 @@ def test_the_same_estimator_gives_the_same_bytes_and_options_are_refused():
 
     with pytest.raises(TwinError, match="compiled=False.*allowed"):
         ekf_export.emit(EKFEstimator(a.model, compiled=False), "float64")
+
+
+# The arranged arithmetic against the plain one, bit for bit, on random numbers: the covariance's prediction,
+# the innovation, the Kalman update and the keep-inside truncation (which leave out the exact zeros of F's, H's
+# and I − K H's structure when P is known finite) against the kernel's plain loops they were rearranged from
+# (copied below as ref_*), and the latency watch's median by selection against the insertion sort it replaced;
+# zeros of both signs, ties and sorted runs among the inputs, huge covariances that overflow part way (the
+# general path), and select_kth's heap fallback forced (MTWIP_EKF_SELECT_SLACK).
+UNIT = r"""#include <float.h>
+#include <stdio.h>
+#include "mtwip_estimator.c"
+#if MTWIP_FLOAT32
+#define BIG ((real)FLT_MAX)
+#else
+#define BIG ((real)DBL_MAX)
+#endif
+
+/* ---- the plain loops (the kernel's) ---- */
+static void ref_cov_predict(const step_t *st, const real *P, real *Pp) {
+    real A4[4][NX];
+    int a, i, j, k;
+    for (a = 0; a < 4; a++)
+        for (j = 0; j < NX; j++) {
+            real s = ZERO;
+            for (k = 0; k < NX; k++) s += st->F4[a][k] * P[k * NX + j];
+            A4[a][j] = s;
+        }
+    for (i = 0; i < NX; i++) {
+        const real *Ai = ROW_OF[i] >= 0 ? A4[ROW_OF[i]] : P + i * NX;
+        for (j = 0; j < NX; j++) {
+            real s;
+            if (ROW_OF[j] < 0)
+                s = Ai[j];
+            else {
+                const real *Fj = st->F4[ROW_OF[j]];
+                s = ZERO;
+                for (k = 0; k < NX; k++) s += Ai[k] * Fj[k];
+            }
+            Pp[i * NX + j] = s + q_entry(st, i, j);
+        }
+    }
+}
+
+static void ref_innovation(const real *x, const real *P, const meas_t *em, real *y, real PHt[NX][2], real S[2][2]) {
+    int a, b, i, j;
+    for (a = 0; a < em->dof; a++) {
+        real hx = em->off[a];
+        for (j = 0; j < NX; j++) hx += em->H[a][j] * x[j];
+        y[a] = em->z[a] - hx;
+        for (i = 0; i < NX; i++) {
+            real s = ZERO;
+            for (j = 0; j < NX; j++) s += P[i * NX + j] * em->H[a][j];
+            PHt[i][a] = s;
+        }
+    }
+    for (a = 0; a < em->dof; a++)
+        for (b = 0; b < em->dof; b++) {
+            real s = ZERO;
+            for (i = 0; i < NX; i++) s += em->H[a][i] * PHt[i][b];
+            S[a][b] = s + (a == b ? em->R[a] : ZERO);
+        }
+}
+
+static int ref_kalman_update(real *x, real *P, const meas_t *em, const uint8_t *consider) {
+    int m = em->dof, i, j, k, a, b;
+    real PHt[NX][2], S[2][2], Si[2][2], K[NX][2], y[2], tmp[NX];
+    ref_innovation(x, P, em, y, PHt, S);
+    if (m == 1) {
+        if (!(S[0][0] > ZERO)) return -1;
+        Si[0][0] = ONE / S[0][0];
+    } else {
+        real det = S[0][0] * S[1][1] - S[0][1] * S[1][0];
+        if (!(det > ZERO)) return -1;
+        Si[0][0] = S[1][1] / det;
+        Si[1][1] = S[0][0] / det;
+        Si[0][1] = -S[0][1] / det;
+        Si[1][0] = -S[1][0] / det;
+    }
+    for (i = 0; i < NX; i++)
+        for (b = 0; b < m; b++) {
+            real s = ZERO;
+            for (a = 0; a < m; a++) s += PHt[i][a] * Si[a][b];
+            K[i][b] = consider[i] ? ZERO : s;
+        }
+    for (i = 0; i < NX; i++)
+        for (a = 0; a < m; a++) x[i] += K[i][a] * y[a];
+    for (j = 0; j < NX; j++) {
+        for (i = 0; i < NX; i++) {
+            real s = ZERO;
+            for (k = 0; k < NX; k++) s += ikh12(K, em, i, k) * P[k * NX + j];
+            tmp[i] = s;
+        }
+        for (i = 0; i < NX; i++) P[i * NX + j] = tmp[i];
+    }
+    for (i = 0; i < NX; i++) {
+        for (j = 0; j < NX; j++) {
+            real s = ZERO;
+            for (k = 0; k < NX; k++) s += P[i * NX + k] * ikh12(K, em, j, k);
+            for (a = 0; a < m; a++) s += K[i][a] * em->R[a] * K[j][a];
+            tmp[j] = s;
+        }
+        for (j = 0; j < NX; j++) P[i * NX + j] = tmp[j];
+    }
+    return 0;
+}
+
+static int ref_keep_inside(mtwip_estimator_t *e, const real *enc) {
+    int n = 0, implausible = 0, i, j, k;
+    for (i = 0; i < 2; i++) {
+        meas_t em;
+        real w, s2 = ZERO, lo, hi, sgn = (real)(2 * i - 1);
+        if (enc[i] != e->last_enc[i]) continue;
+        em.dof = 1;
+        h_row(i, em.H[0]);
+        em.off[0] = -sgn * C->b_r * C->alpha0;
+        w = em.off[0];
+        for (j = 0; j < NX; j++) {
+            real t = ZERO;
+            w += em.H[0][j] * e->x[j];
+            for (k = 0; k < NX; k++) t += e->P[j * NX + k] * em.H[0][k];
+            s2 += em.H[0][j] * t;
+        }
+        lo = enc[i] - C->inside_half;
+        hi = enc[i] + C->inside_half;
+        if (s2 > ZERO && (w < lo ? lo - w : w - hi) > C->stuck_sigmas * MTWIP_SQRT(s2)) {
+            implausible |= 1 << i;
+            continue;
+        }
+        if (!truncated_measurement(w, s2, lo, hi, C->stuck_sigmas, &em.z[0], &em.R[0])) continue;
+        if (ref_kalman_update(e->x, e->P, &em, e->consider) != 0) return -1;
+        n++;
+    }
+    return n + 16 * implausible;
+}
+
+static real ref_median(const real *a, int n) { /* the insertion sort's */
+    real t[128];
+    int i, j;
+    memcpy(t, a, (size_t)n * sizeof(real));
+    for (i = 1; i < n; i++) {
+        real v = t[i];
+        for (j = i; j > 0 && t[j - 1] > v; j--) t[j] = t[j - 1];
+        t[j] = v;
+    }
+    return n % 2 ? t[n / 2] : (t[n / 2 - 1] + t[n / 2]) / TWO;
+}
+
+/* ---- random numbers ---- */
+static uint32_t rs = 2463534242u;
+static long bad, trials, fast;
+static uint32_t rnd(void) {
+    rs ^= rs << 13;
+    rs ^= rs >> 17;
+    rs ^= rs << 5;
+    return rs;
+}
+static real uni(void) { return (real)((double)rnd() / 4294967296.0 * 2.0 - 1.0); }
+static real sparse(real scale) { /* one in five an exact zero of either sign */
+    uint32_t u = rnd() % 10;
+    return u == 0 ? ZERO : u == 1 ? -ZERO : scale * uni();
+}
+static void check(int same, const char *what, long trial) {
+    trials++;
+    if (!same && bad++ < 10) printf("%s differs (trial %ld)\n", what, trial);
+}
+static int same(const void *a, const void *b, size_t n) { return memcmp(a, b, n) == 0; }
+
+static void medians(void) {
+    static const real few[5] = {MTWIP_R(-1.0), -ZERO, ZERO, MTWIP_R(1.0), MTWIP_R(2.0)};
+    real a[128], h[128], m1, m2;
+    long t;
+    int i;
+    for (t = 0; t < 20000; t++) {
+        int n = 1 + (int)(rnd() % 128), kind = (int)(t % 7);
+        for (i = 0; i < n; i++) {
+            switch (kind) {
+            case 0: a[i] = uni(); break;
+            case 1: a[i] = few[rnd() % 5]; break;
+            case 2: a[i] = (real)i; break;
+            case 3: a[i] = (real)(n - i); break;
+            case 4: a[i] = (real)(i < n / 2 ? i : n - i); break;
+            case 5: a[i] = rnd() % 2 ? ZERO : -ZERO; break;
+            default: a[i] = (real)(rnd() % 3) * (rnd() % 2 ? ONE : -ONE); break;
+            }
+        }
+        m1 = median_of(a, h, n);
+        m2 = ref_median(a, n);
+        check(same(&m1, &m2, sizeof m1), "median", t);
+    }
+}
+
+/* B Bᵀ + I (symmetric, positive definite; or, one in three, B itself) scaled, a few entries zeros */
+static void random_P(real *P, real scale) {
+    real B[NX * NX];
+    int i, j, k, n = (int)(rnd() % 8), plain = rnd() % 3 == 0;
+    for (i = 0; i < NX * NX; i++) B[i] = sparse(ONE);
+    for (i = 0; i < NX; i++)
+        for (j = 0; j < NX; j++) {
+            real s = i == j ? ONE : ZERO;
+            if (plain)
+                s = B[i * NX + j];
+            else
+                for (k = 0; k < NX; k++) s += B[i * NX + k] * B[j * NX + k];
+            P[i * NX + j] = scale * s;
+        }
+    for (i = 0; i < n; i++) P[rnd() % (NX * NX)] = rnd() % 2 ? ZERO : -ZERO;
+}
+
+static void random_meas(meas_t *em, real scale) {
+    int a;
+    em->dof = 1 + (int)(rnd() % 2);
+    for (a = 0; a < em->dof; a++) {
+        h_row(em->dof == 2 ? a : (int)(rnd() % 2), em->H[a]);
+        em->z[a] = uni();
+        em->off[a] = sparse(ONE);
+        em->R[a] = scale * (ONE + uni()) / MTWIP_R(100.0);
+    }
+}
+
+static mtwip_estimator_t E1, E0;
+
+static void products(void) {
+    static const real scales[5] = {MTWIP_R(1.0), MTWIP_R(1e-3), MTWIP_R(1.0) / MTWIP_R(4096.0), MTWIP_R(1.0) / MTWIP_R(64.0),
+                                   MTWIP_R(1.0) / MTWIP_R(4.0)};
+    long t;
+    int i, j;
+    for (t = 0; t < 10000; t++) {
+        real scale = t % 5 < 2 ? scales[t % 5] : BIG * scales[t % 5];
+        real P[NX * NX], P1[NX * NX], P0[NX * NX], x1[NX], x0[NX], y[2], PHt[NX][2], S[2][2];
+        uint8_t cons[NX];
+        step_t st;
+        meas_t em;
+        innov_t in1;
+        int r1, r0, f1, fin;
+        random_P(P, scale);
+        fin = finite_matrix(P); /* (the callers' flag: P known finite) */
+        for (i = 0; i < 4; i++) { /* F's rows; every other time with F's zero columns (c, h) */
+            for (j = 0; j < NX; j++) st.F4[i][j] = t % 2 && (j == C0 || j == H0) ? ZERO : sparse(MTWIP_R(2.0));
+            for (j = 0; j < 4; j++) st.Q4[i][j] = uni();
+        }
+        r1 = cov_predict(&st, P, P1, fin);
+        ref_cov_predict(&st, P, P0);
+        check(same(P1, P0, sizeof P1), "cov_predict", t);
+        for (i = 0; i < NX * NX; i++) check(!r1 || MTWIP_ISFINITE(P0[i]), "cov_predict's finite", t);
+        random_meas(&em, scale);
+        for (i = 0; i < NX; i++) {
+            x1[i] = x0[i] = uni();
+            cons[i] = (uint8_t)(rnd() % 3 == 0);
+        }
+        innovation(x1, P, &em, fin, &in1);
+        ref_innovation(x0, P, &em, y, PHt, S);
+        check(same(in1.y, y, (size_t)em.dof * sizeof(real)), "innovation y", t);
+        for (i = 0; i < NX; i++) check(same(in1.PHt[i], PHt[i], (size_t)em.dof * sizeof(real)), "innovation P Ht", t);
+        for (i = 0; i < em.dof; i++) check(same(in1.S[i], S[i], (size_t)em.dof * sizeof(real)), "innovation S", t);
+        memcpy(P1, P, sizeof P);
+        memcpy(P0, P, sizeof P);
+        r1 = kalman_update(x1, P1, &em, cons, fin, &f1, t % 2 ? &in1 : NULL);
+        r0 = ref_kalman_update(x0, P0, &em, cons);
+        check(r1 == r0 && same(x1, x0, sizeof x1) && same(P1, P0, sizeof P1), "kalman_update", t);
+        for (i = 0; i < NX * NX; i++) check(!f1 || MTWIP_ISFINITE(P0[i]), "kalman_update's finite", t);
+        fast += f1;
+        memset(&E1, 0, sizeof E1);
+        for (i = 0; i < NX; i++) {
+            E1.x[i] = uni();
+            E1.consider[i] = cons[i];
+        }
+        memcpy(E1.P, P, sizeof P);
+        E1.last_enc[0] = E1.x[PS] + (real)(rnd() % 3) * MTWIP_R(0.01) * uni();
+        E1.last_enc[1] = E1.x[PS] + (real)(rnd() % 3) * MTWIP_R(0.01) * uni();
+        E0 = E1;
+        r1 = keep_inside(&E1, E1.last_enc, 0, fin);
+        r0 = ref_keep_inside(&E0, E0.last_enc);
+        check(r1 == r0 && same(E1.x, E0.x, sizeof E1.x) && same(E1.P, E0.P, sizeof E1.P), "keep_inside", t);
+    }
+}
+
+int main(void) {
+    medians();
+    products();
+    if (bad) return 1;
+    printf("ok: %ld comparisons (%ld updates on the fast path to the end)\n", trials, fast);
+    return 0;
+}
+"""
+
+
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+def test_the_arranged_arithmetic_gives_the_plain_loops_bits(precision, tmp_path):
+    _write(load_scenario("paper-exp3").run_spec("it2").build_estimator(), precision, tmp_path)
+    (tmp_path / "unit.c").write_text(UNIT)
+    for slack in (None, -1000):  # -1000: select_kth's heap from its first round on
+        exe = tmp_path / "unit"
+        flags = [] if slack is None else [f"-DMTWIP_EKF_SELECT_SLACK={slack}"]
+        r = subprocess.run([COMPILERS[0], *STRICT, *flags, "-I", str(tmp_path), str(tmp_path / "unit.c"), "-o",
+                            str(exe), "-lm"], capture_output=True, text=True)
+        assert r.returncode == 0, r.stderr
+        r = subprocess.run([str(exe)], capture_output=True, text=True, timeout=120)
+        assert r.returncode == 0 and r.stdout.startswith("ok"), r.stdout + r.stderr

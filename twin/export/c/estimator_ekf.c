@@ -8,6 +8,14 @@
    products of estimation/detlinalg.py), so that the float64 build gives the twin's numbers bit for
    bit when compiled without FMA contraction (-ffp-contract=off).
 
+   Where that costs time on a microcontroller the arithmetic is arranged, never changed: the products
+   of the covariance's prediction and update and of the innovation leave out the terms whose factor is an
+   exact zero of F's, H's or I − K H's structure when every number involved is finite (each such term is
+   ±0, and a sum that starts at +0 is never −0, so adding ±0 leaves it as it is; otherwise the full sums),
+   their sums run in twelve accumulators each taking its terms in the original order, the latency watch's
+   medians come from a selection instead of a sort (the same order statistic, a zero's sign as the stable
+   sort leaves it) and its command differences are formed once per check.
+
    Copied by twin export as mtwip_estimator.c; the configuration (every number of the filter) is
    generated in place of the marker below (twin/export/ekf.py). Only the default sampling is
    ported (IMU rows the means over their period, commands held, a constant period). */
@@ -53,7 +61,7 @@ typedef mtwip_ekf_model_t model_t;
 #define TWO MTWIP_R(2.0)
 #define EMPTY INT32_MIN
 
-enum { TH, PS, V, AL, BY, BZ, C0, SY, H0, SZ, SAX, SAZ };
+enum { TH, PS, V, AL, BY, BZ, C0, SY, H0, SZ, SAX, SAZ }; /* (TH, PS, V, AL first: cov_predict) */
 enum { ITH, ITHD, IPS, IPSD, IAL, IALD };
 enum { EKF_OK = 0, EKF_FAILED = 1 }; /* EKF_FAILED: where the Python path raises (a singular solve) */
 
@@ -70,6 +78,20 @@ static int finite_n(const real *v, int n) {
     for (i = 0; i < n; i++)
         if (!MTWIP_ISFINITE(v[i])) return 0;
     return 1;
+}
+
+/* 1 if the NX × NX matrix P is all finite: its sum is (0 also where a sum of finite numbers overflows; the
+   callers then take their general path, which gives the same numbers) */
+static int finite_matrix(const real *P) {
+    real s0 = ZERO, s1 = ZERO, s2 = ZERO, s3 = ZERO;
+    int i;
+    for (i = 0; i < NX * NX; i += 4) { /* (NX * NX: a multiple of 4) */
+        s0 += P[i];
+        s1 += P[i + 1];
+        s2 += P[i + 2];
+        s3 += P[i + 3];
+    }
+    return MTWIP_ISFINITE((s0 + s1) + (s2 + s3)) != 0;
 }
 
 static int packed(int i, int j) { /* the upper triangle, by rows */
@@ -336,30 +358,72 @@ static real q_entry(const step_t *st, int i, int j) {
     return ZERO;
 }
 
-/* Pp = F P Fᵀ + Q (the kernel's and estimation.ekf_steps' cov_predict) */
-static void cov_predict(const step_t *st, const real *P, real *Pp) {
-    real A4[4][NX];
-    int a, i, j, k;
-    for (a = 0; a < 4; a++)
-        for (j = 0; j < NX; j++) {
-            real s = ZERO;
-            for (k = 0; k < NX; k++) s += st->F4[a][k] * P[k * NX + j];
-            A4[a][j] = s;
+/* an operation on each of the twelve accumulators a0 … a11 (NX = 12) */
+#define EACH12(M) M(0) M(1) M(2) M(3) M(4) M(5) M(6) M(7) M(8) M(9) M(10) M(11)
+#define ACC_DECL(r) real a##r = ZERO;
+#define ACC_COL(r) a##r += p * c[r];
+#define ACC_DIAG(r) \
+    case r:         \
+        a##r += p * dg[r]; \
+        break;
+#define ACC_KRK(r) a##r += kr * K[r][b];
+
+/* Pp = F P Fᵀ + Q (the kernel's and estimation.ekf_steps' cov_predict); pfin: P is finite. Every entry is
+   the kernel's sum over k ascending from +0; with P finite (and A = F P too, for the second product) the
+   sums leave out the terms whose F entry is zero (±0): such a term is ±0, and a sum that starts at +0 is
+   never −0, so adding ±0 leaves it as it is. Returns 1 if Pp is finite */
+static int cov_predict(const step_t *st, const real *P, real *Pp, int pfin) {
+    static const real zero4[4] = {ZERO, ZERO, ZERO, ZERO};
+    real A4[4][NX], chk = ZERO;
+    uint8_t nz[4][NX], any[NX];
+    int cnt[4], n_any = 0, a, i, j, k, t;
+    for (a = 0; a < 4; a++) {
+        cnt[a] = 0;
+        for (k = 0; k < NX; k++)
+            if (!pfin || st->F4[a][k] != ZERO) nz[a][cnt[a]++] = (uint8_t)k;
+    }
+    for (a = 0; a < 4; a++) { /* A's rows TH, AL, V, PS (F's others: the identity's) */
+        const real *F = st->F4[a];
+        EACH12(ACC_DECL)
+        for (t = 0; t < cnt[a]; t++) {
+            const real p0 = F[nz[a][t]], *c = P + nz[a][t] * NX;
+#define ACC_ROW(r) a##r += p0 * c[r];
+            EACH12(ACC_ROW)
+#undef ACC_ROW
         }
+#define ACC_PUT(r) \
+    A4[a][r] = a##r; \
+    chk += a##r;
+        EACH12(ACC_PUT)
+#undef ACC_PUT
+    }
+    pfin = pfin && MTWIP_ISFINITE(chk);
+    for (k = 0; k < NX; k++) /* the columns where some row of F4 is nonzero (all of them unless sparse) */
+        if (!pfin || st->F4[0][k] != ZERO || st->F4[1][k] != ZERO || st->F4[2][k] != ZERO || st->F4[3][k] != ZERO)
+            any[n_any++] = (uint8_t)k;
+    chk = ZERO;
     for (i = 0; i < NX; i++) {
         const real *Ai = ROW_OF[i] >= 0 ? A4[ROW_OF[i]] : P + i * NX;
-        for (j = 0; j < NX; j++) {
-            real s;
-            if (ROW_OF[j] < 0)
-                s = Ai[j];
-            else {
-                const real *Fj = st->F4[ROW_OF[j]];
-                s = ZERO;
-                for (k = 0; k < NX; k++) s += Ai[k] * Fj[k];
-            }
-            Pp[i * NX + j] = s + q_entry(st, i, j);
+        real *Pi = Pp + i * NX, s0 = ZERO, s1 = ZERO, s2 = ZERO, s3 = ZERO; /* (A Fᵀ)[i] at F4's rows */
+        const real *Qi = ROW_OF[i] >= 0 ? st->Q4[ROW_OF[i]] : zero4;
+        for (t = 0; t < n_any; t++) {
+            real v = Ai[any[t]];
+            k = any[t];
+            s0 += v * st->F4[0][k];
+            s1 += v * st->F4[1][k];
+            s2 += v * st->F4[2][k];
+            s3 += v * st->F4[3][k];
         }
+        /* + Q: its 4 × 4 block on F4's rows and columns (TH, AL, V, PS: ROW_OF), the gyro biases' random
+           walk, +0 elsewhere (which the rows of F's identity rows take too, as the kernel's sums) */
+        Pi[TH] = s0 + Qi[0];
+        Pi[PS] = s3 + Qi[3];
+        Pi[V] = s2 + Qi[2];
+        Pi[AL] = s1 + Qi[1];
+        for (j = 4; j < NX; j++) Pi[j] = Ai[j] + (i == j && (i == BY || i == BZ) ? C->bias_q : ZERO);
+        for (j = 0; j < NX; j++) chk += Pi[j];
     }
+    return MTWIP_ISFINITE(chk) != 0;
 }
 
 /* ---- the encoders' measurement ----------------------------------------------------------- */
@@ -367,6 +431,11 @@ typedef struct {
     int dof;
     real z[2], off[2], R[2], H[2][NX];
 } meas_t;
+
+/* a measurement's innovation against a state (x, P): y = z − (off + H x), P Hᵀ, S = H P Hᵀ + R */
+typedef struct {
+    real y[2], PHt[NX][2], S[2][2];
+} innov_t;
 
 /* wheel i's row of H: e = ψ − θ + c ∓ ((b/r)(α − α0) + h) */
 static void h_row(int i, real *h) {
@@ -379,32 +448,45 @@ static void h_row(int i, real *h) {
     h[H0] = sgn;
 }
 
-/* the innovation y = z − (off + H x), P Hᵀ and S = H P Hᵀ + R (the kernel's innovation) */
-static void innovation(const real *x, const real *P, const meas_t *em, real *y, real PHt[NX][2], real S[2][2]) {
+/* the innovation y = z − (off + H x), P Hᵀ and S = H P Hᵀ + R (the kernel's innovation); pfin: P is finite
+   (−1: not known), and then P Hᵀ's sums skip the terms of H's zeros (±0 each: see cov_predict) */
+static void innovation(const real *x, const real *P, const meas_t *em, int pfin, innov_t *in) {
     int a, b, i, j;
+    if (pfin < 0) pfin = finite_matrix(P);
     for (a = 0; a < em->dof; a++) {
+        const real *H = em->H[a];
         real hx = em->off[a];
-        for (j = 0; j < NX; j++) hx += em->H[a][j] * x[j];
-        y[a] = em->z[a] - hx;
-        for (i = 0; i < NX; i++) {
-            real s = ZERO;
-            for (j = 0; j < NX; j++) s += P[i * NX + j] * em->H[a][j];
-            PHt[i][a] = s;
+        EACH12(ACC_DECL)
+        for (j = 0; j < NX; j++) hx += H[j] * x[j];
+        in->y[a] = em->z[a] - hx;
+        for (j = 0; j < NX; j++) { /* P Hᵀ's column a: a_i = Σ_j P[i][j] H[j] */
+            const real h = H[j], *c = P + j;
+            if (pfin && h == ZERO) continue;
+#define ACC_PH(r) a##r += c[r * NX] * h;
+            EACH12(ACC_PH)
+#undef ACC_PH
         }
+#define ACC_PUT(r) in->PHt[r][a] = a##r;
+        EACH12(ACC_PUT)
+#undef ACC_PUT
     }
     for (a = 0; a < em->dof; a++)
         for (b = 0; b < em->dof; b++) {
             real s = ZERO;
-            for (i = 0; i < NX; i++) s += em->H[a][i] * PHt[i][b];
-            S[a][b] = s + (a == b ? em->R[a] : ZERO);
+            for (i = 0; i < NX; i++) s += em->H[a][i] * in->PHt[i][b];
+            in->S[a][b] = s + (a == b ? em->R[a] : ZERO);
         }
 }
 
+enum { FIT_TEST = 1, FIT_PY = 2, FIT_FINITE = 4 };
+
 /* the encoders' measurement against the prior (x, P) with the gyro's rates w, and its NIS (NaN:
-   no count changed, dof 0); test: an unchanged count gives a row too (the IMU outlier test).
-   *zero_div: the NIS's divisor is 0 (where the Python path raises); py: the Python path's squares */
+   no count changed, dof 0). how: FIT_TEST, an unchanged count gives a row too (the IMU outlier test);
+   FIT_PY, the Python path's squares; FIT_FINITE, P is known finite. *zero_div: the NIS's divisor is 0
+   (where the Python path raises); the innovation into *out (NULL: not wanted) */
 static real encoder_fit(const real *enc, const real *last, real T, const real *x, const real *w, const real *P,
-                        int test, meas_t *em, int *zero_div, int py) {
+                        int how, meas_t *em, int *zero_div, innov_t *out) {
+    int test = how & FIT_TEST, py = how & FIT_PY;
     real dlt = C->delta, b_r = C->b_r, r = C->r;
     real th = x[TH];
     real thd = (w[0] - x[BY]) / (ONE + x[SY]);
@@ -414,7 +496,8 @@ static real encoder_fit(const real *enc, const real *last, real T, const real *x
     real e = ONE + dz / r;
     real var_q = py ? P[V * NX + V] / pow2(r) + C->g_var * (pow2(e) + b_r * b_r)
                     : P[V * NX + V] / (r * r) + C->g_var * (e * e + b_r * b_r);
-    real PHt[NX][2], S[2][2], y[2], det;
+    innov_t own, *in = out ? out : &own;
+    real det, (*S)[2] = in->S, *y = in->y;
     int i;
     em->dof = 0;
     if (zero_div) *zero_div = 0;
@@ -440,7 +523,7 @@ static real encoder_fit(const real *enc, const real *last, real T, const real *x
         h_row(i, em->H[n]);
     }
     if (em->dof == 0) return nan_value();
-    innovation(x, P, em, y, PHt, S);
+    innovation(x, P, em, how & FIT_FINITE ? 1 : -1, in);
     if (em->dof == 1) {
         if (zero_div && S[0][0] == ZERO) *zero_div = 1;
         return y[0] * y[0] / S[0][0];
@@ -458,52 +541,153 @@ static real ikh12(real K[NX][2], const meas_t *em, int i, int k) {
     return s;
 }
 
+#define ACT_MAX 6 /* H's nonzero columns the fast update takes (the encoders': 5) */
+
 /* the kernel's Kalman update (Joseph form, the consider states' gain rows zeroed), in place:
    (I − K H) P column by column, then its product with (I − K H)ᵀ row by row; −1 if S is not
-   positive */
-static int kalman_update(real *x, real *P, const meas_t *em, const uint8_t *consider) {
-    int m = em->dof, i, j, k, a, b;
-    real PHt[NX][2], S[2][2], Si[2][2], K[NX][2], y[2], tmp[NX], IKH[NX][NX];
-    innovation(x, P, em, y, PHt, S);
+   positive. pre: em's innovation at x, P (NULL: formed here); pfin: P is finite (−1: not known).
+   Returns 1 in *pfin_out (if not NULL) if the updated P is known to be finite.
+
+   Every entry of the products is the kernel's sum over k ascending from +0, bit for bit. With P and K
+   finite the sums leave out the terms of (I − K H)'s zeros off H's columns: (I − K H)[i][k] for k neither
+   one of H's nonzero columns nor i is 0 − K[i]·(±0) = +0 exactly, its term ±0, and a sum that starts at +0
+   is never −0, so that adding ±0 leaves it unchanged. The second product leaves them out only where
+   A = (I − K H) P came out finite too. Otherwise (a non-finite number anywhere) the kernel's full sums.
+   The fast sums run with twelve accumulators (one per row of a column, or column of a row) over k
+   ascending: each accumulator takes its terms in the kernel's order */
+static int kalman_update(real *x, real *P, const meas_t *em, const uint8_t *consider, int pfin, int *pfin_out,
+                         const innov_t *pre) {
+    int m = em->dof, i, j, k, a, b, n_act = 0, fast;
+    real Si[2][2], K[NX][2], chk = ZERO, *tmp;
+    innov_t own;
+    const innov_t *in = pre;
+    real ikhT[ACT_MAX][NX], dg[NX]; /* (I − K H)'s columns at H's nonzero columns; its diagonal */
+    signed char slot[NX];           /* column k's row in ikhT, −1: not one of H's */
+    tmp = dg;                       /* (the general path's row or column: dg is the fast path's) */
+    if (pfin < 0) pfin = finite_matrix(P);
+    if (pfin_out) *pfin_out = 0;
+    if (!in) {
+        innovation(x, P, em, pfin, &own);
+        in = &own;
+    }
     if (m == 1) {
-        if (!(S[0][0] > ZERO)) return -1;
-        Si[0][0] = ONE / S[0][0];
+        if (!(in->S[0][0] > ZERO)) return -1;
+        Si[0][0] = ONE / in->S[0][0];
     } else {
-        real det = S[0][0] * S[1][1] - S[0][1] * S[1][0];
+        real det = in->S[0][0] * in->S[1][1] - in->S[0][1] * in->S[1][0];
         if (!(det > ZERO)) return -1;
-        Si[0][0] = S[1][1] / det;
-        Si[1][1] = S[0][0] / det;
-        Si[0][1] = -S[0][1] / det;
-        Si[1][0] = -S[1][0] / det;
+        Si[0][0] = in->S[1][1] / det;
+        Si[1][1] = in->S[0][0] / det;
+        Si[0][1] = -in->S[0][1] / det;
+        Si[1][0] = -in->S[1][0] / det;
     }
     for (i = 0; i < NX; i++)
         for (b = 0; b < m; b++) {
             real s = ZERO;
-            for (a = 0; a < m; a++) s += PHt[i][a] * Si[a][b];
+            for (a = 0; a < m; a++) s += in->PHt[i][a] * Si[a][b];
             K[i][b] = consider[i] ? ZERO : s;
+            chk += K[i][b];
         }
     for (i = 0; i < NX; i++)
-        for (a = 0; a < m; a++) x[i] += K[i][a] * y[a];
-    /* I − K H once: each entry is the value ikh12 gives, so the products below are the kernel's, bit for bit */
-    for (i = 0; i < NX; i++)
-        for (k = 0; k < NX; k++) IKH[i][k] = ikh12(K, em, i, k);
-    for (j = 0; j < NX; j++) { /* A = (I − K H) P */
-        for (i = 0; i < NX; i++) {
-            real s = ZERO;
-            for (k = 0; k < NX; k++) s += IKH[i][k] * P[k * NX + j];
-            tmp[i] = s;
+        for (a = 0; a < m; a++) x[i] += K[i][a] * in->y[a];
+    fast = pfin && MTWIP_ISFINITE(chk);
+    for (k = 0; k < NX; k++) { /* H's nonzero columns */
+        int on = 0;
+        for (a = 0; a < m; a++) on |= em->H[a][k] != ZERO;
+        slot[k] = -1;
+        if (!on) continue;
+        if (n_act == ACT_MAX) {
+            fast = 0;
+            break;
         }
-        for (i = 0; i < NX; i++) P[i * NX + j] = tmp[i];
+        slot[k] = (signed char)n_act++;
     }
-    for (i = 0; i < NX; i++) { /* P = A (I − K H)ᵀ + K R Kᵀ */
-        for (j = 0; j < NX; j++) {
-            real s = ZERO;
-            for (k = 0; k < NX; k++) s += P[i * NX + k] * IKH[j][k];
-            for (a = 0; a < m; a++) s += K[i][a] * em->R[a] * K[j][a];
-            tmp[j] = s;
+    if (!fast) { /* the kernel's sums in full */
+        for (j = 0; j < NX; j++) { /* A = (I − K H) P */
+            for (i = 0; i < NX; i++) {
+                real s = ZERO;
+                for (k = 0; k < NX; k++) s += ikh12(K, em, i, k) * P[k * NX + j];
+                tmp[i] = s;
+            }
+            for (i = 0; i < NX; i++) P[i * NX + j] = tmp[i];
         }
-        for (j = 0; j < NX; j++) P[i * NX + j] = tmp[j];
+        for (i = 0; i < NX; i++) { /* P = A (I − K H)ᵀ + K R Kᵀ */
+            for (j = 0; j < NX; j++) {
+                real s = ZERO;
+                for (k = 0; k < NX; k++) s += P[i * NX + k] * ikh12(K, em, j, k);
+                for (a = 0; a < m; a++) s += K[i][a] * em->R[a] * K[j][a];
+                tmp[j] = s;
+            }
+            for (j = 0; j < NX; j++) P[i * NX + j] = tmp[j];
+        }
+        return 0;
     }
+    for (k = 0; k < NX; k++) { /* ikh12's entries */
+        if (slot[k] >= 0) {
+            real *c = ikhT[slot[k]];
+            for (i = 0; i < NX; i++) {
+                real v = i == k ? ONE : ZERO;
+                for (a = 0; a < m; a++) v -= K[i][a] * em->H[a][k];
+                c[i] = v;
+            }
+            dg[k] = c[k];
+        } else {
+            real v = ONE;
+            for (a = 0; a < m; a++) v -= K[k][a] * em->H[a][k];
+            dg[k] = v;
+        }
+    }
+    chk = ZERO;
+    for (j = 0; j < NX; j++) { /* A = (I − K H) P, column by column: a_i = Σ_k (I − K H)[i][k] P[k][j] */
+        EACH12(ACC_DECL)
+        for (k = 0; k < NX; k++) {
+            real p = P[k * NX + j];
+            if (slot[k] >= 0) {
+                const real *c = ikhT[slot[k]];
+                EACH12(ACC_COL)
+            } else
+                switch (k) { EACH12(ACC_DIAG) }
+        }
+#define ACC_PUT_COL(r) \
+    P[r * NX + j] = a##r; \
+    chk += a##r;
+        EACH12(ACC_PUT_COL)
+#undef ACC_PUT_COL
+    }
+    fast = MTWIP_ISFINITE(chk) != 0;
+    chk = ZERO;
+    for (i = 0; i < NX; i++) { /* P = A (I − K H)ᵀ + K R Kᵀ, row by row: a_j = Σ_k A[i][k] (I − K H)[j][k] + … */
+        real *Ai = P + i * NX;
+        if (!fast) {
+            for (j = 0; j < NX; j++) {
+                real s = ZERO;
+                for (k = 0; k < NX; k++) s += Ai[k] * ikh12(K, em, j, k);
+                for (a = 0; a < m; a++) s += K[i][a] * em->R[a] * K[j][a];
+                tmp[j] = s;
+            }
+            for (j = 0; j < NX; j++) chk += Ai[j] = tmp[j];
+        } else {
+            EACH12(ACC_DECL)
+            for (k = 0; k < NX; k++) {
+                real p = Ai[k];
+                if (slot[k] >= 0) {
+                    const real *c = ikhT[slot[k]];
+                    EACH12(ACC_COL)
+                } else
+                    switch (k) { EACH12(ACC_DIAG) }
+            }
+            for (b = 0; b < m; b++) {
+                real kr = K[i][b] * em->R[b];
+                EACH12(ACC_KRK)
+            }
+#define ACC_PUT_ROW(r) \
+    Ai[r] = a##r;      \
+    chk += a##r;
+            EACH12(ACC_PUT_ROW)
+#undef ACC_PUT_ROW
+        }
+    }
+    if (pfin_out) *pfin_out = MTWIP_ISFINITE(chk) != 0;
     return 0;
 }
 
@@ -540,6 +724,7 @@ static int healthy(const real *x, const real *P) {
     int i;
     for (i = 0; i < NX; i++)
         if (!MTWIP_ISFINITE(x[i]) || !(P[i * NX + i] > ZERO)) return 0;
+    if (finite_matrix(P)) return 1;
     for (i = 0; i < NX * NX; i++)
         if (!MTWIP_ISFINITE(P[i])) return 0;
     return 1;
@@ -574,10 +759,10 @@ static void symmetrise(real *P, int n) {
 }
 
 static void keep_good(mtwip_estimator_t *e) {
-    int i, j;
+    int i, j, p = 0;
     memcpy(e->xg, e->x, sizeof e->xg);
-    for (i = 0; i < NX; i++)
-        for (j = i; j < NX; j++) e->Pg[packed(i, j)] = e->P[i * NX + j];
+    for (i = 0; i < NX; i++) /* (packed: the upper triangle by rows) */
+        for (j = i; j < NX; j++) e->Pg[p++] = e->P[i * NX + j];
     memcpy(e->wg, e->w, sizeof e->wg);
     memcpy(e->wpg, e->w_prev, sizeof e->wpg);
 }
@@ -714,68 +899,171 @@ static void command_of(const mtwip_estimator_t *e, int32_t key, real *u) {
 #define WW MTWIP_EKF_WATCH_W
 #define WN MTWIP_EKF_WATCH_ALLOC
 
-static real watch_y(const mtwip_estimator_t *e, int i) { return e->wy[(e->w_head + i) % WN]; }
-
-static real watch_dk(const mtwip_estimator_t *e, int i) {
-    const real *u = e->wu;
-    int n = WN, h = e->w_head;
-    return ((u[(h + i + 3) % n] + u[(h + i + 2) % n]) - u[(h + i + 1) % n]) - u[(h + i) % n];
-}
-
-/* NumPy's pairwise sum of n <= 128 numbers */
+/* NumPy's pairwise sum of n <= 128 numbers (its eight partial sums, then the rest in order) */
 static real pairwise(const real *a, int n) {
-    real res, r[8];
-    int i, j;
+    real res, r0, r1, r2, r3, r4, r5, r6, r7;
+    int i;
     if (n < 8) {
         res = ZERO;
         for (i = 0; i < n; i++) res += a[i];
         return res;
     }
-    for (j = 0; j < 8; j++) r[j] = a[j];
-    for (i = 8; i < n - (n % 8); i += 8)
-        for (j = 0; j < 8; j++) r[j] += a[i + j];
-    res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
+    r0 = a[0];
+    r1 = a[1];
+    r2 = a[2];
+    r3 = a[3];
+    r4 = a[4];
+    r5 = a[5];
+    r6 = a[6];
+    r7 = a[7];
+    for (i = 8; i < n - (n % 8); i += 8) {
+        r0 += a[i];
+        r1 += a[i + 1];
+        r2 += a[i + 2];
+        r3 += a[i + 3];
+        r4 += a[i + 4];
+        r5 += a[i + 5];
+        r6 += a[i + 6];
+        r7 += a[i + 7];
+    }
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7));
     for (; i < n; i++) res += a[i];
     return res;
 }
 
-static void sort(real *a, int n) { /* insertion sort: the order statistics */
-    int i, j;
-    for (i = 1; i < n; i++) {
-        real v = a[i];
-        for (j = i; j > 0 && a[j - 1] > v; j--) a[j] = a[j - 1];
-        a[j] = v;
+static void swap_r(real *a, int i, int j) {
+    real t = a[i];
+    a[i] = a[j];
+    a[j] = t;
+}
+
+/* max-heap h[0..m): the entry at i sifted down */
+static void sift_down(real *h, int m, int i) {
+    real v = h[i];
+    for (;;) {
+        int c = 2 * i + 1;
+        if (c >= m) break;
+        if (c + 1 < m && h[c + 1] > h[c]) c++;
+        if (!(h[c] > v)) break;
+        h[i] = h[c];
+        i = c;
+    }
+    h[i] = v;
+}
+
+#ifndef MTWIP_EKF_SELECT_SLACK
+#define MTWIP_EKF_SELECT_SLACK 4 /* select_kth's rounds of quickselect beyond 2 log2(n) before its heap */
+#endif
+
+/* h[0..n) (no NaN) rearranged so that h[k] holds the k-th smallest, those before it none larger and those
+   after it none smaller: quickselect (Hoare's partition about the median of three), and should it take
+   more than 2 log2(n) + 4 rounds, on what is left the k − lo + 1 smallest kept in a max-heap (a bound on
+   the worst case: about n log2(n) comparisons) */
+static void select_kth(real *h, int n, int k) {
+    int lo = 0, hi = n - 1, rounds = 0, bound = MTWIP_EKF_SELECT_SLACK, i, j;
+    for (i = n; i > 1; i >>= 1) bound += 2;
+    while (hi - lo >= 8) {
+        int mid = lo + (hi - lo) / 2;
+        real pivot;
+        if (++rounds > bound) { /* the heap on h[lo..hi] for its (k − lo)-th, then that one put at k */
+            real *s = h + lo;
+            int m = k - lo + 1, len = hi - lo + 1;
+            for (i = m / 2 - 1; i >= 0; i--) sift_down(s, m, i);
+            for (i = m; i < len; i++)
+                if (s[i] < s[0]) {
+                    swap_r(s, 0, i);
+                    sift_down(s, m, 0);
+                }
+            swap_r(s, 0, m - 1);
+            return;
+        }
+        if (h[mid] < h[lo]) swap_r(h, mid, lo);
+        if (h[hi] < h[lo]) swap_r(h, hi, lo);
+        if (h[hi] < h[mid]) swap_r(h, hi, mid);
+        pivot = h[mid];
+        i = lo;
+        j = hi;
+        while (i <= j) {
+            while (h[i] < pivot) i++;
+            while (pivot < h[j]) j--;
+            if (i <= j) {
+                swap_r(h, i, j);
+                i++;
+                j--;
+            }
+        }
+        if (k <= j)
+            hi = j;
+        else if (k >= i)
+            lo = i;
+        else
+            return; /* j < k < i: h[k] equals the pivot */
+    }
+    for (i = lo + 1; i <= hi; i++) { /* a few left: insertion */
+        real v = h[i];
+        for (j = i; j > lo && h[j - 1] > v; j--) h[j] = h[j - 1];
+        h[j] = v;
     }
 }
 
-static real median_sorted(const real *a, int m) {
-    int k = m / 2;
-    return m % 2 ? a[k] : (a[k - 1] + a[k]) / TWO;
+/* of a zero at position p of a[0..n) sorted stably (the insertion sort the Python path's order
+   statistics were ported with: equal values keep their order), the zero itself: its sign */
+static real zero_at(const real *a, int n, int p) {
+    int i, below = 0;
+    for (i = 0; i < n; i++) below += a[i] < ZERO;
+    for (i = 0; i < n; i++)
+        if (a[i] == ZERO && p-- == below) return a[i];
+    return ZERO; /* (not reached) */
+}
+
+/* the median of a[0..n), n >= 1, no NaN among them, as the middle of the values sorted: the k-th order
+   statistic (k = n / 2) by select_kth in h (scratch of n), the (k − 1)-th the largest before it; a zero
+   one takes its sign from a's order (zero_at) */
+static real median_of(const real *a, real *h, int n) {
+    int k = n / 2, i;
+    real hi, lo;
+    memcpy(h, a, (size_t)n * sizeof(real));
+    select_kth(h, n, k);
+    hi = h[k];
+    if (hi == ZERO) hi = zero_at(a, n, k);
+    if (n % 2) return hi;
+    lo = h[0];
+    for (i = 1; i < k; i++)
+        if (h[i] > lo) lo = h[i];
+    if (lo == ZERO) lo = zero_at(a, n, k - 1);
+    return (lo + hi) / TWO;
+}
+
+/* n rows of a watch ring (N slots) from its slot `first` on, in order */
+static void ring_rows(real *dst, const real *ring, int first, int n) {
+    int a = WN - first < n ? WN - first : n;
+    memcpy(dst, ring + first, (size_t)a * sizeof(real));
+    memcpy(dst + a, ring, (size_t)(n - a) * sizeof(real));
 }
 
 /* the correlations at latencies 0 … max_lag; the best (np.argmax: the first largest, the first NaN)
    in *best with its ρ, the assumed latency's in *rho_assumed; 0 when fewer than half the window's
-   rows hold a measurement */
+   rows hold a measurement. The rows of the ring read in order (rows i of the watch: ring slot
+   (head + i) mod N); every sum in the order of the Python path's */
 static int watch_check(const mtwip_estimator_t *e, int assumed, int *best, real *rho_best, real *rho_assumed) {
-    real yy[WW], tmp[WW];
+    real yy[WW], tmp[WW], dk[WN];
     int16_t idx[WW];
     int W = (int)C->watch_window, L = (int)C->watch_max_lag, n = W + L + 5, r0 = n - 1 - W, used = 0, j, l;
-    int have_nan = 0;
+    int have_nan = 0, h = e->w_head;
     real med, lim, lo, hi, mean, syy = ZERO;
+    /* the gyro's rows r0 − 2 … r0 + W − 1 in order (in dk, free until the commands' differences) */
+    ring_rows(dk, e->wy, (h + r0 - 2) % WN, W + 2);
     for (j = 0; j < W; j++) {
-        real y2 = (watch_y(e, r0 + j) - TWO * watch_y(e, r0 - 1 + j)) + watch_y(e, r0 - 2 + j);
+        real y2 = (dk[j + 2] - TWO * dk[j + 1]) + dk[j];
         if (MTWIP_ISFINITE(y2)) {
             idx[used] = (int16_t)j;
             yy[used++] = y2;
         }
     }
     if (used < W / 2) return 0;
-    memcpy(tmp, yy, (size_t)used * sizeof(real));
-    sort(tmp, used);
-    med = median_sorted(tmp, used);
+    med = median_of(yy, tmp, used);
     for (j = 0; j < used; j++) tmp[j] = MTWIP_FABS(yy[j] - med);
-    sort(tmp, used);
-    lim = C->watch_clip * C->mad_scale * median_sorted(tmp, used);
+    lim = C->watch_clip * C->mad_scale * median_of(tmp, dk, used);
     lo = med - lim;
     hi = med + lim;
     for (j = 0; j < used; j++) {
@@ -783,21 +1071,39 @@ static int watch_check(const mtwip_estimator_t *e, int assumed, int *best, real 
         yy[j] = v < hi ? v : hi;
     }
     mean = pairwise(yy, used) / (real)used;
-    for (j = 0; j < used; j++) yy[j] = yy[j] - mean;
-    for (j = 0; j < used; j++) syy += yy[j] * yy[j];
+    for (j = 0; j < used; j++) {
+        yy[j] = yy[j] - mean;
+        syy += yy[j] * yy[j];
+    }
+    /* the commands' differences: row i's ((u[i+3] + u[i+2]) − u[i+1]) − u[i], the rows in order first */
+    ring_rows(dk, e->wu, h, n);
+    for (j = 0; j + 3 < n; j++) dk[j] = ((dk[j + 3] + dk[j + 2]) - dk[j + 1]) - dk[j];
     *best = 0;
     for (l = 0; l <= L; l++) {
         real zsum = ZERO, zmean, szy = ZERO, szz = ZERO, den, rho;
-        for (j = 0; j < used; j++) tmp[j] = watch_dk(e, L + 2 - l + idx[j]);
-        if (used == W)
-            zsum = pairwise(tmp, used);
-        else
-            for (j = 0; j < used; j++) zsum += tmp[j];
+        const real *z = dk + (L + 2 - l);
+        if (used == W) /* every row: idx[j] = j */
+            zsum = pairwise(z, used);
+        else {
+            for (j = 0; j < used; j++) zsum += tmp[j] = z[idx[j]];
+            z = tmp;
+        }
         zmean = zsum / (real)used;
-        for (j = 0; j < used; j++) szy += (tmp[j] - zmean) * yy[j];
-        for (j = 0; j < used; j++) {
-            real z = tmp[j] - zmean;
-            szz += z * z;
+        for (j = 0; j + 4 <= used; j += 4) { /* (four rows a round: each sum still row by row) */
+            real d0 = z[j] - zmean, d1 = z[j + 1] - zmean, d2 = z[j + 2] - zmean, d3 = z[j + 3] - zmean;
+            szy += d0 * yy[j];
+            szz += d0 * d0;
+            szy += d1 * yy[j + 1];
+            szz += d1 * d1;
+            szy += d2 * yy[j + 2];
+            szz += d2 * d2;
+            szy += d3 * yy[j + 3];
+            szz += d3 * d3;
+        }
+        for (; j < used; j++) {
+            real d = z[j] - zmean;
+            szy += d * yy[j];
+            szz += d * d;
         }
         den = MTWIP_SQRT(syy * szz);
         rho = den > ZERO ? C->torque_sign * szy / den : C->torque_sign * szy / (real)INFINITY;
@@ -1062,21 +1368,27 @@ static int coast_update(mtwip_estimator_t *e, const meas_t *em);
 
 /* the truncated updates of the wheels whose count is unchanged and whose estimate has left it. coast:
    the coasting step's augmented update (an error where the Python path raises), else the kernel's
-   update. Returns the updates made + 16 × the implausible wheels' mask, −1 if an update failed */
-static int keep_inside(mtwip_estimator_t *e, const real *enc, int coast) {
+   update. Returns the updates made + 16 × the implausible wheels' mask, −1 if an update failed. pfin: P
+   is finite (−1: not known); with P finite, P Hᵀ's sums skip the terms of H's zeros (see cov_predict) */
+static int keep_inside(mtwip_estimator_t *e, const real *enc, int coast, int pfin) {
     int n = 0, implausible = 0, i, j, k;
     for (i = 0; i < 2; i++) {
         meas_t em;
         real w, s2 = ZERO, lo, hi, sgn = (real)(2 * i - 1);
+        uint8_t nz[NX];
+        int cnt = 0;
         if (enc[i] != e->last_enc[i]) continue;
         em.dof = 1;
         h_row(i, em.H[0]);
         em.off[0] = -sgn * C->b_r * C->alpha0;
         w = em.off[0];
+        if (pfin < 0) pfin = finite_matrix(e->P);
+        for (k = 0; k < NX; k++)
+            if (!pfin || em.H[0][k] != ZERO) nz[cnt++] = (uint8_t)k;
         for (j = 0; j < NX; j++) {
             real t = ZERO;
             w += em.H[0][j] * e->x[j];
-            for (k = 0; k < NX; k++) t += e->P[j * NX + k] * em.H[0][k];
+            for (k = 0; k < cnt; k++) t += e->P[j * NX + nz[k]] * em.H[0][nz[k]];
             s2 += em.H[0][j] * t;
         }
         lo = enc[i] - C->inside_half;
@@ -1086,7 +1398,11 @@ static int keep_inside(mtwip_estimator_t *e, const real *enc, int coast) {
             continue;
         }
         if (!truncated_measurement(w, s2, lo, hi, C->stuck_sigmas, &em.z[0], &em.R[0])) continue;
-        if (coast ? coast_update(e, &em) != EKF_OK : kalman_update(e->x, e->P, &em, e->consider) != 0) return -1;
+        if (coast) {
+            if (coast_update(e, &em) != EKF_OK) return -1;
+            pfin = -1;
+        } else if (kalman_update(e->x, e->P, &em, e->consider, pfin, &pfin, NULL) != 0)
+            return -1;
         n++;
     }
     return n + 16 * implausible;
@@ -1132,10 +1448,15 @@ static int imu_sample(const mtwip_estimator_t *e, const real *cmd, const real *a
    if the sample is an outlier (nothing changed: the caller coasts instead) */
 static int imu_step(mtwip_estimator_t *e, const real *smp_in, const real *enc, const real *cmd, int *acc_out,
                     real *err) {
-    real smp[4], extra[4], syn[4], syn_extra[4], acc[4], x1[NX], Pp[NX * NX], nis = ZERO, T = ZERO;
+    real smp[4], extra[4], syn[4], syn_extra[4], acc[4], x1[NX], nis = ZERO, T = ZERO;
+    union { /* the prior's covariance, then the update's innovation, then the range test's elimination */
+        real P[NX * NX];
+        innov_t in;
+    } buf;
+    real *Pp = buf.P;
     step_t st;
     meas_t em;
-    int saturated, has_enc = enc != NULL, enc_code = 0, ok = 1, inside = 0, dof, may_reject, j;
+    int saturated, has_enc = enc != NULL, enc_code = 0, ok = 1, inside = 0, dof, may_reject, j, pfin, ppfin;
     const real *last = e->last_enc;
     memcpy(smp, smp_in, sizeof smp);
     for (j = 0; j < 4; j++) extra[j] = ZERO;
@@ -1144,27 +1465,30 @@ static int imu_step(mtwip_estimator_t *e, const real *smp_in, const real *enc, c
     if (has_enc) T = span(e->last_enc_m, e->at);
     saturated = imu_sample(e, cmd, acc, smp, extra, syn, syn_extra, acc_out, err);
     propagate(e->x, smp, (saturated || *acc_out) ? extra : NULL, 0, x1, &st);
-    cov_predict(&st, e->P, Pp);
+    pfin = finite_matrix(e->P);
+    ppfin = cov_predict(&st, e->P, Pp, pfin);
     em.dof = 0;
     if (has_enc) {
-        real eps = encoder_fit(enc, last, T, x1, smp, Pp, 1, &em, NULL, 0);
+        real eps = encoder_fit(enc, last, T, x1, smp, Pp, FIT_TEST | (ppfin ? FIT_FINITE : 0), &em, NULL, NULL);
         if (!(eps <= C->imu_gate[em.dof - 1])) { /* the alternative: the model's sample instead */
             if (!saturated && !*acc_out) synthetic(e->x, e->w, e->w_prev, cmd, 0, syn, syn_extra);
             propagate(e->x, syn, syn_extra, 0, x1, &st);
-            cov_predict(&st, e->P, Pp);
-            if (encoder_fit(enc, last, T, x1, syn, Pp, 1, &em, NULL, 0) <= C->gate[em.dof - 1]) return 1;
+            ppfin = cov_predict(&st, e->P, Pp, pfin);
+            if (encoder_fit(enc, last, T, x1, syn, Pp, FIT_TEST | (ppfin ? FIT_FINITE : 0), &em, NULL, NULL) <=
+                C->gate[em.dof - 1])
+                return 1;
             propagate(e->x, smp, (saturated || *acc_out) ? extra : NULL, 0, x1, &st); /* the sample's again */
-            cov_predict(&st, e->P, Pp);
+            ppfin = cov_predict(&st, e->P, Pp, pfin);
         }
         em.dof = 0;
     }
     memcpy(e->x, x1, sizeof x1);
-    memcpy(e->P, Pp, sizeof Pp);
+    memcpy(e->P, Pp, sizeof buf.P); /* (Pp free from here to the range test) */
     e->w_prev[0] = e->w[0];
     e->w_prev[1] = e->w[1];
     e->w[0] = smp[0];
     e->w[1] = smp[1];
-    if (has_enc) nis = encoder_fit(enc, last, T, e->x, e->w, e->P, 0, &em, NULL, 0);
+    if (has_enc) nis = encoder_fit(enc, last, T, e->x, e->w, e->P, ppfin ? FIT_FINITE : 0, &em, NULL, &buf.in);
     dof = em.dof;
     if (has_enc) {
         if (dof == 0)
@@ -1173,10 +1497,10 @@ static int imu_step(mtwip_estimator_t *e, const real *smp_in, const real *enc, c
             enc_code = 3;
         else {
             enc_code = (nis <= C->gate[dof - 1]) ? 2 : 4;
-            if (kalman_update(e->x, e->P, &em, e->consider)) ok = 0;
+            if (kalman_update(e->x, e->P, &em, e->consider, ppfin, &ppfin, &buf.in)) ok = 0;
         }
         if (ok && enc_code != 3) {
-            inside = keep_inside(e, enc, 0);
+            inside = keep_inside(e, enc, 0, ppfin);
             if (inside < 0) {
                 ok = 0;
                 inside = 0;
@@ -1185,7 +1509,7 @@ static int imu_step(mtwip_estimator_t *e, const real *smp_in, const real *enc, c
     }
     symmetrise(e->P, NX);
     if (ok && healthy(e->x, e->P)) {
-        memcpy(Pp, e->P, sizeof Pp); /* (the prior's buffer, free now: the range test's elimination) */
+        memcpy(Pp, e->P, sizeof buf.P); /* (the prior's buffer, free now: the range test's elimination) */
         if (in_range(e->x, Pp))
             keep_good(e);
         else
@@ -1444,10 +1768,10 @@ static int coast_encoders(mtwip_estimator_t *e, const real *enc) {
     real eps;
     int zero_div, r;
     if (!enc) return EKF_OK;
-    eps = encoder_fit(enc, e->last_enc, span(e->last_enc_m, e->at), e->x, e->w, e->P, 0, &em, &zero_div, 1);
+    eps = encoder_fit(enc, e->last_enc, span(e->last_enc_m, e->at), e->x, e->w, e->P, FIT_PY, &em, &zero_div, NULL);
     if (em.dof == 0) { /* unchanged counts: the wheels are still inside them */
         e->last_enc_m = e->at;
-        r = keep_inside(e, enc, 1);
+        r = keep_inside(e, enc, 1, -1);
         if (r < 0) return EKF_FAILED;
         count_check(e, r >> 4);
         return EKF_OK;
@@ -1461,7 +1785,7 @@ static int coast_encoders(mtwip_estimator_t *e, const real *enc) {
     }
     e->in_row = 0;
     if (coast_update(e, &em) != EKF_OK) return EKF_FAILED;
-    r = keep_inside(e, enc, 1);
+    r = keep_inside(e, enc, 1, -1);
     if (r < 0) return EKF_FAILED;
     count_check(e, r >> 4);
     memcpy(e->last_enc, enc, sizeof e->last_enc);
