@@ -184,7 +184,8 @@ def test_the_same_estimator_gives_the_same_bytes_and_options_are_refused():
 # The arranged arithmetic against the plain one, bit for bit, on random numbers: the covariance's prediction,
 # the innovation, the Kalman update and the keep-inside truncation (which leave out the exact zeros of F's, H's
 # and I − K H's structure when P is known finite) against the kernel's plain loops they were rearranged from
-# (copied below as ref_*), and the latency watch's median by selection against the insertion sort it replaced;
+# (copied below as ref_*), the coasting step's J Pa Jᵀ and augmented update against their plain loops, and the
+# latency watch's median by selection against the insertion sort it replaced;
 # zeros of both signs, ties and sorted runs among the inputs, huge covariances that overflow part way (the
 # general path), and select_kth's heap fallback forced (MTWIP_EKF_SELECT_SLACK).
 UNIT = r"""#include <float.h>
@@ -197,6 +198,140 @@ UNIT = r"""#include <float.h>
 #endif
 
 /* ---- the plain loops (the kernel's) ---- */
+
+/* the coasting step's products as they were: J Pa Jᵀ (J's unit rows and its nontrivial rows Jr) and the
+   augmented update, their plain loops */
+static int ref_j_kind(int i) {
+    if (i < NX) return ROW_OF[i] >= 0 ? ROW_OF[i] : -1 - i;
+    if (i < NX + 2) return 4 + (i - NX);
+    if (i < NX + 4) return -1 - (i - 2);
+    return -1 - i;
+}
+
+static void ref_aug_jpj(real *Pa, real Jr[6][NA]) {
+    real col[NA];
+    int i, j, l;
+    for (l = 0; l < NA; l++) {
+        for (i = 0; i < NA; i++) {
+            int kind = ref_j_kind(i);
+            if (kind < 0)
+                col[i] = Pa[(-1 - kind) * NA + l];
+            else {
+                real s = ZERO;
+                for (j = 0; j < NA; j++) s += Jr[kind][j] * Pa[j * NA + l];
+                col[i] = s;
+            }
+        }
+        for (i = 0; i < NA; i++) Pa[i * NA + l] = col[i];
+    }
+    for (i = 0; i < NA; i++) {
+        for (l = 0; l < NA; l++) {
+            int kind = ref_j_kind(l);
+            if (kind < 0)
+                col[l] = Pa[i * NA + (-1 - kind)];
+            else {
+                real s = ZERO;
+                for (j = 0; j < NA; j++) s += Pa[i * NA + j] * Jr[kind][j];
+                col[l] = s;
+            }
+        }
+        for (l = 0; l < NA; l++) Pa[i * NA + l] = col[l];
+    }
+}
+
+static int ref_coast_update(mtwip_estimator_t *e, const meas_t *em) {
+    real *Pa = e->aug, PHt[NA][2], S[2][2], Kg[NA][2], y[2], za[NA], row[NA], Rm[2][2];
+    int m = em->dof, i, j, a, b, k;
+    for (i = 0; i < NA; i++)
+        for (a = 0; a < m; a++) {
+            real s = ZERO;
+            for (j = 0; j < NX; j++) s += Pa[i * NA + j] * em->H[a][j];
+            PHt[i][a] = s;
+        }
+    for (a = 0; a < m; a++)
+        for (b = 0; b < m; b++) {
+            real s = ZERO;
+            for (i = 0; i < NX; i++) s += em->H[a][i] * PHt[i][b];
+            Rm[a][b] = a == b ? em->R[a] : ZERO;
+            S[a][b] = s + Rm[a][b];
+        }
+    if (m == 1) {
+        if (S[0][0] == ZERO || S[0][0] != S[0][0]) return EKF_FAILED;
+        for (i = 0; i < NA; i++) Kg[i][0] = PHt[i][0] / S[0][0];
+    } else {
+        int p = MTWIP_FABS(S[1][0]) > MTWIP_FABS(S[0][0]);
+        real r0[2], r1[2], f;
+        if (S[p][0] == ZERO || S[p][0] != S[p][0]) return EKF_FAILED;
+        r0[0] = S[p][0];
+        r0[1] = S[p][1];
+        r1[0] = S[1 - p][0];
+        r1[1] = S[1 - p][1];
+        f = r1[0] / r0[0];
+        if (f != ZERO) r1[1] -= f * r0[1];
+        if (r1[1] == ZERO || r1[1] != r1[1]) return EKF_FAILED;
+        for (i = 0; i < NA; i++) {
+            real b0 = PHt[i][p], b1 = PHt[i][1 - p], x1, s;
+            if (f != ZERO) b1 -= f * b0;
+            x1 = b1 / r1[1];
+            s = b0;
+            s -= r0[1] * x1;
+            Kg[i][0] = s / r0[0];
+            Kg[i][1] = x1;
+        }
+    }
+    for (i = 0; i < NX; i++)
+        if (e->consider[i]) Kg[i][0] = Kg[i][1] = ZERO;
+    for (a = 0; a < m; a++) {
+        real s = ZERO;
+        for (j = 0; j < NX; j++) s += em->H[a][j] * e->x[j];
+        y[a] = em->z[a] - (s + em->off[a]);
+    }
+    memcpy(za, e->x, NX * sizeof(real));
+    za[NX] = e->w[0];
+    za[NX + 1] = e->w[1];
+    za[NX + 2] = e->w_prev[0];
+    za[NX + 3] = e->w_prev[1];
+    for (i = 0; i < NK; i++) za[NX + 4 + i] = e->dp[i];
+    for (i = 0; i < NA; i++) {
+        real s = ZERO;
+        for (a = 0; a < m; a++) s += Kg[i][a] * y[a];
+        za[i] = za[i] + s;
+    }
+    for (j = 0; j < NA; j++) { /* A = (I − K H) Pa, column by column */
+        for (i = 0; i < NA; i++) {
+            real s = ZERO;
+            for (k = 0; k < NX; k++) s += ikh_aug(Kg, em, i, k) * Pa[k * NA + j];
+            if (i >= NX) s += Pa[i * NA + j];
+            row[i] = s;
+        }
+        for (i = 0; i < NA; i++) Pa[i * NA + j] = row[i];
+    }
+    for (i = 0; i < NA; i++) { /* Pa = A (I − K H)ᵀ + K R Kᵀ, row by row */
+        for (j = 0; j < NA; j++) {
+            real s = ZERO, t = ZERO;
+            for (k = 0; k < NX; k++) s += Pa[i * NA + k] * ikh_aug(Kg, em, j, k);
+            if (j >= NX) s += Pa[i * NA + j];
+            for (b = 0; b < m; b++) {
+                real kr = ZERO;
+                for (a = 0; a < m; a++) kr += Kg[i][a] * Rm[a][b];
+                t += kr * Kg[j][b];
+            }
+            row[j] = s + t;
+        }
+        for (j = 0; j < NA; j++) Pa[i * NA + j] = row[j];
+    }
+    symmetrise(Pa, NA);
+    memcpy(e->x, za, NX * sizeof(real));
+    for (i = 0; i < NX; i++)
+        for (j = 0; j < NX; j++) e->P[i * NX + j] = Pa[i * NA + j];
+    e->w[0] = za[NX];
+    e->w[1] = za[NX + 1];
+    e->w_prev[0] = za[NX + 2];
+    e->w_prev[1] = za[NX + 3];
+    for (i = 0; i < NK; i++) e->dp[i] = za[NX + 4 + i];
+    return EKF_OK;
+}
+
 static void ref_cov_predict(const step_t *st, const real *P, real *Pp) {
     real A4[4][NX];
     int a, i, j, k;
@@ -345,6 +480,14 @@ static void check(int same, const char *what, long trial) {
     if (!same && bad++ < 10) printf("%s differs (trial %ld)\n", what, trial);
 }
 static int same(const void *a, const void *b, size_t n) { return memcmp(a, b, n) == 0; }
+/* the same bits, a NaN for a NaN whatever its sign and payload (which the compiler's order of a commutative
+   operation's operands decides, not the source) */
+static int same_r(const real *a, const real *b, size_t n) {
+    size_t i;
+    for (i = 0; i < n; i++)
+        if (memcmp(a + i, b + i, sizeof *a) != 0 && !(a[i] != a[i] && b[i] != b[i])) return 0;
+    return 1;
+}
 
 static void medians(void) {
     static const real few[5] = {MTWIP_R(-1.0), -ZERO, ZERO, MTWIP_R(1.0), MTWIP_R(2.0)};
@@ -455,9 +598,65 @@ static void products(void) {
     }
 }
 
+/* an NA × NA covariance: random_P's kind of matrix on the first NX, the rest sparse; now and then an
+   entry huge, infinite or NaN (the general paths) */
+static void random_aug(real *Pa, real scale, long t) {
+    real P[NX * NX];
+    int i, j;
+    random_P(P, scale);
+    for (i = 0; i < NA; i++)
+        for (j = 0; j < NA; j++) Pa[i * NA + j] = i < NX && j < NX ? P[i * NX + j] : sparse(scale);
+    if (t % 17 == 5) Pa[rnd() % (NA * NA)] = BIG;
+    if (t % 29 == 7) Pa[rnd() % (NA * NA)] = (real)INFINITY;
+    if (t % 31 == 9) Pa[rnd() % (NA * NA)] = nan_value();
+}
+
+static void coasting(void) {
+    static real Pa1[NA * NA], Pa0[NA * NA];
+    long t;
+    int i, j;
+    for (t = 0; t < 6000; t++) {
+        real scale = t % 3 ? ONE : BIG / MTWIP_R(16.0), Jr[6][NA];
+        meas_t em;
+        int r1, r0;
+        random_aug(Pa1, scale, t);
+        memcpy(Pa0, Pa1, sizeof Pa0);
+        for (i = 0; i < 6; i++) /* J's rows; every other time zero at the columns the differences skip */
+            for (j = 0; j < NA; j++)
+                Jr[i][j] = t % 2 && (j == PS || j == AL || j == C0 || j == H0) && i >= 4 ? ZERO : sparse(MTWIP_R(2.0));
+        if (t % 4 == 1)
+            for (i = 0; i < 6; i++) Jr[i][C0] = t % 8 == 1 ? ZERO : -ZERO;
+        aug_jpj(Pa1, Jr);
+        ref_aug_jpj(Pa0, Jr);
+        check(same_r(Pa1, Pa0, NA * NA), "aug_jpj", t);
+        /* the augmented update: h_row's H (the unrolled sums), or with a zero or an extra column */
+        memset(&E1, 0, sizeof E1);
+        random_aug(E1.aug, t % 3 ? ONE : BIG / MTWIP_R(16.0), t + 3);
+        for (i = 0; i < NX; i++) {
+            E1.x[i] = uni();
+            E1.consider[i] = (uint8_t)(rnd() % 3 == 0);
+        }
+        for (i = 0; i < 2; i++) {
+            E1.w[i] = uni();
+            E1.w_prev[i] = uni();
+        }
+        for (i = 0; i < NK; i++) E1.dp[i] = uni();
+        random_meas(&em, t % 5 ? ONE : BIG);
+        if (t % 6 == 2) em.H[0][AL] = t % 12 == 2 ? ZERO : -ZERO;   /* four columns */
+        if (t % 6 == 4) em.H[em.dof - 1][SY] = uni();                /* six: the general sums */
+        E0 = E1;
+        r1 = coast_update(&E1, &em);
+        r0 = ref_coast_update(&E0, &em);
+        check(r1 == r0 && same_r(E1.x, E0.x, NX) && same_r(E1.w, E0.w, 2) && same_r(E1.w_prev, E0.w_prev, 2) &&
+                  same_r(E1.dp, E0.dp, NK) && same_r(E1.aug, E0.aug, NA * NA) && same_r(E1.P, E0.P, NX * NX),
+              "coast_update", t);
+    }
+}
+
 int main(void) {
     medians();
     products();
+    coasting();
     if (bad) return 1;
     printf("ok: %ld comparisons (%ld updates on the fast path to the end)\n", trials, fast);
     return 0;

@@ -28,9 +28,13 @@ def exportable(role: str, kind: str, allowed: tuple) -> str:
 
 CONTROLLERS = ("it2", "t1", "lqr")
 # the host test's tolerances (absolute): float64 is the twin's arithmetic, operation for operation;
-# float32 rounds every operation to 24 bits, and the estimate drifts from the twin's by that much
+# float32 rounds every operation to 24 bits: measured on the built-ins' first second with it2, t1 and
+# lqr, the estimate within 3e-5 (rad, rad/s) while the gyro is read, up to 1.1e-2 rad/s where the
+# model stands in for a gyro at its rail (paper-exp1 from 0.48 rad: the model's finite differences in
+# float32), the torques within 5e-4 N·m, the duties a PWM step apart where a torque lies at a step's edge
 TOLERANCES = {"float64": {"estimate": 1e-9, "torque": 1e-9, "duty": 1e-9},
-              "float32": {"estimate": 1e-3, "torque": 1e-2, "duty": 1e-2}}
+              "float32": {"estimate": 3e-2, "torque": 1e-2, "duty": None}}  # duty: two PWM steps
+PWM_STEPS_ALLOWED = 2
 ESTIMATORS = ("ekf", "complementary", "kalman2")
 
 
@@ -72,7 +76,10 @@ def export(scenario: str, controller: str, estimator: str | None, precision: str
     loops = {"position": getattr(ctrl, "position", None) is not None or (controller == "lqr"),
              "heading": getattr(ctrl, "direction", None) is not None or (controller == "lqr")}
     rec = record_run(sc, controller, seconds, context.motor, rad_per_count, model.b / model.r)
-    files.update(host_test_files(rec, TOLERANCES[precision]))
+    tol = dict(TOLERANCES[precision])
+    if tol["duty"] is None:
+        tol["duty"] = PWM_STEPS_ALLOWED / context.motor.pwm_steps if context.motor is not None else 1e-2
+    files.update(host_test_files(rec, tol))
     files["CMakeLists.txt"] = gen.cmake_text(identity)
     files["README.md"] = gen.readme_text(identity, targets, loops, context.control_rate)
     record = {**identity, "loops": loops, "control_rate_hz": float(context.control_rate),

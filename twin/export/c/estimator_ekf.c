@@ -14,7 +14,12 @@
    ±0, and a sum that starts at +0 is never −0, so adding ±0 leaves it as it is; otherwise the full sums),
    their sums run in twelve accumulators each taking its terms in the original order, the latency watch's
    medians come from a selection instead of a sort (the same order statistic, a zero's sign as the stable
-   sort leaves it) and its command differences are formed once per check.
+   sort leaves it) and its command differences are formed once per check. The coasting step's products
+   take the same care: J Pa Jᵀ leaves out the columns where J's six nontrivial rows are all zero, the six
+   rows' sums side by side; the augmented update's (I − K H) Pa (I − K H)ᵀ runs over H's nonzero columns and
+   the diagonal's 1 in its place (I − K H's other entries are exact zeros and ones when K is finite), and
+   K R Kᵀ's entries are +0 where a row of K is zero; the model's differences for the accelerometer's scale
+   factors, which the model's state does not read, reuse its sample.
 
    Copied by twin export as mtwip_estimator.c; the configuration (every number of the filter) is
    generated in place of the marker below (twin/export/ekf.py). Only the default sampling is
@@ -1537,29 +1542,88 @@ static int imu_step(mtwip_estimator_t *e, const real *smp_in, const real *enc, c
 }
 
 /* ---- the coasting step (estimation.ekf_filter.Coasting, the Python path's arithmetic) ------------- */
-/* J's nontrivial rows (TH, AL, V, PS: F + L D; ω_y, ω_z: D) at column l; the others are unit rows */
-static real j_entry(const step_t *st, real D[4][NA], int row, int l) {
-    real s = ZERO;
+/* the nontrivial rows of J, TH, AL, V, PS (F + L D) and ω_y, ω_z (D), in the order of ROW_OF's rows
+   (TH, AL, V, PS: 0..3) and 4, 5; the other rows of J are unit rows. D's rows are stored in Jr (row i of D
+   in Jr[JD[i]]) until Jr's first four rows are formed from them column by column (j_entry's sums) */
+static const int JD[4] = {4, 5, 2, 3};
+
+/* 1 if the NA × NA matrix M is all finite: its sum is (0 also where that sum overflows: the general path) */
+static int finite_aug(const real *M) {
+    real s0 = ZERO, s1 = ZERO, s2 = ZERO, s3 = ZERO;
     int i;
-    if (row >= 4) return D[row - 4][l];
-    for (i = 0; i < 4; i++) s += st->L[row][i] * D[i][l];
-    return (l < NX ? st->F4[row][l] : ZERO) + s;
+    for (i = 0; i + 3 < NA * NA; i += 4) {
+        s0 += M[i];
+        s1 += M[i + 1];
+        s2 += M[i + 2];
+        s3 += M[i + 3];
+    }
+    for (; i < NA * NA; i++) s0 += M[i];
+    return MTWIP_ISFINITE((s0 + s1) + (s2 + s3)) != 0;
 }
 
-/* row i of J: its index among the nontrivial rows (0..5), or −1 − the column of its 1 */
-static int j_kind(int i) {
-    if (i < NX) return ROW_OF[i] >= 0 ? ROW_OF[i] : -1 - i;
-    if (i < NX + 2) return 4 + (i - NX);
-    if (i < NX + 4) return -1 - (i - 2);
-    return -1 - i;
+/* Pa = J Pa Jᵀ in place (Jr: J's nontrivial rows). Each entry is the Python path's sum over j ascending
+   from +0; with the factor multiplying J finite the sums leave out the terms at the columns where all six
+   rows of J are zero (±0 terms: a sum that starts at +0 is never −0, so adding ±0 leaves it as it is),
+   the six rows' sums running side by side. The unit rows (columns) copy their source: ω₋₁ takes ω's,
+   every other its own */
+static void aug_jpj(real *Pa, real Jr[6][NA]) {
+    uint8_t nz[NA];
+    int cnt = 0, fin = finite_aug(Pa), t, i, l;
+    for (t = 0; t < NA; t++)
+        if (!fin || Jr[0][t] != ZERO || Jr[1][t] != ZERO || Jr[2][t] != ZERO || Jr[3][t] != ZERO ||
+            Jr[4][t] != ZERO || Jr[5][t] != ZERO)
+            nz[cnt++] = (uint8_t)t;
+    for (l = 0; l < NA; l++) { /* A = J Pa, column by column */
+        real s0 = ZERO, s1 = ZERO, s2 = ZERO, s3 = ZERO, s4 = ZERO, s5 = ZERO;
+        for (t = 0; t < cnt; t++) {
+            const int j = nz[t];
+            const real p = Pa[j * NA + l];
+            s0 += Jr[0][j] * p;
+            s1 += Jr[1][j] * p;
+            s2 += Jr[2][j] * p;
+            s3 += Jr[3][j] * p;
+            s4 += Jr[4][j] * p;
+            s5 += Jr[5][j] * p;
+        }
+        Pa[(NX + 2) * NA + l] = Pa[NX * NA + l];
+        Pa[(NX + 3) * NA + l] = Pa[(NX + 1) * NA + l];
+        Pa[TH * NA + l] = s0;
+        Pa[AL * NA + l] = s1;
+        Pa[V * NA + l] = s2;
+        Pa[PS * NA + l] = s3;
+        Pa[NX * NA + l] = s4;
+        Pa[(NX + 1) * NA + l] = s5;
+    }
+    if (fin && !finite_aug(Pa))
+        for (cnt = 0; cnt < NA; cnt++) nz[cnt] = (uint8_t)cnt;
+    for (i = 0; i < NA; i++) { /* Pa = A Jᵀ, row by row */
+        real s0 = ZERO, s1 = ZERO, s2 = ZERO, s3 = ZERO, s4 = ZERO, s5 = ZERO, *Ai = Pa + i * NA;
+        for (t = 0; t < cnt; t++) {
+            const int j = nz[t];
+            const real a = Ai[j];
+            s0 += a * Jr[0][j];
+            s1 += a * Jr[1][j];
+            s2 += a * Jr[2][j];
+            s3 += a * Jr[3][j];
+            s4 += a * Jr[4][j];
+            s5 += a * Jr[5][j];
+        }
+        Ai[NX + 2] = Ai[NX];
+        Ai[NX + 3] = Ai[NX + 1];
+        Ai[TH] = s0;
+        Ai[AL] = s1;
+        Ai[V] = s2;
+        Ai[PS] = s3;
+        Ai[NX] = s4;
+        Ai[NX + 1] = s5;
+    }
 }
 
 /* the coasting step's prediction with command cmd held; rail_v/rail_rep: the reading and which of its
    axes the model stands in for (NULL: all four) */
 static int coast_predict(mtwip_estimator_t *e, const real *cmd, const real *rail_v, const uint8_t *rail_rep) {
     real *Pa = e->aug, *x = e->x;
-    real s6[6], raw[4], rvar[2], syn[4], synx[4], Dp[4][MTWIP_EKF_NK_ALLOC], value[4], extra[4], x1[NX], z[16];
-    real at[4], D[4][NA], col[NA];
+    real s6[6], raw[4], rvar[2], syn[4], value[4], extra[4], z[16], Jr[6][NA];
     step_t st;
     int fresh = !e->aug_on, rep[4], i, j, l;
     if (fresh) {
@@ -1580,73 +1644,58 @@ static int coast_predict(mtwip_estimator_t *e, const real *cmd, const real *rail
     e->model_rate[1] = (uint8_t)rep[1];
     state6(x, e->w, e->w_prev, s6);
     synthetic_raw(&C->model, s6, cmd, (int)C->every, 1, raw, rvar);
-    scaled(x, raw, rvar, syn, synx);
-    for (j = 0; j < NK; j++) { /* EstimatorModel.sensitivity: forward differences */
+    scaled(x, raw, rvar, syn, extra);
+    for (i = 0; i < 4; i++)
+        for (l = 0; l < NA; l++) Jr[JD[i]][l] = ZERO;
+    for (j = 0; j < NK; j++) { /* EstimatorModel.sensitivity: forward differences (D's last columns) */
         real hi[4], hv[2];
         synthetic_raw(&C->perturbed[j], s6, cmd, (int)C->every, 1, hi, hv);
-        for (i = 0; i < 4; i++) Dp[i][j] = (hi[i] - raw[i]) / C->sens_step;
+        for (i = 0; i < 4; i++) Jr[JD[i]][NX + 4 + j] = (hi[i] - raw[i]) / C->sens_step;
     }
     for (i = 0; i < 4; i++) {
         real f = i == 0 ? ONE + x[SY] : i == 1 ? ONE + x[SZ] : i == 2 ? ONE + x[SAX] : ONE + x[SAZ];
-        for (j = 0; j < NK; j++) Dp[i][j] = rep[i] ? Dp[i][j] * f : ZERO;
+        for (j = 0; j < NK; j++) Jr[JD[i]][NX + 4 + j] = rep[i] ? Jr[JD[i]][NX + 4 + j] * f : ZERO;
     }
     for (i = 0; i < 4; i++) {
         real s = ZERO;
-        for (j = 0; j < NK; j++) s += Dp[i][j] * e->dp[j];
+        for (j = 0; j < NK; j++) s += Jr[JD[i]][NX + 4 + j] * e->dp[j];
         value[i] = rep[i] ? syn[i] + s : rail_v[i];
-        extra[i] = rep[i] ? synx[i] : ZERO;
+        if (!rep[i]) extra[i] = syn[i] = ZERO; /* (syn: the sample the differences are taken from) */
     }
-    propagate(x, value, extra, 1, x1, &st);
     memcpy(z, x, NX * sizeof(real));
     z[NX] = e->w[0];
     z[NX + 1] = e->w[1];
     z[NX + 2] = e->w_prev[0];
     z[NX + 3] = e->w_prev[1];
-    for (i = 0; i < 4; i++) at[i] = rep[i] ? syn[i] : ZERO;
-    for (i = 0; i < 4; i++)
-        for (l = 0; l < NA; l++) D[i][l] = ZERO;
+    propagate(z, value, extra, 1, x, &st); /* (x: the state after the step; z keeps the one before) */
     for (j = 0; j < NX + 4; j++) { /* the sample by (x, ω, ω₋₁): forward differences */
         real zp[16], smp[4], sx[4], az = MTWIP_FABS(z[j]), h;
         if (j == PS || j == AL || j == C0 || j == H0) continue;
         h = C->fd_step * (az > ONE ? az : ONE);
         memcpy(zp, z, sizeof zp);
         zp[j] += h;
-        synthetic(zp, zp + NX, zp + NX + 2, cmd, 1, smp, sx);
-        for (i = 0; i < 4; i++) D[i][j] = ((rep[i] ? smp[i] : ZERO) - at[i]) / h;
+        if (j == SAX || j == SAZ) /* (state6 does not read them: the model's raw sample is the one above) */
+            scaled(zp, raw, rvar, smp, sx);
+        else
+            synthetic(zp, zp + NX, zp + NX + 2, cmd, 1, smp, sx);
+        for (i = 0; i < 4; i++) Jr[JD[i]][j] = ((rep[i] ? smp[i] : ZERO) - syn[i]) / h;
     }
-    for (i = 0; i < 4; i++)
-        for (j = 0; j < NK; j++) D[i][NX + 4 + j] = Dp[i][j];
-    for (l = 0; l < NA; l++) { /* A = J Pa, column by column */
-        for (i = 0; i < NA; i++) {
-            int kind = j_kind(i);
-            if (kind < 0)
-                col[i] = Pa[(-1 - kind) * NA + l];
-            else {
-                real s = ZERO;
-                for (j = 0; j < NA; j++) s += j_entry(&st, D, kind, j) * Pa[j * NA + l];
-                col[i] = s;
-            }
+    for (l = 0; l < NA; l++) { /* J's rows TH, AL, V, PS at column l: F + L D */
+        real d[4], v[4];
+        int a;
+        for (i = 0; i < 4; i++) d[i] = Jr[JD[i]][l];
+        for (a = 0; a < 4; a++) {
+            real s = ZERO;
+            for (i = 0; i < 4; i++) s += st.L[a][i] * d[i];
+            v[a] = (l < NX ? st.F4[a][l] : ZERO) + s;
         }
-        for (i = 0; i < NA; i++) Pa[i * NA + l] = col[i];
+        for (a = 0; a < 4; a++) Jr[a][l] = v[a];
     }
-    for (i = 0; i < NA; i++) { /* Pa = A Jᵀ, row by row */
-        for (l = 0; l < NA; l++) {
-            int kind = j_kind(l);
-            if (kind < 0)
-                col[l] = Pa[i * NA + (-1 - kind)];
-            else {
-                real s = ZERO;
-                for (j = 0; j < NA; j++) s += Pa[i * NA + j] * j_entry(&st, D, kind, j);
-                col[l] = s;
-            }
-        }
-        for (l = 0; l < NA; l++) Pa[i * NA + l] = col[l];
-    }
+    aug_jpj(Pa, Jr);
     for (i = 0; i < NX; i++)
         for (j = 0; j < NX; j++) Pa[i * NA + j] += q_entry(&st, i, j);
-    Pa[NX * NA + NX] += rep[0] ? synx[0] : C->g_var;
-    Pa[(NX + 1) * NA + NX + 1] += rep[1] ? synx[1] : C->g_var;
-    memcpy(x, x1, sizeof x1);
+    Pa[NX * NA + NX] += rep[0] ? extra[0] : C->g_var;
+    Pa[(NX + 1) * NA + NX + 1] += rep[1] ? extra[1] : C->g_var;
     for (i = 0; i < NX; i++)
         for (j = 0; j < NX; j++) e->P[i * NX + j] = Pa[i * NA + j];
     e->w_prev[0] = e->w[0];
@@ -1655,6 +1704,18 @@ static int coast_predict(mtwip_estimator_t *e, const real *cmd, const real *rail
     e->w[1] = value[1];
     e->aug_on = 1;
     return EKF_OK;
+}
+
+#define NU 5    /* the most columns of H that are not zero (h_row: TH, PS, AL, C0, H0; coast_update's sums unrolled) */
+#define UNIT 255 /* coast_update: a row of I − K H that is the identity's */
+#define DG s += q; /* coast_update: the diagonal's term, 1 × q */
+
+/* where the diagonal's term of row i < NX goes among H's nonzero columns u (NU + 1: it is one of them) */
+static int diagonal_at(const int *u, int nu, int i) {
+    int t;
+    for (t = 0; t < nu && u[t] < i; t++)
+        ;
+    return t < nu && u[t] == i ? NU + 1 : t;
 }
 
 /* (I − Kg Ha)[i][l] of the augmented update (Ha: H's rows, zero beyond the 12 states) */
@@ -1670,24 +1731,38 @@ static real ikh_aug(real Kg[NA][2], const meas_t *em, int i, int l) {
    the gain by Gaussian elimination with partial pivoting (detlinalg.solve); EKF_FAILED where that
    finds S singular */
 static int coast_update(mtwip_estimator_t *e, const meas_t *em) {
-    real *Pa = e->aug, PHt[NA][2], S[2][2], Kg[NA][2], y[2], za[NA], row[NA], Rm[2][2];
-    int m = em->dof, i, j, a, b, k;
-    for (i = 0; i < NA; i++)
+    real *Pa = e->aug, Kg[NA][2], S[2][2], y[2], row[NA], Rm[2][2], G[NA][NU];
+    uint8_t dg[NA], kz[NA];
+    int m = em->dof, u[NU], nu = 0, fin, i, j, a, b, k, t;
+    for (k = 0; k < NX; k++) { /* H's columns that are not zero */
+        int on = 0;
+        for (a = 0; a < m; a++) on |= em->H[a][k] != ZERO;
+        if (on) {
+            if (nu == NU) break;
+            u[nu++] = k;
+        }
+    }
+    /* with Pa finite, P Hᵀ's sums leave out the terms of H's zero columns (see cov_predict) */
+    fin = k == NX && finite_aug(Pa);
+    for (i = 0; i < NA; i++) /* P Hᵀ (in Kg, which takes the gain in its place) */
         for (a = 0; a < m; a++) {
             real s = ZERO;
-            for (j = 0; j < NX; j++) s += Pa[i * NA + j] * em->H[a][j];
-            PHt[i][a] = s;
+            if (fin)
+                for (t = 0; t < nu; t++) s += Pa[i * NA + u[t]] * em->H[a][u[t]];
+            else
+                for (j = 0; j < NX; j++) s += Pa[i * NA + j] * em->H[a][j];
+            Kg[i][a] = s;
         }
     for (a = 0; a < m; a++)
         for (b = 0; b < m; b++) {
             real s = ZERO;
-            for (i = 0; i < NX; i++) s += em->H[a][i] * PHt[i][b];
+            for (i = 0; i < NX; i++) s += em->H[a][i] * Kg[i][b];
             Rm[a][b] = a == b ? em->R[a] : ZERO;
             S[a][b] = s + Rm[a][b];
         }
     if (m == 1) {
         if (S[0][0] == ZERO || S[0][0] != S[0][0]) return EKF_FAILED;
-        for (i = 0; i < NA; i++) Kg[i][0] = PHt[i][0] / S[0][0];
+        for (i = 0; i < NA; i++) Kg[i][0] = Kg[i][0] / S[0][0];
     } else {
         int p = MTWIP_FABS(S[1][0]) > MTWIP_FABS(S[0][0]);
         real r0[2], r1[2], f;
@@ -1700,7 +1775,7 @@ static int coast_update(mtwip_estimator_t *e, const meas_t *em) {
         if (f != ZERO) r1[1] -= f * r0[1];
         if (r1[1] == ZERO || r1[1] != r1[1]) return EKF_FAILED;
         for (i = 0; i < NA; i++) {
-            real b0 = PHt[i][p], b1 = PHt[i][1 - p], x1, s;
+            real b0 = Kg[i][p], b1 = Kg[i][1 - p], x1, s;
             if (f != ZERO) b1 -= f * b0;
             x1 = b1 / r1[1];
             s = b0;
@@ -1716,49 +1791,136 @@ static int coast_update(mtwip_estimator_t *e, const meas_t *em) {
         for (j = 0; j < NX; j++) s += em->H[a][j] * e->x[j];
         y[a] = em->z[a] - (s + em->off[a]);
     }
-    memcpy(za, e->x, NX * sizeof(real));
-    za[NX] = e->w[0];
-    za[NX + 1] = e->w[1];
-    za[NX + 2] = e->w_prev[0];
-    za[NX + 3] = e->w_prev[1];
-    for (i = 0; i < NK; i++) za[NX + 4 + i] = e->dp[i];
-    for (i = 0; i < NA; i++) {
-        real s = ZERO;
+    for (i = 0; i < NA; i++) { /* the augmented state (x, ω, ω₋₁, δp) += K y, in place */
+        real s = ZERO, *v = i < NX ? e->x + i : i < NX + 2 ? e->w + (i - NX) : i < NX + 4 ? e->w_prev + (i - NX - 2)
+                                                                                         : e->dp + (i - NX - 4);
         for (a = 0; a < m; a++) s += Kg[i][a] * y[a];
-        za[i] = za[i] + s;
+        *v = *v + s;
     }
-    for (j = 0; j < NA; j++) { /* A = (I − K H) Pa, column by column */
-        for (i = 0; i < NA; i++) {
-            real s = ZERO;
-            for (k = 0; k < NX; k++) s += ikh_aug(Kg, em, i, k) * Pa[k * NA + j];
-            if (i >= NX) s += Pa[i * NA + j];
-            row[i] = s;
+    /* I − K H's entries at H's nonzero columns u (as ikh_aug). With K finite, its entries at the other
+       columns are exact: +0 off the diagonal (0 − a sum of ±0 from +0), 1 on it; with Pa (then A) finite
+       too, the products' sums leave out the +0 terms and take the diagonal's 1 × P as P, each in its place
+       of the ascending order. Otherwise the full sums */
+    for (i = 0; i < NA && fin; i++)
+        for (a = 0; a < m; a++) fin = MTWIP_ISFINITE(Kg[i][a]) != 0;
+    /* dg: where row i's diagonal 1 goes among u (NU + 1: none, or its place is one of u's), or UNIT: the
+       row is the identity's (its entries at u +0 but the diagonal's 1); kz: row i of K is zero */
+    for (i = 0; i < NA; i++) {
+        int unit = i < NX;
+        dg[i] = NU + 1;
+        for (t = 0; t < nu; t++) {
+            G[i][t] = ikh_aug(Kg, em, i, u[t]);
+            if (G[i][t] != (u[t] == i ? ONE : ZERO)) unit = 0;
         }
-        for (i = 0; i < NA; i++) Pa[i * NA + j] = row[i];
+        if (i < NX) dg[i] = (uint8_t)diagonal_at(u, nu, i);
+        if (unit) dg[i] = UNIT;
+        kz[i] = 1;
+        for (a = 0; a < m; a++)
+            if (Kg[i][a] != ZERO) kz[i] = 0;
     }
-    for (i = 0; i < NA; i++) { /* Pa = A (I − K H)ᵀ + K R Kᵀ, row by row */
-        for (j = 0; j < NA; j++) {
-            real s = ZERO, t = ZERO;
-            for (k = 0; k < NX; k++) s += Pa[i * NA + k] * ikh_aug(Kg, em, j, k);
-            if (j >= NX) s += Pa[i * NA + j];
-            for (b = 0; b < m; b++) {
-                real kr = ZERO;
-                for (a = 0; a < m; a++) kr += Kg[i][a] * Rm[a][b];
-                t += kr * Kg[j][b];
+    if (fin && nu == NU) { /* the sums unrolled: u's five terms, the diagonal's in its place */
+        for (j = 0; j < NA; j++) { /* A = (I − K H) Pa, column by column */
+            const real p0 = Pa[u[0] * NA + j], p1 = Pa[u[1] * NA + j], p2 = Pa[u[2] * NA + j],
+                       p3 = Pa[u[3] * NA + j], p4 = Pa[u[4] * NA + j];
+            for (i = 0; i < NA; i++) {
+                const real *Gi = G[i], q = Pa[i * NA + j];
+                real s = ZERO;
+#define GT(t) s += Gi[t] * p##t;
+                switch (dg[i]) {
+                case 0: DG GT(0) GT(1) GT(2) GT(3) GT(4) break;
+                case 1: GT(0) DG GT(1) GT(2) GT(3) GT(4) break;
+                case 2: GT(0) GT(1) DG GT(2) GT(3) GT(4) break;
+                case 3: GT(0) GT(1) GT(2) DG GT(3) GT(4) break;
+                case 4: GT(0) GT(1) GT(2) GT(3) DG GT(4) break;
+                case 5: GT(0) GT(1) GT(2) GT(3) GT(4) DG break;
+                case UNIT: DG break;
+                default: GT(0) GT(1) GT(2) GT(3) GT(4) break;
+                }
+#undef GT
+                if (i >= NX) s += q;
+                row[i] = s;
             }
-            row[j] = s + t;
+            for (i = 0; i < NA; i++) Pa[i * NA + j] = row[i];
         }
+    } else
+        for (j = 0; j < NA; j++) { /* A = (I − K H) Pa, column by column */
+            for (i = 0; i < NA; i++) {
+                real s = ZERO;
+                if (fin) {
+                    const real *Gi = G[i], *Pj = Pa + j;
+                    int d = dg[i] == UNIT ? diagonal_at(u, nu, i) : dg[i];
+                    for (t = 0; t < nu && t < d; t++) s += Gi[t] * Pj[u[t] * NA];
+                    if (d <= NU) {
+                        s += Pj[i * NA];
+                        for (; t < nu; t++) s += Gi[t] * Pj[u[t] * NA];
+                    }
+                } else
+                    for (k = 0; k < NX; k++) s += ikh_aug(Kg, em, i, k) * Pa[k * NA + j];
+                if (i >= NX) s += Pa[i * NA + j];
+                row[i] = s;
+            }
+            for (i = 0; i < NA; i++) Pa[i * NA + j] = row[i];
+        }
+    fin = fin && finite_aug(Pa);
+    for (i = 0; i < NA; i++) { /* Pa = A (I − K H)ᵀ + K R Kᵀ, row by row */
+        const real *Ai = Pa + i * NA;
+        real kr[2] = {ZERO, ZERO};
+        int kzero, kfin;
+        for (b = 0; b < m; b++) {
+            kr[b] = ZERO;
+            for (a = 0; a < m; a++) kr[b] += Kg[i][a] * Rm[a][b];
+        }
+        /* K R Kᵀ's entry, the sum over b from +0: +0 where row i's kr or (kr finite) row j of K is zero,
+           every term ±0 then (K is finite on this path) */
+        kzero = kr[0] == ZERO && (m < 2 || kr[1] == ZERO);
+        kfin = 1;
+        for (b = 0; b < m; b++) kfin = kfin && MTWIP_ISFINITE(kr[b]);
+        if (fin && nu == NU) {
+            const real a0 = Ai[u[0]], a1 = Ai[u[1]], a2 = Ai[u[2]], a3 = Ai[u[3]], a4 = Ai[u[4]];
+            for (j = 0; j < NA; j++) {
+                const real *Gj = G[j], q = Ai[j];
+                real s = ZERO, t2 = ZERO;
+#define GT(t) s += a##t * Gj[t];
+                switch (dg[j]) {
+                case 0: DG GT(0) GT(1) GT(2) GT(3) GT(4) break;
+                case 1: GT(0) DG GT(1) GT(2) GT(3) GT(4) break;
+                case 2: GT(0) GT(1) DG GT(2) GT(3) GT(4) break;
+                case 3: GT(0) GT(1) GT(2) DG GT(3) GT(4) break;
+                case 4: GT(0) GT(1) GT(2) GT(3) DG GT(4) break;
+                case 5: GT(0) GT(1) GT(2) GT(3) GT(4) DG break;
+                case UNIT: DG break;
+                default: GT(0) GT(1) GT(2) GT(3) GT(4) break;
+                }
+#undef GT
+                if (j >= NX) s += q;
+                if (!kzero && !(kfin && kz[j])) {
+                    t2 += kr[0] * Kg[j][0];
+                    if (m > 1) t2 += kr[1] * Kg[j][1];
+                }
+                row[j] = s + t2;
+            }
+        } else
+            for (j = 0; j < NA; j++) {
+                real s = ZERO, t2 = ZERO;
+                if (fin) {
+                    const real *Gj = G[j];
+                    int d = dg[j] == UNIT ? diagonal_at(u, nu, j) : dg[j];
+                    for (t = 0; t < nu && t < d; t++) s += Ai[u[t]] * Gj[t];
+                    if (d <= NU) {
+                        s += Ai[j];
+                        for (; t < nu; t++) s += Ai[u[t]] * Gj[t];
+                    }
+                } else
+                    for (k = 0; k < NX; k++) s += Ai[k] * ikh_aug(Kg, em, j, k);
+                if (j >= NX) s += Ai[j];
+                for (b = 0; b < m; b++) t2 += kr[b] * Kg[j][b];
+                row[j] = s + t2;
+            }
         for (j = 0; j < NA; j++) Pa[i * NA + j] = row[j];
     }
     symmetrise(Pa, NA);
-    memcpy(e->x, za, NX * sizeof(real));
     for (i = 0; i < NX; i++)
         for (j = 0; j < NX; j++) e->P[i * NX + j] = Pa[i * NA + j];
-    e->w[0] = za[NX];
-    e->w[1] = za[NX + 1];
-    e->w_prev[0] = za[NX + 2];
-    e->w_prev[1] = za[NX + 3];
-    for (i = 0; i < NK; i++) e->dp[i] = za[NX + 4 + i];
     return EKF_OK;
 }
 
