@@ -51,8 +51,7 @@ def main(argv=None) -> None:
             duty = f.get("duty")
             est = f.get("estimate")
             versus = ("duties the same bits" if duty is None else
-                      f"duties: {duty['steps']} of {r['steps']} steps a PWM step apart" if duty["max_abs"] <= 1.5 / 1023
-                      else f"duties: {duty['steps']} of {r['steps']} steps, up to {duty['max_abs']:.3g}")
+                      f"duties differ on {duty['steps']} of {r['steps']} steps, by {duty['max_abs']:.3g} at most")
             if est is not None:
                 versus += f"; estimate within {est['max_abs']:.1e}"
         rate = 1.0 / (q["us_max"] * 1e-6 / q["period_share"]) if q["period_share"] else 0.0
@@ -68,7 +67,9 @@ def main(argv=None) -> None:
             "count (`-icount`); the time assumes one cycle per instruction, a lower bound on a real Cortex-M4 "
             "(loads, divisions and flash wait states add cycles). Where the outputs differ from the host's, the "
             "cause is the maths library: newlib's single-precision `sinf`, `cosf`, `atan2f`, ... and glibc's "
-            "differ by one unit in the last place on some arguments; +, −, ×, ÷ and `sqrtf` are the same bits.")
+            "differ by one unit in the last place on some arguments; +, −, ×, ÷ and `sqrtf` are the same bits. A duty "
+            "differs by one PWM step (1/1023 for 10 bits, 1/511 for the Balboa's 9) where a torque lies at a step's "
+            "edge.")
     text = "\n".join(head + rows) + "\n\n" + note
     print(text)
     (a.out / "pil.json").write_text(json.dumps(results, indent=2, default=str), encoding="utf-8")
