@@ -1709,6 +1709,19 @@ static int coast_predict(mtwip_estimator_t *e, const real *cmd, const real *rail
 #define NU 5    /* the most columns of H that are not zero (h_row: TH, PS, AL, C0, H0; coast_update's sums unrolled) */
 #define UNIT 255 /* coast_update: a row of I − K H that is the identity's */
 #define DG s += q; /* coast_update: the diagonal's term, 1 × q */
+/* the sum of GT(0) … GT(4) (H's five nonzero columns) with the diagonal's term DG in its place, at
+   position `at` (UNIT: the row is the identity's, its diagonal alone; else past the five) */
+#define FIVE_TERMS(at)                                                   \
+    switch (at) {                                                        \
+    case 0: DG GT(0) GT(1) GT(2) GT(3) GT(4) break;                      \
+    case 1: GT(0) DG GT(1) GT(2) GT(3) GT(4) break;                      \
+    case 2: GT(0) GT(1) DG GT(2) GT(3) GT(4) break;                      \
+    case 3: GT(0) GT(1) GT(2) DG GT(3) GT(4) break;                      \
+    case 4: GT(0) GT(1) GT(2) GT(3) DG GT(4) break;                      \
+    case 5: GT(0) GT(1) GT(2) GT(3) GT(4) DG break;                      \
+    case UNIT: DG break;                                                 \
+    default: GT(0) GT(1) GT(2) GT(3) GT(4) break;                        \
+    }
 
 /* where the diagonal's term of row i < NX goes among H's nonzero columns u (NU + 1: it is one of them) */
 static int diagonal_at(const int *u, int nu, int i) {
@@ -1826,16 +1839,7 @@ static int coast_update(mtwip_estimator_t *e, const meas_t *em) {
                 const real *Gi = G[i], q = Pa[i * NA + j];
                 real s = ZERO;
 #define GT(t) s += Gi[t] * p##t;
-                switch (dg[i]) {
-                case 0: DG GT(0) GT(1) GT(2) GT(3) GT(4) break;
-                case 1: GT(0) DG GT(1) GT(2) GT(3) GT(4) break;
-                case 2: GT(0) GT(1) DG GT(2) GT(3) GT(4) break;
-                case 3: GT(0) GT(1) GT(2) DG GT(3) GT(4) break;
-                case 4: GT(0) GT(1) GT(2) GT(3) DG GT(4) break;
-                case 5: GT(0) GT(1) GT(2) GT(3) GT(4) DG break;
-                case UNIT: DG break;
-                default: GT(0) GT(1) GT(2) GT(3) GT(4) break;
-                }
+                FIVE_TERMS(dg[i])
 #undef GT
                 if (i >= NX) s += q;
                 row[i] = s;
@@ -1881,16 +1885,7 @@ static int coast_update(mtwip_estimator_t *e, const meas_t *em) {
                 const real *Gj = G[j], q = Ai[j];
                 real s = ZERO, t2 = ZERO;
 #define GT(t) s += a##t * Gj[t];
-                switch (dg[j]) {
-                case 0: DG GT(0) GT(1) GT(2) GT(3) GT(4) break;
-                case 1: GT(0) DG GT(1) GT(2) GT(3) GT(4) break;
-                case 2: GT(0) GT(1) DG GT(2) GT(3) GT(4) break;
-                case 3: GT(0) GT(1) GT(2) DG GT(3) GT(4) break;
-                case 4: GT(0) GT(1) GT(2) GT(3) DG GT(4) break;
-                case 5: GT(0) GT(1) GT(2) GT(3) GT(4) DG break;
-                case UNIT: DG break;
-                default: GT(0) GT(1) GT(2) GT(3) GT(4) break;
-                }
+                FIVE_TERMS(dg[j])
 #undef GT
                 if (j >= NX) s += q;
                 if (!kzero && !(kfin && kz[j])) {
