@@ -7,6 +7,7 @@ import json
 import re
 import shutil
 import subprocess
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -176,3 +177,20 @@ def test_check_and_golden_files_take_an_export(exports, tmp_path):
     sc.write_text(sc.read_text().replace('iae_theta = "<= 0.0001"', 'iae_theta = "<= 1"'))
     r = _cli("check", str(sc), "--golden", str(tmp_path / "gold"))
     assert r.exit_code == 0 and "matches" in r.output, r.output
+
+
+def test_a_robot_of_ones_own_named_anyhow_exports_and_compiles(tmp_path):
+    """A robot file's name goes into mtwip_params.h as a C string: quotes, backslashes and non-ASCII
+    letters escaped, the library still compiles and its host test passes."""
+    text = (Path(__file__).resolve().parent.parent / "twin" / "robots" / "builtin" / "paper.toml").read_text()
+    robot = tmp_path / "mine.toml"
+    robot.write_text(text.replace('name = "paper"', 'name = "Zoë\'s \\\\ \\"lab\\" bot"', 1))
+    d = tmp_path / "fw"
+    r = _cli("export", "--robot", str(robot), "--scenario", "paper-exp1", "--estimator", "complementary",
+             "--out", str(d))
+    assert r.exit_code == 0, r.output
+    assert '#define MTWIP_ROBOT "Zo\\303\\253\'s \\\\ \\"lab\\" bot"' in (d / "mtwip_params.h").read_text()
+    exe = tmp_path / "t"
+    subprocess.run([COMPILERS[0], *STRICT, "-I", str(d), *[str(d / n) for n in LIBRARY if n.endswith(".c")],
+                    str(d / "test" / "test_host.c"), "-lm", "-o", str(exe)], check=True)
+    assert subprocess.run([str(exe)], capture_output=True, text=True).stdout.startswith("ok: ")

@@ -40,6 +40,20 @@ def static_text(name: str) -> str:
     return resources.files("twin.export").joinpath("c", name).read_text(encoding="utf-8")
 
 
+def c_string(text: str) -> str:
+    """``text`` inside a C string literal: backslashes and quotes escaped, anything outside printable
+    ASCII as an octal escape (a robot file's name may be a path, or not ASCII)."""
+    out = []
+    for ch in str(text):
+        if ch in '\\"':
+            out.append("\\" + ch)
+        elif " " <= ch <= "~":
+            out.append(ch)
+        else:
+            out.extend(f"\\{b:03o}" for b in ch.encode("utf-8"))
+    return "".join(out)
+
+
 def params_header(identity: dict, precision: str, encoder_rad_per_count: float, b_over_r: float,
                   control_rate: float) -> str:
     real = C_TYPES[precision]
@@ -49,7 +63,7 @@ def params_header(identity: dict, precision: str, encoder_rad_per_count: float, 
              "#ifndef MTWIP_PARAMS_H", "#define MTWIP_PARAMS_H", "", "#include <math.h>", ""]
     for key in ("version", "controller", "estimator", "precision", "design_digest", "robot", "robot_digest",
                 "scenario"):
-        lines.append(f'#define MTWIP_{key.upper()} "{identity[key]}"')
+        lines.append(f'#define MTWIP_{key.upper()} "{c_string(identity[key])}"')
     lines += ["", f"typedef {real} mtwip_real;", "#define MTWIP_R(x) ((mtwip_real)(x))",
               f"#define MTWIP_FLOAT32 {int(precision == 'float32')}"]
     lines += [f"#define MTWIP_{m} {f}{suffix}" for m, f in _MATH]
