@@ -19,7 +19,6 @@ the twin's own runs (IMU rows the means over their period, commands held, a cons
 from __future__ import annotations
 
 import math
-from importlib import resources
 
 import numpy as np
 
@@ -28,7 +27,7 @@ from estimation.ekf import EKFEstimator
 from estimation.ekf_filter import kernel_config
 from estimation.model import SENSITIVITY_STEP, TORQUE_TOLERANCE
 from twin.errors import TwinError
-from twin.export.literals import check_precision, integer, literal
+from twin.export.literals import check_precision, integer, literal, static_text
 
 _SIZES = "/* @MTWIP_EKF_SIZES@ */"
 _CONFIG = "/* @MTWIP_EKF_CONFIG@ */"
@@ -47,9 +46,6 @@ _MODEL_FIELDS = ("dt", "m11", "m12", "m22", "n_bla", "d_b", "d_w", "g_b", "yaw_d
                  "zi", "tau_max", "i_tau", "sigma_tau", "c_e", "tol")
 _MODEL_INTS = ("msub", "has_motor", "compensates")
 
-
-def _static(name: str) -> str:
-    return resources.files("twin.export").joinpath("c", name).read_text(encoding="utf-8")
 
 
 def _model_values(m, what: str) -> dict:
@@ -181,7 +177,7 @@ def emit(estimator, precision: str) -> dict[str, str]:
     ``precision`` ("float64" or "float32")."""
     check_precision(precision)
     sizes, values = config_values(estimator, precision)
-    header, source = _static("estimator_ekf.h"), _static("estimator_ekf.c")
+    header, source = static_text("estimator_ekf.h"), static_text("estimator_ekf.c")
     if _SIZES not in header or _CONFIG not in source:
         raise TwinError("twin/export/c/estimator_ekf.h or .c lacks its generated part's marker; reinstall the twin")
     size_text = "\n".join([f"/* generated from the estimator by twin export ({precision}) */"] +

@@ -19,11 +19,10 @@ from __future__ import annotations
 
 import hashlib
 import json
-from importlib import resources
 from pathlib import Path
 
 from twin.errors import TwinError
-from twin.export.literals import C_TYPES, check_precision, literal
+from twin.export.literals import C_TYPES, check_precision, literal, static_text
 
 FORMAT = 1  # the export directory's layout; export.json says it
 MANIFEST = "export.json"
@@ -33,11 +32,6 @@ LIBRARY = ("mtwip.h", "mtwip_params.h", "mtwip_estimator.h", "mtwip.c", "mtwip_c
 _MATH = ("SIN", "sin"), ("COS", "cos"), ("TAN", "tan"), ("ATAN2", "atan2"), ("SQRT", "sqrt"), ("FABS", "fabs"), \
     ("EXP", "exp"), ("LOG", "log"), ("FLOOR", "floor"), ("NEARBYINT", "nearbyint"), ("COPYSIGN", "copysign"), \
     ("FMIN", "fmin"), ("FMAX", "fmax"), ("POW", "pow"), ("ERFC", "erfc"), ("HYPOT", "hypot")
-
-
-def static_text(name: str) -> str:
-    """A file of the C that is not generated (twin/export/c/NAME)."""
-    return resources.files("twin.export").joinpath("c", name).read_text(encoding="utf-8")
 
 
 def c_string(text: str) -> str:

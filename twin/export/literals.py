@@ -8,6 +8,7 @@ to double on a microcontroller whose FPU has single precision only).
 from __future__ import annotations
 
 import math
+from importlib import resources
 
 import numpy as np
 
@@ -44,8 +45,13 @@ def array(name: str, values, precision: str = "float64", ctype: str = "mtwip_rea
     return f"{'static ' if static else ''}const {ctype} {name}[{len(flat)}] = {{{body}}};"
 
 
+def static_text(name: str) -> str:
+    """A file of the C that is not generated, as it stands in the package (twin/export/c/NAME)."""
+    return resources.files("twin.export").joinpath("c", name).read_text(encoding="utf-8")
+
+
 def integer(value: int) -> str:
     return str(int(value))
 
 
-__all__ = ["C_TYPES", "PRECISIONS", "array", "check_precision", "integer", "literal"]
+__all__ = ["C_TYPES", "PRECISIONS", "array", "check_precision", "integer", "literal", "static_text"]

@@ -24,6 +24,7 @@ from pathlib import Path
 
 from twin.errors import TwinError
 from twin.export.generate import LIBRARY, read_manifest
+from twin.protocols import Targets
 
 FLAGS = ("-std=c99", "-O2", "-ffp-contract=off", "-Wall", "-Wextra", "-Werror", "-pedantic")
 ESTIMATE_SIGNALS = ("u", "theta_off", "u_alpha")
@@ -161,7 +162,7 @@ class ExportedController:
         self._control, self._drive = lib.mtwip_control, lib.mtwip_drive
         self._x, self._out = self._c.vec6(), self._c.vec5()
         self._duty, self._sat = self._c.vec2(), (ctypes.c_uint8 * 2)()
-        self._t = self._c.targets(_no_targets())
+        self._t = self._c.targets(Targets())
         self._for = None
 
     def design_digest(self) -> str:
@@ -192,12 +193,6 @@ class ExportedController:
         self._drive(x, out, duty, sat)
         return out[0], out[1], out[2], out[3], out[4], duty[0], duty[1], float(sat[0]), float(sat[1])
 
-
-def _no_targets():
-    # only: the targets' type, for a controller not yet reset
-    from twin.protocols import Targets
-
-    return Targets()
 
 
 class ExportedEstimator:
