@@ -21,12 +21,16 @@ from twin.workflows.export import CONTROLLERS, ESTIMATORS, export
 @click.option("--precision", type=click.Choice(["float64", "float32"]), default="float64", show_default=True,
               help="float64: the twin's arithmetic, bit for bit; float32: for a microcontroller with a "
                    "single-precision FPU (a Cortex-M4F).")
+@click.option("--arithmetic", type=click.Choice(["exact", "lean"]), default=None,
+              help="The EKF's arithmetic. exact: the twin's, operation for operation (float64: bit for bit); lean: "
+                   "the same equations with fewer operations in the coasting step and the latency watch, for a "
+                   "microcontroller. [default: exact for float64, lean for float32]")
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
               help="Override a scenario key by its dotted path (repeatable), as in 'twin run'.")
 @robot_option("to export for")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True, metavar="DIR",
               help="The directory to write: the library, its host test, CMakeLists.txt, README.md, export.json.")
-def export_command(controller, estimator, scenario, precision, overrides, robot, out):
+def export_command(controller, estimator, scenario, precision, arithmetic, overrides, robot, out):
     """Write the tested controller and estimator as portable C99 for the robot's firmware.
 
     The library is generated from the same design the twin runs: the balance PDC with its LMI
@@ -43,10 +47,11 @@ def export_command(controller, estimator, scenario, precision, overrides, robot,
       twin export --controller lqr --robot balboa --scenario balboa-exp3 --precision float32 --out fw/
       twin run paper-exp3 --controller export:build/mtwip     # the C in the twin's loop
     """
-    result = export(scenario, controller, estimator, precision, out, with_robot(overrides, robot))
+    result = export(scenario, controller, estimator, precision, out, with_robot(overrides, robot),
+                    arithmetic=arithmetic)
     ident = result["identity"]
     click.echo(f"wrote {len(result['files'])} files to {out}: {ident['controller']} with {ident['estimator']}, "
-               f"{ident['precision']}, robot {ident['robot']}, design {ident['design_digest'][:12]}")
+               f"{ident['precision']} ({ident['arithmetic']}), robot {ident['robot']}, design {ident['design_digest'][:12]}")
     click.echo(f"host test: cmake -S {out} -B {out}/build && cmake --build {out}/build && ctest --test-dir {out}/build")
 
 

@@ -73,6 +73,24 @@ def _model_init(v: dict, precision: str, indent: str) -> str:
     return "{\n" + indent + (",\n" + indent).join(items) + "}"
 
 
+# exact: the twin's arithmetic operation for operation (the float64 build is the Python EKF bit for bit);
+# lean: a microcontroller's, for the costly steps only: the coasting step's sample Jacobian by the chain rule
+# through the model's four inputs, J Pa Jᵀ and the Joseph update factored on the symmetric half, squares as
+# products, the latency watch's correlations in one pass. The same equations: the lean build differs from
+# the exact one by rounding and the forward differences' truncation (tests/test_export_ekf.py bounds it)
+ARITHMETICS = ("exact", "lean")
+
+
+def default_arithmetic(precision: str) -> str:
+    """float64 is the twin's own arithmetic; float32 is for a microcontroller: lean."""
+    return "lean" if precision == "float32" else "exact"
+
+
+def check_arithmetic(arithmetic: str) -> None:
+    if arithmetic not in ARITHMETICS:
+        raise TwinError(f"unknown EKF arithmetic {arithmetic!r}; allowed: {', '.join(ARITHMETICS)}")
+
+
 def check_supported(estimator) -> None:
     """A one-line :class:`~twin.errors.TwinError` if ``estimator`` was built or set up with an option
     the C does not implement."""
@@ -172,11 +190,13 @@ def _config_text(v: dict, precision: str) -> str:
     return "\n".join(lines)
 
 
-def emit(estimator, precision: str) -> dict[str, str]:
+def emit(estimator, precision: str, arithmetic: str = "exact") -> dict[str, str]:
     """``{"mtwip_estimator.h": ..., "mtwip_estimator.c": ...}`` for the built EKF ``estimator`` in
-    ``precision`` ("float64" or "float32")."""
+    ``precision`` ("float64" or "float32") with ``arithmetic`` (:data:`ARITHMETICS`)."""
     check_precision(precision)
+    check_arithmetic(arithmetic)
     sizes, values = config_values(estimator, precision)
+    sizes["MTWIP_EKF_LEAN"] = int(arithmetic == "lean")
     header, source = static_text("estimator_ekf.h"), static_text("estimator_ekf.c")
     if _SIZES not in header or _CONFIG not in source:
         raise TwinError("twin/export/c/estimator_ekf.h or .c lacks its generated part's marker; reinstall the twin")
@@ -186,4 +206,4 @@ def emit(estimator, precision: str) -> dict[str, str]:
             "mtwip_estimator.c": source.replace(_CONFIG, _config_text(values, precision))}
 
 
-__all__ = ["check_supported", "config_values", "emit"]
+__all__ = ["ARITHMETICS", "check_arithmetic", "check_supported", "config_values", "default_arithmetic", "emit"]

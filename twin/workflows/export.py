@@ -10,6 +10,7 @@ import numpy as np
 
 from twin.errors import TwinError
 from twin.export import generate as gen
+from twin.export.ekf import check_arithmetic, default_arithmetic
 from twin.export.literals import check_precision, literal
 from twin.export.vectors import host_test_files
 from twin.sim.simulate import build_loop
@@ -39,14 +40,17 @@ ESTIMATORS = ("ekf", "complementary", "kalman2")
 
 
 def export(scenario: str, controller: str, estimator: str | None, precision: str, out: Path, overrides=(),
-           seconds: float = VECTOR_SECONDS) -> dict:
+           seconds: float = VECTOR_SECONDS, arithmetic: str | None = None) -> dict:
     """Write the export of ``scenario`` (name or file, with ``overrides``) into ``out``: the
-    library, the host test, CMakeLists.txt, README.md and export.json. Returns the manifest's
+    library, the host test, CMakeLists.txt, README.md and export.json. ``arithmetic``: the EKF's,
+    "exact" or "lean" (None: exact for float64, lean for float32). Returns the manifest's
     identity and the files written."""
     # only: the twin's version, named in every generated file
     from twin import __version__
 
     check_precision(precision)
+    arithmetic = default_arithmetic(precision) if arithmetic is None else arithmetic
+    check_arithmetic(arithmetic)
     exportable("controller", controller, CONTROLLERS)
     extra = tuple(overrides)
     if estimator is not None:
@@ -68,7 +72,7 @@ def export(scenario: str, controller: str, estimator: str | None, precision: str
     else:
         design = context.balance_design().digest()
     identity = {"version": __version__, "controller": controller, "estimator": sc.estimator,
-                "precision": precision, "design_digest": design, "robot": sc.robot.name,
+                "precision": precision, "arithmetic": arithmetic, "design_digest": design, "robot": sc.robot.name,
                 "robot_digest": sc.robot.digest, "scenario": sc.name}
     files = gen.library_files(ctrl, est, context.motor, identity, precision, rad_per_count, model.b / model.r,
                               context.control_rate)

@@ -108,9 +108,13 @@ static int packed(int i, int j) { /* the upper triangle, by rows */
     return i * NX - i * (i - 1) / 2 + (j - i);
 }
 
+#if MTWIP_EKF_LEAN
+static real pow2(real a) { return a * a; } /* (the lean build need not round as the Python path does) */
+#else
 /* a square as the Python path takes it, x ** 2: libm's pow, which differs from x * x in the last bit
    for about one argument in a thousand (the kernel's C multiplies) */
 static real pow2(real a) { return MTWIP_POW(a, C->square); }
+#endif
 
 /* ---- the model (estimation/model.py, twin/plant/analytic.py; the kernel's rhs, model_step, delivered).
    py: the Python path's arithmetic (x ** 2), else the kernel's -------------------------------------- */
@@ -1046,6 +1050,42 @@ static void ring_rows(real *dst, const real *ring, int first, int n) {
     memcpy(dst + a, ring, (size_t)(n - a) * sizeof(real));
 }
 
+#if MTWIP_EKF_LEAN
+#define LAGS_AT_ONCE 7
+/* zy[a] = Σ_j z[base − a + idx_j] y[j] over the `used` rows (idx NULL: row j is j), for the n ≤ 7 lags a */
+static void lag_products(const real *z, int base, const real *y, const int16_t *idx, int used, int n, real *zy) {
+    real c0 = ZERO, c1 = ZERO, c2 = ZERO, c3 = ZERO, c4 = ZERO, c5 = ZERO, c6 = ZERO;
+    int j;
+    if (n >= LAGS_AT_ONCE && base >= LAGS_AT_ONCE - 1)
+        for (j = 0; j < used; j++) {
+            const real *zj = z + base + (idx ? idx[j] : j), v = y[j];
+            c0 += zj[0] * v;
+            c1 += zj[-1] * v;
+            c2 += zj[-2] * v;
+            c3 += zj[-3] * v;
+            c4 += zj[-4] * v;
+            c5 += zj[-5] * v;
+            c6 += zj[-6] * v;
+        }
+    else {
+        int a;
+        for (a = 0; a < n && a < LAGS_AT_ONCE; a++) {
+            real s = ZERO;
+            for (j = 0; j < used; j++) s += z[base - a + (idx ? idx[j] : j)] * y[j];
+            zy[a] = s;
+        }
+        return;
+    }
+    zy[0] = c0;
+    zy[1] = c1;
+    zy[2] = c2;
+    zy[3] = c3;
+    zy[4] = c4;
+    zy[5] = c5;
+    zy[6] = c6;
+}
+#endif
+
 /* the correlations at latencies 0 … max_lag; the best (np.argmax: the first largest, the first NaN)
    in *best with its ρ, the assumed latency's in *rho_assumed; 0 when fewer than half the window's
    rows hold a measurement. The rows of the ring read in order (rows i of the watch: ring slot
@@ -1084,6 +1124,60 @@ static int watch_check(const mtwip_estimator_t *e, int assumed, int *best, real 
     ring_rows(dk, e->wu, h, n);
     for (j = 0; j + 3 < n; j++) dk[j] = ((dk[j + 3] + dk[j + 2]) - dk[j + 1]) - dk[j];
     *best = 0;
+#if MTWIP_EKF_LEAN
+    /* Σ (z − z̄) y = Σ z y − z̄ Σ y and Σ (z − z̄)² = Σ z² − z̄ Σ z, Σ z and Σ z² carried from lag to lag as
+       the window slides by one row when every row is used: a pass of one product per row and lag */
+    {
+        real ysum = ZERO, zs = ZERO, zq = ZERO;
+        for (j = 0; j < used; j++) ysum += yy[j];
+        if (used == W)
+            for (j = 0; j < W; j++) {
+                real v = dk[L + 2 + j];
+                zs += v;
+                zq += v * v;
+            }
+        real zy[LAGS_AT_ONCE];
+        for (l = 0; l <= L; l++) {
+            const real *z = dk + (L + 2 - l);
+            real szy, szz, zmean, den, rho;
+            const int a = l % LAGS_AT_ONCE;
+            if (a == 0) /* Σ z y for the lags l … l + 6 together, y read once a row */
+                lag_products(dk, L + 2 - l, yy, used == W ? NULL : idx, used, L - l + 1, zy);
+            if (used == W) {
+                if (l > 0) { /* the window one row earlier */
+                    real in = z[0], out = z[W];
+                    zs += in - out;
+                    zq += in * in - out * out;
+                }
+            } else {
+                zs = zq = ZERO;
+                for (j = 0; j < used; j++) {
+                    real v = z[idx[j]];
+                    zs += v;
+                    zq += v * v;
+                }
+            }
+            zmean = zs / (real)used;
+            szy = zy[a] - zmean * ysum;
+            szz = zq - zmean * zs;
+            if (szz < ZERO) szz = ZERO;
+            den = MTWIP_SQRT(syy * szz);
+            rho = den > ZERO ? C->torque_sign * szy / den : C->torque_sign * szy / (real)INFINITY;
+            if (l == assumed) *rho_assumed = rho;
+            if (!have_nan) {
+                if (rho != rho) {
+                    have_nan = 1;
+                    *best = l;
+                    *rho_best = rho;
+                } else if (l == 0 || rho > *rho_best) {
+                    *best = l;
+                    *rho_best = rho;
+                }
+            }
+        }
+    }
+    return 1;
+#else
     for (l = 0; l <= L; l++) {
         real zsum = ZERO, zmean, szy = ZERO, szz = ZERO, den, rho;
         const real *z = dk + (L + 2 - l);
@@ -1125,6 +1219,7 @@ static int watch_check(const mtwip_estimator_t *e, int assumed, int *best, real 
         }
     }
     return 1;
+#endif
 }
 
 /* LatencyWatch.filter_verdicts: the gyro samples the filter rejected since the last call are forgotten */
@@ -1150,11 +1245,12 @@ static void watch_gap(int32_t gaps[][2], int32_t *n, int32_t k, int32_t gap) {
     (*n)++;
 }
 
+static int watch_decide(mtwip_estimator_t *e, int32_t assumed, int32_t *found);
+
 /* LatencyWatch.observe: 1 with the new latency when a change is declared */
 static int watch_observe(mtwip_estimator_t *e, int32_t k, const real *gyro, int a_ok, const real *cmd,
                          int32_t assumed, int usable, int32_t *found) {
-    int N = WN, best;
-    real rb = ZERO, ra = ZERO;
+    int N = WN;
     int32_t slot;
     if (e->w_len < N)
         slot = (e->w_head + e->w_len++) % N;
@@ -1174,6 +1270,17 @@ static int watch_observe(mtwip_estimator_t *e, int32_t k, const real *gyro, int 
         e->w_last_a = k;
     }
     if (k % C->watch_every || e->w_len < N || e->w_hold_until > k) return 0;
+    if (MTWIP_EKF_LEAN) { /* the lean build checks after the filter's step, on one that does not coast */
+        e->w_due = 1;
+        return 0;
+    }
+    return watch_decide(e, assumed, found);
+}
+
+/* LatencyWatch.observe's check and its votes: 1 with the new latency when a change is declared */
+static int watch_decide(mtwip_estimator_t *e, int32_t assumed, int32_t *found) {
+    int best;
+    real rb = ZERO, ra = ZERO;
     if (!watch_check(e, (int)assumed, &best, &rb, &ra)) return 0;
     if (best != assumed && rb >= C->watch_rho && rb - ra >= C->watch_margin) {
         int32_t votes = e->w_votes_lag == best ? e->w_votes + 1 : 1;
@@ -1547,6 +1654,7 @@ static int imu_step(mtwip_estimator_t *e, const real *smp_in, const real *enc, c
    in Jr[JD[i]]) until Jr's first four rows are formed from them column by column (j_entry's sums) */
 static const int JD[4] = {4, 5, 2, 3};
 
+#if !MTWIP_EKF_LEAN /* (the exact build's products leave out ±0 terms where every number is finite) */
 /* 1 if the NA × NA matrix M is all finite: its sum is (0 also where that sum overflows: the general path) */
 static int finite_aug(const real *M) {
     real s0 = ZERO, s1 = ZERO, s2 = ZERO, s3 = ZERO;
@@ -1560,7 +1668,85 @@ static int finite_aug(const real *M) {
     for (; i < NA * NA; i++) s0 += M[i];
     return MTWIP_ISFINITE((s0 + s1) + (s2 + s3)) != 0;
 }
+#endif
 
+#if MTWIP_EKF_LEAN
+/* Pa = J Pa Jᵀ in place (Jr: J's nontrivial rows; Pa symmetric, and so is the result). M = J Pa column by
+   column, two at a time (a column read whole before it is written: M's rows RN are Jr's rows times Pa,
+   ω₋₁'s rows ω's, the others Pa's); then M Jᵀ: J's unit rows pick M's columns (ω₋₁'s ω's), the block
+   between J's nontrivial rows is M's rows times Jr's, and the rest mirrors across the diagonal */
+static void aug_jpj(real *Pa, real Jr[6][NA]) {
+    static const int RN[6] = {TH, AL, V, PS, NX, NX + 1}; /* Jr's rows in J */
+    real B[6][6];
+    uint8_t nz[NA], in_n[NA];
+    int cnt = 0, a, b, t, i, l;
+    for (t = 0; t < NA; t++) {
+        in_n[t] = 0;
+        if (Jr[0][t] != ZERO || Jr[1][t] != ZERO || Jr[2][t] != ZERO || Jr[3][t] != ZERO || Jr[4][t] != ZERO ||
+            Jr[5][t] != ZERO)
+            nz[cnt++] = (uint8_t)t;
+    }
+    for (a = 0; a < 6; a++) in_n[RN[a]] = 1;
+    for (l = 0; l < NA; l += 2) { /* M = J Pa, columns l and l + 1 */
+        const int two = l + 1 < NA;
+        real s0 = ZERO, s1 = ZERO, s2 = ZERO, s3 = ZERO, s4 = ZERO, s5 = ZERO;
+        real u0 = ZERO, u1 = ZERO, u2 = ZERO, u3 = ZERO, u4 = ZERO, u5 = ZERO;
+        for (t = 0; t < cnt; t++) {
+            const int k = nz[t];
+            const real p = Pa[k * NA + l], q = two ? Pa[k * NA + l + 1] : ZERO;
+            const real j0 = Jr[0][k], j1 = Jr[1][k], j2 = Jr[2][k], j3 = Jr[3][k], j4 = Jr[4][k], j5 = Jr[5][k];
+            s0 += j0 * p;
+            s1 += j1 * p;
+            s2 += j2 * p;
+            s3 += j3 * p;
+            s4 += j4 * p;
+            s5 += j5 * p;
+            u0 += j0 * q;
+            u1 += j1 * q;
+            u2 += j2 * q;
+            u3 += j3 * q;
+            u4 += j4 * q;
+            u5 += j5 * q;
+        }
+        for (t = 0; t < 1 + two; t++) {
+            const int c = l + t;
+            Pa[(NX + 2) * NA + c] = Pa[NX * NA + c];
+            Pa[(NX + 3) * NA + c] = Pa[(NX + 1) * NA + c];
+        }
+        Pa[TH * NA + l] = s0;
+        Pa[AL * NA + l] = s1;
+        Pa[V * NA + l] = s2;
+        Pa[PS * NA + l] = s3;
+        Pa[NX * NA + l] = s4;
+        Pa[(NX + 1) * NA + l] = s5;
+        if (two) {
+            Pa[TH * NA + l + 1] = u0;
+            Pa[AL * NA + l + 1] = u1;
+            Pa[V * NA + l + 1] = u2;
+            Pa[PS * NA + l + 1] = u3;
+            Pa[NX * NA + l + 1] = u4;
+            Pa[(NX + 1) * NA + l + 1] = u5;
+        }
+    }
+    for (a = 0; a < 6; a++) /* M's rows RN times Jr's rows */
+        for (b = a; b < 6; b++) {
+            const real *Ma = Pa + RN[a] * NA;
+            real s = ZERO;
+            for (t = 0; t < cnt; t++) s += Ma[nz[t]] * Jr[b][nz[t]];
+            B[a][b] = B[b][a] = s;
+        }
+    for (i = 0; i < NA; i++) { /* J's unit rows ω₋₁ pick M's columns ω */
+        Pa[i * NA + NX + 2] = Pa[i * NA + NX];
+        Pa[i * NA + NX + 3] = Pa[i * NA + NX + 1];
+    }
+    for (a = 0; a < 6; a++) {
+        for (b = 0; b < 6; b++) Pa[RN[a] * NA + RN[b]] = B[a][b];
+        for (i = 0; i < NA; i++)
+            if (!in_n[i]) Pa[i * NA + RN[a]] = Pa[RN[a] * NA + i];
+    }
+}
+
+#else
 /* Pa = J Pa Jᵀ in place (Jr: J's nontrivial rows). Each entry is the Python path's sum over j ascending
    from +0; with the factor multiplying J finite the sums leave out the terms at the columns where all six
    rows of J are zero (±0 terms: a sum that starts at +0 is never −0, so adding ±0 leaves it as it is),
@@ -1618,6 +1804,70 @@ static void aug_jpj(real *Pa, real Jr[6][NA]) {
         Ai[NX + 1] = s5;
     }
 }
+#endif
+
+#if MTWIP_EKF_LEAN
+/* J's rows of the synthetic sample by z = (x, ω, ω₋₁) (D's first 16 columns, in Jr[JD[i]]; 0 for the axes the
+   model does not stand in for) by the chain rule: the model's raw sample by the four inputs of state6's
+   output it reads (θ, θ̇, ψ̇, α̇; not ψ or α) in forward differences, state6 and scaled differentiated in
+   closed form. Four model evaluations instead of the exact build's ten (one per input of the sample that
+   moves it); the two differ by the forward differences' truncation, of the order of fd_step */
+static void sample_jacobian(const real *z, const real *s6, const real *raw, const real *cmd, const int *rep,
+                            real Jr[6][NA]) {
+    static const int SC[4] = {ITH, ITHD, IPSD, IALD};
+    real dr[4][4], f[4];
+    real sn = MTWIP_SIN(z[TH]), cs = MTWIP_COS(z[TH]), qy = ONE / (ONE + z[SY]);
+    real qz = ONE / ((ONE + z[SZ]) * cs), dz = -C->xi * sn + C->zi * cs;
+    int c, i, j;
+    for (c = 0; c < 4; c++) { /* ∂raw/∂(θ, θ̇, ψ̇, α̇) */
+        real sp[6], rp[4], vp[2], a = MTWIP_FABS(s6[SC[c]]), h = C->fd_step * (a > ONE ? a : ONE);
+        memcpy(sp, s6, sizeof sp);
+        sp[SC[c]] += h;
+        h = sp[SC[c]] - s6[SC[c]]; /* (the step as the number holds it) */
+        synthetic_raw(&C->model, sp, cmd, (int)C->every, 1, rp, vp);
+        for (i = 0; i < 4; i++) dr[i][c] = (rp[i] - raw[i]) / h;
+    }
+    f[0] = ONE + z[SY];
+    f[1] = ONE + z[SZ];
+    f[2] = ONE + z[SAX];
+    f[3] = ONE + z[SAZ];
+    for (j = 0; j < 16; j++) { /* column j: ∂(θ, θ̇, ψ̇, α̇)/∂z_j (state6), then the chain */
+        real d[4] = {ZERO, ZERO, ZERO, ZERO};
+        switch (j) {
+        case TH:
+            d[0] = ONE;
+            d[2] = s6[ITHD] * (C->xi * cs + C->zi * sn) / C->r;
+            d[3] = s6[IALD] * sn / cs;
+            break;
+        case V: d[2] = ONE / C->r; break;
+        case BY: d[1] = -qy; break;
+        case SY: d[1] = -s6[ITHD] * qy; break;
+        case NX: d[1] = MTWIP_R(1.5) * qy; break;
+        case NX + 2: d[1] = -HALF * qy; break;
+        case BZ: d[3] = -qz; break;
+        case SZ: d[3] = -s6[IALD] / (ONE + z[SZ]); break;
+        case NX + 1: d[3] = MTWIP_R(1.5) * qz; break;
+        case NX + 3: d[3] = -HALF * qz; break;
+        default: break;
+        }
+        if (d[1] != ZERO) d[2] = -dz / C->r * d[1]; /* (ψ̇ through θ̇) */
+        for (i = 0; i < 4; i++)
+            Jr[JD[i]][j] = rep[i] ? f[i] * (((dr[i][0] * d[0] + dr[i][1] * d[1]) + dr[i][2] * d[2]) + dr[i][3] * d[3])
+                                  : ZERO;
+    }
+    /* scaled's own factors and offsets */
+    if (rep[0]) {
+        Jr[JD[0]][SY] += raw[0];
+        Jr[JD[0]][BY] += ONE;
+    }
+    if (rep[1]) {
+        Jr[JD[1]][SZ] += raw[1];
+        Jr[JD[1]][BZ] += ONE;
+    }
+    if (rep[2]) Jr[JD[2]][SAX] += raw[2];
+    if (rep[3]) Jr[JD[3]][SAZ] += raw[3];
+}
+#endif
 
 /* the coasting step's prediction with command cmd held; rail_v/rail_rep: the reading and which of its
    axes the model stands in for (NULL: all four) */
@@ -1668,6 +1918,9 @@ static int coast_predict(mtwip_estimator_t *e, const real *cmd, const real *rail
     z[NX + 2] = e->w_prev[0];
     z[NX + 3] = e->w_prev[1];
     propagate(z, value, extra, 1, x, &st); /* (x: the state after the step; z keeps the one before) */
+#if MTWIP_EKF_LEAN
+    sample_jacobian(z, s6, raw, cmd, rep, Jr);
+#else
     for (j = 0; j < NX + 4; j++) { /* the sample by (x, ω, ω₋₁): forward differences */
         real zp[16], smp[4], sx[4], az = MTWIP_FABS(z[j]), h;
         if (j == PS || j == AL || j == C0 || j == H0) continue;
@@ -1680,6 +1933,7 @@ static int coast_predict(mtwip_estimator_t *e, const real *cmd, const real *rail
             synthetic(zp, zp + NX, zp + NX + 2, cmd, 1, smp, sx);
         for (i = 0; i < 4; i++) Jr[JD[i]][j] = ((rep[i] ? smp[i] : ZERO) - syn[i]) / h;
     }
+#endif
     for (l = 0; l < NA; l++) { /* J's rows TH, AL, V, PS at column l: F + L D */
         real d[4], v[4];
         int a;
@@ -1692,8 +1946,13 @@ static int coast_predict(mtwip_estimator_t *e, const real *cmd, const real *rail
         for (a = 0; a < 4; a++) Jr[a][l] = v[a];
     }
     aug_jpj(Pa, Jr);
+#if MTWIP_EKF_LEAN
+    for (i = 0; i < NX; i++) /* (Q on the upper triangle: Pa stays symmetric) */
+        for (j = i; j < NX; j++) Pa[i * NA + j] = Pa[j * NA + i] = Pa[i * NA + j] + q_entry(&st, i, j);
+#else
     for (i = 0; i < NX; i++)
         for (j = 0; j < NX; j++) Pa[i * NA + j] += q_entry(&st, i, j);
+#endif
     Pa[NX * NA + NX] += rep[0] ? extra[0] : C->g_var;
     Pa[(NX + 1) * NA + NX + 1] += rep[1] ? extra[1] : C->g_var;
     for (i = 0; i < NX; i++)
@@ -1706,6 +1965,102 @@ static int coast_predict(mtwip_estimator_t *e, const real *cmd, const real *rail
     return EKF_OK;
 }
 
+/* Kg (P Hᵀ on entry) := P Hᵀ S⁻¹ by Gaussian elimination with partial pivoting (detlinalg.solve), the
+   consider states' rows zeroed; EKF_FAILED where that finds S singular */
+static int aug_gain(const mtwip_estimator_t *e, const meas_t *em, real S[2][2], real Kg[NA][2]) {
+    int i;
+    if (em->dof == 1) {
+        if (S[0][0] == ZERO || S[0][0] != S[0][0]) return EKF_FAILED;
+        for (i = 0; i < NA; i++) Kg[i][0] = Kg[i][0] / S[0][0];
+    } else {
+        int p = MTWIP_FABS(S[1][0]) > MTWIP_FABS(S[0][0]);
+        real r0[2], r1[2], f;
+        if (S[p][0] == ZERO || S[p][0] != S[p][0]) return EKF_FAILED;
+        r0[0] = S[p][0];
+        r0[1] = S[p][1];
+        r1[0] = S[1 - p][0];
+        r1[1] = S[1 - p][1];
+        f = r1[0] / r0[0];
+        if (f != ZERO) r1[1] -= f * r0[1];
+        if (r1[1] == ZERO || r1[1] != r1[1]) return EKF_FAILED;
+        for (i = 0; i < NA; i++) {
+            real b0 = Kg[i][p], b1 = Kg[i][1 - p], x1, s;
+            if (f != ZERO) b1 -= f * b0;
+            x1 = b1 / r1[1];
+            s = b0;
+            s -= r0[1] * x1;
+            Kg[i][0] = s / r0[0];
+            Kg[i][1] = x1;
+        }
+    }
+    for (i = 0; i < NX; i++)
+        if (e->consider[i]) Kg[i][0] = Kg[i][1] = ZERO;
+    return EKF_OK;
+}
+
+/* the augmented state (x, ω, ω₋₁, δp) += K (z − (off + H x)), in place */
+static void aug_state_update(mtwip_estimator_t *e, const meas_t *em, real Kg[NA][2]) {
+    real y[2];
+    int m = em->dof, i, j, a;
+    for (a = 0; a < m; a++) {
+        real s = ZERO;
+        for (j = 0; j < NX; j++) s += em->H[a][j] * e->x[j];
+        y[a] = em->z[a] - (s + em->off[a]);
+    }
+    for (i = 0; i < NA; i++) {
+        real s = ZERO, *v = i < NX ? e->x + i : i < NX + 2 ? e->w + (i - NX) : i < NX + 4 ? e->w_prev + (i - NX - 2)
+                                                                                         : e->dp + (i - NX - 4);
+        for (a = 0; a < m; a++) s += Kg[i][a] * y[a];
+        *v = *v + s;
+    }
+}
+
+#if MTWIP_EKF_LEAN
+/* Coasting.update: the augmented state's update in the Joseph form, (I − K H) Pa (I − K H)ᵀ + K R Kᵀ (the
+   consider states' gain rows zeroed), factored: with B = Pa Hᵀ and G = B − K S it is Pa − K Bᵀ − G Kᵀ
+   (G is zero but for the consider states' rows when K is the optimal gain), taken on the upper triangle
+   (Pa is symmetric, and so is the result). The gain by Gaussian elimination with partial pivoting;
+   EKF_FAILED where that finds S singular */
+static int coast_update(mtwip_estimator_t *e, const meas_t *em) {
+    real *Pa = e->aug, Kg[NA][2], B[NA][2], G[NA][2], S[2][2];
+    int m = em->dof, u[NX], nu = 0, i, j, a, b, t;
+    for (j = 0; j < NX; j++) /* H's columns that are not zero */
+        for (a = 0; a < m; a++)
+            if (em->H[a][j] != ZERO) {
+                u[nu++] = j;
+                break;
+            }
+    for (i = 0; i < NA; i++) /* B = Pa Hᵀ */
+        for (a = 0; a < m; a++) {
+            real s = ZERO;
+            for (t = 0; t < nu; t++) s += Pa[i * NA + u[t]] * em->H[a][u[t]];
+            Kg[i][a] = B[i][a] = s;
+        }
+    for (a = 0; a < m; a++)
+        for (b = 0; b < m; b++) {
+            real s = ZERO;
+            for (t = 0; t < nu; t++) s += em->H[a][u[t]] * B[u[t]][b];
+            S[a][b] = s + (a == b ? em->R[a] : ZERO);
+        }
+    if (aug_gain(e, em, S, Kg) != EKF_OK) return EKF_FAILED;
+    aug_state_update(e, em, Kg);
+    for (i = 0; i < NA; i++)
+        for (a = 0; a < m; a++) {
+            real s = B[i][a];
+            for (b = 0; b < m; b++) s -= Kg[i][b] * S[b][a];
+            G[i][a] = s;
+        }
+    for (i = 0; i < NA; i++)
+        for (j = i; j < NA; j++) {
+            real s = Kg[i][0] * B[j][0] + G[i][0] * Kg[j][0];
+            if (m > 1) s += Kg[i][1] * B[j][1] + G[i][1] * Kg[j][1];
+            Pa[i * NA + j] = Pa[j * NA + i] = Pa[i * NA + j] - s;
+        }
+    for (i = 0; i < NX; i++)
+        for (j = 0; j < NX; j++) e->P[i * NX + j] = Pa[i * NA + j];
+    return EKF_OK;
+}
+#else
 #define NU 5    /* the most columns of H that are not zero (h_row: TH, PS, AL, C0, H0; coast_update's sums unrolled) */
 #define UNIT 255 /* coast_update: a row of I − K H that is the identity's */
 #define DG s += q; /* coast_update: the diagonal's term, 1 × q */
@@ -1744,7 +2099,7 @@ static real ikh_aug(real Kg[NA][2], const meas_t *em, int i, int l) {
    the gain by Gaussian elimination with partial pivoting (detlinalg.solve); EKF_FAILED where that
    finds S singular */
 static int coast_update(mtwip_estimator_t *e, const meas_t *em) {
-    real *Pa = e->aug, Kg[NA][2], S[2][2], y[2], row[NA], Rm[2][2], G[NA][NU];
+    real *Pa = e->aug, Kg[NA][2], S[2][2], row[NA], Rm[2][2], G[NA][NU];
     uint8_t dg[NA], kz[NA];
     int m = em->dof, u[NU], nu = 0, fin, i, j, a, b, k, t;
     for (k = 0; k < NX; k++) { /* H's columns that are not zero */
@@ -1773,43 +2128,8 @@ static int coast_update(mtwip_estimator_t *e, const meas_t *em) {
             Rm[a][b] = a == b ? em->R[a] : ZERO;
             S[a][b] = s + Rm[a][b];
         }
-    if (m == 1) {
-        if (S[0][0] == ZERO || S[0][0] != S[0][0]) return EKF_FAILED;
-        for (i = 0; i < NA; i++) Kg[i][0] = Kg[i][0] / S[0][0];
-    } else {
-        int p = MTWIP_FABS(S[1][0]) > MTWIP_FABS(S[0][0]);
-        real r0[2], r1[2], f;
-        if (S[p][0] == ZERO || S[p][0] != S[p][0]) return EKF_FAILED;
-        r0[0] = S[p][0];
-        r0[1] = S[p][1];
-        r1[0] = S[1 - p][0];
-        r1[1] = S[1 - p][1];
-        f = r1[0] / r0[0];
-        if (f != ZERO) r1[1] -= f * r0[1];
-        if (r1[1] == ZERO || r1[1] != r1[1]) return EKF_FAILED;
-        for (i = 0; i < NA; i++) {
-            real b0 = Kg[i][p], b1 = Kg[i][1 - p], x1, s;
-            if (f != ZERO) b1 -= f * b0;
-            x1 = b1 / r1[1];
-            s = b0;
-            s -= r0[1] * x1;
-            Kg[i][0] = s / r0[0];
-            Kg[i][1] = x1;
-        }
-    }
-    for (i = 0; i < NX; i++)
-        if (e->consider[i]) Kg[i][0] = Kg[i][1] = ZERO;
-    for (a = 0; a < m; a++) {
-        real s = ZERO;
-        for (j = 0; j < NX; j++) s += em->H[a][j] * e->x[j];
-        y[a] = em->z[a] - (s + em->off[a]);
-    }
-    for (i = 0; i < NA; i++) { /* the augmented state (x, ω, ω₋₁, δp) += K y, in place */
-        real s = ZERO, *v = i < NX ? e->x + i : i < NX + 2 ? e->w + (i - NX) : i < NX + 4 ? e->w_prev + (i - NX - 2)
-                                                                                         : e->dp + (i - NX - 4);
-        for (a = 0; a < m; a++) s += Kg[i][a] * y[a];
-        *v = *v + s;
-    }
+    if (aug_gain(e, em, S, Kg) != EKF_OK) return EKF_FAILED;
+    aug_state_update(e, em, Kg);
     /* I − K H's entries at H's nonzero columns u (as ikh_aug). With K finite, its entries at the other
        columns are exact: +0 off the diagonal (0 − a sum of ±0 from +0), 1 on it; with Pa (then A) finite
        too, the products' sums leave out the +0 terms and take the diagonal's 1 × P as P, each in its place
@@ -1918,6 +2238,7 @@ static int coast_update(mtwip_estimator_t *e, const meas_t *em) {
         for (j = 0; j < NX; j++) e->P[i * NX + j] = Pa[i * NA + j];
     return EKF_OK;
 }
+#endif
 
 /* Fusion.encoder_step after a coasting prediction */
 static int coast_encoders(mtwip_estimator_t *e, const real *enc) {
@@ -1953,17 +2274,18 @@ static int coast_encoders(mtwip_estimator_t *e, const real *enc) {
 /* Fusion.coast: equation (1) stands in for the IMU (rail: the reading and its censored axes) */
 static void coast(mtwip_estimator_t *e, const real *enc, const real *cmd, const real *rail_v, const uint8_t *rail_rep) {
     int rc;
+    e->coasted = 1;
     keep_good(e); /* the core's take_over: the state as it is now is the last good one */
     rc = coast_predict(e, cmd, rail_v, rail_rep);
     if (rc == EKF_OK) rc = coast_encoders(e, enc);
-    if (rc == EKF_OK) { /* Fusion.finish */
-        symmetrise(e->P, NX);
+    if (rc == EKF_OK) { /* Fusion.finish (the lean build's P is symmetric as made) */
+        if (!MTWIP_EKF_LEAN) symmetrise(e->P, NX);
         if (healthy(e->x, e->P)) {
             int inside = in_range(e->x, e->P); /* (eliminates in P: P is the augmented block, symmetrised) */
             int i, j;
             for (i = 0; i < NX; i++)
                 for (j = 0; j < NX; j++) e->P[i * NX + j] = e->aug[i * NA + j];
-            symmetrise(e->P, NX);
+            if (!MTWIP_EKF_LEAN) symmetrise(e->P, NX);
             if (!inside) lost(e);
             keep_good(e);
         } else {
@@ -2062,6 +2384,7 @@ void mtwip_estimator_step(mtwip_estimator_t *e, const mtwip_sample_t *sample, co
         return;
     }
     k = ++e->k;
+    e->coasted = 0;
     slot = &e->cmd[ring_index(k - 1)];
     slot->key = k - 1;
     slot->v[0] = command[0];
@@ -2083,6 +2406,13 @@ void mtwip_estimator_step(mtwip_estimator_t *e, const mtwip_sample_t *sample, co
         command_of(e, m - C->every, u);
         advance(e, g && a ? g->v : NULL, g && a ? a->v : NULL, enc, u);
         e->m = m;
+    }
+    /* the lean build's latency watch: a check that fell due runs once the filter has taken a step without
+       coasting (a coasting step has the most work of any; the check waits for one with less) */
+    if (MTWIP_EKF_LEAN && e->w_due && !e->coasted && e->w_len == WN) {
+        int32_t found;
+        e->w_due = 0;
+        if (watch_decide(e, e->d_gyro, &found)) latency_changed(e, k, e->m, found);
     }
     /* the forward prediction across the lag (the kernel's forward) */
     state6(e->x, e->w, e->w_prev, s0);

@@ -99,6 +99,7 @@ typedef struct {
     mtwip_real wy[MTWIP_EKF_WATCH_ALLOC], wu[MTWIP_EKF_WATCH_ALLOC];
     int32_t w_head, w_len, w_k, w_last_g, w_last_a, w_votes_lag, w_votes, w_hold_until, w_vm;
     uint32_t w_vn;
+    uint8_t w_due, coasted; /* the lean build: a check waiting for a step that does not coast; this step coasts */
     int32_t gaps_g[MTWIP_EKF_GAPS][2], gaps_a[MTWIP_EKF_GAPS][2];
     int32_t n_gaps_g, n_gaps_a;
     mtwip_real last_estimate[6];
