@@ -369,6 +369,18 @@ static real q_entry(const step_t *st, int i, int j) {
 
 /* an operation on each of the twelve accumulators a0 … a11 (NX = 12) */
 #define EACH12(M) M(0) M(1) M(2) M(3) M(4) M(5) M(6) M(7) M(8) M(9) M(10) M(11)
+/* P (NX × NX) = the augmented covariance's first NX rows and columns: row by row, each unrolled (a
+   loop here becomes a library call per row on some compilers, slower than the copy itself) */
+static void block_of(real *P, const real *Pa) {
+    int i;
+    for (i = 0; i < NX; i++) {
+        real *d = P + i * NX;
+        const real *a = Pa + i * NA;
+#define CP(r) d[r] = a[r];
+        EACH12(CP)
+#undef CP
+    }
+}
 #define ACC_DECL(r) real a##r = ZERO;
 #define ACC_COL(r) a##r += p * c[r];
 #define ACC_DIAG(r) \
@@ -415,14 +427,20 @@ static int cov_predict(const step_t *st, const real *P, real *Pp, int pfin) {
         const real *Ai = ROW_OF[i] >= 0 ? A4[ROW_OF[i]] : P + i * NX;
         real *Pi = Pp + i * NX, s0 = ZERO, s1 = ZERO, s2 = ZERO, s3 = ZERO; /* (A Fᵀ)[i] at F4's rows */
         const real *Qi = ROW_OF[i] >= 0 ? st->Q4[ROW_OF[i]] : zero4;
-        for (t = 0; t < n_any; t++) {
-            real v = Ai[any[t]];
-            k = any[t];
-            s0 += v * st->F4[0][k];
-            s1 += v * st->F4[1][k];
-            s2 += v * st->F4[2][k];
-            s3 += v * st->F4[3][k];
-        }
+        if (MTWIP_EKF_LEAN && ROW_OF[i] < 0) { /* (F P Fᵀ)[i][F4's rows] = (F P)[F4's rows][i]: P is symmetric */
+            s0 = A4[0][i];
+            s1 = A4[1][i];
+            s2 = A4[2][i];
+            s3 = A4[3][i];
+        } else
+            for (t = 0; t < n_any; t++) {
+                real v = Ai[any[t]];
+                k = any[t];
+                s0 += v * st->F4[0][k];
+                s1 += v * st->F4[1][k];
+                s2 += v * st->F4[2][k];
+                s3 += v * st->F4[3][k];
+            }
         /* + Q: its 4 × 4 block on F4's rows and columns (TH, AL, V, PS: ROW_OF), the gyro biases' random
            walk, +0 elsewhere (which the rows of F's identity rows take too, as the kernel's sums) */
         Pi[TH] = s0 + Qi[0];
@@ -739,15 +757,16 @@ static int healthy(const real *x, const real *P) {
     return 1;
 }
 
-/* every pivot of W's LDLᵀ elimination (no pivoting) positive and finite; W (a copy of P) is overwritten */
+/* every pivot of W's LDLᵀ elimination (no pivoting) positive and finite; W (a copy of P) is overwritten.
+   The lean build eliminates on the upper triangle (W is symmetric) */
 static int positive_definite(real *W) {
     int i, j, k;
     for (k = 0; k < NX; k++) {
         real d = W[k * NX + k];
         if (!(d > ZERO && MTWIP_ISFINITE(d))) return 0;
         for (i = k + 1; i < NX; i++) {
-            real f = W[i * NX + k] / d;
-            for (j = k + 1; j < NX; j++) W[i * NX + j] -= f * W[k * NX + j];
+            real f = (MTWIP_EKF_LEAN ? W[k * NX + i] : W[i * NX + k]) / d;
+            for (j = MTWIP_EKF_LEAN ? i : k + 1; j < NX; j++) W[i * NX + j] -= f * W[k * NX + j];
         }
     }
     return 1;
@@ -1708,11 +1727,8 @@ static void aug_jpj(real *Pa, real Jr[6][NA]) {
             u4 += j4 * q;
             u5 += j5 * q;
         }
-        for (t = 0; t < 1 + two; t++) {
-            const int c = l + t;
-            Pa[(NX + 2) * NA + c] = Pa[NX * NA + c];
-            Pa[(NX + 3) * NA + c] = Pa[(NX + 1) * NA + c];
-        }
+        Pa[(NX + 2) * NA + l] = Pa[NX * NA + l];
+        Pa[(NX + 3) * NA + l] = Pa[(NX + 1) * NA + l];
         Pa[TH * NA + l] = s0;
         Pa[AL * NA + l] = s1;
         Pa[V * NA + l] = s2;
@@ -1720,6 +1736,8 @@ static void aug_jpj(real *Pa, real Jr[6][NA]) {
         Pa[NX * NA + l] = s4;
         Pa[(NX + 1) * NA + l] = s5;
         if (two) {
+            Pa[(NX + 2) * NA + l + 1] = Pa[NX * NA + l + 1];
+            Pa[(NX + 3) * NA + l + 1] = Pa[(NX + 1) * NA + l + 1];
             Pa[TH * NA + l + 1] = u0;
             Pa[AL * NA + l + 1] = u1;
             Pa[V * NA + l + 1] = u2;
@@ -1728,13 +1746,28 @@ static void aug_jpj(real *Pa, real Jr[6][NA]) {
             Pa[(NX + 1) * NA + l + 1] = u5;
         }
     }
-    for (a = 0; a < 6; a++) /* M's rows RN times Jr's rows */
-        for (b = a; b < 6; b++) {
-            const real *Ma = Pa + RN[a] * NA;
-            real s = ZERO;
-            for (t = 0; t < cnt; t++) s += Ma[nz[t]] * Jr[b][nz[t]];
-            B[a][b] = B[b][a] = s;
+    for (a = 0; a < 6; a++) { /* M's rows RN times Jr's rows (the six sums side by side) */
+        const real *Ma = Pa + RN[a] * NA;
+        real s0 = ZERO, s1 = ZERO, s2 = ZERO, s3 = ZERO, s4 = ZERO, s5 = ZERO;
+        for (t = 0; t < cnt; t++) {
+            const int k = nz[t];
+            const real m = Ma[k];
+            s0 += m * Jr[0][k];
+            s1 += m * Jr[1][k];
+            s2 += m * Jr[2][k];
+            s3 += m * Jr[3][k];
+            s4 += m * Jr[4][k];
+            s5 += m * Jr[5][k];
         }
+        B[a][0] = s0;
+        B[a][1] = s1;
+        B[a][2] = s2;
+        B[a][3] = s3;
+        B[a][4] = s4;
+        B[a][5] = s5;
+    }
+    for (a = 0; a < 6; a++) /* (symmetric: the upper triangle's) */
+        for (b = 0; b < a; b++) B[a][b] = B[b][a];
     for (i = 0; i < NA; i++) { /* J's unit rows ω₋₁ pick M's columns ω */
         Pa[i * NA + NX + 2] = Pa[i * NA + NX];
         Pa[i * NA + NX + 3] = Pa[i * NA + NX + 1];
@@ -1895,8 +1928,9 @@ static int coast_predict(mtwip_estimator_t *e, const real *cmd, const real *rail
     state6(x, e->w, e->w_prev, s6);
     synthetic_raw(&C->model, s6, cmd, (int)C->every, 1, raw, rvar);
     scaled(x, raw, rvar, syn, extra);
-    for (i = 0; i < 4; i++)
-        for (l = 0; l < NA; l++) Jr[JD[i]][l] = ZERO;
+    if (!MTWIP_EKF_LEAN) /* (the lean build writes every column below) */
+        for (i = 0; i < 4; i++)
+            for (l = 0; l < NA; l++) Jr[JD[i]][l] = ZERO;
     for (j = 0; j < NK; j++) { /* EstimatorModel.sensitivity: forward differences (D's last columns) */
         real hi[4], hv[2];
         synthetic_raw(&C->perturbed[j], s6, cmd, (int)C->every, 1, hi, hv);
@@ -1955,8 +1989,7 @@ static int coast_predict(mtwip_estimator_t *e, const real *cmd, const real *rail
 #endif
     Pa[NX * NA + NX] += rep[0] ? extra[0] : C->g_var;
     Pa[(NX + 1) * NA + NX + 1] += rep[1] ? extra[1] : C->g_var;
-    for (i = 0; i < NX; i++)
-        for (j = 0; j < NX; j++) e->P[i * NX + j] = Pa[i * NA + j];
+    block_of(e->P, Pa);
     e->w_prev[0] = e->w[0];
     e->w_prev[1] = e->w[1];
     e->w[0] = value[0];
@@ -2022,7 +2055,7 @@ static void aug_state_update(mtwip_estimator_t *e, const meas_t *em, real Kg[NA]
    (Pa is symmetric, and so is the result). The gain by Gaussian elimination with partial pivoting;
    EKF_FAILED where that finds S singular */
 static int coast_update(mtwip_estimator_t *e, const meas_t *em) {
-    real *Pa = e->aug, Kg[NA][2], B[NA][2], G[NA][2], S[2][2];
+    real *Pa = e->aug, Kg[NA][2], B[NA][2], G[NA][2], S[2][2], h[2][NX];
     int m = em->dof, u[NX], nu = 0, i, j, a, b, t;
     for (j = 0; j < NX; j++) /* H's columns that are not zero */
         for (a = 0; a < m; a++)
@@ -2030,12 +2063,19 @@ static int coast_update(mtwip_estimator_t *e, const meas_t *em) {
                 u[nu++] = j;
                 break;
             }
-    for (i = 0; i < NA; i++) /* B = Pa Hᵀ */
-        for (a = 0; a < m; a++) {
-            real s = ZERO;
-            for (t = 0; t < nu; t++) s += Pa[i * NA + u[t]] * em->H[a][u[t]];
-            Kg[i][a] = B[i][a] = s;
+    for (a = 0; a < 2; a++) /* H's nonzero entries, gathered */
+        for (t = 0; t < nu; t++) h[a][t] = a < m ? em->H[a][u[t]] : ZERO;
+    for (i = 0; i < NA; i++) { /* B = Pa Hᵀ */
+        const real *Pi = Pa + i * NA;
+        real s0 = ZERO, s1 = ZERO;
+        for (t = 0; t < nu; t++) {
+            const real p = Pi[u[t]];
+            s0 += p * h[0][t];
+            s1 += p * h[1][t];
         }
+        Kg[i][0] = B[i][0] = s0;
+        Kg[i][1] = B[i][1] = s1;
+    }
     for (a = 0; a < m; a++)
         for (b = 0; b < m; b++) {
             real s = ZERO;
@@ -2050,14 +2090,21 @@ static int coast_update(mtwip_estimator_t *e, const meas_t *em) {
             for (b = 0; b < m; b++) s -= Kg[i][b] * S[b][a];
             G[i][a] = s;
         }
-    for (i = 0; i < NA; i++)
-        for (j = i; j < NA; j++) {
-            real s = Kg[i][0] * B[j][0] + G[i][0] * Kg[j][0];
-            if (m > 1) s += Kg[i][1] * B[j][1] + G[i][1] * Kg[j][1];
-            Pa[i * NA + j] = Pa[j * NA + i] = Pa[i * NA + j] - s;
-        }
-    for (i = 0; i < NX; i++)
-        for (j = 0; j < NX; j++) e->P[i * NX + j] = Pa[i * NA + j];
+    for (i = 0; i < NA; i++) {
+        const real k0 = Kg[i][0], g0 = G[i][0], k1 = m > 1 ? Kg[i][1] : ZERO, g1 = m > 1 ? G[i][1] : ZERO;
+        real *Pi = Pa + i * NA;
+        if (m > 1)
+            for (j = i; j < NA; j++) {
+                const real v = Pi[j] - ((k0 * B[j][0] + g0 * Kg[j][0]) + (k1 * B[j][1] + g1 * Kg[j][1]));
+                Pi[j] = Pa[j * NA + i] = v;
+            }
+        else
+            for (j = i; j < NA; j++) {
+                const real v = Pi[j] - (k0 * B[j][0] + g0 * Kg[j][0]);
+                Pi[j] = Pa[j * NA + i] = v;
+            }
+    }
+    block_of(e->P, Pa);
     return EKF_OK;
 }
 #else
@@ -2234,8 +2281,7 @@ static int coast_update(mtwip_estimator_t *e, const meas_t *em) {
         for (j = 0; j < NA; j++) Pa[i * NA + j] = row[j];
     }
     symmetrise(Pa, NA);
-    for (i = 0; i < NX; i++)
-        for (j = 0; j < NX; j++) e->P[i * NX + j] = Pa[i * NA + j];
+    block_of(e->P, Pa);
     return EKF_OK;
 }
 #endif
@@ -2282,9 +2328,7 @@ static void coast(mtwip_estimator_t *e, const real *enc, const real *cmd, const 
         if (!MTWIP_EKF_LEAN) symmetrise(e->P, NX);
         if (healthy(e->x, e->P)) {
             int inside = in_range(e->x, e->P); /* (eliminates in P: P is the augmented block, symmetrised) */
-            int i, j;
-            for (i = 0; i < NX; i++)
-                for (j = 0; j < NX; j++) e->P[i * NX + j] = e->aug[i * NA + j];
+            block_of(e->P, e->aug);
             if (!MTWIP_EKF_LEAN) symmetrise(e->P, NX);
             if (!inside) lost(e);
             keep_good(e);
