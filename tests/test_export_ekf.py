@@ -206,6 +206,8 @@ def test_the_same_estimator_gives_the_same_bytes_and_options_are_refused():
 
     with pytest.raises(TwinError, match="compiled=False.*allowed"):
         ekf_export.emit(EKFEstimator(a.model, compiled=False), "float64")
+    with pytest.raises(TwinError, match="unknown EKF arithmetic 'fast'; allowed: exact, lean"):
+        ekf_export.emit(a, "float64", "fast")
 
 
 # The arranged arithmetic against the plain one, bit for bit, on random numbers: the covariance's prediction,

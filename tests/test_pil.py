@@ -6,6 +6,7 @@ held to a small part's budget.
 Needs arm-none-eabi-gcc with newlib and qemu-system-arm (Debian: gcc-arm-none-eabi,
 libnewlib-arm-none-eabi, qemu-system-arm); skips without them unless TWIN_REQUIRE_PIL=1.
 """
+import json
 import os
 import shutil
 
@@ -285,3 +286,31 @@ def test_the_exported_ekf_and_it2_cascade_on_a_cortex_m4(tmp_path):
     duty = c["fields"].get("duty")
     assert duty is None or (duty["max_abs"] <= 1.0 / 1023 + 1e-6 and duty["steps"] <= 5), duty
     assert "saturated" not in c["fields"]
+
+
+@needs_tools
+def test_a_coasting_step_fits_the_period_on_a_cortex_m4(tmp_path):
+    """The costliest steps: sensor-faults' IMU outliers and dropout, where an IMU step is tried and
+    refused and the model then stands in with the 21-state covariance (the lean EKF of a float32
+    export): every step under a tenth of the 5 ms period at 168 MHz, RAM ≤ 8 kB."""
+    import dataclasses
+
+    from twin.scenarios import load_scenario
+    from twin.sim.simulate import simulate
+    from twin.workflows.export import export
+    from twin.workflows.pil import PERIOD_SHARE, RAM_BYTES, run_pil
+
+    seconds = 6.0  # through the gyro spikes (2-4 s) and the IMU dropout (5 s)
+    spec = dataclasses.replace(load_scenario("sensor-faults").run_spec("it2"), duration=seconds)
+    ekf = spec.build_estimator()
+    simulate(spec, estimator=ekf)
+    stats = ekf.stats()
+    assert stats["predict_only_steps"] - stats["unchanged_encoder_samples"] >= 40, stats  # the twin's EKF coasts
+    export("sensor-faults", "it2", "ekf", "float32", tmp_path / "fw", seconds=0.05)
+    assert json.loads((tmp_path / "fw" / "export.json").read_text())["arithmetic"] == "lean"
+    r = run_pil(tmp_path / "fw", seconds=seconds)
+    b, q = r["build"], r["qemu"]
+    assert b["ram_bytes"] <= RAM_BYTES, b["ram_bytes"]
+    assert q["period_share"] <= PERIOD_SHARE, (q["instructions_max"], q["period_share"])
+    # the window held coasting steps: the costliest are well above a regular step's
+    assert q["instructions_max"] > 1.5 * q["instructions_mean"], (q["instructions_max"], q["instructions_mean"])

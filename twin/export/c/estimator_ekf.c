@@ -118,9 +118,16 @@ static real pow2(real a) { return MTWIP_POW(a, C->square); }
 
 /* ---- the model (estimation/model.py, twin/plant/analytic.py; the kernel's rhs, model_step, delivered).
    py: the Python path's arithmetic (x ** 2), else the kernel's -------------------------------------- */
+/* sin and cos of a */
+static void sin_cos(real a, real *sn, real *cs) {
+    *sn = MTWIP_SIN(a);
+    *cs = MTWIP_COS(a);
+}
+
 static void rhs(const model_t *p, const real *s, real ul, real ur, real *d, int py) {
-    real th = s[0], thd = s[1], psd = s[3], ald = s[5];
-    real sn = MTWIP_SIN(th), cs = MTWIP_COS(th);
+    real th = s[0], thd = s[1], psd = s[3], ald = s[5], sn, cs;
+    sin_cos(th, &sn, &cs);
+    {
     real drive = TWO * p->d_b * (thd - psd);
     real u = ul + ur;
     real rhs1 = p->m12 * (thd * thd + ald * ald) * sn - TWO * p->d_w * psd + drive + u + ZERO;
@@ -135,6 +142,7 @@ static void rhs(const model_t *p, const real *s, real ul, real ur, real *d, int 
     d[3] = (p->m22 * rhs1 - p->m12 * cs * rhs2) / det;
     d[4] = ald;
     d[5] = yaw / (p->m33 + p->n_bla * sn * sn);
+    }
 }
 
 /* RK4 over `periods` control periods; inc (NULL: none): the increments of s summed on their own */
@@ -188,23 +196,26 @@ static void synthetic_raw(const model_t *p, const real *s, const real *cmd, int 
     int i;
     real t, xi = p->xi, zi = p->zi, r = p->r;
     real sn0, cs0, sn1, cs1, dx0, dz0, dx1, dz1, u0, w0, u1, w1, ald, Fx, Fz, mc, det, dthdd, dpsdd, a, b;
+    real mid, smid = ZERO, cmid = ZERO;
     delivered(p, s, cmd[0], cmd[1], &tl, &tr);
     memcpy(s1, s, sizeof s1);
     for (i = 0; i < 6; i++) inc[i] = ZERO;
     model_step(p, s1, tl, tr, periods, py, C->increments ? inc : NULL);
     t = (real)periods * p->dt;
-    sn0 = MTWIP_SIN(s[ITH]);
-    cs0 = MTWIP_COS(s[ITH]);
-    sn1 = MTWIP_SIN(s1[ITH]);
-    cs1 = MTWIP_COS(s1[ITH]);
+    sin_cos(s[ITH], &sn0, &cs0);
+    sin_cos(s1[ITH], &sn1, &cs1);
     dx0 = xi * cs0 + zi * sn0;
     dz0 = -xi * sn0 + zi * cs0;
     dx1 = xi * cs1 + zi * sn1;
     dz1 = -xi * sn1 + zi * cs1;
+    mid = HALF * (s[ITH] + s1[ITH]);
     if (C->increments) { /* u1 − u0 = r Δψ̇ + Δθ̇ dz1 + θ̇0 (dz1 − dz0), w1 − w0 = −(Δθ̇ dx1 + θ̇0 (dx1 − dx0)) */
-        real hs = MTWIP_SIN(HALF * inc[ITH]), mid = HALF * (s[ITH] + s1[ITH]);
-        real dsn = TWO * MTWIP_COS(mid) * hs, dcs = -TWO * MTWIP_SIN(mid) * hs;
-        real ddx = xi * dcs + zi * dsn, ddz = -xi * dsn + zi * dcs;
+        real hs = MTWIP_SIN(HALF * inc[ITH]), dsn, dcs, ddx, ddz;
+        sin_cos(mid, &smid, &cmid);
+        dsn = TWO * cmid * hs;
+        dcs = -TWO * smid * hs;
+        ddx = xi * dcs + zi * dsn;
+        ddz = -xi * dsn + zi * dcs;
         (void)dx0;
         (void)dz0;
         ald = inc[IAL] / t;
@@ -223,7 +234,7 @@ static void synthetic_raw(const model_t *p, const real *s, const real *cmd, int 
     }
     raw[2] = Fx * cs1 - Fz * sn1;
     raw[3] = Fx * sn1 + Fz * cs1;
-    raw[1] = ald * MTWIP_COS(HALF * (s[ITH] + s1[ITH]));
+    raw[1] = ald * (C->increments ? cmid : MTWIP_COS(mid));
     mc = p->m12 * cs1;
     det = p->m11 * p->m22 - (py ? pow2(mc) : mc * mc);
     dthdd = -(p->m11 + p->m12 * cs1) / det;
@@ -787,10 +798,51 @@ static void symmetrise(real *P, int n) {
 }
 
 static void keep_good(mtwip_estimator_t *e) {
-    int i, j, p = 0;
+    int i, p = 0;
     memcpy(e->xg, e->x, sizeof e->xg);
-    for (i = 0; i < NX; i++) /* (packed: the upper triangle by rows) */
-        for (j = i; j < NX; j++) e->Pg[p++] = e->P[i * NX + j];
+    for (i = 0; i < NX; i++) { /* packed: the upper triangle by rows (row i's entries j >= i, unrolled: a loop
+                                  here becomes a library call per row on some compilers) */
+        const real *src = e->P + i * NX;
+        real *dst = e->Pg + p - i;
+        switch (i) {
+        case 0:
+            dst[0] = src[0];
+            /* fall through */
+        case 1:
+            dst[1] = src[1];
+            /* fall through */
+        case 2:
+            dst[2] = src[2];
+            /* fall through */
+        case 3:
+            dst[3] = src[3];
+            /* fall through */
+        case 4:
+            dst[4] = src[4];
+            /* fall through */
+        case 5:
+            dst[5] = src[5];
+            /* fall through */
+        case 6:
+            dst[6] = src[6];
+            /* fall through */
+        case 7:
+            dst[7] = src[7];
+            /* fall through */
+        case 8:
+            dst[8] = src[8];
+            /* fall through */
+        case 9:
+            dst[9] = src[9];
+            /* fall through */
+        case 10:
+            dst[10] = src[10];
+            /* fall through */
+        default:
+            dst[NX - 1] = src[NX - 1];
+        }
+        p += NX - i;
+    }
     memcpy(e->wg, e->w, sizeof e->wg);
     memcpy(e->wpg, e->w_prev, sizeof e->wpg);
 }
@@ -1706,13 +1758,15 @@ static void aug_jpj(real *Pa, real Jr[6][NA]) {
             nz[cnt++] = (uint8_t)t;
     }
     for (a = 0; a < 6; a++) in_n[RN[a]] = 1;
-    for (l = 0; l < NA; l += 2) { /* M = J Pa, columns l and l + 1 */
-        const int two = l + 1 < NA;
+    for (l = 0; l < NA; l += 3) { /* M = J Pa, columns l … l + 2 (each read whole before it is written) */
+        const int w = NA - l < 3 ? NA - l : 3;
         real s0 = ZERO, s1 = ZERO, s2 = ZERO, s3 = ZERO, s4 = ZERO, s5 = ZERO;
         real u0 = ZERO, u1 = ZERO, u2 = ZERO, u3 = ZERO, u4 = ZERO, u5 = ZERO;
+        real v0 = ZERO, v1 = ZERO, v2 = ZERO, v3 = ZERO, v4 = ZERO, v5 = ZERO;
         for (t = 0; t < cnt; t++) {
             const int k = nz[t];
-            const real p = Pa[k * NA + l], q = two ? Pa[k * NA + l + 1] : ZERO;
+            const real *Pk = Pa + k * NA + l;
+            const real p = Pk[0], q = w > 1 ? Pk[1] : ZERO, r = w > 2 ? Pk[2] : ZERO;
             const real j0 = Jr[0][k], j1 = Jr[1][k], j2 = Jr[2][k], j3 = Jr[3][k], j4 = Jr[4][k], j5 = Jr[5][k];
             s0 += j0 * p;
             s1 += j1 * p;
@@ -1726,25 +1780,30 @@ static void aug_jpj(real *Pa, real Jr[6][NA]) {
             u3 += j3 * q;
             u4 += j4 * q;
             u5 += j5 * q;
+            v0 += j0 * r;
+            v1 += j1 * r;
+            v2 += j2 * r;
+            v3 += j3 * r;
+            v4 += j4 * r;
+            v5 += j5 * r;
         }
-        Pa[(NX + 2) * NA + l] = Pa[NX * NA + l];
-        Pa[(NX + 3) * NA + l] = Pa[(NX + 1) * NA + l];
-        Pa[TH * NA + l] = s0;
-        Pa[AL * NA + l] = s1;
-        Pa[V * NA + l] = s2;
-        Pa[PS * NA + l] = s3;
-        Pa[NX * NA + l] = s4;
-        Pa[(NX + 1) * NA + l] = s5;
-        if (two) {
-            Pa[(NX + 2) * NA + l + 1] = Pa[NX * NA + l + 1];
-            Pa[(NX + 3) * NA + l + 1] = Pa[(NX + 1) * NA + l + 1];
-            Pa[TH * NA + l + 1] = u0;
-            Pa[AL * NA + l + 1] = u1;
-            Pa[V * NA + l + 1] = u2;
-            Pa[PS * NA + l + 1] = u3;
-            Pa[NX * NA + l + 1] = u4;
-            Pa[(NX + 1) * NA + l + 1] = u5;
+#define PUT(c, x0, x1, x2, x3, x4, x5)                      \
+    Pa[(NX + 2) * NA + (c)] = Pa[NX * NA + (c)];           \
+    Pa[(NX + 3) * NA + (c)] = Pa[(NX + 1) * NA + (c)];     \
+    Pa[TH * NA + (c)] = x0;                                \
+    Pa[AL * NA + (c)] = x1;                                \
+    Pa[V * NA + (c)] = x2;                                 \
+    Pa[PS * NA + (c)] = x3;                                \
+    Pa[NX * NA + (c)] = x4;                                \
+    Pa[(NX + 1) * NA + (c)] = x5;
+        PUT(l, s0, s1, s2, s3, s4, s5)
+        if (w > 1) {
+            PUT(l + 1, u0, u1, u2, u3, u4, u5)
         }
+        if (w > 2) {
+            PUT(l + 2, v0, v1, v2, v3, v4, v5)
+        }
+#undef PUT
     }
     for (a = 0; a < 6; a++) { /* M's rows RN times Jr's rows (the six sums side by side) */
         const real *Ma = Pa + RN[a] * NA;
@@ -2332,10 +2391,10 @@ static void coast(mtwip_estimator_t *e, const real *enc, const real *cmd, const 
             if (!MTWIP_EKF_LEAN) symmetrise(e->P, NX);
             if (!inside) lost(e);
             keep_good(e);
-        } else {
-            restore(e);
-            e->aug_on = 0;
+            return; /* (the core's push would keep the same state again) */
         }
+        restore(e);
+        e->aug_on = 0;
     } else { /* where the Python path raises: EKFEstimator.step restores the last good state */
         restore(e);
         e->aug_on = 0;
