@@ -134,6 +134,16 @@ def _replay(lib, log) -> np.ndarray:
     return out
 
 
+def _c_estimates(estimator, log, d, arithmetic: str = "exact") -> np.ndarray:
+    """The float64 C build of ``estimator`` (with ``arithmetic``) replayed over a recording: its estimates."""
+    _write(estimator, "float64", d, arithmetic)
+    so = d / "libekf.so"
+    r = subprocess.run([COMPILERS[0], *STRICT, "-fPIC", "-shared", "-I", str(d), str(d / "mtwip_estimator.c"),
+                        str(d / "driver.c"), "-o", str(so), "-lm"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    return _replay(ctypes.CDLL(str(so)), log)
+
+
 @pytest.mark.parametrize("scenario, seconds", [("paper-exp3", 2.5), ("sensor-faults", 5.5)])
 def test_the_c_gives_the_twins_estimates_step_for_step(scenario, seconds, tmp_path):
     fresh, log, run = _run(scenario, seconds)
@@ -141,13 +151,7 @@ def test_the_c_gives_the_twins_estimates_step_for_step(scenario, seconds, tmp_pa
         stats = run.stats()
         assert stats["rejected"]["gyro"] > 0, stats
         assert stats["predict_only_steps"] - stats["unchanged_encoder_samples"] >= 40, stats
-    _write(fresh, "float64", tmp_path)
-    so = tmp_path / "libekf.so"
-    r = subprocess.run([COMPILERS[0], *STRICT, "-fPIC", "-shared", "-I", str(tmp_path),
-                        str(tmp_path / "mtwip_estimator.c"), str(tmp_path / "driver.c"), "-o", str(so), "-lm"],
-                       capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
-    c = _replay(ctypes.CDLL(str(so)), log)
+    c = _c_estimates(fresh, log, tmp_path)
     twin = np.array([x for *_, x in log])
     diff = np.abs(c - twin)
     worst = diff.max(axis=0)
@@ -178,14 +182,8 @@ def test_the_lean_arithmetic_is_the_same_filter(scenario, seconds, controller, t
     fresh, log, run = _run(scenario, seconds, controller)
     stats = run.stats()
     assert stats["predict_only_steps"] - stats["unchanged_encoder_samples"] >= 20, stats  # it coasted
-    _write(fresh, "float64", tmp_path, "lean")
+    c = _c_estimates(fresh, log, tmp_path, "lean")
     assert "#define MTWIP_EKF_LEAN 1" in (tmp_path / "mtwip_estimator.h").read_text()
-    so = tmp_path / "libekf.so"
-    r = subprocess.run([COMPILERS[0], *STRICT, "-fPIC", "-shared", "-I", str(tmp_path),
-                        str(tmp_path / "mtwip_estimator.c"), str(tmp_path / "driver.c"), "-o", str(so), "-lm"],
-                       capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
-    c = _replay(ctypes.CDLL(str(so)), log)
     twin = np.array([x for *_, x in log])
     worst = np.abs(c - twin).max(axis=0)
     assert worst.max() <= LEAN_TOLERANCE, f"{scenario}: lean C against the twin's EKF, worst |diff| per state {worst}"

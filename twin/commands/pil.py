@@ -40,7 +40,7 @@ def pil_command(directory, seconds, json_out):
     """
     r = run_pil(directory, seconds)
     b, q, c = r["build"], r["qemu"], r["compare"]
-    click.echo(f"{r['controller']} with {r['estimator']}, {r['precision']}, on {b['board']} (Cortex-M4F), "
+    click.echo(f"{r['controller']} with {r['estimator']}, {r['precision']} ({r['arithmetic']}), on {b['board']} (Cortex-M4F), "
                f"{r['steps']} steps of {r['scenario']}")
     click.echo(f"  flash   {_fmt_bytes(b['library_flash'])} (the library; the whole test image "
                f"{_fmt_bytes(b['image_flash'])}), target <= 64 kB")

@@ -60,7 +60,8 @@ def run_pil(directory, seconds: float = 3.0, work=None, overrides=()) -> dict:
     rate = float(doc["control_rate_hz"])
     info = target.info
     share = info["us_max"] * 1e-6 * rate
-    return {"export": str(d), "precision": doc["precision"], "controller": doc["controller"],
+    return {"export": str(d), "precision": doc["precision"], "arithmetic": doc.get("arithmetic", "exact"),
+            "controller": doc["controller"],
             "estimator": doc["estimator"], "scenario": doc["scenario"], "steps": int(len(target.outputs)),
             "build": {k: v for k, v in built.items() if k != "image"}, "qemu": {**info, "period_share": share},
             "compare": pil.compare(target.outputs, host),

@@ -798,50 +798,18 @@ static void symmetrise(real *P, int n) {
 }
 
 static void keep_good(mtwip_estimator_t *e) {
-    int i, p = 0;
+    int i, p = NX * (NX + 1) / 2;
     memcpy(e->xg, e->x, sizeof e->xg);
-    for (i = 0; i < NX; i++) { /* packed: the upper triangle by rows (row i's entries j >= i, unrolled: a loop
-                                  here becomes a library call per row on some compilers) */
+    for (i = NX - 1; i >= 0; i--) { /* packed: the upper triangle by rows. Row i's entries j >= i go to
+        Pg[p_i .. p_i + NX - i); the whole row is copied, unrolled (a loop here becomes a library call per row
+        on some compilers), its first i entries onto the rows before it, which are written after it */
         const real *src = e->P + i * NX;
-        real *dst = e->Pg + p - i;
-        switch (i) {
-        case 0:
-            dst[0] = src[0];
-            /* fall through */
-        case 1:
-            dst[1] = src[1];
-            /* fall through */
-        case 2:
-            dst[2] = src[2];
-            /* fall through */
-        case 3:
-            dst[3] = src[3];
-            /* fall through */
-        case 4:
-            dst[4] = src[4];
-            /* fall through */
-        case 5:
-            dst[5] = src[5];
-            /* fall through */
-        case 6:
-            dst[6] = src[6];
-            /* fall through */
-        case 7:
-            dst[7] = src[7];
-            /* fall through */
-        case 8:
-            dst[8] = src[8];
-            /* fall through */
-        case 9:
-            dst[9] = src[9];
-            /* fall through */
-        case 10:
-            dst[10] = src[10];
-            /* fall through */
-        default:
-            dst[NX - 1] = src[NX - 1];
-        }
-        p += NX - i;
+        real *dst;
+        p -= NX - i;
+        dst = e->Pg + p - i;
+#define CP(r) dst[r] = src[r];
+        EACH12(CP)
+#undef CP
     }
     memcpy(e->wg, e->w, sizeof e->wg);
     memcpy(e->wpg, e->w_prev, sizeof e->wpg);
