@@ -194,3 +194,52 @@ def test_a_robot_of_ones_own_named_anyhow_exports_and_compiles(tmp_path):
     subprocess.run([COMPILERS[0], *STRICT, "-I", str(d), *[str(d / n) for n in LIBRARY if n.endswith(".c")],
                     str(d / "test" / "test_host.c"), "-lm", "-o", str(exe)], check=True)
     assert subprocess.run([str(exe)], capture_output=True, text=True).stdout.startswith("ok: ")
+
+
+def test_an_edited_export_that_crashes_is_one_line_and_its_code_is_recorded(exports, tmp_path):
+    """An export's C is a user's code once edited: it runs in a worker process (as a Python plugin
+    does), so a crash in it ends the command with one line naming it, not the command's process;
+    and the run records a digest of its sources, which the edit changes."""
+    import sys
+
+    from twin.registry import provenance
+
+    d = tmp_path / "fw"
+    shutil.copytree(exports["it2-64"], d)
+    kind = f"export:{d}"
+    before = provenance("controller", kind)["sha256"]
+    src = (d / "mtwip_control.c").read_text()
+    at = src.index("{", src.index("void mtwip_control(")) + 1
+    (d / "mtwip_control.c").write_text(src[:at] + "\n    if (x) *(volatile int *)0 = 0;\n" + src[at:])
+    assert provenance("controller", kind)["sha256"] not in (None, before)
+    r = subprocess.run([sys.executable, "-m", "twin", "run", "paper-exp3", "--controller", kind, "--duration", "0.1",
+                        "--no-video", "--out", str(tmp_path / "run")], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2, (r.returncode, r.stderr[-400:])
+    errors = [line for line in r.stderr.splitlines() if line.strip()]
+    assert len(errors) == 1 and "SIGSEGV" in errors[0] and kind in errors[0], r.stderr
+
+
+def test_an_imu_mounted_turned_reads_in_its_own_axes(tmp_path):
+    """A robot whose IMU is mounted turned (imu.orientation): the firmware takes the IMU's readings
+    in its own axes and turns them into the body's by the config's imu_to_body (from the robot
+    file); the host test's readings are the IMU's own, and it fails if the turn is left out."""
+    d = tmp_path / "fw"
+    export("paper-exp3", "it2", "ekf", "float64", d, ("sensors.imu_orientation=[0.1, -0.2, 0.3]",), seconds=0.5)
+    assert "#define MTWIP_IMU_TO_BODY {{0x1.df61d8" in (d / "mtwip_params.h").read_text()
+    cc = "gcc" if "gcc" in COMPILERS else COMPILERS[0]
+
+    def host_test(where):
+        exe = where / "t"
+        subprocess.run([cc, *STRICT, "-I", str(where), *[str(where / n) for n in LIBRARY if n.endswith(".c")],
+                        str(where / "test" / "test_host.c"), "-lm", "-o", str(exe)], check=True)
+        return subprocess.run([str(exe)], capture_output=True, text=True)
+
+    run = host_test(d)
+    assert run.returncode == 0 and run.stdout.startswith("ok: "), run.stdout  # within 1e-9 (the turn's rounding)
+    bad = tmp_path / "unturned"
+    shutil.copytree(d, bad)
+    src = (bad / "mtwip.c").read_text()
+    assert "if (s->imu_turned) {" in src
+    (bad / "mtwip.c").write_text(src.replace("if (s->imu_turned) {", "if (0 && s->imu_turned) {"))
+    run = host_test(bad)
+    assert run.returncode == 1 and run.stdout.splitlines()[-1].startswith("FAIL"), run.stdout

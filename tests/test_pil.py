@@ -178,7 +178,9 @@ def test_the_stand_in_fits_a_small_cortex_m4(stand_in):
     assert info["precision"] == "float32" and info["board"] == "netduinoplus2"
     assert 0 < info["library_flash"] <= info["image_flash"] <= 64 * 1024
     assert info["library_ram"] == 0  # no mutable global state (mtwip.h)
-    assert info["state_bytes"] == stand_in["target"].info["state_bytes"] == 4 * (3 + 7 + 2) + 4
+    # mtwip_state_t: the config (3 scales, the IMU's 3 × 3 turn), imu_turned (padded to 4 bytes), the stand-in's
+    # estimator (7), the command (2), k
+    assert info["state_bytes"] == stand_in["target"].info["state_bytes"] == 4 * (3 + 9) + 4 + 4 * (7 + 2) + 4
     assert info["stack_exact"], info["stack_notes"]
     assert [f[0] for f in info["stack_path"][:1]] == ["mtwip_step"] and info["stack_path"][0][2] == "su"
     assert info["stack_bytes"] == sum(f[1] for f in info["stack_path"])

@@ -51,7 +51,7 @@ from twin import limits as _limits, registry
 from twin.controllers import design_cache
 from twin.errors import MAY_NOT_END, PluginError, TwinError
 from twin.interrupts import deferred_signals
-from twin.registry import is_import_path
+from twin.registry import is_user_code
 from twin.workers import descendants, die_with_parent, process_stat
 
 PR_SET_CHILD_SUBREAPER = 36  # <linux/prctl.h>
@@ -131,7 +131,7 @@ class WorkerDied(TwinError):
 
 
 def _is_plugin(kind) -> bool:
-    return is_import_path(kind)
+    return is_user_code(kind)
 
 
 class RemoteTraceback(Exception):

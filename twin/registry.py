@@ -224,7 +224,7 @@ def plugin_dirs(kinds) -> tuple[str, ...]:
     dirs = []
     for role, kind in kinds:
         p = provenance(role, kind)
-        if p is not None and p["file"]:
+        if p is not None and p["file"] and p["module"]:
             d = Path(p["file"]).parent
             # a package's module: the directory above the top-level package
             for _ in range(p["module"].count(".") + (Path(p["file"]).name == "__init__.py")):
@@ -245,6 +245,13 @@ def use_plugin_dirs(dirs) -> None:
 def is_import_path(kind: str) -> bool:
     """True for ``"package.module:attribute"``."""
     return isinstance(kind, str) and bool(_IMPORT_PATH.match(kind)) and not is_export(kind)
+
+
+def is_user_code(kind) -> bool:
+    """True for a kind that runs a user's code: an import path, or an export directory's C (which
+    may have been edited since the export): such a kind runs in a worker process the command can
+    stop (:mod:`twin.containment`), and its code's digest is part of what a run records."""
+    return is_import_path(kind) or is_export(kind)
 
 
 def is_export(kind) -> bool:
@@ -546,13 +553,29 @@ def build_estimator_for(kind: str, sensors, control_rate: float, motor, params, 
 def provenance(role: str, kind: str) -> dict | None:
     """For an import path: ``{"role", "kind", "module", "file", "sha256"}`` of the module
     that defines it (its source file's SHA-256); None for a built-in. The file is hashed
-    once per process, when first asked: the code imported then is the code that runs."""
+    once per process, when first asked: the code imported then is the code that runs. For
+    ``export:DIR``: ``module`` None, ``file`` DIR's manifest, ``sha256`` over DIR's C sources
+    and headers (which the user may have edited since the export)."""
+    if is_export(kind):
+        return _export_provenance(role, kind)
     if not is_import_path(kind):
         return None
     resolve(role, kind)
     module_name = kind.split(":", 1)[0]
     file, digest = _file_digest(module_name)
     return {"role": role, "kind": kind, "module": module_name, "file": file, "sha256": digest}
+
+
+def _export_provenance(role: str, kind: str) -> dict:
+    d = Path(kind[len(EXPORT_PREFIX):])
+    h = hashlib.sha256()
+    try:
+        for f in sorted(p for p in d.iterdir() if p.suffix in (".c", ".h") and p.is_file()):
+            h.update(f.name.encode() + b"\0" + f.read_bytes() + b"\0")
+        digest = h.hexdigest()
+    except OSError:
+        digest = None
+    return {"role": role, "kind": kind, "module": None, "file": str(d / "export.json"), "sha256": digest}
 
 
 @functools.lru_cache(maxsize=None)
@@ -589,4 +612,4 @@ def parse_controllers(choice: str) -> tuple[str, ...]:
 
 __all__ = ["BuildContext", "CONTROLLERS", "ESTIMATORS", "EXPORT_PREFIX", "Kind", "exported_kind", "is_export", "build_controller", "build_estimator", "build_estimator_for",
            "look_beside",
-           "check_kind", "check_kinds", "check_protocol", "is_import_path", "label", "parse_controllers", "provenance", "resolve"]
+           "check_kind", "check_kinds", "check_protocol", "is_import_path", "is_user_code", "label", "parse_controllers", "provenance", "resolve"]

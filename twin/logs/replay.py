@@ -85,7 +85,7 @@ from twin.logs.format import SensorLog, read_log
 from twin.logs.instants import instants_of, rows_clock
 from twin.logs.noise import choose
 from twin.protocols import describe_object
-from twin.registry import build_estimator, is_import_path
+from twin.registry import build_estimator, is_user_code
 from twin.sensors import Measurement
 from twin.sensors.types import CORE_CHANNELS
 from twin.sim.recorder import filter_log_of  # the arrays Run.filter_log holds, built the same way
@@ -753,13 +753,13 @@ def summary_lines(entry: dict) -> list:
 
 def replay_logs_contained(paths, kinds, noise: str = "log") -> dict:
     """:func:`replay_logs`, in a worker process the command kills (:mod:`twin.containment`) if an
-    estimator is a user's plugin (``package.module:attribute``): its exit, its crash, its threads
-    and its processes end with the replay, which then ends with one line naming it. Built-in
-    estimators alone replay here. The same numbers either way."""
+    estimator is a user's code (``package.module:attribute``, or an export directory's C): its
+    exit, its crash, its threads and its processes end with the replay, which then ends with one
+    line naming it. Built-in estimators alone replay here. The same numbers either way."""
     # only for plugin estimators, each replayed in a process of its own
     from twin.containment import Task, run_contained
 
-    plugins = tuple(("estimator", k) for k in kinds if is_import_path(k))
+    plugins = tuple(("estimator", k) for k in kinds if is_user_code(k))
     if not plugins:
         return replay_logs(paths, kinds, noise)
     return run_contained(Task(replay_logs, ([str(p) for p in paths], list(kinds), noise), plugins=plugins,

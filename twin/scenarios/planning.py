@@ -13,7 +13,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
-from twin.registry import is_import_path, parse_controllers, provenance
+from twin.registry import is_user_code, parse_controllers, provenance
 from twin.scenarios.schema import ScenarioError, key_text
 from twin.scenarios.scenario import Scenario
 
@@ -44,8 +44,9 @@ def kinds_of(scenario: Scenario, controllers) -> tuple:
 
 
 def plugin_roles(scenario: Scenario, controllers) -> tuple:
-    """(role, kind) of each import-path kind (a user's code) of :func:`kinds_of`."""
-    return tuple((role, k) for role, k in kinds_of(scenario, controllers) if is_import_path(k))
+    """(role, kind) of each kind of :func:`kinds_of` that runs a user's code (an import path, an
+    export directory's C: :func:`twin.registry.is_user_code`)."""
+    return tuple((role, k) for role, k in kinds_of(scenario, controllers) if is_user_code(k))
 
 
 def plugins_of(scenario: Scenario, controllers) -> list[dict]:

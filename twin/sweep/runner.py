@@ -40,7 +40,7 @@ from twin.errors import TwinError
 from twin.logs.format import write_log
 from twin.outputs import report, rundir
 from twin.outputs.fingerprint import digests, record
-from twin.registry import check_kinds, is_import_path, label, plugin_dirs, uses_design
+from twin.registry import check_kinds, is_user_code, label, plugin_dirs, uses_design
 from twin.scenarios.contained import involves_plugins, limits_of, plan_summary, Recipe
 from twin.scenarios.planning import plugin_roles, refuse_unused_params
 from twin.scenarios.runs import DesignDigest, simulate_scenario
@@ -117,7 +117,7 @@ def preflight(scenario: Scenario, kinds, duration: float = 0.05, design=None) ->
     """Run the plugins among ``kinds`` (and a plugin estimator or plant) for ``duration`` s in a worker
     process, before anything is written: a plugin that breaks its contract at once is a
     one-line error rather than N failed samples."""
-    plugins = [k for k in kinds if is_import_path(k)]
+    plugins = [k for k in kinds if is_user_code(k)]
     if plugin_roles(scenario, ()) and not plugins:  # the estimator or the plant is a user's
         plugins = [kinds[0]]
     if not plugins:

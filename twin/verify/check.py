@@ -22,7 +22,7 @@ from twin.outputs.fingerprint import differences
 from twin.outputs.golden import Trajectory
 from twin.outputs.rundir import MANIFEST, RECORD_COMMAND, FileBatch, kept, test_point
 from twin.outputs.tolerances import Tolerances, known_signals, parse_table
-from twin.registry import check_kinds, is_import_path, label, plugin_dirs, use_plugin_dirs, uses_design
+from twin.registry import check_kinds, is_import_path, is_user_code, label, plugin_dirs, use_plugin_dirs, uses_design
 from twin.scenarios import load_scenario
 from twin.scenarios.contained import involves_plugins, limits_of, names_of, plan_summary, plugin_roles, Recipe
 from twin.scenarios.expectations import GOLDEN, evaluate, failed, parse_expect
@@ -344,9 +344,10 @@ def _run(tasks, workers: int, progress) -> list:
 
 
 def _involves_plugins(task: CheckTask) -> bool:
-    """True if ``task``'s run runs a user's plugin (its controller or estimator is an import path)."""
+    """True if ``task``'s run runs a user's code (its controller or estimator is an import path or
+    an export directory's C: :func:`twin.registry.is_user_code`)."""
     s = task.data["sensors"]
-    return is_import_path(task.kind) or (s["sensing"] != "ideal" and is_import_path(s["estimator"]))
+    return is_user_code(task.kind) or (s["sensing"] != "ideal" and is_user_code(s["estimator"]))
 
 
 def format_table(result: CheckResult) -> str:

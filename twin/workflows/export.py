@@ -13,6 +13,7 @@ from twin.export import generate as gen
 from twin.export.ekf import check_arithmetic, default_arithmetic
 from twin.export.literals import check_precision, literal
 from twin.export.vectors import host_test_files
+from twin.rotations import mounting_matrix
 from twin.sim.simulate import build_loop
 from twin.registry import is_import_path
 from twin.scenarios import load_scenario
@@ -77,12 +78,13 @@ def export(scenario: str, controller: str, estimator: str | None, precision: str
     identity = {"version": __version__, "controller": controller, "estimator": sc.estimator,
                 "precision": precision, "arithmetic": arithmetic, "design_digest": design, "robot": sc.robot.name,
                 "robot_digest": sc.robot.digest, "scenario": sc.name}
+    mount = imu_mount(context)
     files = gen.library_files(ctrl, est, context.motor, identity, precision, rad_per_count, model.b / model.r,
-                              context.control_rate)
+                              context.control_rate, mount)
     targets = context.targets
     loops = {"position": getattr(ctrl, "position", None) is not None or (controller == "lqr"),
              "heading": getattr(ctrl, "direction", None) is not None or (controller == "lqr")}
-    rec = record_run(sc, controller, seconds, context.motor, rad_per_count, model.b / model.r)
+    rec = record_run(sc, controller, seconds, context.motor, rad_per_count, model.b / model.r, mount)
     tol = dict(LEAN_FLOAT64 if (precision, arithmetic) == ("float64", "lean") else TOLERANCES[precision])
     if tol["duty"] is None:
         tol["duty"] = PWM_STEPS_ALLOWED / context.motor.pwm_steps if context.motor is not None else 1e-2
@@ -99,10 +101,19 @@ def export(scenario: str, controller: str, estimator: str | None, precision: str
     return {"identity": identity, "files": written, "out": out}
 
 
-def record_run(sc, controller: str, seconds: float, motor, rad_per_count: float, b_over_r: float) -> dict:
+def imu_mount(context) -> tuple:
+    """The IMU's axes into the body's (3 rows, :func:`twin.rotations.mounting_matrix`) for the
+    scenario's robot: the identity unless its ``imu.orientation`` turns the IMU."""
+    o = tuple(context.sensors.imu.orientation)
+    return gen.IDENTITY3 if o == (0.0, 0.0, 0.0) else tuple(tuple(r) for r in mounting_matrix(*o))
+
+
+def record_run(sc, controller: str, seconds: float, motor, rad_per_count: float, b_over_r: float,
+               imu_to_body=None) -> dict:
     """The first ``seconds`` of the scenario's run with ``controller`` (the twin's own Python path):
-    every control instant's readings as a firmware gets them, the estimate, the torques, and the
-    duties the export's driver law gives for them at the estimated shaft speeds."""
+    every control instant's readings as a firmware gets them (the IMU's in its own axes, turned
+    back from the body's by ``imu_to_body``: 3 rows, None for the identity), the estimate, the
+    torques, and the duties the export's driver law gives for them at the estimated shaft speeds."""
     # only: the drive's law, for the duties the firmware computes
     from twin.actuators.dc_motor import MotorDriver
 
@@ -133,10 +144,13 @@ def record_run(sc, controller: str, seconds: float, motor, rad_per_count: float,
                 break
             res = loop.step(c)
     out = {k: np.asarray(v, dtype=float) for k, v in rows.items()}
+    if imu_to_body is not None and tuple(map(tuple, imu_to_body)) != gen.IDENTITY3:
+        m = np.asarray(imu_to_body, dtype=float)  # v_imu = mᵀ v_body: as rows, v_body @ m
+        out["gyro"], out["accel"] = out["gyro"] @ m, out["accel"] @ m
     t = spec.targets
     out.update(position=t.position, heading=t.heading,
                source=f"{len(out['estimate'])} control periods of scenario {sc.name} with {controller}, seed {spec.seed}")
     return out
 
 
-__all__ = ["CONTROLLERS", "ESTIMATORS", "export", "exportable"]
+__all__ = ["CONTROLLERS", "ESTIMATORS", "export", "exportable", "imu_mount", "record_run"]

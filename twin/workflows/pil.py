@@ -13,7 +13,7 @@ from twin.errors import TwinError
 from twin.export import pil
 from twin.export.generate import read_manifest
 from twin.scenarios import load_scenario
-from twin.workflows.export import record_run
+from twin.workflows.export import imu_mount, record_run
 
 PERIOD_SHARE = 0.10  # the time per step the issue allows: 10 % of the control period
 FLASH_BYTES, RAM_BYTES = 64 * 1024, 8 * 1024
@@ -49,7 +49,7 @@ def run_pil(directory, seconds: float = 3.0, work=None, overrides=()) -> dict:
     context = sc.build_context()
     model = context.model
     rec = record_run(sc, doc["controller"], seconds, context.motor, float.fromhex(doc["encoder_rad_per_count"]),
-                     model.b / model.r)
+                     model.b / model.r, imu_mount(context))
     with tempfile.TemporaryDirectory(prefix="mtwip-pil-") as tmp:
         w = Path(work) if work is not None else Path(tmp)
         w.mkdir(parents=True, exist_ok=True)

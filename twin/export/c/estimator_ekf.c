@@ -56,6 +56,14 @@
 typedef mtwip_real real;
 typedef mtwip_ekf_model_t model_t;
 
+/* a function kept out of its caller: its locals then stay off the caller's deeper calls' stack (the
+   worst stack is what a microcontroller's RAM must hold) */
+#if defined(__GNUC__)
+#define NOINLINE __attribute__((noinline))
+#else
+#define NOINLINE
+#endif
+
 #define NX MTWIP_EKF_NX
 #define NA MTWIP_EKF_NA
 #define NK MTWIP_EKF_NK
@@ -312,7 +320,7 @@ static void propagate(const real *x, const real *smp, const real *extra, int py,
     real fxt = fx * qax, fzt = fz * qaz;
     real Fx = c1 * fxt + s1 * fzt, Fz = -s1 * fxt + c1 * fzt;
     real v1 = v + dt * (Fx + ad * ad * dx1);
-    real dth1[NX], dad[NX], dFx[NX], dv1[NX], ith1[4], iad[4], iFx[4], iv1[4], k, a2, a3, hv, var[4];
+    real ith1[4], iad[4], iFx[4], iv1[4], k, a2, a3, hv, var[4];
     int j, a, b;
     memcpy(x1, x, NX * sizeof(real));
     x1[TH] = th1;
@@ -320,37 +328,35 @@ static void propagate(const real *x, const real *smp, const real *extra, int py,
     x1[V] = v1;
     x1[PS] = x[PS] + (HALF * dt * (v + v1) - dx1 + dx0) / r;
 
-    for (j = 0; j < NX; j++) dth1[j] = ZERO;
-    dth1[TH] = ONE;
-    dth1[BY] = -dt * q;
-    dth1[SY] = py ? -(dt * (thm * q)) : -dt * thm * q;
+    /* F's rows column by column (each entry's operations as the kernel's, one column's θ₁, α̇, F_x, v₁
+       derivatives at a time: no arrays of them on the stack) */
+    k = ad * tb * HALF;
+    a2 = TWO * ad * dx1;
+    a3 = ad * ad * dz1;
+    for (j = 0; j < NX; j++) {
+        real dth1 = j == TH ? ONE : j == BY ? -dt * q : j == SY ? (py ? -(dt * (thm * q)) : -dt * thm * q) : ZERO;
+        real dad = k * ((j == TH ? ONE : ZERO) + dth1), dFx = Fz * dth1, dv1;
+        if (j == BZ) dad -= qz / cb;
+        if (j == SZ) dad -= ad * qz;
+        if (j == SAX) dFx -= c1 * fxt * qax;
+        if (j == SAZ) dFx -= s1 * fzt * qaz;
+        dv1 = (j == V ? ONE : ZERO) + dt * (dFx + a2 * dad + a3 * dth1);
+        st->F4[0][j] = dth1;
+        st->F4[1][j] = (j == AL ? ONE : ZERO) + dt * dad;
+        st->F4[2][j] = dv1;
+        st->F4[3][j] = (j == PS ? ONE : ZERO) +
+                       (HALF * dt * ((j == V ? ONE : ZERO) + dv1) - dz1 * dth1 + dz0 * (j == TH ? ONE : ZERO)) / r;
+    }
     ith1[0] = dt * q;
     ith1[1] = ith1[2] = ith1[3] = ZERO;
-    k = ad * tb * HALF;
-    for (j = 0; j < NX; j++) dad[j] = k * ((j == TH ? ONE : ZERO) + dth1[j]);
-    dad[BZ] -= qz / cb;
-    dad[SZ] -= ad * qz;
     iad[0] = k * ith1[0];
     iad[1] = qz / cb;
     iad[2] = iad[3] = ZERO;
-    for (j = 0; j < NX; j++) dFx[j] = Fz * dth1[j];
-    dFx[SAX] -= c1 * fxt * qax;
-    dFx[SAZ] -= s1 * fzt * qaz;
     iFx[0] = Fz * ith1[0];
     iFx[1] = ZERO;
     iFx[2] = c1 * qax;
     iFx[3] = s1 * qaz;
-    a2 = TWO * ad * dx1;
-    a3 = ad * ad * dz1;
-    for (j = 0; j < NX; j++) dv1[j] = (j == V ? ONE : ZERO) + dt * (dFx[j] + a2 * dad[j] + a3 * dth1[j]);
     for (j = 0; j < 4; j++) iv1[j] = dt * (iFx[j] + a2 * iad[j] + a3 * ith1[j]);
-    for (j = 0; j < NX; j++) {
-        st->F4[0][j] = dth1[j];
-        st->F4[1][j] = (j == AL ? ONE : ZERO) + dt * dad[j];
-        st->F4[2][j] = dv1[j];
-        st->F4[3][j] = (j == PS ? ONE : ZERO) +
-                       (HALF * dt * ((j == V ? ONE : ZERO) + dv1[j]) - dz1 * dth1[j] + dz0 * (j == TH ? ONE : ZERO)) / r;
-    }
     for (j = 0; j < 4; j++) {
         st->L[0][j] = ith1[j];
         st->L[1][j] = dt * iad[j];
@@ -1714,7 +1720,7 @@ static int finite_aug(const real *M) {
    column, two at a time (a column read whole before it is written: M's rows RN are Jr's rows times Pa,
    ω₋₁'s rows ω's, the others Pa's); then M Jᵀ: J's unit rows pick M's columns (ω₋₁'s ω's), the block
    between J's nontrivial rows is M's rows times Jr's, and the rest mirrors across the diagonal */
-static void aug_jpj(real *Pa, real Jr[6][NA]) {
+NOINLINE static void aug_jpj(real *Pa, real Jr[6][NA]) {
     static const int RN[6] = {TH, AL, V, PS, NX, NX + 1}; /* Jr's rows in J */
     real B[6][6];
     uint8_t nz[NA], in_n[NA];

@@ -5,23 +5,43 @@
 #include "mtwip.h"
 
 void mtwip_default_config(mtwip_config_t *config) {
+    static const mtwip_real mount[3][3] = MTWIP_IMU_TO_BODY;
     config->gyro_scale = MTWIP_R(1.0);
     config->accel_scale = MTWIP_R(1.0);
     config->encoder_rad_per_count = MTWIP_ENCODER_RAD_PER_COUNT;
+    memcpy(config->imu_to_body, mount, sizeof mount);
 }
 
 void mtwip_init(mtwip_state_t *state, const mtwip_config_t *config) {
+    int i, j;
     memset(state, 0, sizeof *state);
     state->config = *config;
+    for (i = 0; i < 3; i++)
+        for (j = 0; j < 3; j++)
+            if (config->imu_to_body[i][j] != (i == j ? MTWIP_R(1.0) : MTWIP_R(0.0))) state->imu_turned = 1;
     mtwip_estimator_init(&state->estimator);
 }
 
-/* the readings in SI units (a scale of 1 leaves a reading as it is, bit for bit) */
-static void to_sample(const mtwip_config_t *c, const mtwip_readings_t *r, mtwip_sample_t *m) {
+/* v := m · v */
+static void turn(const mtwip_real m[3][3], mtwip_real v[3]) {
+    mtwip_real w[3];
+    int i;
+    for (i = 0; i < 3; i++) w[i] = m[i][0] * v[0] + m[i][1] * v[1] + m[i][2] * v[2];
+    memcpy(v, w, sizeof w);
+}
+
+/* the readings in SI units and the body's axes (a scale of 1 and the identity leave a reading as it
+   is, bit for bit) */
+static void to_sample(const mtwip_state_t *s, const mtwip_readings_t *r, mtwip_sample_t *m) {
+    const mtwip_config_t *c = &s->config;
     int i;
     for (i = 0; i < 3; i++) {
         m->gyro[i] = r->gyro[i] * c->gyro_scale;
         m->accel[i] = r->accel[i] * c->accel_scale;
+    }
+    if (s->imu_turned) {
+        turn(c->imu_to_body, m->gyro);
+        turn(c->imu_to_body, m->accel);
     }
     m->encoder[0] = (mtwip_real)r->encoder[0] * c->encoder_rad_per_count;
     m->encoder[1] = (mtwip_real)r->encoder[1] * c->encoder_rad_per_count;
@@ -41,7 +61,7 @@ void mtwip_step(mtwip_state_t *state, const mtwip_readings_t *readings, const mt
                 mtwip_outputs_t *outputs) {
     mtwip_sample_t sample;
     mtwip_real c[5], *x = outputs->estimate;
-    to_sample(&state->config, readings, &sample);
+    to_sample(state, readings, &sample);
     if (state->k == 0)
         mtwip_estimator_start(&state->estimator, &sample, x);
     else

@@ -26,11 +26,15 @@ typedef struct {
     mtwip_real gyro_scale;            /* rad/s per unit of readings.gyro (1: readings in rad/s) */
     mtwip_real accel_scale;           /* m/s² per unit of readings.accel (1: readings in m/s²) */
     mtwip_real encoder_rad_per_count; /* rad per count of readings.encoder */
+    /* the IMU's axes into the body's: v_body = imu_to_body · v_imu (rows). Default: the robot file's
+       imu.orientation (the identity for an IMU mounted along the body's axes, or for readings a
+       firmware turns itself) */
+    mtwip_real imu_to_body[3][3];
 } mtwip_config_t;
 
 typedef struct {
-    mtwip_real gyro[3];    /* angular rate, body axes, in units of config.gyro_scale */
-    mtwip_real accel[3];   /* specific force, body axes, in units of config.accel_scale */
+    mtwip_real gyro[3];    /* angular rate, the IMU's axes, in units of config.gyro_scale */
+    mtwip_real accel[3];   /* specific force, the IMU's axes, in units of config.accel_scale */
     int32_t encoder[2];    /* left, right: counts since power-up (wheel relative to the body) */
     uint8_t gyro_valid, accel_valid, encoder_valid;  /* 1: a new sample at this instant; 0: none */
 } mtwip_readings_t;
@@ -60,6 +64,7 @@ typedef struct {
 
 typedef struct {
     mtwip_config_t config;
+    uint8_t imu_turned;           /* 1: config.imu_to_body is not the identity */
     mtwip_estimator_t estimator;  /* the estimator's state (mtwip_params.h names its type) */
     mtwip_real command[2];        /* N·m: the torques commanded over the period that just ended */
     uint32_t k;                   /* control periods since mtwip_init */
