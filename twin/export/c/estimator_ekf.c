@@ -1131,6 +1131,23 @@ static void lag_products(const real *z, int base, const real *y, const int16_t *
 }
 #endif
 
+/* lag l's correlation ρ from its sums; the best so far (np.argmax: the first largest, the first NaN) */
+static void lag_verdict(int l, real syy, real szy, real szz, int assumed, int *have_nan, int *best, real *rho_best,
+                        real *rho_assumed) {
+    real den = MTWIP_SQRT(syy * szz);
+    real rho = den > ZERO ? C->torque_sign * szy / den : C->torque_sign * szy / (real)INFINITY;
+    if (l == assumed) *rho_assumed = rho;
+    if (*have_nan) return;
+    if (rho != rho) {
+        *have_nan = 1;
+        *best = l;
+        *rho_best = rho;
+    } else if (l == 0 || rho > *rho_best) {
+        *best = l;
+        *rho_best = rho;
+    }
+}
+
 /* the correlations at latencies 0 … max_lag; the best (np.argmax: the first largest, the first NaN)
    in *best with its ρ, the assumed latency's in *rho_assumed; 0 when fewer than half the window's
    rows hold a measurement. The rows of the ring read in order (rows i of the watch: ring slot
@@ -1184,7 +1201,7 @@ static int watch_check(const mtwip_estimator_t *e, int assumed, int *best, real 
         real zy[LAGS_AT_ONCE];
         for (l = 0; l <= L; l++) {
             const real *z = dk + (L + 2 - l);
-            real szy, szz, zmean, den, rho;
+            real szy, szz, zmean;
             const int a = l % LAGS_AT_ONCE;
             if (a == 0) /* Σ z y for the lags l … l + 6 together, y read once a row */
                 lag_products(dk, L + 2 - l, yy, used == W ? NULL : idx, used, L - l + 1, zy);
@@ -1206,25 +1223,13 @@ static int watch_check(const mtwip_estimator_t *e, int assumed, int *best, real 
             szy = zy[a] - zmean * ysum;
             szz = zq - zmean * zs;
             if (szz < ZERO) szz = ZERO;
-            den = MTWIP_SQRT(syy * szz);
-            rho = den > ZERO ? C->torque_sign * szy / den : C->torque_sign * szy / (real)INFINITY;
-            if (l == assumed) *rho_assumed = rho;
-            if (!have_nan) {
-                if (rho != rho) {
-                    have_nan = 1;
-                    *best = l;
-                    *rho_best = rho;
-                } else if (l == 0 || rho > *rho_best) {
-                    *best = l;
-                    *rho_best = rho;
-                }
-            }
+            lag_verdict(l, syy, szy, szz, assumed, &have_nan, best, rho_best, rho_assumed);
         }
     }
     return 1;
 #else
     for (l = 0; l <= L; l++) {
-        real zsum = ZERO, zmean, szy = ZERO, szz = ZERO, den, rho;
+        real zsum = ZERO, zmean, szy = ZERO, szz = ZERO;
         const real *z = dk + (L + 2 - l);
         if (used == W) /* every row: idx[j] = j */
             zsum = pairwise(z, used);
@@ -1249,19 +1254,7 @@ static int watch_check(const mtwip_estimator_t *e, int assumed, int *best, real 
             szy += d * yy[j];
             szz += d * d;
         }
-        den = MTWIP_SQRT(syy * szz);
-        rho = den > ZERO ? C->torque_sign * szy / den : C->torque_sign * szy / (real)INFINITY;
-        if (l == assumed) *rho_assumed = rho;
-        if (!have_nan) {
-            if (rho != rho) {
-                have_nan = 1;
-                *best = l;
-                *rho_best = rho;
-            } else if (l == 0 || rho > *rho_best) {
-                *best = l;
-                *rho_best = rho;
-            }
-        }
+        lag_verdict(l, syy, szy, szz, assumed, &have_nan, best, rho_best, rho_assumed);
     }
     return 1;
 #endif
