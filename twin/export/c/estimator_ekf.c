@@ -133,9 +133,7 @@ static void sin_cos(real a, real *sn, real *cs) {
 }
 
 static void rhs(const model_t *p, const real *s, real ul, real ur, real *d, int py) {
-    real th = s[0], thd = s[1], psd = s[3], ald = s[5], sn, cs;
-    sin_cos(th, &sn, &cs);
-    {
+    real th = s[0], thd = s[1], psd = s[3], ald = s[5], sn = MTWIP_SIN(th), cs = MTWIP_COS(th);
     real drive = TWO * p->d_b * (thd - psd);
     real u = ul + ur;
     real rhs1 = p->m12 * (thd * thd + ald * ald) * sn - TWO * p->d_w * psd + drive + u + ZERO;
@@ -150,7 +148,6 @@ static void rhs(const model_t *p, const real *s, real ul, real ur, real *d, int 
     d[3] = (p->m22 * rhs1 - p->m12 * cs * rhs2) / det;
     d[4] = ald;
     d[5] = yaw / (p->m33 + p->n_bla * sn * sn);
-    }
 }
 
 /* RK4 over `periods` control periods; inc (NULL: none): the increments of s summed on their own */
@@ -1708,6 +1705,28 @@ static int finite_aug(const real *M) {
 }
 #endif
 
+/* out[a] = Σ_t row[nz[t]] Jr[a][nz[t]] for J's six nontrivial rows a, each sum in ascending t from +0 */
+static void row_by_jr(const real *row, real Jr[6][NA], const uint8_t *nz, int cnt, real out[6]) {
+    real s0 = ZERO, s1 = ZERO, s2 = ZERO, s3 = ZERO, s4 = ZERO, s5 = ZERO;
+    int t;
+    for (t = 0; t < cnt; t++) {
+        const int k = nz[t];
+        const real m = row[k];
+        s0 += m * Jr[0][k];
+        s1 += m * Jr[1][k];
+        s2 += m * Jr[2][k];
+        s3 += m * Jr[3][k];
+        s4 += m * Jr[4][k];
+        s5 += m * Jr[5][k];
+    }
+    out[0] = s0;
+    out[1] = s1;
+    out[2] = s2;
+    out[3] = s3;
+    out[4] = s4;
+    out[5] = s5;
+}
+
 #if MTWIP_EKF_LEAN
 /* Pa = J Pa Jᵀ in place (Jr: J's nontrivial rows; Pa symmetric, and so is the result). M = J Pa column by
    column, two at a time (a column read whole before it is written: M's rows RN are Jr's rows times Pa,
@@ -1772,26 +1791,7 @@ NOINLINE static void aug_jpj(real *Pa, real Jr[6][NA]) {
         }
 #undef PUT
     }
-    for (a = 0; a < 6; a++) { /* M's rows RN times Jr's rows (the six sums side by side) */
-        const real *Ma = Pa + RN[a] * NA;
-        real s0 = ZERO, s1 = ZERO, s2 = ZERO, s3 = ZERO, s4 = ZERO, s5 = ZERO;
-        for (t = 0; t < cnt; t++) {
-            const int k = nz[t];
-            const real m = Ma[k];
-            s0 += m * Jr[0][k];
-            s1 += m * Jr[1][k];
-            s2 += m * Jr[2][k];
-            s3 += m * Jr[3][k];
-            s4 += m * Jr[4][k];
-            s5 += m * Jr[5][k];
-        }
-        B[a][0] = s0;
-        B[a][1] = s1;
-        B[a][2] = s2;
-        B[a][3] = s3;
-        B[a][4] = s4;
-        B[a][5] = s5;
-    }
+    for (a = 0; a < 6; a++) row_by_jr(Pa + RN[a] * NA, Jr, nz, cnt, B[a]); /* M's rows RN times Jr's rows */
     for (a = 0; a < 6; a++) /* (symmetric: the upper triangle's) */
         for (b = 0; b < a; b++) B[a][b] = B[b][a];
     for (i = 0; i < NA; i++) { /* J's unit rows ω₋₁ pick M's columns ω */
@@ -1842,25 +1842,16 @@ static void aug_jpj(real *Pa, real Jr[6][NA]) {
     if (fin && !finite_aug(Pa))
         for (cnt = 0; cnt < NA; cnt++) nz[cnt] = (uint8_t)cnt;
     for (i = 0; i < NA; i++) { /* Pa = A Jᵀ, row by row */
-        real s0 = ZERO, s1 = ZERO, s2 = ZERO, s3 = ZERO, s4 = ZERO, s5 = ZERO, *Ai = Pa + i * NA;
-        for (t = 0; t < cnt; t++) {
-            const int j = nz[t];
-            const real a = Ai[j];
-            s0 += a * Jr[0][j];
-            s1 += a * Jr[1][j];
-            s2 += a * Jr[2][j];
-            s3 += a * Jr[3][j];
-            s4 += a * Jr[4][j];
-            s5 += a * Jr[5][j];
-        }
+        real *Ai = Pa + i * NA, v[6];
+        row_by_jr(Ai, Jr, nz, cnt, v);
         Ai[NX + 2] = Ai[NX];
         Ai[NX + 3] = Ai[NX + 1];
-        Ai[TH] = s0;
-        Ai[AL] = s1;
-        Ai[V] = s2;
-        Ai[PS] = s3;
-        Ai[NX] = s4;
-        Ai[NX + 1] = s5;
+        Ai[TH] = v[0];
+        Ai[AL] = v[1];
+        Ai[V] = v[2];
+        Ai[PS] = v[3];
+        Ai[NX] = v[4];
+        Ai[NX + 1] = v[5];
     }
 }
 #endif
